@@ -1,0 +1,51 @@
+"""so3jax: differentiable spacecraft attitude simulation on SO(3) in JAX."""
+
+from so3jax import so3
+from so3jax.controllers import (
+    PAPER_ADAPTIVE_GAINS,
+    PAPER_PD_GAINS,
+    AdaptiveGains,
+    Controller,
+    Desired,
+    Measured,
+    PDGains,
+    adaptive_backstepping,
+    geometric_pd,
+)
+from so3jax.disturbance import SinusoidPlusNoise, no_disturbance
+from so3jax.metrics import Metrics
+from so3jax.plant import ConstantInertia, InertiaFunction, PaperInertia
+from so3jax.reference import PiecewiseConstantRate, RateFunction, piecewise_constant_rate
+from so3jax.rollout import History, Result, State, rollout, simulate
+from so3jax.scenario import InertiaWarning, Scenario, paper_scenario, steps_for_horizon
+
+__all__ = [
+    "so3",
+    "Controller",
+    "Measured",
+    "Desired",
+    "PDGains",
+    "AdaptiveGains",
+    "PAPER_PD_GAINS",
+    "PAPER_ADAPTIVE_GAINS",
+    "geometric_pd",
+    "adaptive_backstepping",
+    "SinusoidPlusNoise",
+    "no_disturbance",
+    "Metrics",
+    "ConstantInertia",
+    "InertiaFunction",
+    "PaperInertia",
+    "PiecewiseConstantRate",
+    "RateFunction",
+    "piecewise_constant_rate",
+    "History",
+    "Result",
+    "State",
+    "rollout",
+    "simulate",
+    "InertiaWarning",
+    "Scenario",
+    "paper_scenario",
+    "steps_for_horizon",
+]

@@ -1,0 +1,50 @@
+"""The controller interface (optax style: a NamedTuple of pure functions).
+
+A controller is ``Controller(init, torque)``:
+
+* ``init(gains) -> state``: the controller's initial internal state (a pytree,
+  ``()`` for a static law);
+* ``torque(gains, state, measured, desired, t) -> (tau, state_dot)``: the control
+  torque [N m] and the time derivative of the internal state, which the rollout
+  integrates with the plant. The true inertia is never passed in.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+
+from so3jax import so3
+
+
+class Measured(NamedTuple):
+    R: jax.Array  # (3, 3) body -> inertial
+    Omega: jax.Array  # (3,) body rate, rad/s
+
+
+class Desired(NamedTuple):
+    R_d: jax.Array  # (3, 3)
+    Omega_d: jax.Array  # (3,) rad/s, desired frame
+    Omega_d_dot: jax.Array  # (3,) rad/s^2
+
+
+class Controller(NamedTuple):
+    init: Callable[[Any], Any]
+    torque: Callable[[Any, Any, Measured, Desired, jax.Array], tuple[jax.Array, Any]]
+
+
+class TrackingError(NamedTuple):
+    """R_e = R_d^T R, Omega_r = R^T R_d Omega_d, Omega_e = Omega - Omega_r (SPEC 2)."""
+
+    R_e: jax.Array
+    Omega_r: jax.Array
+    Omega_e: jax.Array
+    feedforward_dot: jax.Array  # R^T R_d Omega_d'
+
+
+def tracking_error(measured: Measured, desired: Desired) -> TrackingError:
+    R_e = so3.rmatmul(desired.R_d, measured.R)
+    Omega_r = so3.rmatvec(R_e, desired.Omega_d)
+    feedforward_dot = so3.rmatvec(R_e, desired.Omega_d_dot)
+    return TrackingError(R_e, Omega_r, measured.Omega - Omega_r, feedforward_dot)

@@ -1,0 +1,41 @@
+"""Geometric PD with feedforward (Lee, Leok, McClamroch 2010; SPEC 3.1)."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from so3jax import so3
+from so3jax.controllers.base import Controller, tracking_error
+
+
+class PDGains(NamedTuple):
+    k_R: jax.Array  # N m / rad
+    k_Omega: jax.Array  # N m s / rad
+
+
+PAPER_PD_GAINS = PDGains(k_R=0.5714, k_Omega=25.0)
+
+
+def geometric_pd(J_hat=None) -> Controller:
+    """tau = -k_R e_R - k_Omega Omega_e + Omega x J_hat Omega - J_hat (Omega x Omega_r - R^T R_d Omega_d').
+
+    J_hat: nominal inertia (3, 3) [kg m^2]; identity by default (the paper: "no knowledge").
+    """
+
+    def init(gains):
+        return ()
+
+    def torque(gains, state, measured, desired, t):
+        err = tracking_error(measured, desired)
+        J = jnp.eye(3, dtype=measured.Omega.dtype) if J_hat is None else J_hat
+        Omega = measured.Omega
+        e_R = so3.skew_vee(err.R_e)
+        inertial = so3.cross(Omega, so3.matvec(J, Omega))
+        feedforward = so3.matvec(J, so3.cross(Omega, err.Omega_r) - err.feedforward_dot)
+        tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e + inertial - feedforward
+        return tau, ()
+
+    return Controller(init, torque)

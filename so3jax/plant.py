@@ -1,0 +1,78 @@
+"""Rigid-body attitude dynamics (SPEC 1) and inertia profiles J(t).
+
+An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
+``phase`` is the index of the mission phase that holds at the start of the current
+step (SPEC 5), so a profile may switch laws without straddling a step.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+
+from so3jax import so3
+from so3jax._pytree import pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class ConstantInertia:
+    """J(t) = J."""
+
+    J: jax.Array
+
+    def __call__(self, t, phase):
+        return self.J
+
+    def matrices(self):
+        return {"J": self.J}
+
+
+@pytree_dataclass
+class PaperInertia:
+    """The paper's capture profile (SPEC 4, corrected eq. 18).
+
+    phase 0: J0; phase 1 (deployment from t_deploy): J1 - (J1 - J0) exp(-(t - t_deploy)/tau_J);
+    phase >= 2 (docking): J2.
+    """
+
+    J0: jax.Array
+    J1: jax.Array
+    J2: jax.Array
+    t_deploy: jax.Array
+    tau_J: jax.Array
+
+    def __call__(self, t, phase):
+        blend = jnp.exp(-(t - self.t_deploy) / self.tau_J)
+        deploying = self.J1 - (self.J1 - self.J0) * blend
+        return jnp.where(phase == 0, self.J0, jnp.where(phase == 1, deploying, self.J2))
+
+    def matrices(self):
+        return {"J0": self.J0, "J1": self.J1, "J2": self.J2}
+
+
+@pytree_dataclass
+class InertiaFunction:
+    """A user law J(t) (a JAX-traceable function of time [s]), the same in every phase."""
+
+    fn: Callable = static_field()
+
+    def __call__(self, t, phase):
+        return self.fn(t)
+
+    def matrices(self):
+        return {}
+
+
+def inertia_rate(profile, t, phase):
+    """J'(t) by forward-mode differentiation of the profile in time."""
+    return jax.jvp(lambda s: profile(s, phase), (t,), (jnp.ones_like(t),))[1]
+
+
+def angular_acceleration(J, omega, torque, J_dot=None):
+    """Omega' from J Omega' = -Omega x J Omega + torque [- J' Omega] (SPEC 1). rad/s^2."""
+    rhs = torque - so3.cross(omega, so3.matvec(J, omega))
+    if J_dot is not None:
+        rhs = rhs - so3.matvec(J_dot, omega)
+    return so3.solve_spd(J, rhs)

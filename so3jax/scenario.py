@@ -1,0 +1,190 @@
+"""Scenarios (plant + reference + disturbance + horizon), the paper's defaults (SPEC 4),
+and input validation (SPEC 6)."""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax._pytree import pytree_dataclass, static_field
+from so3jax.disturbance import SinusoidPlusNoise
+from so3jax.plant import PaperInertia
+from so3jax.reference import piecewise_constant_rate
+
+MU_EARTH = 3.986004418e14  # m^3/s^2
+EARTH_RADIUS = 6378.137e3  # m
+PAPER_ALTITUDE = 500e3  # m
+PAPER_J0 = ((625.0, 5.5, 3.0), (5.5, 350.0, 4.0), (3.0, 4.0, 1000.0))
+PAPER_J2 = ((3945.4, 66.7, 12.8), (66.7, 3663.5, 160.0), (12.8, 160.0, 2011.8))
+PAPER_DEPLOY_TIME = 500.0  # s
+PAPER_DOCK_TIME = 2600.0  # s
+
+
+class InertiaWarning(UserWarning):
+    """A positive definite inertia that no rigid body can have (triangle inequality)."""
+
+
+@pytree_dataclass
+class Scenario:
+    """Everything but the controller: a pytree, so it can be vmapped over (inertias,
+    disturbances, initial states); dt, n_steps and the phase switch times are static.
+
+    phase_times: start times [s] of the phases after the first; each is moved to the
+    step boundary round(t / dt) (SPEC 5).
+    """
+
+    inertia: Any  # profile, see so3jax.plant
+    reference: Any  # see so3jax.reference
+    disturbance: Any  # see so3jax.disturbance
+    R0: jax.Array  # (3, 3)
+    Omega0: jax.Array  # (3,) rad/s
+    dt: float = static_field()
+    n_steps: int = static_field()
+    phase_times: tuple = static_field(default=())
+    variable_inertia_term: bool = static_field(default=False)
+
+    @property
+    def phase_steps(self) -> tuple:
+        return tuple(int(round(t / self.dt)) for t in self.phase_times)
+
+    @property
+    def steps_per_phase(self) -> tuple:
+        bounds = (0,) + tuple(min(max(k, 0), self.n_steps) for k in self.phase_steps) + (self.n_steps,)
+        return tuple(b - a for a, b in zip(bounds[:-1], bounds[1:]))
+
+    @property
+    def horizon(self) -> float:
+        return self.n_steps * self.dt
+
+
+def steps_for_horizon(T: float, dt: float) -> int:
+    """N = T / dt, which must be a whole number (SPEC 6)."""
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
+    if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
+        raise ValueError(f"T (horizon) must be a positive finite number of seconds, got {T!r}")
+    ratio = T / dt
+    if abs(ratio - round(ratio)) > 1e-9 * ratio:
+        raise ValueError(f"T (horizon) = {T} s is not a multiple of dt = {dt} s")
+    return int(round(ratio))
+
+
+def orbital_rate(altitude: float = PAPER_ALTITUDE) -> float:
+    """Mean motion n = sqrt(mu / a^3) of a circular orbit [rad/s]."""
+    return math.sqrt(MU_EARTH / (EARTH_RADIUS + altitude) ** 3)
+
+
+def paper_scenario(
+    T: float = 4000.0,
+    dt: float = 0.01,
+    *,
+    tau_J: float = 300.0,
+    n: float | None = None,
+    J0=PAPER_J0,
+    J1=None,
+    J2=PAPER_J2,
+    disturbance_amplitude: float = 0.1,
+    disturbance_frequency: float = 1e-3,
+    noise_std: float = 0.025,
+    variable_inertia_term: bool = False,
+    dtype=None,
+) -> Scenario:
+    """The capture-and-detumble mission of SPEC 4 (J1 = 2 J0 unless given)."""
+    dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
+    n_steps = steps_for_horizon(T, dt)
+    n = orbital_rate() if n is None else n
+    as_array = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    J0 = as_array(J0)
+    J1 = 2.0 * J0 if J1 is None else as_array(J1)
+    capture_rate = as_array([n, -10.0 * n, 2.0 * n])
+    reference = piecewise_constant_rate(
+        jnp.stack([capture_rate, capture_rate, jnp.zeros(3, dtype)]),
+        as_array([0.0, PAPER_DEPLOY_TIME, PAPER_DOCK_TIME]),
+    )
+    scenario = Scenario(
+        inertia=PaperInertia(J0, J1, as_array(J2), as_array(PAPER_DEPLOY_TIME), as_array(tau_J)),
+        reference=reference,
+        disturbance=SinusoidPlusNoise(as_array(disturbance_amplitude), as_array(disturbance_frequency), as_array(noise_std)),
+        R0=jnp.eye(3, dtype=dtype),
+        Omega0=jnp.zeros(3, dtype),
+        dt=dt,
+        n_steps=n_steps,
+        phase_times=(PAPER_DEPLOY_TIME, PAPER_DOCK_TIME),
+        variable_inertia_term=variable_inertia_term,
+    )
+    return scenario
+
+
+# --- validation (SPEC 6) -------------------------------------------------------------
+
+
+def _concrete(x) -> np.ndarray | None:
+    """x as a numpy array, or None under tracing (values unknown before compilation)."""
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x)):
+        return None
+    return np.asarray(x, dtype=np.float64)
+
+
+def check_inertia(name: str, J) -> None:
+    """Symmetric positive definite, else ValueError; triangle inequality, else a warning."""
+    J = _concrete(J)
+    if J is None:
+        return
+    if J.shape[-2:] != (3, 3):
+        raise ValueError(f"inertia {name} must have shape (..., 3, 3), got {J.shape}")
+    if not np.all(np.isfinite(J)):
+        raise ValueError(f"inertia {name} has non-finite entries")
+    if not np.allclose(J, np.swapaxes(J, -1, -2), rtol=1e-12, atol=1e-12 * np.max(np.abs(J))):
+        raise ValueError(f"inertia {name} is not symmetric")
+    moments = np.linalg.eigvalsh(J)
+    if np.any(moments <= 0):
+        raise ValueError(f"inertia {name} is not positive definite (principal moments {moments.min():.6g} <= 0)")
+    slack = moments[..., 0] + moments[..., 1] - moments[..., 2]
+    if np.any(slack < -1e-9 * moments[..., 2]):
+        warnings.warn(
+            f"inertia {name} breaks the triangle inequality of principal moments "
+            f"({np.min(slack):.4g} kg m^2 short): positive definite but not a physical rigid body",
+            InertiaWarning,
+            stacklevel=3,
+        )
+
+
+def check_gains(gains) -> None:
+    """Every gain positive and finite; a matrix Gamma symmetric positive definite."""
+    for name, value in gains._asdict().items():
+        value = _concrete(value)
+        if value is None:
+            continue
+        if not np.all(np.isfinite(value)):
+            raise ValueError(f"gain {name} must be finite, got {value}")
+        if name == "Gamma" and value.ndim >= 2:
+            if value.shape[-2:] != (9, 9):
+                raise ValueError(f"gain Gamma must be a scalar, a (9,) diagonal or a (9, 9) matrix, got {value.shape}")
+            if not np.allclose(value, np.swapaxes(value, -1, -2), rtol=1e-12, atol=0):
+                raise ValueError("gain Gamma is not symmetric")
+            if np.any(np.linalg.eigvalsh(value) <= 0):
+                raise ValueError("gain Gamma is not positive definite")
+        elif np.any(value <= 0):
+            raise ValueError(f"gain {name} must be positive, got {value}")
+
+
+def check_scenario(scenario: Scenario) -> None:
+    """The checks of SPEC 6 that concern the scenario."""
+    if not (math.isfinite(scenario.dt) and scenario.dt > 0):
+        raise ValueError(f"dt must be positive, got {scenario.dt}")
+    if scenario.n_steps < 1:
+        raise ValueError(f"n_steps must be at least 1, got {scenario.n_steps}")
+    for name, J in scenario.inertia.matrices().items():
+        check_inertia(name, J)
+    R0 = _concrete(scenario.R0)
+    if R0 is not None and not np.allclose(np.swapaxes(R0, -1, -2) @ R0, np.eye(3), atol=1e-6):
+        raise ValueError("R0 is not a rotation matrix (R0^T R0 != I)")
+    for name in ("R0", "Omega0"):
+        value = _concrete(getattr(scenario, name))
+        if value is not None and not np.all(np.isfinite(value)):
+            raise ValueError(f"{name} has non-finite entries")

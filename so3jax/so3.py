@@ -1,0 +1,210 @@
+"""SO(3) and 3-vector math, written as elementwise arithmetic on components.
+
+Every function takes arrays with the 3-vector / 3x3 matrix in the trailing axes and
+any leading batch axes. Nothing here calls a matmul or a linear solver: on CPU a
+3x3 ``dot`` is a kernel call of its own, whereas component arithmetic fuses into a
+few loops, also under ``jax.vmap``.
+
+Near the singular points (zero rotation for exp / log / J_r^{-1}, a half turn for
+log) the functions switch to Taylor series or to another formula with the
+"double where" trick, so that values *and* gradients stay finite.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+# Below these squared angles the Taylor series used are exact to float64 round-off
+# (first omitted term < 1e-17 relative).
+_SMALL_ANGLE2 = 1e-3
+_SMALL_SIN2 = 1e-8
+# log(R) takes the axis from the symmetric part of R when cos(theta) is below this.
+_NEAR_PI_COS = -0.99
+
+
+# --- vectors and matrices -----------------------------------------------------
+
+
+def cross(a, b):
+    """a x b for (..., 3) arrays."""
+    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
+    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
+    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], -1)
+
+
+def dot(a, b):
+    """a . b for (..., 3) arrays."""
+    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+
+
+def matvec(m, v):
+    """M v for M (..., 3, 3), v (..., 3)."""
+    return m[..., :, 0] * v[..., None, 0] + m[..., :, 1] * v[..., None, 1] + m[..., :, 2] * v[..., None, 2]
+
+
+def rmatvec(m, v):
+    """M^T v for M (..., 3, 3), v (..., 3)."""
+    return m[..., 0, :] * v[..., None, 0] + m[..., 1, :] * v[..., None, 1] + m[..., 2, :] * v[..., None, 2]
+
+
+def matmul(a, b):
+    """A B for (..., 3, 3) arrays."""
+    return sum(a[..., :, i, None] * b[..., None, i, :] for i in range(3))
+
+
+def rmatmul(a, b):
+    """A^T B for (..., 3, 3) arrays."""
+    return sum(a[..., i, :, None] * b[..., None, i, :] for i in range(3))
+
+
+def transpose(m):
+    return jnp.swapaxes(m, -1, -2)
+
+
+def eye_like(v):
+    """Identity (..., 3, 3) with the batch shape and dtype of a (..., 3) array."""
+    return jnp.broadcast_to(jnp.eye(3, dtype=v.dtype), v.shape[:-1] + (3, 3))
+
+
+def solve_spd(m, b):
+    """M^{-1} b for a symmetric positive definite M (..., 3, 3) by its adjugate."""
+    a, d, e = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    bb, f, c = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
+    c00 = bb * c - f * f
+    c01 = e * f - d * c
+    c02 = d * f - e * bb
+    c11 = a * c - e * e
+    c12 = d * e - a * f
+    c22 = a * bb - d * d
+    inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
+    x, y, z = b[..., 0], b[..., 1], b[..., 2]
+    return jnp.stack(
+        [c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z], -1
+    ) * inv_det[..., None]
+
+
+def safe_norm(v):
+    """|v| with a zero (not NaN) gradient at v = 0."""
+    n2 = dot(v, v)
+    pos = n2 > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+
+
+# --- the Lie algebra ------------------------------------------------------------
+
+
+def hat(v):
+    """Skew matrix of v: hat(a) b = a x b. (..., 3) -> (..., 3, 3)."""
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    o = jnp.zeros_like(x)
+    return jnp.stack(
+        [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
+    )
+
+
+def vee(m):
+    """Inverse of hat on skew matrices. (..., 3, 3) -> (..., 3)."""
+    return jnp.stack([m[..., 2, 1], m[..., 0, 2], m[..., 1, 0]], -1)
+
+
+def skew_vee(m):
+    """vee of the skew part, (M - M^T)^vee / 2 (SPEC 3.1: e_R for M = R_e)."""
+    return 0.5 * jnp.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1)
+
+
+# --- exp, log, right Jacobian ------------------------------------------------------
+
+
+def _exp_coefficients(theta2):
+    """(sin t / t, (1 - cos t) / t^2) for t^2 = theta2, finite with gradients at 0."""
+    small = theta2 < _SMALL_ANGLE2
+    t2 = jnp.where(small, 0.0, theta2)  # keeps the unselected branch finite
+    half = 0.5 * jnp.sqrt(jnp.where(small, 1.0, t2))
+    sinc = jnp.sin(2.0 * half) / (2.0 * half)
+    sinc_half = jnp.sin(half) / half
+    s = theta2
+    a = jnp.where(small, 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0)), sinc)
+    b = jnp.where(small, 0.5 - s / 24.0 * (1.0 - s / 30.0 * (1.0 - s / 56.0)), 0.5 * sinc_half * sinc_half)
+    return a, b
+
+
+def expm1(v):
+    """exp(hat(v)) - I, accurate for small |v| (Rodrigues; SPEC 5)."""
+    theta2 = dot(v, v)
+    a, b = _exp_coefficients(theta2)
+    outer = v[..., :, None] * v[..., None, :]
+    return a[..., None, None] * hat(v) + b[..., None, None] * (outer - theta2[..., None, None] * eye_like(v))
+
+
+def exp(v):
+    """Rotation matrix exp(hat(v)) of a rotation vector v [rad]."""
+    return eye_like(v) + expm1(v)
+
+
+def log(r):
+    """Rotation vector log(R)^vee, |log| = theta in [0, pi].
+
+    theta = atan2(|s|, c) with s = (R - R^T)^vee / 2 = sin(theta) axis and
+    c = (tr R - 1) / 2; a series for theta / sin(theta) near the identity; near a half
+    turn the axis comes from the symmetric part R + R^T = 2c I + 2(1 - c) axis axis^T.
+    """
+    s = skew_vee(r)
+    c = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
+    s2 = dot(s, s)
+    sin_t = safe_norm(s)
+    theta = jnp.arctan2(sin_t, c)
+
+    # theta / sin(theta) = arcsin(x)/x for x = sin(theta), c > 0.
+    small = (s2 < _SMALL_SIN2) & (c > 0)
+    near_pi = c < _NEAR_PI_COS
+    ratio = jnp.where(small, 1.0 + s2 / 6.0 + 0.075 * s2 * s2, theta / jnp.where(small | near_pi, 1.0, sin_t))
+    generic = ratio[..., None] * s
+
+    sym = 0.5 * (r + transpose(r)) - c[..., None, None] * eye_like(s)
+    diag = jnp.stack([sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2]], -1)
+    pick = (jnp.arange(3) == jnp.argmax(diag, axis=-1)[..., None]).astype(r.dtype)
+    column = matvec(sym, pick)
+    scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
+    axis = column / jnp.sqrt(scale2)[..., None]
+    sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
+    half_turn = (sign * theta)[..., None] * axis
+
+    return jnp.where(near_pi[..., None], half_turn, generic)
+
+
+def jr_inv_coefficient(theta2):
+    """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (SPEC 3.2)."""
+    small = theta2 < _SMALL_ANGLE2
+    t2 = jnp.where(small, 1.0, theta2)
+    half = 0.5 * jnp.sqrt(t2)
+    large = (1.0 - half * jnp.cos(half) / jnp.sin(half)) / t2
+    s = theta2
+    series = 1.0 / 12.0 + s / 720.0 + s * s / 30240.0 + s * s * s / 1209600.0
+    return jnp.where(small, series, large)
+
+
+def jr_inv_apply(e, w):
+    """J_r^{-1}(e) w = w + e x w / 2 + gamma(|e|) e x (e x w)  (SPEC 3.2)."""
+    theta2 = dot(e, e)
+    gamma = jr_inv_coefficient(theta2)
+    return w + 0.5 * cross(e, w) + gamma[..., None] * (e * dot(e, w)[..., None] - theta2[..., None] * w)
+
+
+def jr_inv(e):
+    """J_r^{-1}(e) as a (..., 3, 3) matrix."""
+    h = hat(e)
+    gamma = jr_inv_coefficient(dot(e, e))
+    return eye_like(e) + 0.5 * h + gamma[..., None, None] * matmul(h, h)
+
+
+def project_to_so3(m):
+    """Nearest rotation matrix to M (Frobenius), by SVD. For inputs, not the hot path."""
+    u, _, vt = jnp.linalg.svd(m)
+    d = jnp.sign(jnp.linalg.det(u @ vt))
+    return u @ (vt * jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d], -1)[..., :, None])
+
+
+def orthogonality_error(r):
+    """|R^T R - I|_F."""
+    g = rmatmul(r, r) - eye_like(r[..., 0])
+    return jnp.sqrt(jnp.sum(g * g, axis=(-1, -2)))
