@@ -1,0 +1,61 @@
+"""Command line: ``so3jax paper | tune | sweep``.
+
+Each command lives in its own module, which exposes ``register(subparsers)``; the
+parser it adds sets ``func(args) -> int``. JAX is configured here (precision, one
+host device per core) before any command imports it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+COMMAND_MODULES = ("so3jax.paper",)
+
+
+def _use_every_core() -> None:
+    """One XLA host device per core, so sharded batches use the whole CPU.
+
+    Must run before JAX initializes its backend; a user's own XLA_FLAGS setting wins.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_force_host_platform_device_count" not in flags:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="so3jax", description=__doc__.splitlines()[0])
+    subparsers = parser.add_subparsers(dest="command", required=True)
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(subparsers)
+    return parser
+
+
+def add_precision_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--precision", choices=("float64", "float32"), default="float64", help="floating-point precision (default float64)"
+    )
+
+
+def configure_jax(precision: str) -> None:
+    import jax
+
+    jax.config.update("jax_enable_x64", precision == "float64")
+
+
+def main(argv=None) -> int:
+    _use_every_core()
+    args = build_parser().parse_args(argv)
+    configure_jax(args.precision)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
