@@ -55,7 +55,7 @@ def init(n_phases: int, dtype) -> Accumulator:
 
 
 def update(acc: Accumulator, phase, sample: Sample, finite) -> Accumulator:
-    mask = (jnp.arange(acc.sq_torque.shape[0]) == phase).astype(acc.sq_torque.dtype)
+    mask = (jnp.arange(acc.sq_torque.shape[0], dtype=jnp.int32) == phase).astype(acc.sq_torque.dtype)
     tau2 = so3.dot(sample.tau, sample.tau)
     return Accumulator(
         acc.sq_rate_error + mask * so3.dot(sample.Omega_e, sample.Omega_e),
