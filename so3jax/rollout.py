@@ -42,6 +42,7 @@ class History(NamedTuple):
     Omega_e: jax.Array  # (M, 3) rad/s, body
     tau: jax.Array  # (M, 3) N m
     angle: jax.Array  # (M,) attitude error |log(R_e)^vee|, rad
+    J: jax.Array  # (M, 3, 3) true inertia, kg m^2
     controller: Any  # controller state, leading axis M
 
 
@@ -111,14 +112,14 @@ def step(scenario: Scenario, controller: Controller, gains, key, state: State, k
 
 
 def observe(scenario: Scenario, controller: Controller, gains, state: State, k):
-    """Torque and tracking signals at step start k (no step taken)."""
+    """Time, torque, desired signals, metrics sample and J at step start k (no step taken)."""
     dtype = scenario.R0.dtype
     t = k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
     phase = _phase(scenario, k)
     field = _field(scenario, controller, gains, phase, jnp.zeros(3, dtype))
     rotations = (state.R, state.R_d) if isinstance(state.R_d, jax.Array) else (state.R,)
     _, _, (tau, desired) = field(t, rotations, (state.Omega, state.controller))
-    return t, tau, desired, _sample(state, tau, desired)
+    return t, tau, desired, _sample(state, tau, desired), scenario.inertia(t, phase)
 
 
 def default_record_every(n_steps: int) -> int:
@@ -166,8 +167,8 @@ def rollout(
     final, _, acc = carry
 
     observe_all = jax.vmap(lambda s, k: observe(scenario, controller, gains, s, k))
-    t, tau, desired, sample = observe_all(states, ks)
-    history = History(t, states.R, states.Omega, desired.Omega_d, sample.Omega_e, tau, sample.angle, states.controller)
+    t, tau, desired, sample, J = observe_all(states, ks)
+    history = History(t, states.R, states.Omega, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller)
     result_metrics = metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R)
     return Result(result_metrics, history, final)
 

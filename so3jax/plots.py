@@ -1,0 +1,99 @@
+"""Matplotlib figures of rollouts (the paper's Figs. 1-5, plus the attitude error)."""
+
+from __future__ import annotations
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+AXES = ("x", "y", "z")
+STYLES = {"pd": dict(ls="--", color="tab:red", label="PD"), "adaptive": dict(ls="-", color="tab:blue", label="adaptive")}
+PHASE_COLORS = ("#f2f2f2", "#e3ecf7", "#f7ebe3", "#e8f5e3")
+
+
+def shade_phases(ax, phase_times, t_end):
+    """Shade the mission phases [s] behind a time plot."""
+    bounds = (0.0,) + tuple(phase_times) + (t_end,)
+    for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        ax.axvspan(a, b, color=PHASE_COLORS[p % len(PHASE_COLORS)], zorder=0, lw=0)
+        ax.text((a + b) / 2, 1.0, f"phase {p + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+
+
+def inertia_figure(t, J, phase_times):
+    """Fig. 1: entries of J(t) [kg m^2]; J: (M, 3, 3)."""
+    fig, (diag, off) = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
+    for i, a in enumerate(AXES):
+        diag.plot(t, J[:, i, i], label=f"J{a}{a}")
+    for i, j in ((0, 1), (0, 2), (1, 2)):
+        off.plot(t, J[:, i, j], label=f"J{AXES[i]}{AXES[j]}")
+    for ax, title in ((diag, "principal moments"), (off, "products of inertia")):
+        shade_phases(ax, phase_times, t[-1])
+        ax.set(xlabel="t [s]", ylabel="[kg m²]")
+        ax.set_title(title, pad=14)
+        ax.legend(fontsize=8)
+    fig.suptitle("Inertia J(t)")
+    return fig
+
+
+def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, reference=None):
+    """One subplot per body axis; series(history) -> (M, 3)."""
+    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    for i, ax in enumerate(axes):
+        for name, h in histories.items():
+            keep = slice(None) if t_max is None else h.t < t_max
+            ax.plot(h.t[keep], series(h)[keep, i], lw=1.0, **STYLES[name])
+        if reference is not None:
+            h = next(iter(histories.values()))
+            keep = slice(None) if t_max is None else h.t < t_max
+            ax.plot(h.t[keep], reference(h)[keep, i], ls=":", color="k", lw=1.5, label="desired")
+        t_end = min(h.t[-1], t_max) if t_max is not None else h.t[-1]
+        shade_phases(ax, [p for p in phase_times if p < t_end], t_end)
+        ax.set_ylabel(f"{ylabel} {AXES[i]}")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    return fig
+
+
+def rate_figure(histories, phase_times):
+    """Fig. 2: Omega against Omega_d [rad/s]."""
+    return _per_axis(histories, phase_times, lambda h: h.Omega, "Ω [rad/s]", "Angular velocity", reference=lambda h: h.Omega_d)
+
+
+def rate_error_figure(histories, phase_times, t_max):
+    """Fig. 3: Omega - Omega_d before capture [rad/s]."""
+    return _per_axis(
+        histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]", "Angular velocity tracking error before capture", t_max
+    )
+
+
+def torque_figure(histories, phase_times):
+    """Fig. 4: control torque per axis [N m]."""
+    return _per_axis(histories, phase_times, lambda h: h.tau, "τ [N m]", "Control torque")
+
+
+def _scalar_figure(histories, phase_times, series, ylabel, title, log=False):
+    fig, ax = plt.subplots(figsize=(10, 3.5))
+    for name, h in histories.items():
+        ax.plot(h.t, series(h), lw=1.0, **STYLES[name])
+    shade_phases(ax, phase_times, next(iter(histories.values())).t[-1])
+    if log:
+        ax.set_yscale("log")
+    ax.set(xlabel="t [s]", ylabel=ylabel)
+    ax.set_title(title, pad=14)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def torque_norm_figure(histories, phase_times):
+    """Fig. 5: |tau| [N m]."""
+    return _scalar_figure(histories, phase_times, lambda h: np.linalg.norm(h.tau, axis=-1), "|τ| [N m]", "Torque norm")
+
+
+def attitude_error_figure(histories, phase_times):
+    """Attitude error angle |log(R_d^T R)| [deg]."""
+    return _scalar_figure(
+        histories, phase_times, lambda h: np.degrees(h.angle), "|log(R_dᵀR)| [deg]", "Attitude error", log=True
+    )
