@@ -38,6 +38,7 @@ class History(NamedTuple):
     t: jax.Array  # (M,) s
     R: jax.Array  # (M, 3, 3)
     Omega: jax.Array  # (M, 3) rad/s, body
+    R_d: jax.Array  # (M, 3, 3) desired attitude
     Omega_d: jax.Array  # (M, 3) rad/s, desired frame
     Omega_e: jax.Array  # (M, 3) rad/s, body
     tau: jax.Array  # (M, 3) N m
@@ -168,7 +169,7 @@ def rollout(
 
     observe_all = jax.vmap(lambda s, k: observe(scenario, controller, gains, s, k))
     t, tau, desired, sample, J = observe_all(states, ks)
-    history = History(t, states.R, states.Omega, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller)
+    history = History(t, states.R, states.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller)
     result_metrics = metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R)
     return Result(result_metrics, history, final)
 

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 # (first omitted term < 1e-17 relative).
 _SMALL_ANGLE2 = 1e-3
 _SMALL_SIN2 = 1e-8
+_JR_SERIES_ANGLE2 = 0.05
 # log(R) takes the axis from the symmetric part of R when cos(theta) is below this.
 _NEAR_PI_COS = -0.99
 
@@ -173,13 +174,17 @@ def log(r):
 
 
 def jr_inv_coefficient(theta2):
-    """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (SPEC 3.2)."""
-    small = theta2 < _SMALL_ANGLE2
+    """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (SPEC 3.2).
+
+    The closed form cancels for small theta; below theta^2 = 0.05 the Bernoulli series
+    (truncation < 2e-16) is used instead.
+    """
+    small = theta2 < _JR_SERIES_ANGLE2
     t2 = jnp.where(small, 1.0, theta2)
     half = 0.5 * jnp.sqrt(t2)
     large = (1.0 - half * jnp.cos(half) / jnp.sin(half)) / t2
     s = theta2
-    series = 1.0 / 12.0 + s / 720.0 + s * s / 30240.0 + s * s * s / 1209600.0
+    series = 1.0 / 12.0 + s * (1.0 / 720.0 + s * (1.0 / 30240.0 + s * (1.0 / 1209600.0 + s / 47900160.0)))
     return jnp.where(small, series, large)
 
 

@@ -1,0 +1,168 @@
+"""SO(3) math against scipy's Rotation, finite differences and closed forms."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from so3jax import so3
+
+RNG = np.random.default_rng(0)
+
+
+def random_rotvecs(n, max_angle=np.pi):
+    axes = RNG.normal(size=(n, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    return axes * RNG.uniform(0, max_angle, size=(n, 1))
+
+
+ANGLES = [0.0, 1e-12, 1e-8, 1e-5, 1e-3, 0.03, 0.1, 1.0, 2.5, 3.0, np.pi - 0.1, np.pi - 1e-3, np.pi - 1e-6]
+
+
+def rotvecs_at(angles):
+    axes = RNG.normal(size=(len(angles), 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    return axes * np.asarray(angles)[:, None]
+
+
+def test_hat_vee_cross():
+    a, b = RNG.normal(size=(2, 5, 3))
+    np.testing.assert_allclose(so3.hat(a) @ b[..., None], np.cross(a, b)[..., None], atol=1e-15)
+    np.testing.assert_allclose(so3.cross(a, b), np.cross(a, b), atol=1e-15)
+    np.testing.assert_array_equal(so3.vee(so3.hat(a)), a)
+    m = RNG.normal(size=(5, 3, 3))
+    np.testing.assert_allclose(so3.matmul(m, m), m @ m, atol=1e-14)
+    np.testing.assert_allclose(so3.rmatmul(m, m), np.swapaxes(m, -1, -2) @ m, atol=1e-14)
+    np.testing.assert_allclose(so3.matvec(m, a), (m @ a[..., None])[..., 0], atol=1e-14)
+    np.testing.assert_allclose(so3.rmatvec(m, a), (np.swapaxes(m, -1, -2) @ a[..., None])[..., 0], atol=1e-14)
+
+
+def test_solve_spd_matches_numpy():
+    a = RNG.normal(size=(6, 3, 3))
+    spd = a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(3)
+    b = RNG.normal(size=(6, 3))
+    np.testing.assert_allclose(so3.solve_spd(spd, b), np.linalg.solve(spd, b[..., None])[..., 0], rtol=1e-11)
+
+
+@pytest.mark.parametrize("max_angle", [1e-6, 0.04, np.pi])
+def test_exp_matches_scipy(max_angle):
+    v = np.concatenate([random_rotvecs(200, max_angle), rotvecs_at(ANGLES)])
+    np.testing.assert_allclose(so3.exp(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-12, rtol=0)
+
+
+@pytest.mark.parametrize("angle", [1e-10, 1e-6, 1e-4, 1e-2, 0.3])
+def test_expm1_accurate_for_small_angles(angle):
+    """exp(hat v) - I against its power series sum_{k>=1} hat(v)^k / k!, no cancellation."""
+    v = rotvecs_at([angle])[0]
+    h = np.asarray(so3.hat(v))
+    term, series = np.eye(3), np.zeros((3, 3))
+    for k in range(1, 25):
+        term = term @ h / k
+        series += term
+    np.testing.assert_allclose(so3.expm1(v), series, rtol=0, atol=1e-15 * angle)
+
+
+def test_log_matches_scipy():
+    v = np.concatenate([random_rotvecs(300), rotvecs_at(ANGLES)])
+    R = Rotation.from_rotvec(v).as_matrix()
+    ours = np.array(so3.log(R))
+    theirs = Rotation.from_matrix(R).as_rotvec()
+    # near a half turn log is defined up to sign: compare the rotations and the angles
+    np.testing.assert_allclose(np.linalg.norm(ours, axis=1), np.linalg.norm(theirs, axis=1), atol=1e-12)
+    np.testing.assert_allclose(Rotation.from_rotvec(ours).as_matrix(), R, atol=1e-12)
+    away = np.linalg.norm(theirs, axis=1) < np.pi - 1e-3
+    np.testing.assert_allclose(ours[away], theirs[away], atol=1e-12)
+
+
+def test_log_exp_roundtrip_and_skew_vee():
+    v = random_rotvecs(100, np.pi - 1e-3)
+    np.testing.assert_allclose(so3.log(so3.exp(v)), v, atol=1e-12)
+    R = Rotation.from_rotvec(v).as_matrix()
+    np.testing.assert_allclose(so3.skew_vee(R), so3.vee((R - np.swapaxes(R, -1, -2)) / 2), atol=1e-15)
+
+
+def jr_fd(e, h=1e-6):
+    """Right Jacobian J_r(e) by central differences: exp(e + d) ~ exp(e) exp(J_r(e) d)."""
+    R = Rotation.from_rotvec(e)
+    cols = []
+    for i in range(3):
+        d = np.zeros(3)
+        d[i] = h
+        plus = (R.inv() * Rotation.from_rotvec(e + d)).as_rotvec()
+        minus = (R.inv() * Rotation.from_rotvec(e - d)).as_rotvec()
+        cols.append((plus - minus) / (2 * h))
+    return np.stack(cols, axis=1)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-4, 0.5, 2.0, 3.0])
+def test_jr_inv_inverts_the_right_jacobian(angle):
+    e = rotvecs_at([angle])[0]
+    np.testing.assert_allclose(np.asarray(so3.jr_inv(e)) @ jr_fd(e), np.eye(3), atol=1e-8)
+    w = RNG.normal(size=3)
+    np.testing.assert_allclose(so3.jr_inv_apply(e, w), np.asarray(so3.jr_inv(e)) @ w, atol=1e-14)
+
+
+def test_jr_inv_coefficient_continuous_across_branch():
+    t2 = np.array([0.05 * (1 - 1e-12), 0.05 * (1 + 1e-12)])
+    g = np.asarray(so3.jr_inv_coefficient(t2))
+    assert abs(g[0] - g[1]) < 1e-15
+    # closed form at pi: 1/pi^2 - cot(pi/2)/(2 pi) = 1/pi^2
+    assert abs(float(so3.jr_inv_coefficient(np.pi**2)) - 1 / np.pi**2) < 1e-15
+
+
+def _check_derivatives(f, x, h=1e-6, rtol=1e-6, atol=1e-7):
+    """jacfwd == jacrev, finite, and both match central differences."""
+    fwd = np.asarray(jax.jacfwd(f)(x))
+    rev = np.asarray(jax.jacrev(f)(x))
+    assert np.all(np.isfinite(fwd)) and np.all(np.isfinite(rev))
+    np.testing.assert_allclose(fwd, rev, rtol=1e-10, atol=1e-12)
+    x = np.asarray(x)
+    fd = []
+    for i in range(x.size):
+        d = np.zeros_like(x)
+        d.flat[i] = h
+        fd.append((np.asarray(f(x + d)) - np.asarray(f(x - d))) / (2 * h))
+    fd = np.moveaxis(np.stack(fd, -1), -1, -1).reshape(fwd.shape)
+    np.testing.assert_allclose(fwd, fd, rtol=rtol, atol=atol)
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 1.0, np.pi - 1e-2])
+def test_exp_gradients(angle):
+    v = rotvecs_at([angle])[0]
+    _check_derivatives(so3.exp, jnp.asarray(v))
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-3, 1.0, np.pi - 0.05])
+def test_jr_inv_gradients(angle):
+    e = rotvecs_at([angle])[0]
+    w = RNG.normal(size=3)
+    _check_derivatives(lambda x: so3.jr_inv_apply(x, w), jnp.asarray(e))
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 1.0, 3.0, np.pi - 1e-2])
+def test_log_gradients(angle):
+    """d log(exp(v) exp(hat(x))) / dx at x = 0 equals J_r^{-1}(v); FD on R's entries near it."""
+    v = jnp.asarray(rotvecs_at([angle])[0])
+    R = so3.exp(v)
+    local = lambda x: so3.log(so3.matmul(R, so3.exp(x)))  # noqa: E731
+    jac = np.asarray(jax.jacfwd(local)(jnp.zeros(3)))
+    np.testing.assert_allclose(jac, so3.jr_inv(v), atol=1e-7)
+    _check_derivatives(local, jnp.zeros(3))
+    # through the raw matrix entries, as an optimizer sees them
+    grad = jax.grad(lambda m: jnp.sum(so3.log(m) ** 2))(R)
+    assert np.all(np.isfinite(np.asarray(grad)))
+
+
+def test_safe_norm_gradient_at_zero():
+    g = jax.grad(so3.safe_norm)(jnp.zeros(3))
+    np.testing.assert_array_equal(g, np.zeros(3))
+
+
+def test_project_to_so3():
+    R = Rotation.from_rotvec(random_rotvecs(5)).as_matrix()
+    noisy = R + 1e-4 * RNG.normal(size=R.shape)
+    P = np.asarray(so3.project_to_so3(noisy))
+    assert np.max(so3.orthogonality_error(P)) < 1e-13
+    np.testing.assert_allclose(np.linalg.det(P), 1.0, atol=1e-13)
+    np.testing.assert_allclose(P, R, atol=1e-3)
