@@ -17,7 +17,7 @@ and control arithmetic here are written independently of it.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from math import asin, atan2, exp, sin, sqrt, tan
+from math import asin, atan2, cos, exp, sin, sqrt, tan
 
 import numpy as np
 
@@ -61,9 +61,9 @@ def _exp_coeffs(t2):
             1.0 - t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0)),
             0.5 - t2 / 24.0 * (1.0 - t2 / 30.0 * (1.0 - t2 / 56.0)),
         )
-    t = sqrt(t2)
-    h = sin(0.5 * t) / (0.5 * t)
-    return sin(t) / t, 0.5 * h * h
+    half = 0.5 * sqrt(t2)
+    sh = sin(half)
+    return sh * cos(half) / half, 0.5 * (sh / half) ** 2
 
 
 @_jit
@@ -148,13 +148,14 @@ def _time_terms(t, phase, wd0, wd1, wd2, Ja, Jb):
 def _stage(adaptive, first, g0, g1, gam, Rk, p0, p1, p2, w0, w1, w2, th, tt, s, d0, d1, d2):
     """One RK4 stage: controller at R = R_k exp(hat p), Omega = w, Theta_hat = th; plant at tt.
 
-    g0, g1 = (K_r, K_w) for the adaptive law (SPEC §3.2), (k_R, k_Omega) for PD (§3.1),
-    both with J_hat = I and Omega_d' = 0; tt: a row of the time table, s: inertia scale.
-    Returns psi' (3), Omega' (3), tau (3), Omega_e (3), the attitude-error angle (only when
-    ``first``, the stage the metrics sample, or when the adaptive law needs it; else 0),
-    and Gamma Phi (9), z (3) (zeros for PD): Theta_hat' = -(Gamma Phi) z^T.
+    first: the stage at the step start, where p = 0 (so R = R_k, psi' = Omega) and where
+    the metrics sample. g0, g1 = (K_r, K_w) for the adaptive law (SPEC §3.2), (k_R, k_Omega)
+    for PD (§3.1), both with J_hat = I and Omega_d' = 0; tt: a row of the time table;
+    s: inertia scale. Returns psi' (3), Omega' (3), tau (3), Omega_e (3), the attitude-error
+    angle (computed only when first or when the adaptive law needs it, else 0), and
+    Gamma Phi (9), z (3) (zeros for PD): Theta_hat' = -(Gamma Phi) z^T.
     """
-    R = _mul_add(Rk, _exp_minus_identity(p0, p1, p2))
+    R = Rk if first else _mul_add(Rk, _exp_minus_identity(p0, p1, p2))  # psi = 0 at stage 1
     # R_e = R_d^T R, only what the laws use: v = (R_e - R_e^T)^vee / 2 and tr R_e
     e00 = tt[0] * R[0] + tt[3] * R[3] + tt[6] * R[6]
     e11 = tt[1] * R[1] + tt[4] * R[4] + tt[7] * R[7]
@@ -217,7 +218,7 @@ def _stage(adaptive, first, g0, g1, gam, Rk, p0, p1, p2, w0, w1, w2, th, tt, s, 
     dw0 = (tt[18] * b0 + tt[21] * b1 + tt[22] * b2) / s
     dw1 = (tt[21] * b0 + tt[19] * b1 + tt[23] * b2) / s
     dw2 = (tt[22] * b0 + tt[23] * b1 + tt[20] * b2) / s
-    dp0, dp1, dp2 = _jr_inv_apply(p0, p1, p2, w0, w1, w2)
+    dp0, dp1, dp2 = (w0, w1, w2) if first else _jr_inv_apply(p0, p1, p2, w0, w1, w2)
     return (
         dp0, dp1, dp2, dw0, dw1, dw2, tau0, tau1, tau2, we0, we1, we2, theta,
         gam[0] * ph0, gam[1] * ph1, gam[2] * ph2, gam[3] * ph3, gam[4] * ph4,
