@@ -156,7 +156,8 @@ def check_inertia(name: str, J) -> None:
 
 def check_gains(gains) -> None:
     """Every gain positive and finite; a matrix Gamma symmetric positive definite."""
-    for name, value in gains._asdict().items():
+    for path, value in jax.tree_util.tree_flatten_with_path(gains)[0]:
+        name = jax.tree_util.keystr(path, simple=True, separator=".")
         value = _concrete(value)
         if value is None:
             continue
