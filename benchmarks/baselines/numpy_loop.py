@@ -150,6 +150,13 @@ def hat(v):
     return np.stack([np.stack([o, -z, y], -1), np.stack([z, o, -x], -1), np.stack([-y, x, o], -1)], -2)
 
 
+def cross(a, b):
+    """a x b over the last axis (3); faster than np.cross on small arrays."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], -1)
+
+
 def skew_vee(M):
     """(M - M^T)^vee / 2 for (..., 3, 3) M."""
     return 0.5 * np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
@@ -194,8 +201,8 @@ def jr_inv_apply(e, w):
     small = t2 < SMALL_ANGLE**2
     t = np.sqrt(np.where(small, 1.0, t2))
     g = np.where(small, 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0, 1.0 / (t * t) - 0.5 / (t * np.tan(0.5 * t)))
-    exw = np.cross(e, w)
-    return w + 0.5 * exw + g[..., None] * np.cross(e, exw)
+    exw = cross(e, w)
+    return w + 0.5 * exw + g[..., None] * cross(e, exw)
 
 
 # --- The scenario's time laws (SPEC §2, §4) -----------------------------------------
@@ -232,7 +239,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
     R_e = R_d.T @ R  # (B, 3, 3)
     Omega_r = np.einsum("bji,j->bi", R, R_d @ Omega_d)  # R^T R_d Omega_d
     Omega_e = Omega - Omega_r
-    Omega_x_Omega_r = np.cross(Omega, Omega_r)
+    Omega_x_Omega_r = cross(Omega, Omega_r)
     if setup.adaptive:  # SPEC §3.2 with J_hat = I and Omega_d' = 0
         e, theta_e = log_vee(R_e)
         z = Omega - (-g["K_r"] * e + Omega_r)
@@ -247,7 +254,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
         dTheta = None
     J = inertia(t, phase).astype(dtype)
     J_Omega = setup.scale[:, None] * (Omega @ J.T)
-    rhs = -np.cross(Omega, J_Omega) + tau + d
+    rhs = -cross(Omega, J_Omega) + tau + d
     dOmega = np.linalg.solve(J, rhs.T).T / setup.scale[:, None]
     return jr_inv_apply(psi, Omega), dOmega, dTheta, tau, Omega_e, theta_e
 
