@@ -107,3 +107,10 @@ def test_bad_arguments():
 def test_numba_is_float64_only(numba_loop):
     with pytest.raises(ValueError, match="float64"):
         numba_loop.simulate("pd", 10, [0], dtype=np.float32)
+
+
+def test_divergence_is_flagged(numba_loop):
+    """k_Omega dt / J far beyond RK4's stability bound: non-finite state, flagged per element."""
+    for module in (numpy_loop, numba_loop):
+        r = module.simulate("pd", 50, [0, 1], gains={"k_Omega": 1e9})
+        assert r["diverged"].all(), module.__name__

@@ -115,29 +115,28 @@ def finalize(setup: Setup, sums: dict, R, Omega, Theta) -> dict:
     """
     n = setup.n_steps
     counts = np.array([min(n, setup.k1), max(0, min(n, setup.k2) - setup.k1), max(0, n - setup.k2)], R.dtype)
-    with np.errstate(invalid="ignore", divide="ignore"):
 
-        def per_step(total):
-            return np.where(counts > 0, total / counts, np.nan)
+    def per_step(total):
+        return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
 
-        finite = np.all(np.isfinite(R), axis=(1, 2)) & np.all(np.isfinite(Omega), axis=1)
-        if Theta is not None:
-            finite &= np.all(np.isfinite(Theta), axis=(1, 2))
-        return {
-            "rmse": np.sqrt(sums["we2"].sum(axis=1) / n),  # rad/s
-            "rmse_unrotated": np.sqrt(sums["wu2"] / n),  # rad/s
-            "effort": sums["tau2"].sum(axis=1) * setup.dt,  # N^2 m^2 s
-            "rmse_phase": np.sqrt(per_step(sums["we2"])),
-            "effort_phase": sums["tau2"] * setup.dt,
-            "max_torque": sums["tau_max"].max(axis=1),  # N m
-            "max_torque_phase": np.where(counts > 0, sums["tau_max"], np.nan),
-            "angle_rms_phase": np.sqrt(per_step(sums["ang2"])),  # rad
-            "angle_max_phase": np.where(counts > 0, sums["ang_max"], np.nan),  # rad
-            "R": R,
-            "Omega": Omega,
-            "Theta": Theta,
-            "diverged": ~finite,
-        }
+    finite = np.all(np.isfinite(R), axis=(1, 2)) & np.all(np.isfinite(Omega), axis=1)
+    if Theta is not None:
+        finite &= np.all(np.isfinite(Theta), axis=(1, 2))
+    return {
+        "rmse": np.sqrt(sums["we2"].sum(axis=1) / n),  # rad/s
+        "rmse_unrotated": np.sqrt(sums["wu2"] / n),  # rad/s
+        "effort": sums["tau2"].sum(axis=1) * setup.dt,  # N^2 m^2 s
+        "rmse_phase": np.sqrt(per_step(sums["we2"])),
+        "effort_phase": sums["tau2"] * setup.dt,
+        "max_torque": sums["tau_max"].max(axis=1),  # N m
+        "max_torque_phase": np.where(counts > 0, sums["tau_max"], np.nan),
+        "angle_rms_phase": np.sqrt(per_step(sums["ang2"])),  # rad
+        "angle_max_phase": np.where(counts > 0, sums["ang_max"], np.nan),  # rad
+        "R": R,
+        "Omega": Omega,
+        "Theta": Theta,
+        "diverged": ~finite,
+    }
 
 
 # --- SO(3) helpers, batched over leading axes ---------------------------------------
