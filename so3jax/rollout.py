@@ -125,7 +125,8 @@ def observe(scenario: Scenario, controller: Controller, gains, state: State, k):
 
 def default_record_every(n_steps: int) -> int:
     """About sqrt(N): the reverse-mode memory optimum of two-level checkpointing."""
-    return max(1, int(math.isqrt(max(n_steps, 1))))
+    n_blocks = max(1, math.isqrt(max(n_steps, 1)))
+    return -(-n_steps // n_blocks)
 
 
 def rollout(
@@ -137,10 +138,15 @@ def rollout(
     record_every: int | None = None,
     unroll: int = 1,
 ) -> Result:
-    """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6). Pure; no validation."""
+    """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6). Pure; no validation.
+
+    record_every: steps per block (history sample and checkpoint), ~sqrt(N) by default.
+    When it does not divide N, the last block's surplus steps are computed but masked.
+    """
     n = scenario.n_steps
     block = min(record_every or default_record_every(n), n)
-    n_blocks, tail = divmod(n, block)
+    n_blocks = -(-n // block)
+    masked = n_blocks * block != n
     key = jax.random.key(seed)
     dtype = scenario.R0.dtype
 
@@ -148,28 +154,28 @@ def rollout(
         state, k, acc = carry
         new, phase, sample = step(scenario, controller, gains, key, state, k)
         finite = jnp.isfinite(jnp.sum(new.Omega) + jnp.sum(new.R))
-        return (new, k + 1, metrics.update(acc, phase, sample, finite)), None
-
-    def run(carry, length):
-        return jax.lax.scan(one_step, carry, None, length=length, unroll=min(unroll, length))[0]
+        new_acc = metrics.update(acc, phase, sample, finite)
+        if masked:
+            live = k < n
+            new, new_acc = jax.tree.map(lambda a, b: jnp.where(live, a, b), (new, new_acc), (state, acc))
+        return (new, k + 1, new_acc), None
 
     @functools.partial(jax.checkpoint, prevent_cse=False)
     def run_block(carry):
-        return run(carry, block)
+        return jax.lax.scan(one_step, carry, None, length=block, unroll=min(unroll, block))[0]
 
     def outer(carry, _):
         return run_block(carry), (carry[0], carry[1])
 
     acc0 = metrics.init(len(scenario.phase_steps) + 1, dtype)
     carry = (initial_state(scenario, controller, gains), jnp.zeros((), jnp.int32), acc0)
-    carry, (states, ks) = jax.lax.scan(outer, carry, None, length=n_blocks)
-    if tail:
-        carry = jax.checkpoint(functools.partial(run, length=tail), prevent_cse=False)(carry)
-    final, _, acc = carry
+    (final, _, acc), (states, ks) = jax.lax.scan(outer, carry, None, length=n_blocks)
 
     observe_all = jax.vmap(lambda s, k: observe(scenario, controller, gains, s, k))
     t, tau, desired, sample, J = observe_all(states, ks)
-    history = History(t, states.R, states.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller)
+    history = History(
+        t, states.R, states.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller
+    )
     result_metrics = metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R)
     return Result(result_metrics, history, final)
 

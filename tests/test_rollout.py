@@ -1,0 +1,162 @@
+"""The rollout: disturbance recipe, in-scan metrics, phases, vmap/grad, divergence."""
+
+import dataclasses
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import so3jax as sj
+from so3jax import so3
+from so3jax.rollout import observe, rollout, step
+from tests.helpers import custom_scenario, sinusoidal_rate
+
+warnings.filterwarnings("ignore", category=sj.InertiaWarning)
+
+SHORT = sj.paper_scenario(T=20.0)
+
+
+def test_disturbance_follows_the_fold_in_recipe():
+    """d_k = 0.1 sin(0.001 t_k) [1,1,1] + 0.025 normal(fold_in(key(seed), k)) (SPEC 4)."""
+    d = SHORT.disturbance
+    for k in (0, 1, 12345):
+        t = k * 0.01
+        eta = jax.random.normal(jax.random.fold_in(jax.random.key(7), k), (3,), jnp.float64)
+        expected = 0.1 * np.sin(0.001 * t) + 0.025 * np.asarray(eta)
+        np.testing.assert_allclose(d(jax.random.key(7), jnp.asarray(k), jnp.asarray(t)), expected, rtol=1e-15)
+
+
+def test_disturbance_reaches_the_plant():
+    """One step with and without noise differs by dt/J-scaled noise, as the plant says."""
+    controller = sj.geometric_pd()
+    gains = jax.tree.map(jnp.asarray, sj.PAPER_PD_GAINS)
+    state = sj.rollout(SHORT, controller, gains, 0, record_every=1).history
+    s0 = sj.State(state.R[0], state.Omega[0], (), ())
+    quiet = dataclasses.replace(SHORT, disturbance=sj.no_disturbance())
+    k = jnp.asarray(0, jnp.int32)
+    noisy_next, _, _ = step(SHORT, controller, gains, jax.random.key(5), s0, k)
+    quiet_next, _, _ = step(quiet, controller, gains, jax.random.key(5), s0, k)
+    eta = np.asarray(jax.random.normal(jax.random.fold_in(jax.random.key(5), 0), (3,), jnp.float64))
+    J0 = np.asarray(SHORT.inertia.J0)
+    # at rest, Omega' = J^-1 (tau + d) to first order; the torque is the same in both runs
+    dOmega = np.asarray(noisy_next.Omega - quiet_next.Omega)
+    np.testing.assert_allclose(dOmega, 0.01 * np.linalg.solve(J0, 0.025 * eta), rtol=1e-3)
+
+
+def test_in_scan_metrics_match_the_recorded_trajectory():
+    """With record_every=1 the history holds every step start: recompute SPEC 6 from it."""
+    scenario = sj.paper_scenario(T=30.0)
+    controller, gains = sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS
+    r = sj.simulate(scenario, controller, gains, 2, record_every=1)
+    h, m = r.history, r.metrics
+    n = scenario.n_steps
+    assert h.t.shape == (n,)
+    np.testing.assert_allclose(m.rmse, np.sqrt(np.mean(np.sum(np.asarray(h.Omega_e) ** 2, -1))), rtol=1e-12)
+    np.testing.assert_allclose(
+        m.rmse_unrotated, np.sqrt(np.mean(np.sum((np.asarray(h.Omega) - np.asarray(h.Omega_d)) ** 2, -1))), rtol=1e-12
+    )
+    np.testing.assert_allclose(m.effort, np.sum(np.asarray(h.tau) ** 2) * scenario.dt, rtol=1e-12)
+    np.testing.assert_allclose(m.max_torque, np.max(np.linalg.norm(h.tau, axis=-1)), rtol=1e-12)
+    np.testing.assert_allclose(m.max_angle_phase[0], np.max(h.angle), rtol=1e-12)
+    # the angle is |log(R_d^T R)|
+    Re = np.swapaxes(np.asarray(h.R_d), -1, -2) @ np.asarray(h.R)
+    np.testing.assert_allclose(h.angle, np.linalg.norm(so3.log(Re), axis=-1), atol=1e-14)
+
+
+def test_phases_switch_on_step_boundaries():
+    """Per-phase sums split at K = round(t_switch / dt): phase sums add up to the total."""
+    scenario = dataclasses.replace(sj.paper_scenario(T=3.0), phase_times=(1.004, 2.0))
+    assert scenario.phase_steps == (100, 200)
+    assert scenario.steps_per_phase == (100, 100, 100)
+    r = sj.simulate(scenario, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0, record_every=1)
+    m = r.metrics
+    np.testing.assert_allclose(np.sum(m.effort_phase), m.effort, rtol=1e-12)
+    tau2 = np.sum(np.asarray(r.history.tau) ** 2, -1) * scenario.dt
+    np.testing.assert_allclose(m.effort_phase, [tau2[:100].sum(), tau2[100:200].sum(), tau2[200:].sum()], rtol=1e-12)
+    # Omega_d drops to zero at the docking step exactly (phase 3 of the paper's reference)
+    assert np.all(np.asarray(r.history.Omega_d)[200:] == 0) and np.all(np.asarray(r.history.Omega_d)[:200] != 0)
+
+
+def test_closed_form_and_integrated_reference_agree():
+    scenario = sj.paper_scenario(T=50.0)
+    rate = scenario.reference.rates[0]
+    integrated = dataclasses.replace(scenario, reference=sj.RateFunction(lambda t: rate + 0.0 * t))
+    a = sj.simulate(scenario, sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 1)
+    b = sj.simulate(integrated, sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 1)
+    np.testing.assert_allclose(a.final.R, b.final.R, atol=1e-13)
+    np.testing.assert_allclose(a.metrics.rmse, b.metrics.rmse, rtol=1e-10)
+    # the paper's R_d(t) = exp(hat(Omega_d) t)
+    np.testing.assert_allclose(b.final.R_d, so3.exp(rate * 50.0), atol=1e-13)
+
+
+def test_vmap_over_seeds_and_inertias_matches_single_runs():
+    controller, gains = sj.geometric_pd(), jax.tree.map(jnp.asarray, sj.PAPER_PD_GAINS)
+    scales = jnp.array([1.0, 1.5])
+    seeds = jnp.array([0, 4])
+
+    def scaled(s):
+        inertia = SHORT.inertia
+        return dataclasses.replace(SHORT, inertia=dataclasses.replace(inertia, J0=s * inertia.J0, J1=s * inertia.J1, J2=s * inertia.J2))
+
+    batched = jax.jit(jax.vmap(lambda s, seed: rollout(scaled(s), controller, gains, seed).metrics.rmse))(scales, seeds)
+    singles = [float(sj.simulate(scaled(s), controller, gains, int(seed)).metrics.rmse) for s, seed in zip(scales, seeds)]
+    np.testing.assert_allclose(batched, singles, rtol=1e-13)
+    assert abs(singles[0] - singles[1]) > 1e-6  # the inertia and the seed reach the rollout
+
+
+@pytest.mark.parametrize("name", ["pd", "adaptive"])
+def test_gradient_wrt_log_gains_matches_finite_differences(name):
+    scenario = sj.paper_scenario(T=10.0)
+    controller, gains = {"pd": (sj.geometric_pd(), sj.PAPER_PD_GAINS), "adaptive": (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS)}[name]
+    cls = type(gains)
+    log_g = jnp.log(jnp.array([float(g) for g in gains]))
+
+    @jax.jit
+    def cost(lg):
+        m = rollout(scenario, controller, cls(*jnp.exp(lg)), 0).metrics
+        return m.rmse / 1e-3 + m.effort
+
+    grad = np.asarray(jax.grad(cost)(log_g))
+    assert np.all(np.isfinite(grad))
+    h = 1e-5
+    fd = [(cost(log_g.at[i].add(h)) - cost(log_g.at[i].add(-h))) / (2 * h) for i in range(log_g.size)]
+    np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-8 * np.max(np.abs(grad)))
+
+
+def test_gradient_is_finite_at_zero_rotation():
+    """R = R_d and Omega = Omega_d exactly at t = 0: the log, norms and max must not NaN."""
+    scenario = custom_scenario(1.0, 0.01, rate_fn=lambda t: 0.0 * sinusoidal_rate(t))
+    gains = sj.AdaptiveGains(*map(jnp.asarray, (0.5, 10.0, 100.0)))
+    g = jax.grad(lambda g: rollout(scenario, sj.adaptive_backstepping(), g, 0).metrics.rmse_phase[0])(gains)
+    assert all(np.isfinite(x) for x in jax.tree.leaves(g))
+
+
+def test_divergence_is_reported_not_raised():
+    scenario = dataclasses.replace(sj.paper_scenario(T=50.0), dt=1.0, n_steps=50)
+    r = sj.simulate(scenario, sj.geometric_pd(), sj.PDGains(5000.0, 1e5), 0)
+    assert bool(r.metrics.diverged)
+    ok = sj.simulate(sj.paper_scenario(T=50.0), sj.geometric_pd(), sj.PAPER_PD_GAINS, 0)
+    assert not bool(ok.metrics.diverged)
+    gains = sj.PDGains(jnp.array([0.5714, 5000.0]), jnp.array([25.0, 1e5]))
+    batched = jax.vmap(lambda g: rollout(scenario, sj.geometric_pd(), g, 0).metrics.diverged)(gains)
+    assert batched.tolist() == [False, True]
+
+
+def test_observe_matches_the_step_sample():
+    controller, gains = sj.adaptive_backstepping(), jax.tree.map(jnp.asarray, sj.PAPER_ADAPTIVE_GAINS)
+    state = sj.rollout(SHORT, controller, gains, 0).final
+    k = jnp.asarray(SHORT.n_steps, jnp.int32)
+    _, _, sample = step(SHORT, controller, gains, jax.random.key(0), state, k)
+    _, tau, _, observed, _ = observe(SHORT, controller, gains, state, k)
+    np.testing.assert_allclose(tau, sample.tau, rtol=1e-14)
+    np.testing.assert_allclose(observed.Omega_e, sample.Omega_e, rtol=1e-14)
+
+
+def test_float32_follows_the_scenario_dtype():
+    with jax.numpy_dtype_promotion("strict"):
+        r = sj.simulate(sj.paper_scenario(T=5.0, dtype="float32"), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0)
+    assert r.metrics.rmse.dtype == jnp.float32 and r.final.R.dtype == jnp.float32
+    r64 = sj.simulate(sj.paper_scenario(T=5.0), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0)
+    np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
