@@ -52,6 +52,9 @@ def main(argv=None) -> int:
     configure_jax(args.precision)
     try:
         return args.func(args)
+    except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
+        print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

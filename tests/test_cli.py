@@ -1,0 +1,45 @@
+"""``so3jax paper`` end to end, as a user runs it (a subprocess with its own JAX)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+
+
+def run_cli(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+def test_paper_json_and_figures(tmp_path):
+    out = tmp_path / "paper"
+    proc = run_cli("paper", "--T", "40", "--json", "--out", str(out), "--record-every", "50", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert set(report) == {"pd", "adaptive", "config"}
+    for name in ("pd", "adaptive"):
+        m = report[name]
+        assert set(m) >= {"rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase",
+                          "max_angle_phase", "max_torque", "orthogonality_error", "diverged"}
+        assert len(m["rmse_phase"]) == 3 and m["diverged"] is False
+        # only phase 1 is reached in 40 s
+        assert m["rmse_phase"][0] > 0 and m["rmse_phase"][1] == 0 and m["effort_phase"][2] == 0
+        np.testing.assert_allclose(m["effort"], sum(m["effort_phase"]), rtol=1e-12)
+    assert report["config"]["n_steps"] == 4000 and report["config"]["precision"] == "float64"
+    assert json.loads((out / "metrics.json").read_text())["pd"] == report["pd"]
+    for fig in ("fig1_inertia", "fig2_angular_velocity", "fig3_tracking_error", "fig4_torque", "fig5_torque_norm"):
+        assert (out / f"{fig}.png").stat().st_size > 10_000
+    assert "triangle inequality" in proc.stderr
+
+
+def test_paper_table_and_float32(tmp_path):
+    proc = run_cli("paper", "--T", "10", "--precision", "float32", "--no-figures", "--out", str(tmp_path), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "paper PD" in proc.stdout and "-31.0 %" in proc.stdout  # the paper's own RMSE ratio, recomputed
+    assert json.loads((tmp_path / "metrics.json").read_text())["config"]["precision"] == "float32"
+
+
+def test_paper_rejects_a_bad_horizon(tmp_path):
+    proc = run_cli("paper", "--T", "10.005", "--no-figures", "--out", str(tmp_path), cwd=tmp_path)
+    assert proc.returncode != 0
+    assert "not a multiple of dt" in proc.stderr
