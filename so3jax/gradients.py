@@ -1,0 +1,90 @@
+"""Differentiable batched rollouts and their gradients in forward or reverse mode.
+
+A *batch* is a set of training scenarios: the base scenario with every inertia matrix
+scaled by ``inertia_scale[i]``, driven by disturbance seed ``seed[i]``. Its metrics are
+a vmap of :func:`so3jax.rollout` over the batch, a pure function of the gains.
+
+Two ways to differentiate a scalar function of the gains:
+
+* ``"forward"``: ``jax.jacfwd``, one JVP per parameter, vmapped. Memory does not
+  depend on the horizon (nothing is stored for a backward pass); time grows with the
+  number of parameters (2 for the PD, 3 for the adaptive law with a scalar Gamma, 11
+  with a diagonal one).
+* ``"reverse"``: ``jax.value_and_grad``. Time does not depend on the number of
+  parameters; memory is bounded by the rollout's two-level checkpointing (the state at
+  each of the N / record_every block starts, plus one block of record_every steps
+  recomputed during the backward pass): O(N / record_every + record_every), smallest at
+  record_every = sqrt(N), the rollout's default.
+
+``benchmarks/gradients.py`` measures which is faster for which controller.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from so3jax.controllers import Controller
+from so3jax.metrics import Metrics
+from so3jax.rollout import rollout
+from so3jax.scenario import Scenario
+
+MODES = ("forward", "reverse")
+
+
+class Batch(NamedTuple):
+    """B training scenarios: inertia scale factors (B,) [-] and disturbance seeds (B,)."""
+
+    inertia_scale: jax.Array
+    seed: jax.Array
+
+
+def make_batch(inertia_scales, seeds, dtype) -> Batch:
+    """The Cartesian product inertia_scales x seeds, flattened (scale-major)."""
+    scales = jnp.repeat(jnp.asarray(inertia_scales, dtype), len(seeds))
+    seeds = jnp.tile(jnp.asarray(seeds, jnp.uint32), len(inertia_scales))
+    return Batch(scales, seeds)
+
+
+def scale_inertia(scenario: Scenario, scale) -> Scenario:
+    """The scenario with every matrix of its inertia profile multiplied by ``scale``."""
+    inertia = scenario.inertia
+    scaled = dataclasses.replace(inertia, **{name: scale * J for name, J in inertia.matrices().items()})
+    return dataclasses.replace(scenario, inertia=scaled)
+
+
+def batch_metrics(scenario: Scenario, controller: Controller, gains, batch: Batch, *, record_every=None) -> Metrics:
+    """Metrics of every scenario of the batch (leading axis B). Pure and differentiable."""
+
+    def one(scale, seed):
+        return rollout(scale_inertia(scenario, scale), controller, gains, seed, record_every=record_every).metrics
+
+    return jax.vmap(one)(batch.inertia_scale, batch.seed)
+
+
+def value_and_grad(fun: Callable, mode: str) -> Callable:
+    """``fun(params) -> (scalar, aux)`` to ``params -> ((scalar, aux), d scalar / d params)``.
+
+    The same contract as ``jax.value_and_grad(fun, has_aux=True)``, in either mode; the
+    primal (and aux) is computed once in both.
+    """
+    if mode == "reverse":
+        return jax.value_and_grad(fun, has_aux=True)
+    if mode != "forward":
+        raise ValueError(f"gradient mode must be one of {MODES}, got {mode!r}")
+
+    def value_as_aux(params):
+        value, aux = fun(params)
+        return value, (value, aux)
+
+    jacobian = jax.jacfwd(value_as_aux, has_aux=True)
+
+    def forward(params):
+        grad, (value, aux) = jacobian(params)
+        return (value, aux), grad
+
+    return forward
