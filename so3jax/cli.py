@@ -12,7 +12,7 @@ import importlib
 import os
 import sys
 
-COMMAND_MODULES = ("so3jax.paper", "so3jax.tune")
+COMMAND_MODULES = ("so3jax.paper", "so3jax.tune", "so3jax.sweep")
 
 
 def _use_every_core() -> None:

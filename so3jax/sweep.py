@@ -1,0 +1,718 @@
+"""``so3jax sweep``: Monte Carlo robustness sweeps of the paper's mission.
+
+Samples (:mod:`so3jax.dispersions`) run with every chosen controller, so results pair
+sample by sample. Rollouts run in chunks; each chunk is laid out over a Mesh of all the
+devices JAX sees (batch axis), and every device runs the same single-device executable
+(a vmapped rollout) on its shard. That, rather than one SPMD-partitioned program, is what
+keeps results bit-for-bit identical whatever the chunk size and the device count: XLA's
+partitioned compilation rounds differently (measured: ~1 ulp per step on CPU). A shard
+holds at least 2 samples (a batch of 1 compiles differently too). Finished chunks are
+saved at once under ``OUT/chunks``, so an interrupted sweep resumes (``--resume``)
+without recomputing them.
+
+Output folder: samples.csv / samples.npz (parameters and metrics per sample),
+summary.json and summary.md (statistics, diverged samples, paired comparison),
+cdf.png, histograms.png, rmse_vs_inertia_scale.png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import functools
+import io
+import math
+import re
+import sys
+import time
+import tomllib
+import warnings
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from so3jax import dispersions as disp
+from so3jax.controllers import (
+    PAPER_ADAPTIVE_GAINS,
+    PAPER_PD_GAINS,
+    AdaptiveGains,
+    PDGains,
+    adaptive_backstepping,
+    geometric_pd,
+)
+from so3jax.io import save_figure, save_npz, write_json, write_text
+from so3jax.metrics import Metrics
+from so3jax.rollout import rollout
+from so3jax.scenario import (
+    PAPER_J0,
+    PAPER_J2,
+    InertiaWarning,
+    check_gains,
+    check_inertia,
+    paper_scenario,
+    steps_for_horizon,
+)
+
+CONTROLLERS = {"pd": (geometric_pd, PDGains), "adaptive": (adaptive_backstepping, AdaptiveGains)}
+PAPER_GAINS = {"pd": PAPER_PD_GAINS, "adaptive": PAPER_ADAPTIVE_GAINS}
+PHASE_NAMES = ("capture", "deployment", "detumble")
+STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
+BATCH = "batch"
+MIN_SHARD = 2
+
+# The default sweep (sweeps/default.toml); a config file's missing entries take these values.
+DEFAULT_DISPERSIONS = disp.Dispersions(
+    J0=disp.InertiaDispersion(
+        nominal=PAPER_J0,
+        scale=disp.LogNormal(1.0, 0.1),
+        axis_scale=disp.Uniform(0.9, 1.1),
+        rotation_deg=10.0,
+        products=disp.Normal(0.0, 10.0),
+    ),
+    J1=disp.InertiaDispersion(scale=disp.Uniform(1.8, 2.2), products=disp.Normal(0.0, 10.0)),
+    J2=disp.InertiaDispersion(
+        nominal=PAPER_J2,
+        scale=disp.LogNormal(1.0, 0.1),
+        axis_scale=disp.Uniform(0.9, 1.1),
+        rotation_deg=10.0,
+        products=disp.Normal(0.0, 20.0),
+    ),
+    tau_J=disp.Uniform(200.0, 400.0),
+    n=disp.Uniform(1.0381e-3, 1.1314e-3),
+    amplitude=disp.Uniform(0.05, 0.15),
+    noise_std=disp.Uniform(0.0125, 0.0375),
+    initial_angle_deg=30.0,
+    initial_rate=disp.Uniform(0.0, 0.005),
+)
+
+
+# --- configuration ----------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepConfig:
+    """A sweep: samples 0 .. samples-1 of ``dispersions`` (seed ``seed``), horizon T [s],
+    step dt [s], with each of ``controllers`` at ``gains``. Defaults: sweeps/default.toml.
+
+    chunk: samples per batch (rounded up to a multiple of 2 x devices); max_draws:
+    attempts at a positive definite sample before it is rejected; a sample diverged when
+    its state is non-finite or its attitude error exceeds divergence_angle_deg [deg].
+    """
+
+    samples: int = 1024
+    seed: int = 0
+    T: float = 4000.0
+    dt: float = 0.01
+    controllers: tuple = ("pd", "adaptive")
+    chunk: int = 128
+    max_draws: int = 20
+    divergence_angle_deg: float = 150.0
+    gains: dict = dataclasses.field(default_factory=lambda: dict(PAPER_GAINS))
+    dispersions: disp.Dispersions = DEFAULT_DISPERSIONS
+
+
+_TOP_KEYS = ("samples", "seed", "T", "dt", "controllers", "chunk", "max_draws", "divergence_angle_deg")
+_TABLES = ("inertia", "deployment", "orbit", "disturbance", "initial", "gains")
+
+
+def _table(d: dict, key: str, allowed, where: str) -> dict:
+    t = d.get(key, {})
+    if not isinstance(t, dict):
+        raise ValueError(f"{where}{key} must be a table")
+    unknown = set(t) - set(allowed)
+    if unknown:
+        raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
+    return t
+
+
+def _inertia(t: dict, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
+    fields = {}
+    if "nominal" in t:
+        if default.nominal is None:
+            raise ValueError(f"[{where}] takes no nominal: J1's nominal is the sample's J0 (scale is the growth J1/J0)")
+        nominal = np.asarray(t["nominal"], dtype=float)
+        if nominal.shape != (3, 3):
+            raise ValueError(f"[{where}] nominal must be a 3x3 matrix, got shape {nominal.shape}")
+        fields["nominal"] = tuple(map(tuple, nominal.tolist()))
+    for name in ("scale", "axis_scale", "products"):
+        if name in t:
+            fields[name] = disp.parse_distribution(t[name], f"{where}.{name}")
+    if "rotation_deg" in t:
+        fields["rotation_deg"] = _number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
+    return dataclasses.replace(default, **fields)
+
+
+def _number(value, where: str, low=-math.inf, high=math.inf, integer=False):
+    ok = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok or not (low <= value <= high):
+        kind = "an integer" if integer else "a number"
+        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {value!r}")
+    return value if integer else float(value)
+
+
+def config_from_dict(d: dict) -> SweepConfig:
+    """A SweepConfig from the TOML structure (see sweeps/default.toml); ValueError on bad input."""
+    unknown = set(d) - set(_TOP_KEYS) - set(_TABLES)
+    if unknown:
+        raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}")
+    base = SweepConfig()
+    top = {}
+    for key in ("samples", "chunk", "max_draws"):
+        if key in d:
+            top[key] = _number(d[key], key, low=1, integer=True)
+    if "seed" in d:
+        top["seed"] = _number(d["seed"], "seed", low=0, high=2**32 - 1, integer=True)
+    for key in ("T", "dt"):
+        if key in d:
+            top[key] = _number(d[key], key, low=0.0)
+    if "divergence_angle_deg" in d:
+        top["divergence_angle_deg"] = _number(d["divergence_angle_deg"], "divergence_angle_deg", 0.0, 180.0)
+    if "controllers" in d:
+        names = tuple(d["controllers"])
+        bad = [c for c in names if c not in CONTROLLERS]
+        if bad or not names or len(set(names)) != len(names):
+            raise ValueError(f"controllers must be distinct names among {', '.join(CONTROLLERS)}, got {list(names)}")
+        top["controllers"] = names
+    config = dataclasses.replace(base, **top)
+    steps_for_horizon(config.T, config.dt)
+
+    inertia = _table(d, "inertia", ("J0", "J1", "J2"), "")
+    inertia_keys = ("nominal", "scale", "axis_scale", "rotation_deg", "products")
+    base_d = base.dispersions
+    fields = {
+        name: _inertia(_table(inertia, name, inertia_keys, "inertia."), f"inertia.{name}", getattr(base_d, name))
+        for name in ("J0", "J1", "J2")
+    }
+    for table, keys in (("deployment", ("tau_J",)), ("orbit", ("n",)), ("disturbance", ("amplitude", "frequency", "noise_std"))):
+        t = _table(d, table, keys + (("seed",) if table == "disturbance" else ()), "")
+        fields.update({k: disp.parse_distribution(t[k], f"{table}.{k}") for k in keys if k in t})
+    seed = _table(d, "disturbance", ("seed", "amplitude", "frequency", "noise_std"), "").get("seed", "random")
+    if seed != "random":
+        fields["disturbance_seed"] = _number(seed, "disturbance.seed ('random' or a seed)", 0, 2**31 - 1, integer=True)
+    initial = _table(d, "initial", ("max_angle_deg", "rate"), "")
+    if "max_angle_deg" in initial:
+        fields["initial_angle_deg"] = _number(initial["max_angle_deg"], "initial.max_angle_deg", 0.0, 180.0)
+    if "rate" in initial:
+        fields["initial_rate"] = disp.parse_distribution(initial["rate"], "initial.rate")
+    dispersions = dataclasses.replace(base_d, **fields)
+    if not dispersions.initial_angle_deg < config.divergence_angle_deg:
+        raise ValueError(
+            f"divergence_angle_deg ({config.divergence_angle_deg}) must exceed initial.max_angle_deg "
+            f"({dispersions.initial_angle_deg}), or every large initial error would count as diverged"
+        )
+
+    gains = dict(base.gains)
+    gain_tables = _table(d, "gains", tuple(CONTROLLERS), "")
+    for name, t in gain_tables.items():
+        kind = CONTROLLERS[name][1]
+        t = _table(gain_tables, name, kind._fields, "gains.")
+        gains[name] = gains[name]._replace(**{k: np.asarray(v, dtype=float) if isinstance(v, list) else v for k, v in t.items()})
+    for g in gains.values():
+        check_gains(g)
+    for name in ("J0", "J2"):
+        check_inertia(f"nominal {name}", np.asarray(getattr(dispersions, name).nominal))
+    return dataclasses.replace(config, gains=gains, dispersions=dispersions)
+
+
+def config_to_dict(config: SweepConfig) -> dict:
+    """The TOML structure of a config (config_from_dict inverts it)."""
+    d = {k: getattr(config, k) for k in _TOP_KEYS}
+    d["controllers"] = list(config.controllers)
+    ds = config.dispersions
+
+    def inertia(x: disp.InertiaDispersion) -> dict:
+        t = {} if x.nominal is None else {"nominal": [list(r) for r in x.nominal]}
+        t.update(scale=disp.describe(x.scale), axis_scale=disp.describe(x.axis_scale), rotation_deg=x.rotation_deg)
+        t["products"] = disp.describe(x.products)
+        return t
+
+    d["inertia"] = {name: inertia(getattr(ds, name)) for name in ("J0", "J1", "J2")}
+    d["deployment"] = {"tau_J": disp.describe(ds.tau_J)}
+    d["orbit"] = {"n": disp.describe(ds.n)}
+    d["disturbance"] = {
+        "seed": "random" if ds.disturbance_seed is None else ds.disturbance_seed,
+        **{k: disp.describe(getattr(ds, k)) for k in ("amplitude", "frequency", "noise_std")},
+    }
+    d["initial"] = {"max_angle_deg": ds.initial_angle_deg, "rate": disp.describe(ds.initial_rate)}
+    d["gains"] = {name: {k: np.asarray(v).tolist() for k, v in g._asdict().items()} for name, g in config.gains.items()}
+    return d
+
+
+def _parse_value(text: str):
+    """A TOML value (number, string, array, inline table), else the text as a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def load_config(path: Path | None = None, overrides: tuple = ()) -> SweepConfig:
+    """Config from a TOML file (or the defaults), then ``KEY=VALUE`` overrides (dotted keys)."""
+    d = tomllib.loads(Path(path).read_text()) if path is not None else {}
+    for item in overrides:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise ValueError(f"override {item!r} is not KEY=VALUE")
+        *tables, leaf = key.strip().split(".")
+        target = d
+        for t in tables:
+            target = target.setdefault(t, {})
+            if not isinstance(target, dict):
+                raise ValueError(f"override {item!r}: {t} is not a table")
+        target[leaf] = _parse_value(value.strip())
+    return config_from_dict(d)
+
+
+# --- running ----------------------------------------------------------------------------
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "T", "dt"))
+def simulate_batch(params: disp.RolloutParams, gains, *, controller: str, T: float, dt: float) -> Metrics:
+    """Metrics of a batch of samples (leading axis), each the paper's mission with its parameters."""
+    law = CONTROLLERS[controller][0]()
+
+    def one(p: disp.RolloutParams):
+        scenario = paper_scenario(
+            T,
+            dt,
+            tau_J=p.tau_J,
+            n=p.n,
+            J0=p.J0,
+            J1=p.J1,
+            J2=p.J2,
+            disturbance_amplitude=p.amplitude,
+            disturbance_frequency=p.frequency,
+            noise_std=p.noise_std,
+            dtype=p.J0.dtype,
+        )
+        scenario = dataclasses.replace(scenario, R0=p.R0, Omega0=p.Omega0)
+        return rollout(scenario, law, gains, p.seed, record_every=scenario.n_steps).metrics
+
+    return jax.vmap(one)(params)
+
+
+def batch_mesh() -> Mesh:
+    """A Mesh of every device JAX sees (all processes), over the batch axis."""
+    return Mesh(np.array(jax.devices()), (BATCH,))
+
+
+def padded_chunk(chunk: int, n_devices: int) -> int:
+    """Samples per chunk: a multiple of the device count, at least MIN_SHARD per device."""
+    return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
+
+
+def run_chunk(params: disp.RolloutParams, gains, controller: str, T: float, dt: float, mesh: Mesh) -> dict:
+    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size: each device runs
+    ``simulate_batch`` on its shard of the NamedSharding over the batch axis."""
+    n = len(params.seed)
+    sharding = NamedSharding(mesh, PartitionSpec(BATCH))
+
+    def dispatch(item):
+        device, index = item
+        local = jax.device_put(jax.tree.map(lambda x: x[index], params), device)
+        return simulate_batch(local, jax.device_put(gains, device), controller=controller, T=T, dt=dt)
+
+    items = list(sharding.addressable_devices_indices_map((n,)).items())
+    with ThreadPoolExecutor(len(items)) as pool:  # the first chunk compiles for every device at once
+        shards = list(pool.map(dispatch, items))
+    out = jax.tree.map(
+        lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)), *shards
+    )
+    if jax.process_count() > 1:
+        from jax.experimental import multihost_utils
+
+        out = multihost_utils.process_allgather(out, tiled=True)
+    return {k: np.asarray(v) for k, v in out._asdict().items()}
+
+
+def _chunk_path(out: Path, controller: str, first: int) -> Path:
+    return out / "chunks" / f"{controller}-{first:09d}.npz"
+
+
+def load_chunks(out: Path, controllers, n_samples: int) -> dict:
+    """{controller: {field: array (n_samples, ...)}, plus 'done' (bool)} from OUT/chunks."""
+    results = {}
+    pattern = re.compile(r"(\w+)-(\d{9})\.npz")
+    for path in sorted((out / "chunks").glob("*.npz")):
+        match = pattern.fullmatch(path.name)
+        if not match or match.group(1) not in controllers:
+            continue
+        with np.load(path) as f:
+            keep = f["index"] < n_samples
+            index = f["index"][keep]
+            r = results.setdefault(match.group(1), {"done": np.zeros(n_samples, bool)})
+            for field in Metrics._fields:
+                value = f[field][keep]
+                if field not in r:
+                    r[field] = np.full((n_samples,) + value.shape[1:], np.nan)
+                r[field][index] = value
+            r["done"][index] = True
+    return results
+
+
+def _fingerprint(config: SweepConfig) -> dict:
+    """What fixes each sample's results (chunk size, controller subset, sample count do not)."""
+    d = config_to_dict(config)
+    for key in ("chunk", "controllers", "samples"):
+        d.pop(key)
+    d["precision"] = str(jnp.dtype(jnp.result_type(float)))
+    return d
+
+
+def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> None:
+    from so3jax.io import to_builtin
+
+    fingerprint = to_builtin(_fingerprint(config))
+    stamp = out / "sweep.json"
+    if resume and stamp.exists():
+        import json
+
+        previous = json.loads(stamp.read_text())
+        changed = sorted(k for k in set(previous) | set(fingerprint) if previous.get(k) != fingerprint.get(k))
+        if changed:
+            raise ValueError(f"--resume: {out} holds a sweep with other settings ({', '.join(changed)}); use another --out")
+    elif not resume and any((out / "chunks").glob("*.npz")):
+        raise ValueError(f"{out} already holds a sweep: pass --resume to finish it, or choose another --out")
+    if jax.process_index() == 0:
+        write_json(stamp, fingerprint)
+
+
+def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None) -> dict:
+    """Run (or finish, with resume) a sweep; write the output folder; return the summary."""
+    from tqdm import tqdm
+
+    out = Path(out)
+    _prepare_out(out, config, resume)
+    dtype = jnp.result_type(float)
+    samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
+    params = jax.tree.map(lambda x: x.astype(dtype) if x.dtype.kind == "f" else x, samples.params)
+    valid = np.flatnonzero(samples.valid)
+    n_steps = steps_for_horizon(config.T, config.dt)
+    mesh = batch_mesh()
+    chunk = padded_chunk(config.chunk, mesh.size)
+    done = load_chunks(out, config.controllers, config.samples)
+    todo = {c: valid[~done[c]["done"][valid]] if c in done else valid for c in config.controllers}
+    total = len(valid) * len(config.controllers)
+    writer = jax.process_index() == 0
+    bar = tqdm(
+        total=total,
+        initial=total - sum(map(len, todo.values())),
+        unit="sample",
+        desc="sweep",
+        disable=not writer or (None if progress is None else not progress),
+        dynamic_ncols=True,
+    )
+    start, computed = time.perf_counter(), 0
+    with bar:
+        for controller in config.controllers:
+            gains = jax.tree.map(lambda g: jnp.asarray(g, dtype), config.gains[controller])
+            for first in range(0, len(todo[controller]), chunk):
+                index = todo[controller][first : first + chunk]
+                padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
+                metrics = run_chunk(jax.tree.map(lambda x: x[padded], params), gains, controller, config.T, config.dt, mesh)
+                if writer:
+                    save_npz(_chunk_path(out, controller, int(index[0])), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
+                computed += len(index)
+                rate = computed / (time.perf_counter() - start)
+                bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
+                bar.update(len(index))
+    wall = time.perf_counter() - start
+    results = load_chunks(out, config.controllers, config.samples)
+    summary = summarize(config, samples, results)
+    summary["run"] = {
+        "devices": mesh.size,
+        "chunk": chunk,
+        "computed_samples": computed,
+        "wall_s": wall,
+        "samples_per_s": computed / wall if computed else None,
+        "trajectory_steps_per_s": computed * n_steps / wall if computed else None,
+    }
+    if writer:
+        write_outputs(out, config, samples, results, summary)
+    return summary
+
+
+# --- results ----------------------------------------------------------------------------
+
+
+def _phases(config: SweepConfig) -> list[tuple[int, str]]:
+    """(index, name) of the phases the horizon reaches."""
+    steps = paper_scenario(config.T, config.dt).steps_per_phase
+    return [(p, PHASE_NAMES[p]) for p, k in enumerate(steps) if k > 0]
+
+
+def diverged(config: SweepConfig, r: dict) -> np.ndarray:
+    """Non-finite state, or attitude error beyond divergence_angle_deg (NaN counts as beyond)."""
+    active = [p for p, _ in _phases(config)]
+    angle = r["max_angle_phase"][:, active].max(axis=1)
+    return (r["diverged"] == 1) | ~(angle <= math.radians(config.divergence_angle_deg))
+
+
+def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
+    """Per-sample table: parameters, then each controller's metrics (NaN where not simulated)."""
+    p = samples.params
+    cols: dict[str, Any] = {
+        "index": np.arange(len(p.seed)),
+        "status": np.where(samples.valid, "simulated", "rejected"),
+        "draws": samples.draws,
+        "disturbance_seed": p.seed,
+    }
+    entries = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+    for i, name in enumerate(("J0", "J1", "J2")):
+        J = getattr(p, name)
+        cols[f"{name}_scale"] = samples.scale[:, i]
+        cols.update({f"{name}_{e}": J[:, a, b] for e, (a, b) in entries.items()})
+    nominal = {name: np.trace(np.asarray(getattr(config.dispersions, name).nominal)) for name in ("J0", "J2")}
+    cols["J0_trace_ratio"] = np.trace(p.J0, axis1=1, axis2=2) / nominal["J0"]
+    cols["J2_trace_ratio"] = np.trace(p.J2, axis1=1, axis2=2) / nominal["J2"]
+    moments = [np.linalg.eigvalsh(getattr(p, name)) for name in ("J0", "J1", "J2")]
+    cols["physical"] = np.all([m[:, 0] + m[:, 1] >= m[:, 2] * (1 - 1e-9) for m in moments], axis=0)
+    cols.update(tau_J=p.tau_J, n=p.n, amplitude=p.amplitude, frequency=p.frequency, noise_std=p.noise_std)
+    cols["initial_angle_deg"] = np.degrees(np.linalg.norm(samples.attitude_error, axis=1))
+    cols.update({f"attitude_error_{a}": samples.attitude_error[:, i] for i, a in enumerate("xyz")})
+    cols.update({f"Omega0_{a}": p.Omega0[:, i] for i, a in enumerate("xyz")})
+    phases = _phases(config)
+    n = len(p.seed)
+    for c in config.controllers:
+        r = results.get(c, {})
+        done = r.get("done", np.zeros(n, bool))
+        for field in Metrics._fields:
+            if field == "diverged":
+                continue
+            value = r.get(field, np.full((n, len(PHASE_NAMES)) if field.endswith("_phase") else n, np.nan))
+            if field.endswith("_phase"):
+                cols.update({f"{c}_{field.removesuffix('_phase')}_{name}": value[:, i] for i, name in phases})
+            else:
+                cols[f"{c}_{field}"] = value
+        cols[f"{c}_nonfinite"] = np.where(done, r.get("diverged", np.zeros(n)) == 1, np.nan)
+        cols[f"{c}_diverged"] = np.where(done, diverged(config, r) if r else False, np.nan)
+    return cols
+
+
+def _stats(x) -> dict:
+    x = np.asarray(x, dtype=float)
+    if not len(x):
+        return dict.fromkeys(STAT_NAMES)
+    p50, p95, p99 = np.percentile(x, [50, 95, 99])
+    return {"mean": x.mean(), "std": x.std(), "p50": p50, "p95": p95, "p99": p99, "max": x.max()}
+
+
+def _row(cols: dict, i: int) -> dict:
+    return {k: (v[i].item() if hasattr(v[i], "item") else v[i]) for k, v in cols.items()}
+
+
+def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
+    """Statistics of RMSE [rad/s] and effort [N^2 m^2 s] per controller and phase over the
+    samples that did not diverge; counts and parameters of diverged and rejected samples;
+    paired comparisons (each later controller against each earlier one)."""
+    cols = columns(config, samples, results)
+    phases = _phases(config)
+    summary: dict[str, Any] = {
+        "config": config_to_dict(config),
+        "precision": str(jnp.dtype(jnp.result_type(float))),
+        "samples": {
+            "requested": config.samples,
+            "simulated": int(samples.valid.sum()),
+            "rejected": int((~samples.valid).sum()),
+            "rejected_indices": np.flatnonzero(~samples.valid).tolist(),
+            "redraws": int((samples.draws[samples.valid] - 1).sum()),
+            "nonphysical_inertia": int((samples.valid & ~cols["physical"]).sum()),
+        },
+        "controllers": {},
+        "paired": {},
+    }
+    simulated = {c: ~np.isnan(cols[f"{c}_diverged"]) for c in config.controllers}
+    bad = {c: cols[f"{c}_diverged"] == 1 for c in config.controllers}
+    for c in config.controllers:
+        good = simulated[c] & ~bad[c]
+        entry = {
+            "simulated": int(simulated[c].sum()),
+            "diverged": int(bad[c].sum()),
+            "nonfinite": int((cols[f"{c}_nonfinite"] == 1).sum()),
+            "diverged_samples": [_row(cols, i) for i in np.flatnonzero(bad[c])],
+        }
+        for metric in ("rmse", "effort"):
+            entry[metric] = {"mission": _stats(cols[f"{c}_{metric}"][good])}
+            entry[metric].update({name: _stats(cols[f"{c}_{metric}_{name}"][good]) for _, name in phases})
+        summary["controllers"][c] = entry
+    for j, b in enumerate(config.controllers):
+        for a in config.controllers[:j]:
+            paired = simulated[a] & simulated[b]
+            both = paired & ~bad[a] & ~bad[b]
+            pair = {
+                "samples": int(both.sum()),
+                f"diverged_only_{a}": int((paired & bad[a] & ~bad[b]).sum()),
+                f"diverged_only_{b}": int((paired & bad[b] & ~bad[a]).sum()),
+            }
+            for metric in ("rmse", "effort"):
+                x, y = cols[f"{a}_{metric}"][both], cols[f"{b}_{metric}"][both]
+                pair[metric] = {
+                    f"{b}_better_fraction": float(np.mean(y < x)) if len(x) else None,
+                    "relative_change": dict(zip(("mean", "p5", "p50", "p95"), _quantiles((y - x) / x))),
+                }
+            summary["paired"][f"{b}_vs_{a}"] = pair
+    return summary
+
+
+def _quantiles(x):
+    if not len(x):
+        return (None,) * 4
+    return (float(np.mean(x)), *map(float, np.percentile(x, [5, 50, 95])))
+
+
+def format_summary(summary: dict) -> str:
+    """Markdown tables of the summary."""
+    lines = []
+    s = summary["samples"]
+    lines.append(
+        f"{s['requested']} samples: {s['simulated']} simulated, {s['rejected']} rejected "
+        f"(not positive definite after {summary['config']['max_draws']} draws), {s['redraws']} redraws, "
+        f"{s['nonphysical_inertia']} with a non-physical inertia (triangle inequality)"
+    )
+    for metric, label in (("rmse", "RMSE [rad/s]"), ("effort", "effort [N^2 m^2 s]")):
+        lines += ["", f"| {label} | phase | " + " | ".join(STAT_NAMES) + " |", "|---|---|" + "---:|" * len(STAT_NAMES)]
+        for c, entry in summary["controllers"].items():
+            for phase, st in entry[metric].items():
+                cells = ["" if st[k] is None else f"{st[k]:.4g}" for k in STAT_NAMES]
+                lines.append(f"| {c} | {phase} | " + " | ".join(cells) + " |")
+    lines += ["", "| controller | simulated | diverged | non-finite |", "|---|---:|---:|---:|"]
+    for c, e in summary["controllers"].items():
+        lines.append(f"| {c} | {e['simulated']} | {e['diverged']} | {e['nonfinite']} |")
+    for name, pair in summary["paired"].items():
+        b, a = name.split("_vs_")
+        lines.append("")
+        lines.append(f"{b} vs {a} on {pair['samples']} paired samples (neither diverged):")
+        for metric in ("rmse", "effort"):
+            frac = pair[metric][f"{b}_better_fraction"]
+            q = pair[metric]["relative_change"]
+            if frac is None:
+                continue
+            lines.append(
+                f"- {metric}: {b} lower in {100 * frac:.1f} % of samples; change {b}/{a} - 1: "
+                f"median {100 * q['p50']:+.1f} %, 5-95 % [{100 * q['p5']:+.1f} %, {100 * q['p95']:+.1f} %], mean {100 * q['mean']:+.1f} %"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(path: Path, cols: dict) -> None:
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(cols)
+    for i in range(len(cols["index"])):
+        writer.writerow(["" if isinstance(v, float) and math.isnan(v) else v for v in _row(cols, i).values()])
+    write_text(path, buffer.getvalue())
+
+
+def write_outputs(out: Path, config: SweepConfig, samples: disp.Samples, results: dict, summary: dict) -> None:
+    cols = columns(config, samples, results)
+    write_csv(out / "samples.csv", cols)
+    save_npz(out / "samples.npz", **cols)
+    write_json(out / "summary.json", summary)
+    write_text(out / "summary.md", format_summary(summary))
+    for name, fig in figures(config, cols).items():
+        save_figure(fig, out / name)
+
+
+def figures(config: SweepConfig, cols: dict) -> dict:
+    """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale."""
+    from matplotlib.figure import Figure
+
+    names = config.controllers
+    good = {c: cols[f"{c}_diverged"] == 0 for c in names}
+    cdf, hist = Figure(figsize=(10, 3.8)), Figure(figsize=(10, 3.8))
+    for fig, kind in ((cdf, "cdf"), (hist, "hist")):
+        axes = fig.subplots(1, 2)
+        for ax, (metric, label) in zip(axes, (("rmse", "RMSE [rad/s]"), ("effort", "effort [N$^2$ m$^2$ s]"))):
+            values = {c: np.sort(cols[f"{c}_{metric}"][good[c]]) for c in names}
+            pooled = np.concatenate(list(values.values()))
+            if not len(pooled):
+                continue
+            low, high = pooled.min(), pooled.max()
+            bins = np.geomspace(low, high, 40) if 0 < low < high else 20
+            for c, v in values.items():
+                if kind == "cdf":
+                    ax.step(v, np.arange(1, len(v) + 1) / max(len(v), 1), where="post", label=c)
+                else:
+                    ax.hist(v, bins=bins, histtype="step", label=c)
+            ax.set_xscale("log")
+            ax.set_xlabel(label)
+            ax.set_ylabel("fraction of samples" if kind == "cdf" else "samples")
+            ax.grid(alpha=0.3)
+            ax.legend()
+        fig.suptitle(f"{len(cols['index'])} samples, T = {config.T:g} s (diverged samples left out)")
+    scatter = Figure(figsize=(10, 3.8))
+    panels = [("J0_trace_ratio", "rmse", "capture inertia scale tr(J0)/tr(J0 nominal)", "mission RMSE [rad/s]")]
+    if any(name == "detumble" for _, name in _phases(config)):
+        panels.append(("J2_trace_ratio", "rmse_detumble", "docked inertia scale tr(J2)/tr(J2 nominal)", "detumble RMSE [rad/s]"))
+    for ax, (x, y, xlabel, ylabel) in zip(scatter.subplots(1, len(panels), squeeze=False)[0], panels):
+        for c in names:
+            ax.scatter(cols[x][good[c]], cols[f"{c}_{y}"][good[c]], s=6, alpha=0.6, label=c)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        ax.legend()
+    return {"cdf.png": cdf, "histograms.png": hist, "rmse_vs_inertia_scale.png": scatter}
+
+
+# --- command line -----------------------------------------------------------------------
+
+
+def register(subparsers) -> None:
+    from so3jax.cli import add_precision_argument
+
+    p = subparsers.add_parser(
+        "sweep",
+        help="Monte Carlo robustness sweep of the paper's mission (sharded over all devices)",
+        description="Monte Carlo robustness sweep: dispersed missions x controllers, paired by sample.",
+    )
+    p.add_argument("config", nargs="?", type=Path, help="TOML config (default: the built-in one, = sweeps/default.toml)")
+    p.add_argument("--samples", type=int, help="number of samples")
+    p.add_argument("--T", type=float, help="horizon [s]")
+    p.add_argument("--controllers", help="comma-separated subset of: " + ", ".join(CONTROLLERS))
+    p.add_argument("--chunk", type=int, help="samples per batch (rounded up to a multiple of 2 x devices)")
+    p.add_argument("--seed", type=int, help="sampling seed")
+    p.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config entry with a TOML value, e.g. --set 'inertia.J0.scale={dist=\"normal\", mean=1, std=0.1}'",
+    )
+    p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
+    p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
+    p.add_argument("--distributed", action="store_true", help="multi-host: call jax.distributed.initialize() first")
+    add_precision_argument(p)
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.distributed:
+        jax.distributed.initialize()
+    overrides = list(args.set)
+    for key in ("samples", "T", "chunk", "seed"):
+        if getattr(args, key) is not None:
+            overrides.append(f"{key}={getattr(args, key)}")
+    if args.controllers is not None:
+        overrides.append("controllers=" + str([c.strip() for c in args.controllers.split(",")]).replace("'", '"'))
+    with warnings.catch_warnings():
+        warnings.simplefilter("once", InertiaWarning)
+        config = load_config(args.config, tuple(overrides))
+    summary = run_sweep(config, args.out, resume=args.resume)
+    if jax.process_index() == 0:
+        print(format_summary(summary))
+        run = summary["run"]
+        if run["computed_samples"]:
+            print(
+                f"{run['computed_samples']} rollouts in {run['wall_s']:.1f} s on {run['devices']} device(s): "
+                f"{run['samples_per_s']:.3g} samples/s, {run['trajectory_steps_per_s'] / 1e6:.3g} M trajectory-steps/s "
+                f"(compile included); results in {args.out}/",
+                file=sys.stderr,
+            )
+    return 0
