@@ -140,10 +140,10 @@ def _build(cls, table: dict, prefix: str):
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for key in table:
         if key not in fields:
-            raise ValueError(f"unknown config key {prefix}{key!r} (known: {', '.join(fields)})")
+            raise ValueError(f"unknown config key '{prefix}{key}' (known: {', '.join(fields)})")
     for name, f in fields.items():
         if name not in table and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-            raise ValueError(f"missing config key {prefix}{name!r}")
+            raise ValueError(f"missing config key '{prefix}{name}'")
     values = {}
     for key, value in table.items():
         if key in _SECTIONS and cls is TuneConfig:
@@ -191,9 +191,10 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30)
     try:  # an optimizer that needs more than (grad, value), e.g. lbfgs's value_fn
         probe = jnp.zeros(2)
-        tx.update(probe, tx.init(probe), probe, value=jnp.zeros(()))
-    except TypeError as err:
-        raise ValueError(f"config key 'optimizer.name': optax.{config.name} needs more than a gradient: {err}") from err
+        with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
+            tx.update(probe, tx.init(probe), probe, value=jnp.zeros(()))
+    except Exception as err:  # any failure on a trivial update disqualifies it
+        raise ValueError(f"config key 'optimizer.name': optax.{config.name} cannot be used here: {err}") from err
     return tx
 
 
@@ -260,24 +261,27 @@ def parse_override(text: str) -> tuple[str, Any]:
     return key.strip(), parsed
 
 
-def load_config(path, overrides=()) -> TuneConfig:
-    """Read a TOML campaign file, apply (dotted key, value) overrides, validate.
+def parse_config(table: dict, base_dir=".") -> TuneConfig:
+    """A validated TuneConfig from a TOML-like table; gain-file paths relative to base_dir."""
+    table = json.loads(json.dumps(table))  # a deep copy
+    for section, key in (("", "initial_gains"), ("cost", "budget_gains")):
+        holder = table.get(section, {}) if section else table
+        value = holder.get(key) if isinstance(holder, dict) else None
+        if isinstance(value, str) and value.endswith(".json"):
+            holder[key] = str((Path(base_dir) / value).resolve())
+    config = _build(TuneConfig, table, "")
+    validate(config)
+    return config
 
-    Relative gain-file paths are resolved against the config file's folder.
-    """
+
+def load_config(path, overrides=()) -> TuneConfig:
+    """Read a TOML campaign file and apply (dotted key, value) overrides."""
     path = Path(path)
     with open(path, "rb") as f:
         table = tomllib.load(f)
     for key, value in overrides:
         _set_key(table, key, value)
-    for section, key in (("", "initial_gains"), ("cost", "budget_gains")):
-        holder = table.get(section, {}) if section else table
-        value = holder.get(key) if isinstance(holder, dict) else None
-        if isinstance(value, str) and value.endswith(".json"):
-            holder[key] = str((path.parent / value).resolve())
-    config = _build(TuneConfig, table, "")
-    validate(config)
-    return config
+    return parse_config(table, path.parent)
 
 
 # --- gains -------------------------------------------------------------------------
@@ -377,12 +381,12 @@ def _summary(metrics, refs, mode) -> Evaluation:
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every"))
-def _batch_metrics(scenario, controller, gains, batch, record_every=None):
+def _batch_metrics(scenario, controller, gains, batch, record_every):
     return batch_metrics(scenario, controller, gains, batch, record_every=record_every)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mode", "gradient", "record_every"))
-def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every=None):
+def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every):
     """(Evaluation, d cost / d params) of log-gains params over the batch."""
 
     def cost(p):
@@ -396,7 +400,7 @@ def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, rec
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mode", "record_every"))
-def population_costs(population, scenario, controller, batch, refs, mode, record_every=None):
+def population_costs(population, scenario, controller, batch, refs, mode, record_every):
     """Evaluation of each member of a population of log-gains (leading axis P)."""
 
     def one(params):
@@ -425,7 +429,8 @@ class ESState(NamedTuple):
 
 @functools.partial(jax.jit, static_argnames=("tx",))
 def _optax_step(tx, state: GradientState, grad, value):
-    updates, opt_state = tx.update(grad, state.opt_state, state.params, value=value)
+    with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
+        updates, opt_state = tx.update(grad, state.opt_state, state.params, value=value)
     return GradientState(optax.apply_updates(state.params, updates), opt_state)
 
 
@@ -742,7 +747,7 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
                     gains,
                     time.perf_counter() - start,
                     rollouts,
-                    grad_norm=float(optax.global_norm(grad)),
+                    grad_norm=float(optax.tree.norm(grad)),
                 )
                 finite = bool(new_state.opt_state.last_finite) and math.isfinite(row["cost"])
             else:

@@ -1,0 +1,209 @@
+"""Gradients of the SPEC 6 tuning cost through whole rollouts: time and memory.
+
+For each controller and horizon N (steps of dt = 0.01 s) this measures, on a batch of B
+scenarios (inertia scales x disturbance seeds, vmapped, one XLA CPU device), float64:
+
+* ``value``: the cost alone (forward rollouts), compile and run time, peak RSS;
+* ``forward``: value and gradient by forward mode (jax.jacfwd over the log-gains);
+* ``reverse``: value and gradient by reverse mode (jax.value_and_grad through the
+  rollout's sqrt(N)-block checkpointing);
+
+each in its own subprocess, so every peak resident set size (ru_maxrss, which includes
+compilation) belongs to one computation. XLA's own estimate of the temporaries of the
+compiled program is reported alongside. At ``--fd-horizon`` the gradients are checked
+against central finite differences of the value (step 1e-4 in log-gain).
+
+    python benchmarks/gradients.py                       # N = 1e4, 3e4, 1e5, 4e5; B = 8
+    python benchmarks/gradients.py --horizons 10000 --batch 2 --controllers pd
+
+Prints one JSON object: ``runs`` (one per subprocess), ``summary`` (gradient / value
+time ratios and peak RSS per controller and N) and ``fd_check``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+WHATS = ("value", "forward", "reverse")
+FD_STEP = 1e-4
+
+
+def _child(spec: dict) -> dict:
+    """One measurement, in this process (run as a subprocess by the parent)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    import warnings
+
+    import jax.numpy as jnp
+    import numpy as np
+    from jax.flatten_util import ravel_pytree
+
+    from so3jax import gradients, tune
+    from so3jax.scenario import InertiaWarning, paper_scenario
+
+    rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InertiaWarning)
+        scenario = paper_scenario(T=spec["N"] * 0.01)
+    scales = [0.9, 1.0, 1.1, 1.2][: max(1, spec["batch"] // 2)]
+    seeds = list(range(spec["batch"] // len(scales)))
+    batch = gradients.make_batch(scales, seeds, jnp.float64)
+    controller = tune.CONTROLLERS[spec["controller"]]
+    refs = tune.CostRefs(jnp.asarray(1e-3), jnp.asarray(100.0), jnp.asarray(1.0))
+    params = tune.to_params(tune.resolve_gains(spec["controller"], "paper", jnp.float64))
+    flat, unravel = ravel_pytree(params)
+
+    def cost(p):
+        metrics = gradients.batch_metrics(scenario, controller, tune.to_gains(p), batch)
+        return jnp.mean(tune.scenario_costs(metrics, refs, "weighted")), ()
+
+    if spec["what"] == "value":
+
+        def fn(x):
+            return cost(unravel(x))[0]
+
+    else:
+        value_and_grad = gradients.value_and_grad(cost, spec["what"])
+
+        def fn(x):
+            (value, _), grad = value_and_grad(unravel(x))
+            return value, ravel_pytree(grad)[0]
+
+    t0 = time.perf_counter()
+    compiled = jax.jit(fn).lower(flat).compile()
+    compile_s = time.perf_counter() - t0
+    memory = compiled.memory_analysis()
+    runs = []
+    for _ in range(spec["repeat"]):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(compiled(flat))
+        runs.append(time.perf_counter() - t0)
+    result = {
+        **spec,
+        "n_params": int(flat.size),
+        "compile_s": compile_s,
+        "run_s": min(runs),
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "rss_after_import_mb": rss_start,
+        "xla_temp_mb": memory.temp_size_in_bytes / 2**20 if memory is not None else None,
+    }
+    if spec["what"] == "value":
+        result["value"] = float(out)
+        if spec.get("fd"):
+            steps = np.eye(flat.size) * FD_STEP
+            result["fd_gradient"] = [
+                (float(compiled(flat + e)) - float(compiled(flat - e))) / (2 * FD_STEP) for e in steps
+            ]
+    else:
+        result["value"] = float(out[0])
+        result["gradient"] = np.asarray(out[1]).tolist()
+    return result
+
+
+def _run_child(spec: dict, cpu: int | None) -> dict:
+    env = dict(os.environ, XLA_FLAGS="")  # one XLA CPU device
+    cmd = [sys.executable, __file__, "--child", json.dumps(spec)]
+    if cpu is not None:
+        cmd = ["taskset", "-c", str(cpu)] + cmd
+    proc = subprocess.run(cmd, check=False, capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        return {**spec, "error": proc.stderr[-2000:]}
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _relative_error(a, b):
+    num = sum((x - y) ** 2 for x, y in zip(a, b)) ** 0.5
+    return num / sum(y**2 for y in b) ** 0.5
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--controllers", nargs="+", default=["pd", "adaptive"], choices=["pd", "adaptive"])
+    parser.add_argument("--horizons", nargs="+", type=int, default=[10_000, 30_000, 100_000, 400_000])
+    parser.add_argument("--batch", type=int, default=8, help="scenarios per batch (even: 2 seeds x B/2 inertias)")
+    parser.add_argument("--modes", nargs="+", default=["forward", "reverse"], choices=["forward", "reverse"])
+    parser.add_argument("--fd-horizon", type=int, default=400_000, help="N of the finite-difference check (0: none)")
+    parser.add_argument("--jobs", type=int, default=1, help="subprocesses at a time, each pinned to its own core")
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(_child(json.loads(args.child))))
+        return
+
+    specs = [
+        {
+            "controller": c,
+            "N": n,
+            "what": what,
+            "batch": args.batch,
+            "repeat": max(1, min(3, 100_000 // n)),
+            "fd": what == "value" and n == args.fd_horizon,
+        }
+        for c in args.controllers
+        for n in args.horizons
+        for what in ("value", *args.modes)
+    ]
+    # longest first, so parallel jobs finish together
+    order = sorted(range(len(specs)), key=lambda i: -specs[i]["N"] * (1 + 20 * (specs[i]["what"] == "reverse")))
+    cpus = sorted(os.sched_getaffinity(0)) if args.jobs > 1 else [None]
+    started = time.perf_counter()
+    with ThreadPoolExecutor(args.jobs) as pool:
+        futures = {i: pool.submit(_run_child, specs[i], cpus[k % len(cpus)]) for k, i in enumerate(order)}
+        runs = [futures[i].result() for i in range(len(specs))]
+
+    summary, fd_check = {}, {}
+    for c in args.controllers:
+        for n in args.horizons:
+            by_what = {r["what"]: r for r in runs if r["controller"] == c and r["N"] == n and "error" not in r}
+            if "value" not in by_what:
+                continue
+            value = by_what["value"]
+            entry = {"value_s": value["run_s"], "peak_rss_mb": {w: r["peak_rss_mb"] for w, r in by_what.items()}}
+            for mode in args.modes:
+                if mode in by_what:
+                    entry[f"{mode}_s"] = by_what[mode]["run_s"]
+                    entry[f"{mode}_over_value"] = by_what[mode]["run_s"] / value["run_s"]
+            summary.setdefault(c, {})[str(n)] = entry
+            if "fd_gradient" in value:
+                fd_check[c] = {
+                    "N": n,
+                    "fd_gradient": value["fd_gradient"],
+                    **{
+                        f"{mode}_relative_error": _relative_error(by_what[mode]["gradient"], value["fd_gradient"])
+                        for mode in args.modes
+                        if mode in by_what
+                    },
+                }
+    import jax
+
+    report = {
+        "benchmark": "gradients",
+        "machine": {
+            "platform": platform.platform(),
+            "cpus": os.cpu_count(),
+            "affinity": len(os.sched_getaffinity(0)),
+            "python": platform.python_version(),
+            "jax": jax.__version__,
+            "load_average_at_end": os.getloadavg(),
+        },
+        "batch": args.batch,
+        "dt": 0.01,
+        "wall_s": time.perf_counter() - started,
+        "summary": summary,
+        "fd_check": fd_check,
+        "runs": runs,
+    }
+    print(json.dumps(report, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,277 @@
+"""Tuning: cost modes, the optax loop's outputs, resume after an interrupt, the non-finite
+stop, the gradient-free baseline, bad configs and the command line.
+
+Every run uses T = 20 s and batches of 2 scenarios (as tests/test_gradients.py), so the
+compiled rollouts are shared across tests.
+"""
+
+import copy
+import csv
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from so3jax import cli, tune
+from so3jax.metrics import Metrics
+
+BASE = {
+    "controller": "pd",
+    "iterations": 3,
+    "scenario": {"T": 20.0},
+    "train": {"seeds": [0, 1]},
+    "validation": {"seeds": [10, 11]},
+    "cost": {"mode": "weighted", "weight": 0.5},
+    "optimizer": {"learning_rate": 0.1},
+}
+
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.scenario.InertiaWarning")
+
+
+def table(**changes):
+    """BASE with dotted-key changes; a value of None deletes the key."""
+    t = copy.deepcopy(BASE)
+    for dotted, value in changes.items():
+        *parents, last = dotted.split("__")
+        holder = t
+        for key in parents:
+            holder = holder.setdefault(key, {})
+        if value is None:
+            holder.pop(last, None)
+        else:
+            holder[last] = value
+    return t
+
+
+def config(**changes):
+    return tune.parse_config(table(**changes))
+
+
+def read_history(path):
+    with open(path / "history.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def without_wall_time(rows):
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+
+# --- cost modes (SPEC 6) -------------------------------------------------------------
+
+
+def fake_metrics(rmse, effort):
+    rmse, effort = jnp.asarray(rmse), jnp.asarray(effort)
+    zero = jnp.zeros_like(rmse)
+    return Metrics(rmse, zero, effort, zero, zero, zero, zero, zero, zero, zero, zero)
+
+
+def test_weighted_cost():
+    refs = tune.CostRefs(jnp.asarray(2e-3), jnp.asarray(100.0), jnp.asarray(0.5))
+    costs = tune.scenario_costs(fake_metrics([1e-3, 4e-3], [100.0, 50.0]), refs, "weighted")
+    np.testing.assert_allclose(costs, [0.5 + 0.5, 2.0 + 0.25], rtol=1e-15)
+
+
+def test_equal_effort_cost_penalizes_only_effort_above_the_budget():
+    budget = jnp.asarray([100.0, 200.0])  # one per scenario, as taken from another controller's run
+    refs = tune.CostRefs(jnp.asarray(1e-3), budget, jnp.asarray(10.0))
+    costs = tune.scenario_costs(fake_metrics([1e-3, 2e-3], [90.0, 300.0]), refs, "equal_effort")
+    np.testing.assert_allclose(costs, [1.0, 2.0 + 10.0 * 0.5**2], rtol=1e-15)
+
+
+def test_cost_refs_default_to_the_initial_gains_and_take_the_budget_per_scenario():
+    cfg = config(cost={"mode": "equal_effort", "weight": 5.0, "budget_controller": "pd"})
+    problem = tune.build_problem(cfg)
+    gains = tune.resolve_gains("pd", "paper", jnp.float64)
+    metrics = tune.evaluate(problem, gains, problem.train)
+    refs = tune.cost_refs(cfg, problem, metrics, problem.train)
+    np.testing.assert_allclose(refs.rmse, jnp.mean(metrics.rmse), rtol=1e-15)
+    np.testing.assert_allclose(refs.effort, metrics.effort, rtol=1e-15)  # the PD's own effort
+    assert float(refs.weight) == 5.0
+    np.testing.assert_allclose(tune.scenario_costs(metrics, refs, "equal_effort"), metrics.rmse / refs.rmse, rtol=1e-15)
+
+
+# --- runs ---------------------------------------------------------------------------
+
+
+def test_run_writes_its_results_and_every_gradient_is_finite(tmp_path):
+    report = tune.tune(config(), tmp_path, progress=False)
+    for name in ("best_gains.json", "history.csv", "history.png", "validation.json", "checkpoint.npz"):
+        assert (tmp_path / name).is_file(), name
+    rows = read_history(tmp_path)
+    assert [int(r["iteration"]) for r in rows] == [0, 1, 2]
+    assert all(
+        math.isfinite(float(r[k])) for r in rows for k in ("cost", "rmse", "effort", "grad_norm", "k_R", "k_Omega")
+    )
+    assert float(rows[0]["cost"]) == pytest.approx(1.5)  # RMSE_ref, Effort_ref: the initial gains
+    assert float(rows[-1]["cost"]) < float(rows[0]["cost"])
+    best = json.loads((tmp_path / "best_gains.json").read_text())
+    assert best["controller"] == "pd" and best["iteration"] == 2 and set(best["gains"]) == {"k_R", "k_Omega"}
+    assert json.loads((tmp_path / "validation.json").read_text()) == json.loads(json.dumps(report))
+    assert report["scenarios"]["seeds"] == [10, 11]  # held out
+    assert report["tuned"]["gains"] == best["gains"]
+    assert report["cost"]["tuned"] < report["cost"]["initial"]
+    # a best_gains.json is a valid starting point for another campaign
+    assert tune.resolve_gains("pd", str(tmp_path / "best_gains.json"), jnp.float64).k_R == best["gains"]["k_R"]
+
+
+def test_equal_effort_run_with_the_budget_of_another_controller(tmp_path):
+    cfg = config(
+        controller="adaptive",
+        iterations=2,
+        cost={"mode": "equal_effort", "weight": 100.0, "budget_controller": "pd", "budget_gains": "paper"},
+    )
+    report = tune.tune(cfg, tmp_path, progress=False)
+    assert report["budget"]["controller"] == "pd" and report["budget"]["gains"] == {"k_R": 0.5714, "k_Omega": 25.0}
+    assert len(report["training"]["refs"]["effort"]) == 2  # one budget per training scenario
+    assert set(report["tuned"]["gains"]) == {"K_r", "K_w", "Gamma"}
+
+
+@pytest.mark.parametrize("method", tune.METHODS)
+def test_resume_after_interrupt_equals_an_uninterrupted_run(tmp_path, monkeypatch, method):
+    cfg = config(iterations=4, method=method, es={"population": 2})
+    straight = tune.tune(cfg, tmp_path / "straight", progress=False)
+
+    # Ctrl-C in the middle of the third iteration
+    step = "cost_and_grad" if method == "gradient" else "population_costs"
+    original, calls = getattr(tune, step), []
+
+    def interrupted(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(tune, step, interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        tune.tune(cfg, tmp_path / "resumed", progress=False)
+    assert len(read_history(tmp_path / "resumed")) == 2  # at most one iteration lost
+    monkeypatch.setattr(tune, step, original)
+    with pytest.raises(ValueError, match="--resume"):
+        tune.tune(cfg, tmp_path / "resumed", progress=False)
+    with pytest.raises(ValueError, match="another configuration"):
+        tune.tune(
+            config(iterations=4, method=method, es={"population": 2}, seed=None, optimizer={"learning_rate": 0.2}),
+            tmp_path / "resumed",
+            resume=True,
+            progress=False,
+        )
+    resumed = tune.tune(cfg, tmp_path / "resumed", resume=True, progress=False)
+
+    assert without_wall_time(read_history(tmp_path / "resumed")) == without_wall_time(
+        read_history(tmp_path / "straight")
+    )
+    for name in ("best_gains.json",):
+        assert (tmp_path / "resumed" / name).read_text() == (tmp_path / "straight" / name).read_text()
+    for report in (straight, resumed):
+        report["training"].pop("wall_s")
+    assert resumed == straight
+
+
+def test_non_finite_gradient_stops_with_the_last_good_gains_saved(tmp_path):
+    # Almost no effort weight: the gradient asks for larger gains, and Adam's first step moves
+    # every log-gain by the learning rate: k_Omega x e^20 makes RK4 blow up.
+    cfg = config(cost={"mode": "weighted", "weight": 1e-9}, optimizer={"learning_rate": 20.0})
+    with pytest.raises(tune.NonFiniteGradientError, match="non-finite .* iteration 1"):
+        tune.tune(cfg, tmp_path, progress=False)
+    best = json.loads((tmp_path / "best_gains.json").read_text())
+    assert best["last_good"]["iteration"] == 0
+    assert best["last_good"]["gains"]["k_Omega"] == pytest.approx(25.0)
+    rows = read_history(tmp_path)
+    assert len(rows) == 2 and not math.isfinite(float(rows[1]["grad_norm"]))
+
+
+def test_gradient_free_baseline_never_gets_worse(tmp_path):
+    cfg = config(method="es", iterations=3, es={"population": 2, "sigma": 0.3, "seed": 1})
+    report = tune.tune(cfg, tmp_path, progress=False)
+    rows = read_history(tmp_path)
+    costs = [float(r["cost"]) for r in rows]
+    assert costs == sorted(costs, reverse=True) and costs[-1] <= 1.5
+    assert [int(r["rollouts"]) for r in rows] == [2 + 4, 2 + 8, 2 + 12]  # initial batch + population x batch
+    assert report["training"]["method"] == "es" and "sigma" in rows[0]
+
+
+# --- bad configurations: a ValueError naming the key, before any compilation -------------
+
+
+@pytest.mark.parametrize(
+    ("changes", "key"),
+    [
+        ({"optimizer__name": "adamm"}, "optimizer.name"),
+        ({"optimizer__name": "chain"}, "optimizer.name"),
+        ({"optimizer__name": "lbfgs"}, "optimizer.name"),
+        ({"optimizer__learning_rate": -0.1}, "optimizer.learning_rate"),
+        ({"optimizer__learning_rate": float("nan")}, "optimizer.learning_rate"),
+        ({"optimizer__options": {"bogus": 1}}, "optimizer.options"),
+        ({"optimizer__schedule": "no_such_schedule"}, "optimizer.schedule"),
+        ({"optimizer__schedule": "cosine_decay_schedule"}, "optimizer.schedule_options"),
+        ({"controller": None}, "controller"),
+        ({"iterations": None}, "iterations"),
+        ({"train": None}, "train"),
+        ({"train__seeds": None}, "train.seeds"),
+        ({"validation": None}, "validation"),
+        ({"controller": "lqr"}, "controller"),
+        ({"iterations": 0}, "iterations"),
+        ({"iterations": 2.5}, "iterations"),
+        ({"gradient": "sideways"}, "gradient"),
+        ({"method": "annealing"}, "method"),
+        ({"cost__mode": "minimax"}, "cost.mode"),
+        ({"cost__weight": -1.0}, "cost.weight"),
+        ({"cost__mode": "equal_effort"}, "cost.budget"),
+        ({"cost__budget_controller": "lqr", "cost__mode": "equal_effort"}, "cost.budget_controller"),
+        ({"cost__lambda": 1.0}, "cost.lambda"),
+        ({"validation__seeds": [1, 10]}, "validation.seeds"),
+        ({"train__inertia_scales": [1.0, -0.5]}, "train.inertia_scales"),
+        ({"scenario__Tend": 10.0}, "scenario.Tend"),
+        ({"record_every": 0}, "record_every"),
+        ({"diagonal_gamma": True}, "diagonal_gamma"),
+        ({"learning_rate": 0.1}, "learning_rate"),
+    ],
+)
+def test_bad_config_is_a_value_error_naming_the_key(changes, key):
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+        config(**changes)
+
+
+def test_bad_initial_gains_name_the_gain():
+    with pytest.raises(ValueError, match="K_w"):
+        tune.resolve_gains("adaptive", {"K_r": 0.1, "Gamma": 1.0}, jnp.float64)
+    with pytest.raises(ValueError, match="k_R"):
+        tune.resolve_gains("pd", {"k_R": -1.0, "k_Omega": 1.0}, jnp.float64)
+
+
+# --- command line --------------------------------------------------------------------
+
+
+def test_cli_overrides_and_resume(tmp_path, capsys):
+    path = tmp_path / "campaign.toml"
+    path.write_text(
+        'controller = "pd"\niterations = 5\n[scenario]\nT = 4000.0\n[train]\nseeds = [0, 1]\n'
+        '[validation]\nseeds = [10, 11]\n[cost]\nmode = "weighted"\n'
+    )
+    out = tmp_path / "run"
+    args = [
+        "tune",
+        str(path),
+        "--T",
+        "20",
+        "--iterations",
+        "1",
+        "--out",
+        str(out),
+        "--set",
+        "optimizer.learning_rate=0.2",
+    ]
+    assert cli.main(args) == 0
+    assert "| pd (tuned) | pd |" in capsys.readouterr().out
+    more = args[:5] + ["2"] + args[6:]
+    assert cli.main(more) == 2  # the run exists: --resume or another --out
+    assert "--resume" in capsys.readouterr().err
+    assert cli.main([*more, "--resume"]) == 0
+    rows = read_history(out)
+    assert len(rows) == 2 and json.loads((out / "validation.json").read_text())["training"]["T"] == 20.0
+    assert (
+        cli.main(["tune", str(path), "--T", "20", "--set", "optimizer.name=adamm", "--out", str(tmp_path / "x")]) == 2
+    )
+    assert "optimizer.name" in capsys.readouterr().err
