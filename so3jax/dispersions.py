@@ -98,7 +98,7 @@ def parse_distribution(value, where: str) -> Distribution:
         raise ValueError(f"{where}: distribution {value['dist']!r} takes exactly {names}, got {sorted(params)}")
     for name, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ValueError(f"{where}.{name} must be a number, got {v!r}")
+            raise ValueError(f"{where}.{name} must be a number, got {v!r}")  # noqa: TRY004
     return _checked(kind(**{k: float(v) for k, v in params.items()}), where)
 
 
@@ -285,7 +285,10 @@ def _draw_block(d: Dispersions, words, max_draws: int):
     ok = is_positive_definite(J0) & is_positive_definite(J1) & is_positive_definite(J2) & (tau_J > 0)
     valid = ok.any(axis=1)
     first = np.where(valid, ok.argmax(axis=1), max_draws - 1)
-    pick = lambda x: x[np.arange(len(x)), first]  # noqa: E731
+
+    def pick(x):
+        return x[np.arange(len(x)), first]
+
     n, amplitude, frequency, noise_std = (dist.sample(*other.take(1))[:, 0] for dist in (d.n, d.amplitude, d.frequency, d.noise_std))
     attitude_error = rotation_vector(*other.take(4), math.radians(d.initial_angle_deg))
     R0 = rotation_matrix(attitude_error)

@@ -6,7 +6,7 @@ devices JAX sees (batch axis), and every device runs the same single-device exec
 (a vmapped rollout) on its shard. That, rather than one SPMD-partitioned program, is what
 keeps results bit-for-bit identical whatever the chunk size and the device count: XLA's
 partitioned compilation rounds differently (measured: ~1 ulp per step on CPU). A shard
-holds at least 2 samples (a batch of 1 compiles differently too). Finished chunks are
+holds at least 8 samples: XLA also compiles batches of 1 or 2 with different rounding. Finished chunks are
 saved at once under ``OUT/chunks``, so an interrupted sweep resumes (``--resume``)
 without recomputing them.
 
@@ -23,6 +23,7 @@ import dataclasses
 import functools
 import io
 import math
+import operator
 import re
 import sys
 import time
@@ -35,7 +36,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
 from so3jax import dispersions as disp
 from so3jax.controllers import (
@@ -53,6 +54,7 @@ from so3jax.scenario import (
     PAPER_J0,
     PAPER_J2,
     InertiaWarning,
+    Scenario,
     check_gains,
     check_inertia,
     paper_scenario,
@@ -64,7 +66,7 @@ PAPER_GAINS = {"pd": PAPER_PD_GAINS, "adaptive": PAPER_ADAPTIVE_GAINS}
 PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
 BATCH = "batch"
-MIN_SHARD = 2
+MIN_SHARD = 8  # samples per device and batch, at least
 
 # The default sweep (sweeps/default.toml); a config file's missing entries take these values.
 DEFAULT_DISPERSIONS = disp.Dispersions(
@@ -100,7 +102,7 @@ class SweepConfig:
     """A sweep: samples 0 .. samples-1 of ``dispersions`` (seed ``seed``), horizon T [s],
     step dt [s], with each of ``controllers`` at ``gains``. Defaults: sweeps/default.toml.
 
-    chunk: samples per batch (rounded up to a multiple of 2 x devices); max_draws:
+    chunk: samples per batch (at least 8 per device, a multiple of the device count); max_draws:
     attempts at a positive definite sample before it is rejected; a sample diverged when
     its state is non-finite or its attitude error exceeds divergence_angle_deg [deg].
     """
@@ -124,7 +126,7 @@ _TABLES = ("inertia", "deployment", "orbit", "disturbance", "initial", "gains")
 def _table(d: dict, key: str, allowed, where: str) -> dict:
     t = d.get(key, {})
     if not isinstance(t, dict):
-        raise ValueError(f"{where}{key} must be a table")
+        raise ValueError(f"{where}{key} must be a table")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
     unknown = set(t) - set(allowed)
     if unknown:
         raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
@@ -264,7 +266,7 @@ def load_config(path: Path | None = None, overrides: tuple = ()) -> SweepConfig:
         for t in tables:
             target = target.setdefault(t, {})
             if not isinstance(target, dict):
-                raise ValueError(f"override {item!r}: {t} is not a table")
+                raise ValueError(f"override {item!r}: {t} is not a table")  # noqa: TRY004
         target[leaf] = _parse_value(value.strip())
     return config_from_dict(d)
 
@@ -272,26 +274,31 @@ def load_config(path: Path | None = None, overrides: tuple = ()) -> SweepConfig:
 # --- running ----------------------------------------------------------------------------
 
 
+def mission(p: disp.RolloutParams, T: float, dt: float) -> Scenario:
+    """The paper's mission (SPEC 4) with one sample's parameters; traceable (vmap)."""
+    scenario = paper_scenario(
+        T,
+        dt,
+        tau_J=p.tau_J,
+        n=p.n,
+        J0=p.J0,
+        J1=p.J1,
+        J2=p.J2,
+        disturbance_amplitude=p.amplitude,
+        disturbance_frequency=p.frequency,
+        noise_std=p.noise_std,
+        dtype=p.J0.dtype,
+    )
+    return dataclasses.replace(scenario, R0=p.R0, Omega0=p.Omega0)
+
+
 @functools.partial(jax.jit, static_argnames=("controller", "T", "dt"))
 def simulate_batch(params: disp.RolloutParams, gains, *, controller: str, T: float, dt: float) -> Metrics:
-    """Metrics of a batch of samples (leading axis), each the paper's mission with its parameters."""
+    """Metrics of a batch of samples (leading axis): vmapped rollouts of their missions."""
     law = CONTROLLERS[controller][0]()
 
     def one(p: disp.RolloutParams):
-        scenario = paper_scenario(
-            T,
-            dt,
-            tau_J=p.tau_J,
-            n=p.n,
-            J0=p.J0,
-            J1=p.J1,
-            J2=p.J2,
-            disturbance_amplitude=p.amplitude,
-            disturbance_frequency=p.frequency,
-            noise_std=p.noise_std,
-            dtype=p.J0.dtype,
-        )
-        scenario = dataclasses.replace(scenario, R0=p.R0, Omega0=p.Omega0)
+        scenario = mission(p, T, dt)
         return rollout(scenario, law, gains, p.seed, record_every=scenario.n_steps).metrics
 
     return jax.vmap(one)(params)
@@ -307,22 +314,38 @@ def padded_chunk(chunk: int, n_devices: int) -> int:
     return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
 
 
+_EXECUTABLES: dict = {}  # (controller, T, dt, device, argument shapes) -> compiled simulate_batch
+
+
+def _executables(controller: str, T: float, dt: float, devices, args) -> list:
+    """simulate_batch compiled for each device (args: one shard's (params, gains), arrays);
+    the missing ones are lowered one by one and compiled in parallel."""
+    signature = tuple((x.shape, x.dtype) for x in jax.tree.leaves(args))
+    keys = [(controller, T, dt, device, signature) for device in devices]
+    missing = [key for key in keys if key not in _EXECUTABLES]
+    if missing:
+
+        def lower(device):
+            spec = lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=SingleDeviceSharding(device))
+            return simulate_batch.lower(*jax.tree.map(spec, args), controller=controller, T=T, dt=dt)
+
+        lowered = [lower(key[3]) for key in missing]
+        with ThreadPoolExecutor(len(lowered)) as pool:
+            _EXECUTABLES.update(zip(missing, pool.map(lambda low: low.compile(), lowered)))
+    return [_EXECUTABLES[key] for key in keys]
+
+
 def run_chunk(params: disp.RolloutParams, gains, controller: str, T: float, dt: float, mesh: Mesh) -> dict:
     """Metrics (numpy) of a chunk whose size is a multiple of the mesh size: each device runs
     ``simulate_batch`` on its shard of the NamedSharding over the batch axis."""
     n = len(params.seed)
     sharding = NamedSharding(mesh, PartitionSpec(BATCH))
-
-    def dispatch(item):
-        device, index = item
-        local = jax.device_put(jax.tree.map(lambda x: x[index], params), device)
-        return simulate_batch(local, jax.device_put(gains, device), controller=controller, T=T, dt=dt)
-
-    items = list(sharding.addressable_devices_indices_map((n,)).items())
-    with ThreadPoolExecutor(len(items)) as pool:  # the first chunk compiles for every device at once
-        shards = list(pool.map(dispatch, items))
+    layout = sharding.addressable_devices_indices_map((n,))
+    shards = [jax.tree.map(operator.itemgetter(index), params) for index in layout.values()]
+    executables = _executables(controller, T, dt, list(layout), (shards[0], gains))
+    outputs = [f(*jax.device_put((shard, gains), device)) for f, shard, device in zip(executables, shards, layout)]
     out = jax.tree.map(
-        lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)), *shards
+        lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)), *outputs
     )
     if jax.process_count() > 1:
         from jax.experimental import multihost_utils
@@ -411,11 +434,12 @@ def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress:
     start, computed = time.perf_counter(), 0
     with bar:
         for controller in config.controllers:
-            gains = jax.tree.map(lambda g: jnp.asarray(g, dtype), config.gains[controller])
+            gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
             for first in range(0, len(todo[controller]), chunk):
                 index = todo[controller][first : first + chunk]
                 padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-                metrics = run_chunk(jax.tree.map(lambda x: x[padded], params), gains, controller, config.T, config.dt, mesh)
+                chunk_params = jax.tree.map(operator.itemgetter(padded), params)
+                metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh)
                 if writer:
                     save_npz(_chunk_path(out, controller, int(index[0])), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
                 computed += len(index)
@@ -676,7 +700,7 @@ def register(subparsers) -> None:
     p.add_argument("--samples", type=int, help="number of samples")
     p.add_argument("--T", type=float, help="horizon [s]")
     p.add_argument("--controllers", help="comma-separated subset of: " + ", ".join(CONTROLLERS))
-    p.add_argument("--chunk", type=int, help="samples per batch (rounded up to a multiple of 2 x devices)")
+    p.add_argument("--chunk", type=int, help="samples per batch (at least 8 per device, a multiple of the device count)")
     p.add_argument("--seed", type=int, help="sampling seed")
     p.add_argument(
         "--set",

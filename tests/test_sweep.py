@@ -1,0 +1,289 @@
+"""Monte Carlo sweeps: sampling, the sharded chunk runner, resume, rejection, divergence.
+
+Every in-process run shares one horizon and step (T = 2700 s at dt = 0.5 s: all three
+mission phases in 5400 steps) and one shard size (8), so each controller compiles once.
+"""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import so3jax as sj
+from so3jax import dispersions as disp
+from so3jax import sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+SETTINGS = ("samples=11", "T=2700.0", "dt=0.5", "chunk=8")
+METRIC_COLUMNS = ("rmse", "rmse_unrotated", "effort", "rmse_capture", "effort_deployment", "max_angle_detumble", "diverged")
+
+
+def config(*overrides):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sj.InertiaWarning)
+        return sweep.load_config(None, SETTINGS + overrides)
+
+
+def run(cfg, out, **kwargs):
+    return sweep.run_sweep(cfg, out, progress=False, **kwargs)
+
+
+def table(out):
+    with np.load(Path(out) / "samples.npz") as f:
+        return {k: f[k] for k in f.files}
+
+
+def assert_same_results(a, b, controllers):
+    for c in controllers:
+        for col in METRIC_COLUMNS:
+            np.testing.assert_array_equal(a[f"{c}_{col}"], b[f"{c}_{col}"], err_msg=f"{c}_{col}")
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """Both controllers, 11 samples, chunks of 8 (the last one padded), one device."""
+    out = tmp_path_factory.mktemp("reference")
+    summary = run(config(), out)
+    return out, summary
+
+
+# --- configuration and sampling ---------------------------------------------------------
+
+
+def test_default_config_file_is_the_builtin_default():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sj.InertiaWarning)
+        from_file = sweep.load_config(ROOT / "sweeps" / "default.toml")
+        assert from_file == sweep.load_config(None) == sweep.SweepConfig()
+        assert sweep.config_from_dict(sweep.config_to_dict(from_file)) == from_file
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [
+        ("bogus=1", "unknown config key"),
+        ("inertia.J0.wobble=1", "unknown key"),
+        ('deployment.tau_J={dist="gamma", k=1.0}', "unknown distribution"),
+        ('deployment.tau_J={dist="uniform", low=1.0}', "takes exactly"),
+        ('orbit.n={dist="normal", mean=1e-3, std=-1.0}', "std"),
+        ("T=10.005", "not a multiple of dt"),
+        ('controllers=["pd", "lqr"]', "controllers"),
+        ("initial.max_angle_deg=170.0", "divergence_angle_deg"),
+        ("inertia.J1.nominal=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]", "J1's nominal"),
+        ("inertia.J2.nominal=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]", "positive definite"),
+        ("gains.pd.k_R=-1.0", "positive"),
+        ("chunk=0", "chunk"),
+    ],
+)
+def test_bad_config_is_a_clear_error(override, message):
+    with pytest.raises(ValueError, match=message):
+        config(override)
+
+
+def test_overrides_and_distributions():
+    cfg = config('inertia.J0.scale={dist="normal", mean=1.0, std=0.05}', "disturbance.seed=7", "orbit.n=1e-3")
+    d = cfg.dispersions
+    assert d.J0.scale == disp.Normal(1.0, 0.05) and d.disturbance_seed == 7 and d.n == disp.Fixed(1e-3)
+    assert cfg.samples == 11 and cfg.dt == 0.5
+
+
+def test_samples_depend_only_on_seed_and_index():
+    d = sweep.DEFAULT_DISPERSIONS
+    few = disp.draw_samples(d, 3, 5, 20)
+    many = disp.draw_samples(d, 3, disp.BLOCK + 9, 20)  # two sampler blocks
+    fewer_draws = disp.draw_samples(d, 3, 5, 4)
+    for a, b, c in zip(jax.tree.leaves(few), jax.tree.leaves(many), jax.tree.leaves(fewer_draws)):
+        np.testing.assert_array_equal(a, b[:5])
+        np.testing.assert_array_equal(a, c)  # none needed more than 4 draws
+    other = disp.draw_samples(d, 4, 5, 20)
+    assert not np.array_equal(few.params.J0, other.params.J0)
+
+
+def test_every_dispersion_is_sampled_within_its_law():
+    s = disp.draw_samples(sweep.DEFAULT_DISPERSIONS, 0, 400, 20)
+    p = s.params
+    assert s.valid.all()
+    for name, value in p._asdict().items():
+        distinct = np.unique(value.reshape(len(value), -1), axis=0).shape[0]
+        assert distinct == (1 if name == "frequency" else 400), name  # the default keeps the frequency fixed
+    assert 200 <= p.tau_J.min() and p.tau_J.max() <= 400
+    assert 1.0381e-3 <= p.n.min() and p.n.max() <= 1.1314e-3
+    angles = np.linalg.norm(s.attitude_error, axis=1)
+    assert angles.max() <= np.radians(30.0) + 1e-12
+    R = jax.vmap(sj.so3.exp)(s.attitude_error)
+    np.testing.assert_allclose(p.R0, R, atol=1e-14)
+    assert np.linalg.norm(p.Omega0, axis=1).max() <= 0.005
+    np.testing.assert_allclose(np.log(s.scale[:, 0]).std(), 0.1, rtol=0.15)
+    # J1 grows J0 by its scale, plus its products-of-inertia noise
+    diag = np.einsum("nii->ni", p.J1) / np.einsum("nii->ni", p.J0)
+    np.testing.assert_allclose(diag, np.repeat(s.scale[:, 1:2], 3, axis=1), rtol=1e-12)
+    for J in (p.J0, p.J1, p.J2):
+        np.testing.assert_array_equal(J, np.swapaxes(J, 1, 2))
+        assert np.linalg.eigvalsh(J).min() > 0
+
+
+def test_haar_angle_law():
+    """Rotations uniform on SO(3) up to a maximum angle: P(angle < a) = (a - sin a) / (m - sin m)."""
+    d = dataclasses.replace(disp.Dispersions(), initial_angle_deg=120.0)
+    angle = np.linalg.norm(disp.draw_samples(d, 0, 4000, 1).attitude_error, axis=1)
+    m = np.radians(120.0)
+    for a in (0.5, 1.0, 1.5, 2.0):
+        assert abs(np.mean(angle < a) - (a - np.sin(a)) / (m - np.sin(m))) < 0.02
+
+
+# --- the rollouts see the sampled values ---------------------------------------------------
+
+
+def test_each_dispersed_value_reaches_the_rollout():
+    """Changing any one parameter of a sample changes its simulated motion."""
+    cfg = config()
+    base = jax.tree.map(lambda x: x[0], disp.draw_samples(cfg.dispersions, 0, 1, 20).params)
+    changed = {name: 1.1 * value for name, value in base._asdict().items() if value.dtype.kind == "f"}
+    changed.update(R0=disp.rotation_matrix(np.array([0.0, 0.1, 0.0])) @ base.R0, Omega0=base.Omega0 + 1e-3, seed=base.seed + 1)
+    variants = [base] + [base._replace(**{name: changed[name]}) for name in base._fields]
+    batch = jax.tree.map(lambda *xs: np.stack(xs), *(variants + [base] * (-len(variants) % 8)))
+    gains = jax.tree.map(np.asarray, cfg.gains["pd"])
+    halves = [jax.tree.map(lambda x: x[:8], batch), jax.tree.map(lambda x: x[8:], batch)]
+    m = [sweep.run_chunk(half, gains, "pd", cfg.T, cfg.dt, sweep.batch_mesh()) for half in halves]
+    rmse, effort = (np.concatenate([x[k] for x in m]) for k in ("rmse", "effort"))
+    for i, name in enumerate(base._fields, start=1):
+        assert rmse[i] != rmse[0] and effort[i] != effort[0], f"{name} does not change the motion"
+
+
+def test_sample_parameters_map_onto_the_mission():
+    p = jax.tree.map(lambda x: x[0], disp.draw_samples(sweep.DEFAULT_DISPERSIONS, 0, 1, 20).params)
+    expected = sj.paper_scenario(
+        2700.0,
+        0.5,
+        tau_J=float(p.tau_J),
+        n=float(p.n),
+        J0=p.J0,
+        J1=p.J1,
+        J2=p.J2,
+        disturbance_amplitude=float(p.amplitude),
+        disturbance_frequency=float(p.frequency),
+        noise_std=float(p.noise_std),
+    )
+    expected = dataclasses.replace(expected, R0=jax.numpy.asarray(p.R0), Omega0=jax.numpy.asarray(p.Omega0))
+    got = sweep.mission(jax.tree.map(jax.numpy.asarray, p), 2700.0, 0.5)
+    assert jax.tree.structure(got) == jax.tree.structure(expected)
+    for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected)):
+        np.testing.assert_allclose(a, b, rtol=1e-15, atol=0)
+
+
+# --- reproducibility, outputs ------------------------------------------------------------
+
+
+def test_outputs(reference):
+    out, summary = reference
+    for name in ("samples.csv", "samples.npz", "summary.json", "summary.md", "cdf.png", "histograms.png", "rmse_vs_inertia_scale.png"):
+        assert (out / name).stat().st_size > 100, name
+    assert json.loads((out / "summary.json").read_text())["samples"] == summary["samples"]
+    t = table(out)
+    assert len(t["index"]) == 11 and set(t["status"]) == {"simulated"}
+    header = (out / "samples.csv").read_text().splitlines()[0].split(",")
+    assert header == list(t)
+    for c in ("pd", "adaptive"):
+        for metric in ("rmse", "effort"):
+            assert set(summary["controllers"][c][metric]) == {"mission", "capture", "deployment", "detumble"}
+            stats = summary["controllers"][c][metric]["mission"]
+            assert set(stats) == {"mean", "std", "p50", "p95", "p99", "max"}
+            assert stats["max"] == pytest.approx(t[f"{c}_{metric}"].max())
+    pair = summary["paired"]["adaptive_vs_pd"]
+    better = np.mean(t["adaptive_rmse"] < t["pd_rmse"])
+    assert pair["samples"] == 11 and pair["rmse"]["adaptive_better_fraction"] == pytest.approx(better)
+    assert "| pd | detumble |" in (out / "summary.md").read_text()
+
+
+def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_path):
+    """4 forced host devices with 10 samples per device, against 1 device with 8: in a
+    subprocess (XLA flags must precede JAX), through the command line."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
+    args = [sys.executable, "-m", "so3jax.cli", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40", "--controllers", "pd"]
+    proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "on 4 device(s)" in proc.stderr and "| pd | mission |" in proc.stdout
+    assert json.loads((tmp_path / "summary.json").read_text())["run"]["chunk"] == 40
+    assert_same_results(table(reference[0]), table(tmp_path), ["pd"])
+
+
+def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
+    save, chunks = sweep.save_npz, []
+
+    def save_then_stop(path, **arrays):
+        save(path, **arrays)
+        if "chunks" in Path(path).parts:
+            chunks.append(Path(path).name)
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep, "save_npz", save_then_stop)
+    with pytest.raises(KeyboardInterrupt):
+        run(config(), tmp_path)
+    assert chunks == ["pd-000000000.npz"] and not (tmp_path / "summary.json").exists()
+    monkeypatch.setattr(sweep, "save_npz", save)
+
+    with pytest.raises(ValueError, match="--resume"):
+        run(config(), tmp_path)
+    with pytest.raises(ValueError, match="other settings"):
+        run(config("seed=1"), tmp_path, resume=True)
+
+    run_chunk, computed = sweep.run_chunk, []
+    monkeypatch.setattr(sweep, "run_chunk", lambda params, *a: computed.append(len(params.seed)) or run_chunk(params, *a))
+    summary = run(config(), tmp_path, resume=True)
+    assert computed == [8, 8, 8]  # pd: samples 8-10 (padded); adaptive: 0-7, 8-10
+    assert summary["run"]["computed_samples"] == 3 + 11
+    assert_same_results(table(reference[0]), table(tmp_path), ["pd", "adaptive"])
+
+
+# --- impossible and diverged samples -----------------------------------------------------
+
+
+def test_impossible_samples_are_redrawn_or_rejected_never_simulated(tmp_path, monkeypatch):
+    wild = 'inertia.J0.products={dist="normal", mean=0.0, std=400.0}'
+    run_chunk, seen = sweep.run_chunk, []
+    monkeypatch.setattr(sweep, "run_chunk", lambda params, *a: seen.append(params) or run_chunk(params, *a))
+
+    summary = run(config(wild, "samples=12", "max_draws=1", 'controllers=["pd"]'), tmp_path / "reject")
+    t = table(tmp_path / "reject")
+    rejected = t["status"] == "rejected"
+    assert 0 < rejected.sum() < 12 and summary["samples"]["rejected"] == rejected.sum()
+    assert summary["samples"]["rejected_indices"] == np.flatnonzero(rejected).tolist()
+    assert np.isnan(t["pd_rmse"][rejected]).all() and np.isfinite(t["pd_rmse"][~rejected]).all()
+    def inertias(name):
+        e = {k: t[f"{name}_{k}"] for k in ("xx", "yy", "zz", "xy", "xz", "yz")}
+        rows = [[e["xx"], e["xy"], e["xz"]], [e["xy"], e["yy"], e["yz"]], [e["xz"], e["yz"], e["zz"]]]
+        return np.stack([np.stack(r, -1) for r in rows], -2)
+
+    smallest = np.min([np.linalg.eigvalsh(inertias(name)).min(axis=1) for name in ("J0", "J1", "J2")], axis=0)
+    np.testing.assert_array_equal(smallest <= 0, rejected)  # a rejected sample's last draw is shown
+    simulated = np.concatenate([np.concatenate([p.J0, p.J1, p.J2]) for p in seen])
+    assert np.linalg.eigvalsh(simulated).min() > 0  # only positive definite inertias reached the rollouts
+    assert summary["controllers"]["pd"]["simulated"] == 12 - rejected.sum()
+
+    summary = run(config(wild, "samples=12", "max_draws=30", 'controllers=["pd"]'), tmp_path / "redraw")
+    assert summary["samples"]["rejected"] == 0 and summary["samples"]["redraws"] > 0
+    assert (table(tmp_path / "redraw")["draws"] > 1).any()
+
+
+def test_diverged_samples_are_flagged_and_reported(tmp_path):
+    spin = 'initial.rate={dist="lognormal", median=0.1, sigma=4.0}'  # from gentle to a numerical blow-up
+    summary = run(config(spin, "samples=8", 'controllers=["pd"]'), tmp_path)
+    t = table(tmp_path)
+    nonfinite, diverged = t["pd_nonfinite"] == 1, t["pd_diverged"] == 1
+    assert len(t["index"]) == 8  # nothing dropped
+    assert nonfinite.any() and (diverged & ~nonfinite).any() and (~diverged).any()
+    assert np.all(diverged[nonfinite])
+    entry = summary["controllers"]["pd"]
+    assert entry["diverged"] == diverged.sum() and entry["nonfinite"] == nonfinite.sum()
+    listed = entry["diverged_samples"]
+    assert [row["index"] for row in listed] == np.flatnonzero(diverged).tolist()
+    assert {"tau_J", "J0_xx", "Omega0_x", "disturbance_seed", "pd_max_angle_capture"} <= set(listed[0])
+    assert entry["rmse"]["mission"]["max"] == pytest.approx(t["pd_rmse"][~diverged].max())  # statistics leave them out
+    assert "| pd | 8 | " in (tmp_path / "summary.md").read_text()
