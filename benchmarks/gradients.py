@@ -8,8 +8,9 @@ scenarios (inertia scales x disturbance seeds, vmapped, one XLA CPU device), flo
 * ``reverse``: value and gradient by reverse mode (jax.value_and_grad through the
   rollout's sqrt(N)-block checkpointing);
 
-each in its own subprocess, so every peak resident set size (ru_maxrss, which includes
-compilation) belongs to one computation. XLA's own estimate of the temporaries of the
+each in its own subprocess, so every peak resident set size (ru_maxrss) belongs to one
+computation; the peak once compiled, before running, is reported too (XLA's compilation
+of the reverse-mode program is itself a large part of the peak). XLA's own estimate of the temporaries of the
 compiled program is reported alongside. At ``--fd-horizon`` the gradients are checked
 against central finite differences of the value (step 1e-4 in log-gain).
 
@@ -81,6 +82,7 @@ def _child(spec: dict) -> dict:
     t0 = time.perf_counter()
     compiled = jax.jit(fn).lower(flat).compile()
     compile_s = time.perf_counter() - t0
+    rss_compiled = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     memory = compiled.memory_analysis()
     runs = []
     for _ in range(spec["repeat"]):
@@ -94,6 +96,7 @@ def _child(spec: dict) -> dict:
         "run_s": min(runs),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "rss_after_import_mb": rss_start,
+        "peak_rss_after_compile_mb": rss_compiled,
         "xla_temp_mb": memory.temp_size_in_bytes / 2**20 if memory is not None else None,
     }
     if spec["what"] == "value":

@@ -46,7 +46,7 @@ class Batch(NamedTuple):
 def make_batch(inertia_scales, seeds, dtype) -> Batch:
     """The Cartesian product inertia_scales x seeds, flattened (scale-major)."""
     scales = jnp.repeat(jnp.asarray(inertia_scales, dtype), len(seeds))
-    seeds = jnp.tile(jnp.asarray(seeds, jnp.uint32), len(inertia_scales))
+    seeds = jnp.tile(jnp.asarray(seeds, jnp.int32), len(inertia_scales))
     return Batch(scales, seeds)
 
 
