@@ -137,6 +137,7 @@ def main() -> None:
     parser.add_argument("--modes", nargs="+", default=["forward", "reverse"], choices=["forward", "reverse"])
     parser.add_argument("--fd-horizon", type=int, default=400_000, help="N of the finite-difference check (0: none)")
     parser.add_argument("--jobs", type=int, default=1, help="subprocesses at a time, each pinned to its own core")
+    parser.add_argument("--log", help="also append each run's JSON to this file as it finishes")
     args = parser.parse_args()
     if args.child:
         print(json.dumps(_child(json.loads(args.child))))
@@ -159,8 +160,16 @@ def main() -> None:
     order = sorted(range(len(specs)), key=lambda i: -specs[i]["N"] * (1 + 20 * (specs[i]["what"] == "reverse")))
     cpus = sorted(os.sched_getaffinity(0)) if args.jobs > 1 else [None]
     started = time.perf_counter()
+
+    def run(i, cpu):
+        result = _run_child(specs[i], cpu)
+        if args.log:
+            with open(args.log, "a") as f:
+                f.write(json.dumps(result) + "\n")
+        return result
+
     with ThreadPoolExecutor(args.jobs) as pool:
-        futures = {i: pool.submit(_run_child, specs[i], cpus[k % len(cpus)]) for k, i in enumerate(order)}
+        futures = {i: pool.submit(run, i, cpus[k % len(cpus)]) for k, i in enumerate(order)}
         runs = [futures[i].result() for i in range(len(specs))]
 
     summary, fd_check = {}, {}
