@@ -6,9 +6,11 @@ devices JAX sees (batch axis), and every device runs the same single-device exec
 (a vmapped rollout) on its shard. That, rather than one SPMD-partitioned program, is what
 keeps results bit-for-bit identical whatever the chunk size and the device count: XLA's
 partitioned compilation rounds differently (measured: ~1 ulp per step on CPU). A shard
-holds at least 8 samples: XLA also compiles batches of 1 or 2 with different rounding. Finished chunks are
-saved at once under ``OUT/chunks``, so an interrupted sweep resumes (``--resume``)
-without recomputing them.
+holds at least 8 samples: XLA also compiles batches of 1 or 2 with different rounding.
+A rollout keeps no history (record_every = N): about 2 kB of device memory per sample,
+so the chunk size sets progress and resume granularity rather than memory. Finished
+chunks are saved at once under ``OUT/chunks``; an interrupted sweep resumes
+(``--resume``) without recomputing them, and resuming with more --samples extends it.
 
 Output folder: samples.csv / samples.npz (parameters and metrics per sample),
 summary.json and summary.md (statistics, diverged samples, paired comparison),
@@ -102,9 +104,10 @@ class SweepConfig:
     """A sweep: samples 0 .. samples-1 of ``dispersions`` (seed ``seed``), horizon T [s],
     step dt [s], with each of ``controllers`` at ``gains``. Defaults: sweeps/default.toml.
 
-    chunk: samples per batch (at least 8 per device, a multiple of the device count); max_draws:
-    attempts at a positive definite sample before it is rejected; a sample diverged when
-    its state is non-finite or its attitude error exceeds divergence_angle_deg [deg].
+    chunk: samples per batch (at least 8 per device, a multiple of the device count);
+    max_draws: attempts at a positive definite sample before it is rejected; a sample
+    diverged when its state is non-finite or its attitude error exceeds
+    divergence_angle_deg [deg].
     """
 
     samples: int = 1024

@@ -241,6 +241,12 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
     assert summary["run"]["computed_samples"] == 3 + 11
     assert_same_results(table(reference[0]), table(tmp_path), ["pd", "adaptive"])
 
+    computed.clear()
+    run(config("samples=13"), tmp_path, resume=True)  # more samples: extends the sweep
+    assert computed == [8, 8]
+    extended = {k: v[:11] for k, v in table(tmp_path).items()}
+    assert_same_results(table(reference[0]), extended, ["pd", "adaptive"])
+
 
 # --- impossible and diverged samples -----------------------------------------------------
 
