@@ -27,6 +27,7 @@ import argparse
 import json
 import os
 import platform
+import queue
 import resource
 import subprocess
 import sys
@@ -156,20 +157,30 @@ def main() -> None:
         for n in args.horizons
         for what in ("value", *args.modes)
     ]
-    # longest first, so parallel jobs finish together
-    order = sorted(range(len(specs)), key=lambda i: -specs[i]["N"] * (1 + 20 * (specs[i]["what"] == "reverse")))
-    cpus = sorted(os.sched_getaffinity(0)) if args.jobs > 1 else [None]
+
+    def guess(spec):  # rough relative duration, measured at B = 8
+        work = {"value": 1 + 2 * spec["fd"] * (2 if spec["controller"] == "pd" else 3), "forward": 5, "reverse": 7}
+        return spec["N"] * work[spec["what"]] * (1.6 if spec["controller"] == "adaptive" else 1.0)
+
+    order = sorted(range(len(specs)), key=lambda i: -guess(specs[i]))  # longest first
+    free_cpus = queue.Queue()  # a core per running subprocess, never two on one core
+    for cpu in sorted(os.sched_getaffinity(0))[: args.jobs] if args.jobs > 1 else [None]:
+        free_cpus.put(cpu)
     started = time.perf_counter()
 
-    def run(i, cpu):
-        result = _run_child(specs[i], cpu)
+    def run(i):
+        cpu = free_cpus.get()
+        try:
+            result = _run_child(specs[i], cpu)
+        finally:
+            free_cpus.put(cpu)
         if args.log:
             with open(args.log, "a") as f:
                 f.write(json.dumps(result) + "\n")
         return result
 
     with ThreadPoolExecutor(args.jobs) as pool:
-        futures = {i: pool.submit(run, i, cpus[k % len(cpus)]) for k, i in enumerate(order)}
+        futures = {i: pool.submit(run, i) for i in order}
         runs = [futures[i].result() for i in range(len(specs))]
 
     summary, fd_check = {}, {}
