@@ -21,9 +21,18 @@ class SinusoidPlusNoise:
     noise_std: jax.Array  # N m
 
     def __call__(self, key, k, t_k):
-        dtype = jnp.result_type(t_k)
-        eta = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype)
-        return self.amplitude * jnp.sin(self.frequency * t_k) * jnp.ones(3, dtype) + self.noise_std * eta
+        """d_k (3, ...) for a key of any batch shape (...) [N m]."""
+        eta = noise(key, k, jnp.result_type(t_k))
+        return self.amplitude * jnp.sin(self.frequency * t_k) * jnp.ones_like(eta) + self.noise_std * eta
+
+
+def noise(key, k, dtype):
+    """eta_k = normal(fold_in(key, k), (3,)) per key; (3, *key.shape) (batch axes last)."""
+    draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)  # noqa: E731
+    if key.ndim == 0:
+        return draw(key)
+    flat = jax.vmap(draw)(key.reshape(-1))
+    return flat.T.reshape((3,) + key.shape)
 
 
 def no_disturbance(dtype=float) -> SinusoidPlusNoise:

@@ -15,16 +15,16 @@ from so3jax import so3
 
 
 class Sample(NamedTuple):
-    """What one step start contributes to the metrics."""
+    """What one step start contributes to the metrics (batch axes last, as in so3)."""
 
-    Omega_e: jax.Array  # (3,) rad/s, body frame
-    Omega_minus_Omega_d: jax.Array  # (3,) rad/s, unrotated (the paper's Fig. 2 error)
-    tau: jax.Array  # (3,) N m
-    angle: jax.Array  # |log(R_e)^vee|, rad
+    Omega_e: jax.Array  # (3, ...) rad/s, body frame
+    Omega_minus_Omega_d: jax.Array  # (3, ...) rad/s, unrotated (the paper's Fig. 2 error)
+    tau: jax.Array  # (3, ...) N m
+    angle: jax.Array  # (...) |log(R_e)^vee|, rad
 
 
 class Accumulator(NamedTuple):
-    """Per-phase running sums and maxima, each of shape (P,)."""
+    """Per-phase running sums and maxima, each of shape (P, ...batch)."""
 
     sq_rate_error: jax.Array
     sq_rate_error_unrotated: jax.Array
@@ -32,7 +32,7 @@ class Accumulator(NamedTuple):
     sq_angle: jax.Array
     max_angle: jax.Array
     max_torque: jax.Array
-    finite: jax.Array  # () bool: every state so far finite
+    finite: jax.Array  # (...batch) bool: every state so far finite
 
 
 class Metrics(NamedTuple):
@@ -49,13 +49,14 @@ class Metrics(NamedTuple):
     diverged: jax.Array  # bool: a state became non-finite
 
 
-def init(n_phases: int, dtype) -> Accumulator:
-    zeros = jnp.zeros((n_phases,), dtype)
-    return Accumulator(zeros, zeros, zeros, zeros, zeros, zeros, jnp.array(True))
+def init(n_phases: int, dtype, batch_shape=()) -> Accumulator:
+    zeros = jnp.zeros((n_phases,) + tuple(batch_shape), dtype)
+    return Accumulator(zeros, zeros, zeros, zeros, zeros, zeros, jnp.ones(batch_shape, bool))
 
 
 def update(acc: Accumulator, phase, sample: Sample, finite) -> Accumulator:
-    mask = (jnp.arange(acc.sq_torque.shape[0], dtype=jnp.int32) == phase).astype(acc.sq_torque.dtype)
+    shape = (acc.sq_torque.shape[0],) + (1,) * (acc.sq_torque.ndim - 1)
+    mask = (jnp.arange(shape[0], dtype=jnp.int32).reshape(shape) == phase).astype(acc.sq_torque.dtype)
     tau2 = so3.dot(sample.tau, sample.tau)
     return Accumulator(
         acc.sq_rate_error + mask * so3.dot(sample.Omega_e, sample.Omega_e),
@@ -76,20 +77,20 @@ def _safe_sqrt(x):
 
 def finalize(acc: Accumulator, steps_per_phase, dt, final_R) -> Metrics:
     """Turn the sums into SPEC 6 metrics. steps_per_phase: static tuple of ints."""
-    n_phase = jnp.asarray(steps_per_phase, acc.sq_torque.dtype)
+    n_phase = jnp.asarray(steps_per_phase, acc.sq_torque.dtype).reshape((-1,) + (1,) * (acc.sq_torque.ndim - 1))
     n_safe = jnp.maximum(n_phase, 1.0)
     n = float(sum(steps_per_phase))
     max_torque_phase = acc.max_torque
     return Metrics(
-        rmse=_safe_sqrt(jnp.sum(acc.sq_rate_error) / n),
-        rmse_unrotated=_safe_sqrt(jnp.sum(acc.sq_rate_error_unrotated) / n),
-        effort=jnp.sum(acc.sq_torque) * dt,
+        rmse=_safe_sqrt(jnp.sum(acc.sq_rate_error, axis=0) / n),
+        rmse_unrotated=_safe_sqrt(jnp.sum(acc.sq_rate_error_unrotated, axis=0) / n),
+        effort=jnp.sum(acc.sq_torque, axis=0) * dt,
         rmse_phase=_safe_sqrt(acc.sq_rate_error / n_safe),
         effort_phase=acc.sq_torque * dt,
         rms_angle_phase=_safe_sqrt(acc.sq_angle / n_safe),
         max_angle_phase=acc.max_angle,
         max_torque_phase=max_torque_phase,
-        max_torque=jnp.max(max_torque_phase),
+        max_torque=jnp.max(max_torque_phase, axis=0),
         orthogonality_error=so3.orthogonality_error(final_R),
-        diverged=~(acc.finite & jnp.all(jnp.isfinite(final_R))),
+        diverged=~(acc.finite & jnp.all(jnp.isfinite(final_R), axis=(0, 1))),
     )

@@ -1,9 +1,11 @@
 """SO(3) and 3-vector math, written as elementwise arithmetic on components.
 
-Every function takes arrays with the 3-vector / 3x3 matrix in the trailing axes and
-any leading batch axes. Nothing here calls a matmul or a linear solver: on CPU a
-3x3 ``dot`` is a kernel call of its own, whereas component arithmetic fuses into a
-few loops, also under ``jax.vmap``.
+Convention: the component axes come FIRST and any batch axes last -- a vector is
+(3, *batch), a matrix (3, 3, *batch) -- so that ``v[0]``, ``m[0, 1]`` are whole
+batch-shaped arrays ("structure of arrays"). A single vector is simply (3,). Nothing
+here calls a matmul or a solver: on CPU a 3x3 ``dot`` is a kernel call of its own,
+whereas component arithmetic over batch-shaped arrays fuses into a few SIMD loops.
+All operands of one call must have the same batch shape (or none).
 
 Near the singular points (zero rotation for exp / log / J_r^{-1}, a half turn for
 log) the functions switch to Taylor series or to another formula with the
@@ -27,50 +29,61 @@ _NEAR_PI_COS = -0.99
 
 
 def cross(a, b):
-    """a x b for (..., 3) arrays."""
-    ax, ay, az = a[..., 0], a[..., 1], a[..., 2]
-    bx, by, bz = b[..., 0], b[..., 1], b[..., 2]
-    return jnp.stack([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx], -1)
+    """a x b for (3, ...) arrays."""
+    return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def dot(a, b):
-    """a . b for (..., 3) arrays."""
-    return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
+    """a . b for (3, ...) arrays."""
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
 def matvec(m, v):
-    """M v for M (..., 3, 3), v (..., 3)."""
-    return m[..., :, 0] * v[..., None, 0] + m[..., :, 1] * v[..., None, 1] + m[..., :, 2] * v[..., None, 2]
+    """M v for M (3, 3, ...), v (3, ...)."""
+    return m[:, 0] * v[0] + m[:, 1] * v[1] + m[:, 2] * v[2]
 
 
 def rmatvec(m, v):
-    """M^T v for M (..., 3, 3), v (..., 3)."""
-    return m[..., 0, :] * v[..., None, 0] + m[..., 1, :] * v[..., None, 1] + m[..., 2, :] * v[..., None, 2]
+    """M^T v for M (3, 3, ...), v (3, ...)."""
+    return m[0] * v[0] + m[1] * v[1] + m[2] * v[2]
 
 
 def matmul(a, b):
-    """A B for (..., 3, 3) arrays."""
-    return sum(a[..., :, i, None] * b[..., None, i, :] for i in range(3))
+    """A B for (3, 3, ...) arrays."""
+    return jnp.stack([matvec(a, b[:, j]) for j in range(3)], axis=1)
 
 
 def rmatmul(a, b):
-    """A^T B for (..., 3, 3) arrays."""
-    return sum(a[..., i, :, None] * b[..., None, i, :] for i in range(3))
+    """A^T B for (3, 3, ...) arrays."""
+    return jnp.stack([rmatvec(a, b[:, j]) for j in range(3)], axis=1)
 
 
 def transpose(m):
-    return jnp.swapaxes(m, -1, -2)
+    return jnp.swapaxes(m, 0, 1)
 
 
 def eye_like(v):
-    """Identity (..., 3, 3) with the batch shape and dtype of a (..., 3) array."""
-    return jnp.broadcast_to(jnp.eye(3, dtype=v.dtype), v.shape[:-1] + (3, 3))
+    """Identity (3, 3, ...) with the batch shape and dtype of a (3, ...) array."""
+    eye = jnp.eye(3, dtype=v.dtype).reshape((3, 3) + (1,) * (v.ndim - 1))
+    return jnp.broadcast_to(eye, (3, 3) + v.shape[1:])
+
+
+def batch_like(x, core_ndim, like):
+    """x (core shape, no batch) with trailing unit axes to broadcast against ``like``,
+    a (3, *batch) array: for shared quantities (a nominal inertia, a common reference)."""
+    x = jnp.asarray(x)
+    return x.reshape(x.shape + (1,) * (like.ndim - 1 - (x.ndim - core_ndim)))
+
+
+def outer(a, b):
+    """a b^T for (3, ...) arrays."""
+    return a[:, None] * b[None, :]
 
 
 def solve_spd(m, b):
-    """M^{-1} b for a symmetric positive definite M (..., 3, 3) by its adjugate."""
-    a, d, e = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
-    bb, f, c = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
+    """M^{-1} b for a symmetric positive definite M (3, 3, ...) by its adjugate."""
+    a, d, e = m[0, 0], m[0, 1], m[0, 2]
+    bb, f, c = m[1, 1], m[1, 2], m[2, 2]
     c00 = bb * c - f * f
     c01 = e * f - d * c
     c02 = d * f - e * bb
@@ -78,10 +91,8 @@ def solve_spd(m, b):
     c12 = d * e - a * f
     c22 = a * bb - d * d
     inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
-    x, y, z = b[..., 0], b[..., 1], b[..., 2]
-    return jnp.stack(
-        [c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z], -1
-    ) * inv_det[..., None]
+    x, y, z = b[0], b[1], b[2]
+    return jnp.stack([c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z]) * inv_det
 
 
 def safe_norm(v):
@@ -95,22 +106,24 @@ def safe_norm(v):
 
 
 def hat(v):
-    """Skew matrix of v: hat(a) b = a x b. (..., 3) -> (..., 3, 3)."""
-    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    """Skew matrix of v: hat(a) b = a x b. (3, ...) -> (3, 3, ...)."""
+    x, y, z = v[0], v[1], v[2]
     o = jnp.zeros_like(x)
-    return jnp.stack(
-        [jnp.stack([o, -z, y], -1), jnp.stack([z, o, -x], -1), jnp.stack([-y, x, o], -1)], -2
-    )
+    return jnp.stack([jnp.stack([o, -z, y]), jnp.stack([z, o, -x]), jnp.stack([-y, x, o])])
 
 
 def vee(m):
-    """Inverse of hat on skew matrices. (..., 3, 3) -> (..., 3)."""
-    return jnp.stack([m[..., 2, 1], m[..., 0, 2], m[..., 1, 0]], -1)
+    """Inverse of hat on skew matrices. (3, 3, ...) -> (3, ...)."""
+    return jnp.stack([m[2, 1], m[0, 2], m[1, 0]])
 
 
 def skew_vee(m):
     """vee of the skew part, (M - M^T)^vee / 2 (SPEC 3.1: e_R for M = R_e)."""
-    return 0.5 * jnp.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1)
+    return 0.5 * jnp.stack([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
+
+
+def trace(m):
+    return m[0, 0] + m[1, 1] + m[2, 2]
 
 
 # --- exp, log, right Jacobian ------------------------------------------------------
@@ -130,11 +143,10 @@ def _exp_coefficients(theta2):
 
 
 def expm1(v):
-    """exp(hat(v)) - I, accurate for small |v| (Rodrigues; SPEC 5)."""
+    """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (SPEC 5)."""
     theta2 = dot(v, v)
     a, b = _exp_coefficients(theta2)
-    outer = v[..., :, None] * v[..., None, :]
-    return a[..., None, None] * hat(v) + b[..., None, None] * (outer - theta2[..., None, None] * eye_like(v))
+    return a * hat(v) + b * (outer(v, v) - theta2 * eye_like(v))
 
 
 def exp(v):
@@ -150,7 +162,7 @@ def log(r):
     turn the axis comes from the symmetric part R + R^T = 2c I + 2(1 - c) axis axis^T.
     """
     s = skew_vee(r)
-    c = 0.5 * (r[..., 0, 0] + r[..., 1, 1] + r[..., 2, 2] - 1.0)
+    c = 0.5 * (trace(r) - 1.0)
     s2 = dot(s, s)
     sin_t = safe_norm(s)
     theta = jnp.arctan2(sin_t, c)
@@ -159,18 +171,18 @@ def log(r):
     small = (s2 < _SMALL_SIN2) & (c > 0)
     near_pi = c < _NEAR_PI_COS
     ratio = jnp.where(small, 1.0 + s2 / 6.0 + 0.075 * s2 * s2, theta / jnp.where(small | near_pi, 1.0, sin_t))
-    generic = ratio[..., None] * s
+    generic = ratio * s
 
-    sym = 0.5 * (r + transpose(r)) - c[..., None, None] * eye_like(s)
-    diag = jnp.stack([sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2]], -1)
-    pick = (jnp.arange(3) == jnp.argmax(diag, axis=-1)[..., None]).astype(r.dtype)
+    sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
+    diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
+    pick = (jnp.arange(3).reshape((3,) + (1,) * (diag.ndim - 1)) == jnp.argmax(diag, axis=0)).astype(r.dtype)
     column = matvec(sym, pick)
     scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
-    axis = column / jnp.sqrt(scale2)[..., None]
+    axis = column / jnp.sqrt(scale2)
     sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
-    half_turn = (sign * theta)[..., None] * axis
+    half_turn = (sign * theta) * axis
 
-    return jnp.where(near_pi[..., None], half_turn, generic)
+    return jnp.where(near_pi, half_turn, generic)
 
 
 def jr_inv_coefficient(theta2):
@@ -192,24 +204,24 @@ def jr_inv_apply(e, w):
     """J_r^{-1}(e) w = w + e x w / 2 + gamma(|e|) e x (e x w)  (SPEC 3.2)."""
     theta2 = dot(e, e)
     gamma = jr_inv_coefficient(theta2)
-    return w + 0.5 * cross(e, w) + gamma[..., None] * (e * dot(e, w)[..., None] - theta2[..., None] * w)
+    return w + 0.5 * cross(e, w) + gamma * (e * dot(e, w) - theta2 * w)
 
 
 def jr_inv(e):
-    """J_r^{-1}(e) as a (..., 3, 3) matrix."""
+    """J_r^{-1}(e) as a (3, 3, ...) matrix."""
     h = hat(e)
     gamma = jr_inv_coefficient(dot(e, e))
-    return eye_like(e) + 0.5 * h + gamma[..., None, None] * matmul(h, h)
+    return eye_like(e) + 0.5 * h + gamma * matmul(h, h)
 
 
 def project_to_so3(m):
-    """Nearest rotation matrix to M (Frobenius), by SVD. For inputs, not the hot path."""
+    """Nearest rotation matrix to a single M (3, 3) (Frobenius), by SVD. For inputs, not the hot path."""
     u, _, vt = jnp.linalg.svd(m)
     d = jnp.sign(jnp.linalg.det(u @ vt))
-    return u @ (vt * jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d], -1)[..., :, None])
+    return u @ jnp.diag(jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d])) @ vt
 
 
 def orthogonality_error(r):
     """|R^T R - I|_F."""
-    g = rmatmul(r, r) - eye_like(r[..., 0])
-    return jnp.sqrt(jnp.sum(g * g, axis=(-1, -2)))
+    g = rmatmul(r, r) - eye_like(r[0])
+    return jnp.sqrt(jnp.sum(g * g, axis=(0, 1)))

@@ -11,6 +11,16 @@ from so3jax import so3
 RNG = np.random.default_rng(0)
 
 
+def last(x):
+    """Batch-first numpy array (N, ...) -> so3's batch-last layout (..., N)."""
+    return np.moveaxis(np.asarray(x), 0, -1)
+
+
+def first(x):
+    """so3's batch-last output (..., N) -> batch-first (N, ...)."""
+    return np.moveaxis(np.asarray(x), -1, 0)
+
+
 def random_rotvecs(n, max_angle=np.pi):
     axes = RNG.normal(size=(n, 3))
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
@@ -28,27 +38,30 @@ def rotvecs_at(angles):
 
 def test_hat_vee_cross():
     a, b = RNG.normal(size=(2, 5, 3))
-    np.testing.assert_allclose(so3.hat(a) @ b[..., None], np.cross(a, b)[..., None], atol=1e-15)
-    np.testing.assert_allclose(so3.cross(a, b), np.cross(a, b), atol=1e-15)
-    np.testing.assert_array_equal(so3.vee(so3.hat(a)), a)
+    np.testing.assert_allclose(first(so3.hat(last(a))) @ b[..., None], np.cross(a, b)[..., None], atol=1e-15)
+    np.testing.assert_allclose(first(so3.cross(last(a), last(b))), np.cross(a, b), atol=1e-15)
+    np.testing.assert_array_equal(so3.vee(so3.hat(last(a))), last(a))
     m = RNG.normal(size=(5, 3, 3))
-    np.testing.assert_allclose(so3.matmul(m, m), m @ m, atol=1e-14)
-    np.testing.assert_allclose(so3.rmatmul(m, m), np.swapaxes(m, -1, -2) @ m, atol=1e-14)
-    np.testing.assert_allclose(so3.matvec(m, a), (m @ a[..., None])[..., 0], atol=1e-14)
-    np.testing.assert_allclose(so3.rmatvec(m, a), (np.swapaxes(m, -1, -2) @ a[..., None])[..., 0], atol=1e-14)
+    np.testing.assert_allclose(first(so3.matmul(last(m), last(m))), m @ m, atol=1e-14)
+    np.testing.assert_allclose(first(so3.rmatmul(last(m), last(m))), np.swapaxes(m, -1, -2) @ m, atol=1e-14)
+    np.testing.assert_allclose(first(so3.matvec(last(m), last(a))), (m @ a[..., None])[..., 0], atol=1e-14)
+    np.testing.assert_allclose(first(so3.rmatvec(last(m), last(a))), (np.swapaxes(m, -1, -2) @ a[..., None])[..., 0], atol=1e-14)
+    # a single vector / matrix needs no batch axis, and a shared one broadcasts with batch_like
+    np.testing.assert_allclose(so3.matvec(m[0], a[0]), m[0] @ a[0], atol=1e-14)
+    np.testing.assert_allclose(first(so3.matvec(so3.batch_like(m[0], 2, last(a)), last(a))), a @ m[0].T, atol=1e-14)
 
 
 def test_solve_spd_matches_numpy():
     a = RNG.normal(size=(6, 3, 3))
     spd = a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(3)
     b = RNG.normal(size=(6, 3))
-    np.testing.assert_allclose(so3.solve_spd(spd, b), np.linalg.solve(spd, b[..., None])[..., 0], rtol=1e-11)
+    np.testing.assert_allclose(first(so3.solve_spd(last(spd), last(b))), np.linalg.solve(spd, b[..., None])[..., 0], rtol=1e-11)
 
 
 @pytest.mark.parametrize("max_angle", [1e-6, 0.04, np.pi])
 def test_exp_matches_scipy(max_angle):
     v = np.concatenate([random_rotvecs(200, max_angle), rotvecs_at(ANGLES)])
-    np.testing.assert_allclose(so3.exp(v), Rotation.from_rotvec(v).as_matrix(), atol=1e-12, rtol=0)
+    np.testing.assert_allclose(first(so3.exp(last(v))), Rotation.from_rotvec(v).as_matrix(), atol=1e-12, rtol=0)
 
 
 @pytest.mark.parametrize("angle", [1e-10, 1e-6, 1e-4, 1e-2, 0.3])
@@ -66,7 +79,7 @@ def test_expm1_accurate_for_small_angles(angle):
 def test_log_matches_scipy():
     v = np.concatenate([random_rotvecs(300), rotvecs_at(ANGLES)])
     R = Rotation.from_rotvec(v).as_matrix()
-    ours = np.array(so3.log(R))
+    ours = np.array(first(so3.log(last(R))))
     theirs = Rotation.from_matrix(R).as_rotvec()
     # near a half turn log is defined up to sign: compare the rotations and the angles
     np.testing.assert_allclose(np.linalg.norm(ours, axis=1), np.linalg.norm(theirs, axis=1), atol=1e-12)
@@ -77,9 +90,9 @@ def test_log_matches_scipy():
 
 def test_log_exp_roundtrip_and_skew_vee():
     v = random_rotvecs(100, np.pi - 1e-3)
-    np.testing.assert_allclose(so3.log(so3.exp(v)), v, atol=1e-12)
-    R = Rotation.from_rotvec(v).as_matrix()
-    np.testing.assert_allclose(so3.skew_vee(R), so3.vee((R - np.swapaxes(R, -1, -2)) / 2), atol=1e-15)
+    np.testing.assert_allclose(first(so3.log(so3.exp(last(v)))), v, atol=1e-12)
+    R = last(Rotation.from_rotvec(v).as_matrix())
+    np.testing.assert_allclose(so3.skew_vee(R), so3.vee((R - np.swapaxes(R, 0, 1)) / 2), atol=1e-15)
 
 
 def jr_fd(e, h=1e-6):
@@ -160,9 +173,11 @@ def test_safe_norm_gradient_at_zero():
 
 
 def test_project_to_so3():
-    R = Rotation.from_rotvec(random_rotvecs(5)).as_matrix()
-    noisy = R + 1e-4 * RNG.normal(size=R.shape)
-    P = np.asarray(so3.project_to_so3(noisy))
-    assert np.max(so3.orthogonality_error(P)) < 1e-13
-    np.testing.assert_allclose(np.linalg.det(P), 1.0, atol=1e-13)
-    np.testing.assert_allclose(P, R, atol=1e-3)
+    for R in Rotation.from_rotvec(random_rotvecs(5)).as_matrix():
+        noisy = R + 1e-4 * RNG.normal(size=R.shape)
+        P = np.asarray(so3.project_to_so3(noisy))
+        assert so3.orthogonality_error(P) < 1e-13
+        np.testing.assert_allclose(np.linalg.det(P), 1.0, atol=1e-13)
+        np.testing.assert_allclose(P, R, atol=1e-3)
+    reflection = np.diag([1.0, 1.0, -1.0])
+    assert np.linalg.det(so3.project_to_so3(reflection)) > 0

@@ -23,9 +23,9 @@ LOG_DERIVATIVES = ("exact", "paper")
 
 
 def regressor_parameters(J):
-    """Theta(J) (9, 3) with Theta^T Phi = Omega x J Omega + J beta' (SPEC 3.2)."""
-    a, b, c = J[..., 0, 0], J[..., 1, 1], J[..., 2, 2]
-    d, e, f = J[..., 0, 1], J[..., 0, 2], J[..., 1, 2]
+    """Theta(J) (9, 3, ...) with Theta^T Phi = Omega x J Omega + J beta' (SPEC 3.2)."""
+    a, b, c = J[0, 0], J[1, 1], J[2, 2]
+    d, e, f = J[0, 1], J[0, 2], J[1, 2]
     zero = jnp.zeros_like(a)
     rows = [
         [c - b, d, -e],  # Omega_y Omega_z
@@ -35,22 +35,23 @@ def regressor_parameters(J):
         [f, zero, -d],  # Omega_y^2
         [-f, e, zero],  # Omega_z^2
     ]
-    monomial_rows = jnp.stack([jnp.stack(r, -1) for r in rows], -2)
-    return jnp.concatenate([monomial_rows, J], -2)
+    monomial_rows = jnp.stack([jnp.stack(r) for r in rows])
+    return jnp.concatenate([monomial_rows, J], 0)
 
 
 def regressor(Omega, beta_dot):
-    """Phi = [yz, zx, xy, x^2, y^2, z^2, beta'] (9,) for Omega = (x, y, z) (SPEC 3.2)."""
-    x, y, z = Omega[..., 0], Omega[..., 1], Omega[..., 2]
-    monomials = jnp.stack([y * z, z * x, x * y, x * x, y * y, z * z], -1)
-    return jnp.concatenate([monomials, beta_dot], -1)
+    """Phi = [yz, zx, xy, x^2, y^2, z^2, beta'] (9, ...) for Omega = (x, y, z) (SPEC 3.2)."""
+    x, y, z = Omega[0], Omega[1], Omega[2]
+    monomials = jnp.stack([y * z, z * x, x * y, x * x, y * y, z * z])
+    return jnp.concatenate([monomials, beta_dot], 0)
 
 
 def _apply_gamma(Gamma, Phi):
-    """Gamma Phi for a scalar, diagonal (9,) or full (9, 9) Gamma."""
+    """Gamma Phi for a scalar, diagonal (9,) or full (9, 9) Gamma (each with Phi's batch axes)."""
     Gamma = jnp.asarray(Gamma)
-    if Gamma.ndim == 2:
-        return jnp.sum(Gamma * Phi[None, :], axis=-1)
+    kind = Gamma.ndim - (Phi.ndim - 1)  # 0: scalar, 1: diagonal, 2: full
+    if kind == 2:
+        return jnp.sum(Gamma * Phi[None, :], axis=1)
     return Gamma * Phi
 
 

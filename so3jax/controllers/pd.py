@@ -5,7 +5,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 
 from so3jax import so3
 from so3jax.controllers.base import Controller, tracking_error
@@ -30,11 +29,11 @@ def geometric_pd(J_hat=None) -> Controller:
 
     def torque(gains, state, measured, desired, t):
         err = tracking_error(measured, desired)
-        J = jnp.eye(3, dtype=measured.Omega.dtype) if J_hat is None else J_hat
         Omega = measured.Omega
+        nominal = (lambda v: v) if J_hat is None else (lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v))
         e_R = so3.skew_vee(err.R_e)
-        inertial = so3.cross(Omega, so3.matvec(J, Omega))
-        feedforward = so3.matvec(J, so3.cross(Omega, err.Omega_r) - err.feedforward_dot)
+        inertial = so3.cross(Omega, nominal(Omega))
+        feedforward = nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot)
         tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e + inertial - feedforward
         return tau, ()
 
