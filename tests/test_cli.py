@@ -1,14 +1,22 @@
 """``so3jax paper`` end to end, as a user runs it (a subprocess with its own JAX)."""
 
 import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]
+
 
 def run_cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+    """``so3jax ARGS`` in a fresh interpreter (works installed or from the source tree)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run(
+        [sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
+    )
 
 
 def test_paper_json_and_figures(tmp_path):
