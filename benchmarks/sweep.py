@@ -6,8 +6,9 @@ paper's mission, dispersed as in sweeps/default.toml) over a horizon of T second
 dt = 0.01 s, and times ``so3jax.sweep.run_chunk`` -- the sweep's own chunk runner --
 on --samples samples in chunks of --chunk: the first chunk (compile included) and then
 the whole set again (compiled). Steps/s counts steps of single trajectories summed over
-the batch. From the compiled rates it extrapolates the full default sweep (1024 samples
-x 400 000 steps x both controllers), stated as an extrapolation.
+the batch; steps per CPU second (process time) is the rate that other load on a shared
+machine disturbs least. From the compiled rates it extrapolates the full default sweep
+(1024 samples x 400 000 steps x both controllers), stated as an extrapolation.
 
     python benchmarks/sweep.py                             # 1, 2, 4 devices; T = 50 s
     python benchmarks/sweep.py --devices 2 --T 200 --samples 256 --chunk 256
@@ -60,9 +61,9 @@ def _child(spec: dict) -> list:
         start = time.perf_counter()
         run(0, chunk)
         first = time.perf_counter() - start
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         run(0, n)
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         runs.append(
             {
                 "devices": mesh.size,
@@ -73,8 +74,10 @@ def _child(spec: dict) -> list:
                 "chunk": chunk,
                 "first_chunk_s": first,
                 "wall_s": wall,
+                "cpu_s": cpu,
                 "samples_per_s": n / wall,
                 "trajectory_steps_per_s": n * n_steps / wall,
+                "trajectory_steps_per_cpu_s": n * n_steps / cpu,
             }
         )
     return runs
