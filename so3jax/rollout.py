@@ -239,7 +239,8 @@ def rollout_batch(
     unroll: int = 1,
 ) -> Result:
     """``jax.vmap(rollout)`` over seeds (B,), computed natively batched (batch axis last
-    inside, so the step is SIMD arithmetic over the batch) -- same values, faster.
+    inside): the same values up to round-off (~1e-16 relative). Which of the two is
+    faster depends on the device and batch size: see benchmarks/throughput.py.
 
     scenario_axes / gains_axes: vmap-style in_axes prefixes, 0 (leading batch axis)
     or None (shared by the batch). A shared reference or inertia is evaluated once per
