@@ -1,0 +1,119 @@
+"""The benchmark scripts: the throughput smoke run (tiny sizes), its correctness gate, and
+the aggregator's bookkeeping. Timings themselves are not checked (the machine is shared)."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from benchmarks import all as bench_all
+from benchmarks import throughput
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.mark.slow
+def test_throughput_quick_smoke():
+    """--quick with tiny sizes: the gate passes, every section is there, rates are positive.
+
+    About 40-60 s of CPU (five XLA compilations), hence slow.
+    """
+    cmd = [
+        sys.executable,
+        str(ROOT / "benchmarks" / "throughput.py"),
+        "--quick",
+        "--controllers",
+        "pd",
+        "--dtypes",
+        "float64",
+        "--batches",
+        "2",
+        "--target",
+        "400",
+        "--single-steps",
+        "200",
+        "--numpy-batches",
+        "1",
+        "--numba-batches",
+        "1",
+        "--matmul-n",
+        "256",
+    ]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    for key in (
+        "machine",
+        "protocol",
+        "correctness",
+        "throughput",
+        "ratios",
+        "step_cost",
+        "peak",
+        "flop_rates",
+        "summary",
+    ):
+        assert key in report, key
+    gate = report["correctness"]
+    assert gate["passed"] and gate["max_relative_deviation"] <= 1e-9
+    assert {c["against"] for c in gate["checks"]} >= {"numpy"}
+    impls = {row["impl"] for row in report["throughput"]}
+    assert {"so3jax", "so3jax-single", "numpy"} <= impls
+    assert ("numba" in impls) == report["numba_available"]
+    for row in report["throughput"]:
+        assert row["trajectory_steps_per_s"] > 0 and len(row["runs_s"]) == 3
+    assert any(r["baseline"] == "numpy" for r in report["ratios"])
+    assert report["step_cost"]["pd"]["float64"]["single"]["flops"] > 1000
+    assert report["peak"]["flops_per_s"] > 0
+    assert 0 < report["flop_rates"][0]["fraction_of_peak"] < 1
+    assert len(report["machine"]["load_avg_start"]) == 3
+
+
+def test_gate_failure_refuses_to_time(monkeypatch, capsys):
+    failing = {"tolerance": 1e-9, "max_relative_deviation": 1e-6, "passed": False, "checks": []}
+    monkeypatch.setattr(throughput, "correctness", lambda quick, controllers: failing)
+    monkeypatch.setattr(throughput, "so3jax_batched", lambda *a: pytest.fail("timed despite the failed gate"))
+    assert throughput.main(["--quick"]) == 1
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["correctness"]["passed"] is False and "throughput" not in report
+
+
+def test_deviation_is_relative_to_the_largest_entry():
+    ours = {"rmse": [1.0, 2.0], "effort": [10.0], "R": [[1.0, 0.0], [0.0, 1.0]]}
+    theirs = {"rmse": [1.0, 2.0 + 2e-9], "effort": [10.0], "R": [[1.0, 0.0], [1e-12, 1.0]]}
+    dev = throughput._deviation(ours, theirs)
+    assert dev["rmse"] == pytest.approx(1e-9, rel=1e-6)
+    assert dev["effort"] == 0.0 and dev["R"] == pytest.approx(1e-12)
+
+
+def test_ratios_pair_equal_controller_batch_and_dtype():
+    def row(impl, dtype, batch, rate):
+        return {"impl": impl, "controller": "pd", "dtype": dtype, "batch": batch, "trajectory_steps_per_s": rate}
+
+    rows = [
+        row("so3jax", "float64", 256, 10.0),
+        row("so3jax", "float32", 256, 20.0),
+        row("numba", "float64", 256, 5.0),
+        row("numpy", "float64", 256, 1.0),
+        row("numpy", "float32", 256, 2.0),
+        row("so3jax", "float64", 16, 3.0),
+    ]
+    got = {
+        (r["baseline"], r["so3jax_dtype"], r["baseline_dtype"]): r["so3jax_over_baseline"]
+        for r in throughput.ratios(rows)
+    }
+    assert got == {
+        ("numba", "float64", "float64"): 2.0,
+        ("numba", "float32", "float64"): 4.0,
+        ("numpy", "float64", "float64"): 10.0,
+        ("numpy", "float32", "float32"): 10.0,
+    }
+
+
+def test_all_parses_indented_or_last_line_json():
+    assert bench_all._parse('progress\n{"a": 1}') == {"a": 1}
+    assert bench_all._parse('{\n "a": {\n  "b": 2\n }\n}\n') == {"a": {"b": 2}}
+    assert bench_all._parse("no json here") is None
+    assert bench_all._slug("AMD EPYC 7B13 64-Core") == "amd-epyc-7b13-64-core"
