@@ -30,7 +30,7 @@ import jax.numpy as jnp
 
 from so3jax.controllers import Controller
 from so3jax.metrics import Metrics
-from so3jax.rollout import rollout
+from so3jax.rollout import rollout_batch
 from so3jax.scenario import Scenario
 
 MODES = ("forward", "reverse")
@@ -51,19 +51,26 @@ def make_batch(inertia_scales, seeds, dtype) -> Batch:
 
 
 def scale_inertia(scenario: Scenario, scale) -> Scenario:
-    """The scenario with every matrix of its inertia profile multiplied by ``scale``."""
+    """The scenario with every matrix of its inertia profile multiplied by ``scale``
+    (a scalar, or (B,) for a batch: the matrices get a leading batch axis)."""
     inertia = scenario.inertia
+    scale = jnp.asarray(scale)[..., None, None]
     scaled = dataclasses.replace(inertia, **{name: scale * J for name, J in inertia.matrices().items()})
     return dataclasses.replace(scenario, inertia=scaled)
 
 
 def batch_metrics(scenario: Scenario, controller: Controller, gains, batch: Batch, *, record_every=None) -> Metrics:
-    """Metrics of every scenario of the batch (leading axis B). Pure and differentiable."""
+    """Metrics of every scenario of the batch (leading axis B). Pure and differentiable.
 
-    def one(scale, seed):
-        return rollout(scale_inertia(scenario, scale), controller, gains, seed, record_every=record_every).metrics
-
-    return jax.vmap(one)(batch.inertia_scale, batch.seed)
+    ``rollout_batch`` computes the vmap of :func:`so3jax.rollout` over the batch with the
+    reference and the time-only parts of the inertia shared by the batch.
+    """
+    shared = jax.tree.map(lambda _: None, scenario)
+    axes = dataclasses.replace(
+        shared, inertia=dataclasses.replace(shared.inertia, **dict.fromkeys(scenario.inertia.matrices(), 0))
+    )
+    scaled = scale_inertia(scenario, batch.inertia_scale)
+    return rollout_batch(scaled, controller, gains, batch.seed, scenario_axes=axes, record_every=record_every).metrics
 
 
 def value_and_grad(fun: Callable, mode: str) -> Callable:
