@@ -23,6 +23,7 @@ import json
 import os
 import platform
 import re
+import resource
 import signal
 import subprocess
 import sys
@@ -97,7 +98,7 @@ def run_benchmark(name: str, script: str, args: list[str], limit: float) -> dict
     """Run benchmarks/<script>.py with args; its JSON (last stdout line or the whole of stdout)."""
     cmd = [sys.executable, str(HERE / f"{script}.py"), *args]
     log(f"== {name} (limit {limit:.0f} s): {' '.join(cmd[1:])}")
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), _children_cpu()
     with tempfile.TemporaryDirectory() as tmp:
         partial = Path(tmp) / "runs.jsonl"
         if script == "gradients":
@@ -117,11 +118,18 @@ def run_benchmark(name: str, script: str, args: list[str], limit: float) -> dict
             log(f"   {name}: time limit of {limit:.0f} s reached")
             return {**out, "command": " ".join(cmd[1:]), "wall_s": time.perf_counter() - start}
     wall = time.perf_counter() - start
+    cpu = _children_cpu() - cpu_start
     result = _parse(stdout)
     if proc.returncode != 0 or result is None:
         result = {"error": f"exit status {proc.returncode}", "stderr_tail": _tail(stderr), "report": result}
-    log(f"   {name}: {wall:.0f} s" + (f", {result['error']}" if "error" in result else ""))
-    return {**result, "command": " ".join(cmd[1:]), "wall_s": wall}
+    log(f"   {name}: {wall:.0f} s ({cpu:.0f} s of CPU)" + (f", {result['error']}" if "error" in result else ""))
+    return {**result, "command": " ".join(cmd[1:]), "wall_s": wall, "cpu_s": cpu}
+
+
+def _children_cpu() -> float:
+    """User + system CPU seconds of this process's finished descendants."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
 
 
 def _tail(text, n: int = 3000) -> str:
@@ -203,6 +211,7 @@ def main(argv=None) -> int:
         report[name] = run_benchmark(name, script, bench_args + extra, limit)
     report["machine"]["load_avg_end"] = list(os.getloadavg())
     report["wall_s"] = time.perf_counter() - started
+    report["cpu_s"] = _children_cpu()  # of all subprocesses: about what an idle machine needs, at most
     path = args.out / f"{stem}.json"
     write_atomic(path, report)
     log(f"== all: {report['wall_s']:.0f} s; {path}")
