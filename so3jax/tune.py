@@ -109,6 +109,9 @@ class ESConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TuneConfig:
+    """A tuning campaign (one TOML file; see tuning/*.toml). Controllers are the default
+    ones (nominal inertia I, exact log derivative)."""
+
     controller: str  # "pd" or "adaptive"
     iterations: int
     train: ScenarioSet
@@ -233,6 +236,17 @@ def validate(config: TuneConfig) -> None:
     for key in config.scenario:
         if key not in signature or key == "dtype":
             raise ValueError(f"unknown config key 'scenario.{key}' (paper_scenario arguments: {', '.join(signature)})")
+    for key, controller, spec in (
+        ("initial_gains", config.controller, config.initial_gains),
+        ("cost.budget_gains", cost.budget_controller, cost.budget_gains),
+    ):
+        if controller is not None:
+            try:
+                resolve_gains(
+                    controller, spec, jnp.result_type(float), config.diagonal_gamma and key == "initial_gains"
+                )
+            except (OSError, ValueError) as err:
+                raise ValueError(f"config key {key!r}: {err}") from err
     make_optimizer(config.optimizer)
     _positive("es.population", config.es.population, integer=True)
     _positive("es.sigma", config.es.sigma)

@@ -227,6 +227,16 @@ def test_gradient_free_baseline_never_gets_worse(tmp_path):
         ({"record_every": 0}, "record_every"),
         ({"diagonal_gamma": True}, "diagonal_gamma"),
         ({"learning_rate": 0.1}, "learning_rate"),
+        ({"initial_gains": {"k_R": 1.0}}, "initial_gains"),
+        ({"initial_gains": "missing.json"}, "initial_gains"),
+        (
+            {
+                "cost__mode": "equal_effort",
+                "cost__budget_controller": "pd",
+                "cost__budget_gains": {"k_R": -1.0, "k_Omega": 1.0},
+            },
+            "cost.budget_gains",
+        ),
     ],
 )
 def test_bad_config_is_a_value_error_naming_the_key(changes, key):
