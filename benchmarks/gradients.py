@@ -62,7 +62,8 @@ def _child(spec: dict) -> dict:
     batch = gradients.make_batch(scales, seeds, jnp.float64)
     controller = tune.CONTROLLERS[spec["controller"]]
     refs = tune.CostRefs(jnp.asarray(1e-3), jnp.asarray(100.0), jnp.asarray(1.0))
-    params = tune.to_params(tune.resolve_gains(spec["controller"], "paper", jnp.float64))
+    diagonal = spec.get("diagonal_gamma", False)
+    params = tune.to_params(tune.resolve_gains(spec["controller"], "paper", jnp.float64, diagonal_gamma=diagonal))
     flat, unravel = ravel_pytree(params)
 
     def cost(p):
@@ -149,6 +150,7 @@ def main() -> None:
     parser.add_argument("--horizons", nargs="+", type=int, default=[10_000, 30_000, 100_000, 400_000])
     parser.add_argument("--batch", type=int, default=8, help="scenarios per batch (even: 2 seeds x B/2 inertias)")
     parser.add_argument("--modes", nargs="+", default=["forward", "reverse"], choices=["forward", "reverse"])
+    parser.add_argument("--diagonal-gamma", action="store_true", help="adaptive: 11 log-gains (Gamma's diagonal)")
     parser.add_argument("--fd-horizon", type=int, default=400_000, help="N of the finite-difference check (0: none)")
     parser.add_argument("--jobs", type=int, default=1, help="subprocesses at a time, each pinned to its own core")
     parser.add_argument("--log", help="also append each run's JSON to this file as it finishes")
@@ -165,6 +167,7 @@ def main() -> None:
             "batch": args.batch,
             "repeat": max(1, min(3, 100_000 // n)),
             "fd": what == "value" and n == args.fd_horizon,
+            "diagonal_gamma": args.diagonal_gamma and c == "adaptive",
         }
         for c in args.controllers
         for n in args.horizons
