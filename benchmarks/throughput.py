@@ -319,6 +319,22 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
     }
 
 
+def prng_cost(dtype: str) -> dict:
+    """XLA's count for the disturbance draw alone (SPEC 4's fold_in + normal), part of every step."""
+    import jax
+
+    def draw(key, k):
+        return jax.random.normal(jax.random.fold_in(key, k), (3,), dtype)
+
+    cost = jax.jit(draw).lower(jax.random.key(0), jax.numpy.int32(0)).compile().cost_analysis()
+    if isinstance(cost, (list, tuple)):
+        cost = cost[0]
+    return {
+        "flops": float(cost.get("flops", float("nan"))),
+        "transcendentals": float(cost.get("transcendentals", float("nan"))),
+    }
+
+
 def _matmul_peak(n: int, repeats: int = 3) -> float:
     import numpy as np
 
@@ -633,6 +649,7 @@ def main(argv=None) -> int:
                 tasks.append((f"numba {c}", functools.partial(numba_baseline, c)))
     for c in args.controllers:
         tasks.append((f"step cost {c} {first}", functools.partial(cost, c, first, None)))
+    tasks.append(("PRNG cost", lambda: report.__setitem__("prng_cost", {first: prng_cost(first)})))
     tasks.append(("peak", peak))
     if not (quick or args.no_paper):
         tasks.append(("so3jax paper", paper))
