@@ -202,7 +202,10 @@ def main(argv=None) -> int:
             "load_avg_start": load_start,
         },
         "commit": _git("rev-parse", "HEAD"),
-        "uncommitted_in_so3jax": (_git("status", "--porcelain", "--untracked-files=no", "so3jax") or "").split(),
+        "uncommitted_in_so3jax": [
+            line.strip()
+            for line in (_git("status", "--porcelain", "--untracked-files=no", "so3jax") or "").splitlines()
+        ],
         "limits_s": {name: limit for name, (_, _, limit) in plan.items()},
     }
     for name, (script, bench_args, limit) in plan.items():
