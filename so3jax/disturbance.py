@@ -28,7 +28,7 @@ class SinusoidPlusNoise:
 
 def noise(key, k, dtype):
     """eta_k = normal(fold_in(key, k), (3,)) per key; (3, *key.shape) (batch axes last)."""
-    draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)  # noqa: E731
+    draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)
     if key.ndim == 0:
         return draw(key)
     flat = jax.vmap(draw)(key.reshape(-1))

@@ -53,9 +53,8 @@ def write_text(path, text: str) -> None:
 
 
 def save_npz(path, **arrays) -> None:
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            np.savez(f, **arrays)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, **arrays)
 
 
 def save_figure(fig, path) -> None:

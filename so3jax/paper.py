@@ -100,7 +100,7 @@ def format_table(metrics: dict) -> str:
     rows.append(f"{'RMSE unrotated [rad/s]':28s}{pd['rmse_unrotated']:>12.4e}{'':>12s}{ad['rmse_unrotated']:>12.4e}")
     rows.append(f"{'max |tau| [N m]':28s}{pd['max_torque']:>12.4f}{'':>12s}{ad['max_torque']:>12.4f}")
     rows.append(f"{'|R^T R - I| at end':28s}{pd['orthogonality_error']:>12.1e}{'':>12s}{ad['orthogonality_error']:>12.1e}")
-    rows.append(f"{'diverged':28s}{str(pd['diverged']):>12s}{'':>12s}{str(ad['diverged']):>12s}")
+    rows.append(f"{'diverged':28s}{pd['diverged']!s:>12s}{'':>12s}{ad['diverged']!s:>12s}")
     rows.append("")
     rows.append("adaptive vs PD            ours        paper")
     for key, label in (("rmse", "RMSE"), ("effort", "Effort")):

@@ -7,7 +7,7 @@ step (SPEC 5), so a profile may switch laws without straddling a step.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

@@ -5,8 +5,8 @@ from __future__ import annotations
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 AXES = ("x", "y", "z")
 STYLES = {"pd": dict(ls="--", color="tab:red", label="PD"), "adaptive": dict(ls="-", color="tab:blue", label="adaptive")}

@@ -8,7 +8,7 @@ integrator, from R_d(0) = I.
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

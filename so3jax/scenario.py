@@ -98,7 +98,7 @@ def paper_scenario(
     dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
     n_steps = steps_for_horizon(T, dt)
     n = orbital_rate() if n is None else n
-    as_array = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    as_array = lambda x: jnp.asarray(x, dtype)
     J0 = as_array(J0)
     J1 = 2.0 * J0 if J1 is None else as_array(J1)
     capture_rate = as_array([n, -10.0 * n, 2.0 * n])

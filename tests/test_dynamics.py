@@ -69,7 +69,7 @@ def test_variable_inertia_term_changes_the_motion_as_modelled():
     """With J(t) = J0 (1 + t/T) and no torque, d/dt (J Omega) = -Omega x J Omega holds only with -J' Omega."""
     J0 = J_BODY
     T = 50.0
-    grow = lambda t: jnp.asarray(J0) * (1.0 + t / T)  # noqa: E731
+    grow = lambda t: jnp.asarray(J0) * (1.0 + t / T)
     Omega0 = np.array([0.02, -0.03, 0.05])
     base = custom_scenario(T, 0.01, Omega0=Omega0, rate_fn=lambda t: jnp.zeros(3) * t)
     with_term = dataclasses.replace(base, inertia=sj.InertiaFunction(grow), variable_inertia_term=True)
@@ -77,6 +77,6 @@ def test_variable_inertia_term_changes_the_motion_as_modelled():
     r_with = sj.simulate(with_term, zero_torque(), (), 0)
     r_without = sj.simulate(without, zero_torque(), (), 0)
     # with the term the inertial angular momentum R J Omega is conserved; without, it is not
-    h = lambda r, t: np.asarray(r.final.R) @ np.asarray(grow(t)) @ np.asarray(r.final.Omega)  # noqa: E731
+    h = lambda r, t: np.asarray(r.final.R) @ np.asarray(grow(t)) @ np.asarray(r.final.Omega)
     np.testing.assert_allclose(h(r_with, T), J0 @ Omega0, rtol=1e-10)
     assert np.linalg.norm(h(r_without, T) - J0 @ Omega0) > 1e-3 * np.linalg.norm(J0 @ Omega0)

@@ -158,7 +158,7 @@ def test_log_gradients(angle):
     """d log(exp(v) exp(hat(x))) / dx at x = 0 equals J_r^{-1}(v); FD on R's entries near it."""
     v = jnp.asarray(rotvecs_at([angle])[0])
     R = so3.exp(v)
-    local = lambda x: so3.log(so3.matmul(R, so3.exp(x)))  # noqa: E731
+    local = lambda x: so3.log(so3.matmul(R, so3.exp(x)))
     jac = np.asarray(jax.jacfwd(local)(jnp.zeros(3)))
     np.testing.assert_allclose(jac, so3.jr_inv(v), atol=1e-7)
     _check_derivatives(local, jnp.zeros(3))

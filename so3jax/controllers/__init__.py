@@ -11,17 +11,17 @@ from so3jax.controllers.base import Controller, Desired, Measured, TrackingError
 from so3jax.controllers.pd import PAPER_PD_GAINS, PDGains, geometric_pd
 
 __all__ = [
+    "PAPER_ADAPTIVE_GAINS",
+    "PAPER_PD_GAINS",
+    "AdaptiveGains",
     "Controller",
     "Desired",
     "Measured",
-    "TrackingError",
-    "tracking_error",
     "PDGains",
-    "PAPER_PD_GAINS",
-    "geometric_pd",
-    "AdaptiveGains",
-    "PAPER_ADAPTIVE_GAINS",
+    "TrackingError",
     "adaptive_backstepping",
+    "geometric_pd",
     "regressor",
     "regressor_parameters",
+    "tracking_error",
 ]

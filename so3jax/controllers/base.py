@@ -11,7 +11,8 @@ A controller is ``Controller(init, torque)``:
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 
