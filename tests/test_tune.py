@@ -9,6 +9,7 @@ import copy
 import csv
 import json
 import math
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -242,6 +243,12 @@ def test_gradient_free_baseline_never_gets_worse(tmp_path):
 def test_bad_config_is_a_value_error_naming_the_key(changes, key):
     with pytest.raises(ValueError, match=key.replace(".", r"\.")):
         config(**changes)
+
+
+@pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "tuning").glob("*.toml")), ids=lambda p: p.name)
+def test_recorded_campaign_configs_are_valid_full_missions(path):
+    cfg = tune.load_config(path)
+    assert cfg.scenario["T"] == 4000.0 and cfg.cost.mode == "equal_effort" and cfg.cost.budget_controller == "pd"
 
 
 def test_bad_initial_gains_name_the_gain():
