@@ -293,7 +293,7 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.rollout import initial_state, step
+    from so3jax.rollout import disturbances, initial_state, step
 
     scenario, ctrl, gains = _setup(controller, dtype, 10)
     if batch is None:
@@ -306,7 +306,8 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
         state = initial_state(scenario, ctrl, gains, (batch,))
 
     def one(key, state):
-        return step(scenario, ctrl, gains, key, state, jnp.int32(0))
+        k = jnp.int32(0)
+        return step(scenario, ctrl, gains, disturbances(scenario, key, k, 1)[0], state, k)
 
     cost = jax.jit(one).lower(key, state).compile().cost_analysis()
     if isinstance(cost, (list, tuple)):  # older JAX: one dict per computation

@@ -1,5 +1,9 @@
 """so3jax: differentiable spacecraft attitude simulation on SO(3) in JAX."""
 
+from so3jax import _xla_flags
+
+_xla_flags.compile_loops_as_kernels()  # before JAX starts its backend; see _xla_flags
+
 from so3jax import so3
 from so3jax.controllers import (
     PAPER_ADAPTIVE_GAINS,

@@ -9,21 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
 
+from so3jax import _xla_flags
+
 COMMAND_MODULES = ("so3jax.paper", "so3jax.tune", "so3jax.sweep")
-
-
-def _use_every_core() -> None:
-    """One XLA host device per core, so sharded batches use the whole CPU.
-
-    Must run before JAX initializes its backend; a user's own XLA_FLAGS setting wins.
-    """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_force_host_platform_device_count" not in flags:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-        os.environ["XLA_FLAGS"] = f"{flags} --xla_force_host_platform_device_count={cores}".strip()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -36,7 +26,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def add_precision_argument(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--precision", choices=("float64", "float32"), default="float64", help="floating-point precision (default float64)"
+        "--precision",
+        choices=("float64", "float32"),
+        default="float64",
+        help="floating-point precision (default float64)",
     )
 
 
@@ -47,7 +40,7 @@ def configure_jax(precision: str) -> None:
 
 
 def main(argv=None) -> int:
-    _use_every_core()
+    _xla_flags.use_every_core()  # before JAX initializes its backend
     args = build_parser().parse_args(argv)
     configure_jax(args.precision)
     try:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import jax
 
 from so3jax import so3
+from so3jax._fusion import materialize
 
 _tree_map = jax.tree_util.tree_map
 
@@ -29,17 +30,20 @@ def lie_rk4_step(field, t, dt, rotations, vectors):
     """
 
     def stage(c, psis, vecs):
-        moved = tuple(R + so3.matmul(R, so3.expm1(p)) for R, p in zip(rotations, psis))
+        moved = materialize(tuple(R + so3.matmul(R, so3.expm1(p)) for R, p in zip(rotations, psis)), t)
         rates, vdot, _ = field(t + c * dt, moved, vecs)
+        rates, vdot = materialize((rates, vdot), t)
         return tuple(so3.jr_inv_apply(p, w) for p, w in zip(psis, rates)), vdot
 
     rates1, v1, aux = field(t, rotations, vectors)
+    rates1, v1 = materialize((rates1, v1), t)
     k1 = (rates1, v1)
     zero = _tree_map(lambda w: 0.0 * w, rates1)
     k2 = stage(0.5, _axpy(0.5 * dt, k1[0], zero), _axpy(0.5 * dt, k1[1], vectors))
     k3 = stage(0.5, _axpy(0.5 * dt, k2[0], zero), _axpy(0.5 * dt, k2[1], vectors))
     k4 = stage(1.0, _axpy(dt, k3[0], zero), _axpy(dt, k3[1], vectors))
     increment = _tree_map(lambda a, b, c, d: (dt / 6.0) * (a + 2.0 * (b + c) + d), k1, k2, k3, k4)
+    increment = materialize(increment, t)
     new_rotations = tuple(R + so3.matmul(R, so3.expm1(p)) for R, p in zip(rotations, increment[0]))
     new_vectors = _tree_map(lambda x, dx: x + dx, vectors, increment[1])
     return new_rotations, new_vectors, aux

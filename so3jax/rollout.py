@@ -87,7 +87,11 @@ def _field(scenario: Scenario, controller: Controller, gains, phase, disturbance
         desired = _desired(scenario, t, phase, rotations[1] if len(rotations) > 1 else None, Omega)
         tau, controller_dot = controller.torque(gains, controller_state, Measured(R, Omega), desired, t)
         J = so3.batch_like(scenario.inertia(t, phase), 2, Omega)
-        J_dot = so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega) if scenario.variable_inertia_term else None
+        J_dot = (
+            so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
+            if scenario.variable_inertia_term
+            else None
+        )
         Omega_dot = angular_acceleration(J, Omega, tau + disturbance, J_dot)
         rates = (Omega,) if len(rotations) == 1 else (Omega, desired.Omega_d)
         return rates, (Omega_dot, controller_dot), (tau, desired)
@@ -106,15 +110,35 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
     dtype = scenario.R0.dtype
     R_d = () if _has_closed_form(scenario.reference) else _broadcast(jnp.eye(3, dtype=dtype), 2, batch_shape)
     controller_state = jax.tree.map(lambda x: _broadcast(x, x.ndim, batch_shape), controller.init(gains))
-    return State(_broadcast(scenario.R0, 2, batch_shape), _broadcast(scenario.Omega0, 1, batch_shape), controller_state, R_d)
+    return State(
+        _broadcast(scenario.R0, 2, batch_shape), _broadcast(scenario.Omega0, 1, batch_shape), controller_state, R_d
+    )
 
 
-def step(scenario: Scenario, controller: Controller, gains, key, state: State, k):
-    """Advance the closed loop over step k. Returns (state, phase, metrics sample at t_k)."""
+def _time(scenario, k):
     dtype = scenario.R0.dtype
-    t = k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
+    return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
+
+
+def disturbances(scenario: Scenario, key, k0, count: int):
+    """d_k (count, 3, ...) for k = k0 .. k0 + count - 1, drawn in one vectorized call."""
+    ks = k0 + jnp.arange(count, dtype=k0.dtype)
+    return jax.vmap(lambda k: scenario.disturbance(key, k, _time(scenario, k)))(ks)
+
+
+def _sum_components(x, core_ndim):
+    """Sum over the leading core_ndim (component) axes, written out: a reduce is a
+    kernel of its own on CPU, a chain of adds fuses with its operands."""
+    flat = x.reshape((-1,) + x.shape[core_ndim:])
+    return sum(flat[i] for i in range(1, flat.shape[0])) + flat[0]
+
+
+def step(scenario: Scenario, controller: Controller, gains, d, state: State, k):
+    """Advance the closed loop over step k with disturbance d_k held.
+    Returns (state, phase, metrics sample at t_k)."""
+    dtype = scenario.R0.dtype
+    t = _time(scenario, k)
     phase = _phase(scenario, k)
-    d = scenario.disturbance(key, k, t)
     field = _field(scenario, controller, gains, phase, d)
     integrated = isinstance(state.R_d, jax.Array)
     rotations = (state.R, state.R_d) if integrated else (state.R,)
@@ -145,6 +169,9 @@ def _keys(seed):
     if seed.ndim == 0:
         return jax.random.key(seed)
     return jax.vmap(jax.random.key)(seed.reshape(-1)).reshape(seed.shape)
+
+
+_MAX_DRAWN_AHEAD = 1 << 22  # elements of disturbance drawn ahead per block (32 MiB in float64)
 
 
 def default_record_every(n_steps: int) -> int:
@@ -178,11 +205,16 @@ def rollout(
     masked = n_blocks * block != n
     key = _keys(seed)
     dtype = scenario.R0.dtype
+    # The disturbance of a whole block is drawn in one vectorized call (the PRNG's
+    # per-call overhead is then paid once per block), unless that array would be big.
+    draw_ahead = 3 * block * math.prod(key.shape) <= _MAX_DRAWN_AHEAD
 
-    def one_step(carry, _):
+    def one_step(carry, d):
         state, k, acc = carry
-        new, phase, sample = step(scenario, controller, gains, key, state, k)
-        finite = jnp.isfinite(jnp.sum(new.Omega, axis=0) + jnp.sum(new.R, axis=(0, 1)))
+        if d is None:  # not drawn ahead for the block: too large
+            d = scenario.disturbance(key, k, _time(scenario, k))
+        new, phase, sample = step(scenario, controller, gains, d, state, k)
+        finite = jnp.isfinite(_sum_components(new.R, 2) + _sum_components(new.Omega, 1))
         new_acc = metrics.update(acc, phase, sample, finite)
         if masked:
             live = k < n
@@ -191,7 +223,8 @@ def rollout(
 
     @functools.partial(jax.checkpoint, prevent_cse=False)
     def run_block(carry):
-        return jax.lax.scan(one_step, carry, None, length=block, unroll=min(unroll, block))[0]
+        ds = disturbances(scenario, key, carry[1], block) if draw_ahead else None
+        return jax.lax.scan(one_step, carry, ds, length=block, unroll=min(unroll, block))[0]
 
     def outer(carry, _):
         return run_block(carry), (carry[0], carry[1])
@@ -255,7 +288,10 @@ def rollout_batch(
         unroll=unroll,
     )
     metrics_, history, final = result
-    history = jax.tree.map(lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (final.Omega.shape[-1],) + x.shape), history)
+    history = jax.tree.map(
+        lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (final.Omega.shape[-1],) + x.shape),
+        history,
+    )
     return Result(_batch_first(metrics_), history, _batch_first(final))
 
 

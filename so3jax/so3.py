@@ -175,7 +175,7 @@ def log(r):
 
     sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
     diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
-    pick = (jnp.arange(3).reshape((3,) + (1,) * (diag.ndim - 1)) == jnp.argmax(diag, axis=0)).astype(r.dtype)
+    pick = _first_max_indicator(diag).astype(r.dtype)
     column = matvec(sym, pick)
     scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
     axis = column / jnp.sqrt(scale2)
@@ -183,6 +183,14 @@ def log(r):
     half_turn = (sign * theta) * axis
 
     return jnp.where(near_pi, half_turn, generic)
+
+
+def _first_max_indicator(v):
+    """One-hot (3, ...) of argmax over v's 3 components (first on ties), by comparisons:
+    a variadic argmax reduce is a slow kernel of its own on CPU."""
+    first = (v[0] >= v[1]) & (v[0] >= v[2])
+    second = ~first & (v[1] >= v[2])
+    return jnp.stack([first, second, ~(first | second)])
 
 
 def jr_inv_coefficient(theta2):

@@ -10,7 +10,7 @@ import pytest
 
 import so3jax as sj
 from so3jax import so3
-from so3jax.rollout import observe, rollout, step
+from so3jax.rollout import disturbances, observe, rollout, step
 from tests.helpers import custom_scenario, sinusoidal_rate
 
 warnings.filterwarnings("ignore", category=sj.InertiaWarning)
@@ -36,8 +36,8 @@ def test_disturbance_reaches_the_plant():
     s0 = sj.State(state.R[0], state.Omega[0], (), ())
     quiet = dataclasses.replace(SHORT, disturbance=sj.no_disturbance())
     k = jnp.asarray(0, jnp.int32)
-    noisy_next, _, _ = step(SHORT, controller, gains, jax.random.key(5), s0, k)
-    quiet_next, _, _ = step(quiet, controller, gains, jax.random.key(5), s0, k)
+    noisy_next, _, _ = step(SHORT, controller, gains, disturbances(SHORT, jax.random.key(5), k, 1)[0], s0, k)
+    quiet_next, _, _ = step(quiet, controller, gains, disturbances(quiet, jax.random.key(5), k, 1)[0], s0, k)
     eta = np.asarray(jax.random.normal(jax.random.fold_in(jax.random.key(5), 0), (3,), jnp.float64))
     J0 = np.asarray(SHORT.inertia.J0)
     # at rest, Omega' = J^-1 (tau + d) to first order; the torque is the same in both runs
@@ -98,10 +98,14 @@ def test_vmap_over_seeds_and_inertias_matches_single_runs():
 
     def scaled(s):
         inertia = SHORT.inertia
-        return dataclasses.replace(SHORT, inertia=dataclasses.replace(inertia, J0=s * inertia.J0, J1=s * inertia.J1, J2=s * inertia.J2))
+        return dataclasses.replace(
+            SHORT, inertia=dataclasses.replace(inertia, J0=s * inertia.J0, J1=s * inertia.J1, J2=s * inertia.J2)
+        )
 
     batched = jax.jit(jax.vmap(lambda s, seed: rollout(scaled(s), controller, gains, seed).metrics.rmse))(scales, seeds)
-    singles = [float(sj.simulate(scaled(s), controller, gains, int(seed)).metrics.rmse) for s, seed in zip(scales, seeds)]
+    singles = [
+        float(sj.simulate(scaled(s), controller, gains, int(seed)).metrics.rmse) for s, seed in zip(scales, seeds)
+    ]
     np.testing.assert_allclose(batched, singles, rtol=1e-13)
     assert abs(singles[0] - singles[1]) > 1e-6  # the inertia and the seed reach the rollout
 
@@ -109,7 +113,10 @@ def test_vmap_over_seeds_and_inertias_matches_single_runs():
 @pytest.mark.parametrize("name", ["pd", "adaptive"])
 def test_gradient_wrt_log_gains_matches_finite_differences(name):
     scenario = sj.paper_scenario(T=10.0)
-    controller, gains = {"pd": (sj.geometric_pd(), sj.PAPER_PD_GAINS), "adaptive": (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS)}[name]
+    controller, gains = {
+        "pd": (sj.geometric_pd(), sj.PAPER_PD_GAINS),
+        "adaptive": (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS),
+    }[name]
     cls = type(gains)
     log_g = jnp.log(jnp.array([float(g) for g in gains]))
 
@@ -148,7 +155,7 @@ def test_observe_matches_the_step_sample():
     controller, gains = sj.adaptive_backstepping(), jax.tree.map(jnp.asarray, sj.PAPER_ADAPTIVE_GAINS)
     state = sj.rollout(SHORT, controller, gains, 0).final
     k = jnp.asarray(SHORT.n_steps, jnp.int32)
-    _, _, sample = step(SHORT, controller, gains, jax.random.key(0), state, k)
+    _, _, sample = step(SHORT, controller, gains, disturbances(SHORT, jax.random.key(0), k, 1)[0], state, k)
     _, tau, _, observed, _ = observe(SHORT, controller, gains, state, k)
     np.testing.assert_allclose(tau, sample.tau, rtol=1e-14)
     np.testing.assert_allclose(observed.Omega_e, sample.Omega_e, rtol=1e-14)
@@ -156,7 +163,9 @@ def test_observe_matches_the_step_sample():
 
 def test_float32_follows_the_scenario_dtype():
     with jax.numpy_dtype_promotion("strict"):
-        r = sj.simulate(sj.paper_scenario(T=5.0, dtype="float32"), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0)
+        r = sj.simulate(
+            sj.paper_scenario(T=5.0, dtype="float32"), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0
+        )
     assert r.metrics.rmse.dtype == jnp.float32 and r.final.R.dtype == jnp.float32
     r64 = sj.simulate(sj.paper_scenario(T=5.0), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0)
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
@@ -170,16 +179,31 @@ def test_rollout_batch_equals_vmap_of_rollout():
     inertia = SHORT.inertia
     batched = dataclasses.replace(
         SHORT,
-        inertia=dataclasses.replace(inertia, J0=scales[:, None, None] * inertia.J0, J1=scales[:, None, None] * inertia.J1,
-                                    J2=scales[:, None, None] * inertia.J2),
+        inertia=dataclasses.replace(
+            inertia,
+            J0=scales[:, None, None] * inertia.J0,
+            J1=scales[:, None, None] * inertia.J1,
+            J2=scales[:, None, None] * inertia.J2,
+        ),
     )
-    axes = dataclasses.replace(SHORT, inertia=dataclasses.replace(inertia, J0=0, J1=0, J2=0, t_deploy=None, tau_J=None),
-                               reference=None, disturbance=None, R0=None, Omega0=None)
+    axes = dataclasses.replace(
+        SHORT,
+        inertia=dataclasses.replace(inertia, J0=0, J1=0, J2=0, t_deploy=None, tau_J=None),
+        reference=None,
+        disturbance=None,
+        R0=None,
+        Omega0=None,
+    )
     seeds = jnp.array([0, 5, 9])
-    for controller, gains in ((sj.geometric_pd(), sj.PAPER_PD_GAINS), (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS)):
+    for controller, gains in (
+        (sj.geometric_pd(), sj.PAPER_PD_GAINS),
+        (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS),
+    ):
         gains = jax.tree.map(jnp.asarray, gains)
         native = rollout_batch(batched, controller, gains, seeds, scenario_axes=axes, record_every=500)
-        vmapped = jax.vmap(lambda s, seed: rollout(s, controller, gains, seed, record_every=500), in_axes=(axes, 0))(batched, seeds)
+        vmapped = jax.vmap(lambda s, seed: rollout(s, controller, gains, seed, record_every=500), in_axes=(axes, 0))(
+            batched, seeds
+        )
         for a, b in zip(jax.tree.leaves(native), jax.tree.leaves(vmapped)):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)

@@ -1,0 +1,34 @@
+"""XLA:CPU settings so3jax relies on for speed, added to ``XLA_FLAGS`` before JAX
+starts its backend (they have no effect once it has). A setting the user already
+made in ``XLA_FLAGS`` always wins; ``SO3JAX_KEEP_XLA_FLAGS=1`` disables all of this.
+"""
+
+from __future__ import annotations
+
+import os
+
+# XLA:CPU runs the body of a while loop as a sequence of separately dispatched
+# kernels; loops whose cost-analysis footprint is below this threshold are instead
+# compiled into one function. The default (1 kB) excludes every rollout. Raising it
+# is what makes a scan of RK4 steps cheap on CPU: one trajectory of the paper's
+# scenario goes from ~9 to ~1.3 us/step (PD), benchmarks/throughput.py.
+LOOP_KERNEL_FLAG = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=1000000000"
+
+
+def _add(flag: str, key: str) -> None:
+    if os.environ.get("SO3JAX_KEEP_XLA_FLAGS") == "1":
+        return
+    flags = os.environ.get("XLA_FLAGS", "")
+    if key not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
+
+
+def compile_loops_as_kernels() -> None:
+    """Whole while loops as single CPU kernels (see LOOP_KERNEL_FLAG)."""
+    _add(LOOP_KERNEL_FLAG, "xla_backend_extra_options")
+
+
+def use_every_core() -> None:
+    """One XLA host device per core, so sharded batches use the whole CPU."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    _add(f"--xla_force_host_platform_device_count={cores}", "xla_force_host_platform_device_count")
