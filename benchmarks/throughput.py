@@ -559,6 +559,8 @@ def main(argv=None) -> int:
 
     import jax
 
+    import so3jax  # noqa: F401  (before JAX starts its backend: so3jax sets its XLA:CPU flags)
+
     jax.config.update("jax_enable_x64", True)  # float64 available; float32 runs build float32 scenarios
     import numpy as np
 

@@ -14,6 +14,7 @@ log) the functions switch to Taylor series or to another formula with the
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 # Below these squared angles the Taylor series used are exact to float64 round-off
@@ -129,17 +130,30 @@ def trace(m):
 # --- exp, log, right Jacobian ------------------------------------------------------
 
 
+def _branch(small, series, general, x):
+    """series(x) where ``small``, general(x) elsewhere (general must be finite, with finite
+    gradients, everywhere). When every element is small -- the common case inside an RK4
+    step, for one trajectory or a natively batched step -- only the series is computed;
+    under vmap this is the elementwise choice."""
+    mixed = lambda x: jax.tree.map(lambda a, b: jnp.where(small, a, b), series(x), general(x))
+    return jax.lax.cond(jnp.all(small), series, mixed, x)
+
+
+def _exp_series(s):
+    """(sin t / t, (1 - cos t) / t^2) for t^2 = s < _SMALL_ANGLE2, exact to round-off."""
+    return 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0)), 0.5 - s / 24.0 * (1.0 - s / 30.0 * (1.0 - s / 56.0))
+
+
 def _exp_coefficients(theta2):
     """(sin t / t, (1 - cos t) / t^2) for t^2 = theta2, finite with gradients at 0."""
     small = theta2 < _SMALL_ANGLE2
-    t2 = jnp.where(small, 0.0, theta2)  # keeps the unselected branch finite
-    half = 0.5 * jnp.sqrt(jnp.where(small, 1.0, t2))
-    sinc = jnp.sin(2.0 * half) / (2.0 * half)
-    sinc_half = jnp.sin(half) / half
-    s = theta2
-    a = jnp.where(small, 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0)), sinc)
-    b = jnp.where(small, 0.5 - s / 24.0 * (1.0 - s / 30.0 * (1.0 - s / 56.0)), 0.5 * sinc_half * sinc_half)
-    return a, b
+
+    def trigonometric(theta2):
+        half = 0.5 * jnp.sqrt(jnp.where(small, 1.0, theta2))  # keeps the unselected branch finite
+        sinc_half = jnp.sin(half) / half
+        return jnp.sin(2.0 * half) / (2.0 * half), 0.5 * sinc_half * sinc_half
+
+    return _branch(small, _exp_series, trigonometric, theta2)
 
 
 def expm1(v):
@@ -167,22 +181,25 @@ def log(r):
     sin_t = safe_norm(s)
     theta = jnp.arctan2(sin_t, c)
 
-    # theta / sin(theta) = arcsin(x)/x for x = sin(theta), c > 0.
-    small = (s2 < _SMALL_SIN2) & (c > 0)
     near_pi = c < _NEAR_PI_COS
-    ratio = jnp.where(small, 1.0 + s2 / 6.0 + 0.075 * s2 * s2, theta / jnp.where(small | near_pi, 1.0, sin_t))
-    generic = ratio * s
 
-    sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
-    diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
-    pick = _first_max_indicator(diag).astype(r.dtype)
-    column = matvec(sym, pick)
-    scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
-    axis = column / jnp.sqrt(scale2)
-    sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
-    half_turn = (sign * theta) * axis
+    def generic(r):
+        # theta / sin(theta) = arcsin(x)/x for x = sin(theta), c > 0.
+        small = (s2 < _SMALL_SIN2) & (c > 0)
+        ratio = jnp.where(small, 1.0 + s2 / 6.0 + 0.075 * s2 * s2, theta / jnp.where(small | near_pi, 1.0, sin_t))
+        return ratio * s
 
-    return jnp.where(near_pi, half_turn, generic)
+    def half_turn(r):
+        sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
+        diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
+        pick = _first_max_indicator(diag).astype(r.dtype)
+        column = matvec(sym, pick)
+        scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
+        axis = column / jnp.sqrt(scale2)
+        sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
+        return (sign * theta) * axis
+
+    return _branch(~near_pi, generic, half_turn, r)
 
 
 def _first_max_indicator(v):
@@ -200,12 +217,16 @@ def jr_inv_coefficient(theta2):
     (truncation < 2e-16) is used instead.
     """
     small = theta2 < _JR_SERIES_ANGLE2
-    t2 = jnp.where(small, 1.0, theta2)
-    half = 0.5 * jnp.sqrt(t2)
-    large = (1.0 - half * jnp.cos(half) / jnp.sin(half)) / t2
-    s = theta2
-    series = 1.0 / 12.0 + s * (1.0 / 720.0 + s * (1.0 / 30240.0 + s * (1.0 / 1209600.0 + s / 47900160.0)))
-    return jnp.where(small, series, large)
+
+    def series(s):
+        return 1.0 / 12.0 + s * (1.0 / 720.0 + s * (1.0 / 30240.0 + s * (1.0 / 1209600.0 + s / 47900160.0)))
+
+    def closed_form(theta2):
+        t2 = jnp.where(small, 1.0, theta2)
+        half = 0.5 * jnp.sqrt(t2)
+        return (1.0 - half * jnp.cos(half) / jnp.sin(half)) / t2
+
+    return _branch(small, series, closed_form, theta2)
 
 
 def jr_inv_apply(e, w):

@@ -40,10 +40,11 @@ def table(out):
         return {k: f[k] for k in f.files}
 
 
-def assert_same_results(a, b, controllers):
+def assert_same_results(a, b, controllers, rtol=0.0):
+    """Bit for bit by default; rtol for runs with another chunking (round-off only)."""
     for c in controllers:
         for col in METRIC_COLUMNS:
-            np.testing.assert_array_equal(a[f"{c}_{col}"], b[f"{c}_{col}"], err_msg=f"{c}_{col}")
+            np.testing.assert_allclose(a[f"{c}_{col}"], b[f"{c}_{col}"], rtol=rtol, atol=0.0, err_msg=f"{c}_{col}")
 
 
 @pytest.fixture(scope="module")
@@ -203,15 +204,15 @@ def test_outputs(reference):
 
 
 def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_path):
-    """4 forced host devices with 10 samples per device, against 1 device with 8: in a
-    subprocess (XLA flags must precede JAX), through the command line."""
+    """4 forced host devices with 10 samples per device, against 1 device with 8 (equal to
+    round-off): in a subprocess (XLA flags must precede JAX), through the command line."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
     args = [sys.executable, "-m", "so3jax.cli", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40", "--controllers", "pd"]
     proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "on 4 device(s)" in proc.stderr and "| pd | mission |" in proc.stdout
     assert json.loads((tmp_path / "summary.json").read_text())["run"]["chunk"] == 40
-    assert_same_results(table(reference[0]), table(tmp_path), ["pd"])
+    assert_same_results(table(reference[0]), table(tmp_path), ["pd"], rtol=1e-12)
 
 
 def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
