@@ -132,11 +132,13 @@ def trace(m):
 
 def _branch(small, series, general, x):
     """series(x) where ``small``, general(x) elsewhere (general must be finite, with finite
-    gradients, everywhere). When every element is small -- the common case inside an RK4
-    step, for one trajectory or a natively batched step -- only the series is computed;
-    under vmap this is the elementwise choice."""
+    gradients, everywhere). On CPU, when every element is small -- the common case inside
+    an RK4 step, for one trajectory or a natively batched step -- only the series is
+    computed (under vmap, and on GPUs, where a branch costs more than it saves, both are
+    computed and selected elementwise)."""
     mixed = lambda x: jax.tree.map(lambda a, b: jnp.where(small, a, b), series(x), general(x))
-    return jax.lax.cond(jnp.all(small), series, mixed, x)
+    on_cpu = lambda x: jax.lax.cond(jnp.all(small), series, mixed, x)
+    return jax.lax.platform_dependent(x, cpu=on_cpu, default=mixed)
 
 
 def _exp_series(s):
