@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
+import os
 import sys
+from pathlib import Path
 
 from so3jax import _xla_flags
 
@@ -33,10 +36,25 @@ def add_precision_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+CACHE_MAX_BYTES = 2 << 30
+
+
 def configure_jax(precision: str) -> None:
+    """Precision, and a persistent compilation cache: a second ``so3jax paper`` skips
+    XLA's compilation (10 s -> 4 s here). The cache lives in $SO3JAX_CACHE_DIR, else
+    ~/.cache/so3jax/xla (at most 2 GiB where ``filelock`` is installed, which JAX's
+    eviction needs); SO3JAX_CACHE_DIR= (empty) turns it off, and a cache the user
+    configured for JAX is left as it is."""
     import jax
 
     jax.config.update("jax_enable_x64", precision == "float64")
+    if jax.config.jax_compilation_cache_dir is None:
+        default = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "so3jax" / "xla"
+        cache = os.environ.get("SO3JAX_CACHE_DIR", str(default))
+        if cache:
+            jax.config.update("jax_compilation_cache_dir", cache)
+            if jax.config.jax_compilation_cache_max_size == -1 and importlib.util.find_spec("filelock"):
+                jax.config.update("jax_compilation_cache_max_size", CACHE_MAX_BYTES)  # JAX's LRU needs filelock
 
 
 def main(argv=None) -> int:

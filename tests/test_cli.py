@@ -11,9 +11,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def run_cli(*args, cwd):
+def run_cli(*args, cwd, **env_vars):
     """``so3jax ARGS`` in a fresh interpreter (works installed or from the source tree)."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]), **env_vars}
     return subprocess.run(
         [sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
     )
@@ -51,3 +51,20 @@ def test_paper_rejects_a_bad_horizon(tmp_path):
     proc = run_cli("paper", "--T", "10.005", "--no-figures", "--out", str(tmp_path), cwd=tmp_path)
     assert proc.returncode != 0
     assert "not a multiple of dt" in proc.stderr
+
+
+def test_compilations_are_cached_and_reused(tmp_path):
+    """The second identical run loads its executables from the persistent cache: same
+    results, and the cache holds one entry per compiled program."""
+    cache = tmp_path / "cache"
+    args = ("paper", "--T", "2", "--json", "--no-figures", "--out", str(tmp_path / "p"))
+    env = {"SO3JAX_CACHE_DIR": str(cache), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    first = run_cli(*args, cwd=tmp_path, **env)
+    assert first.returncode == 0, first.stderr
+    entries = sorted(p.name for p in cache.iterdir())
+    assert any(name.startswith("jit__simulate_jit") for name in entries)
+    second = run_cli(*args, cwd=tmp_path, **env)
+    assert second.returncode == 0, second.stderr
+    assert sorted(p.name for p in cache.iterdir()) == entries  # nothing compiled anew
+    strip = lambda out: {k: v for k, v in json.loads(out.strip().splitlines()[-1]).items() if k != "config"}
+    assert strip(second.stdout) == strip(first.stdout)
