@@ -2,7 +2,7 @@
 
 from so3jax import _xla_flags
 
-_xla_flags.compile_loops_as_kernels()  # before JAX starts its backend; see _xla_flags
+_xla_flags.configure_cpu_codegen()  # before JAX starts its backend; see _xla_flags
 
 from so3jax import so3
 from so3jax.controllers import (

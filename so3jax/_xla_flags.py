@@ -23,9 +23,25 @@ def _add(flag: str, key: str) -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {flag}".strip()
 
 
-def compile_loops_as_kernels() -> None:
-    """Whole while loops as single CPU kernels (see LOOP_KERNEL_FLAG)."""
+# On CPUs with AVX-512, XLA vectorizes 256 bits wide unless told otherwise; the batched
+# step runs ~25 % faster 512 bits wide (native batch of 256, float64, an AMD EPYC).
+WIDE_VECTOR_FLAG = "--xla_cpu_prefer_vector_width=512"
+
+
+def _has_avx512() -> bool:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return " avx512f" in f.read()
+    except OSError:
+        return False
+
+
+def configure_cpu_codegen() -> None:
+    """Whole while loops as single CPU kernels (LOOP_KERNEL_FLAG); 512-bit vectors
+    where the CPU has them (WIDE_VECTOR_FLAG)."""
     _add(LOOP_KERNEL_FLAG, "xla_backend_extra_options")
+    if _has_avx512():
+        _add(WIDE_VECTOR_FLAG, "xla_cpu_prefer_vector_width")
 
 
 def use_every_core() -> None:
