@@ -126,13 +126,6 @@ def disturbances(scenario: Scenario, key, k0, count: int):
     return jax.vmap(lambda k: scenario.disturbance(key, k, _time(scenario, k)))(ks)
 
 
-def _sum_components(x, core_ndim):
-    """Sum over the leading core_ndim (component) axes, written out: a reduce is a
-    kernel of its own on CPU, a chain of adds fuses with its operands."""
-    flat = x.reshape((-1,) + x.shape[core_ndim:])
-    return sum(flat[i] for i in range(1, flat.shape[0])) + flat[0]
-
-
 def step(scenario: Scenario, controller: Controller, gains, d, state: State, k):
     """Advance the closed loop over step k with disturbance d_k held.
     Returns (state, phase, metrics sample at t_k)."""
@@ -214,7 +207,7 @@ def rollout(
         if d is None:  # not drawn ahead for the block: too large
             d = scenario.disturbance(key, k, _time(scenario, k))
         new, phase, sample = step(scenario, controller, gains, d, state, k)
-        finite = jnp.isfinite(_sum_components(new.R, 2) + _sum_components(new.Omega, 1))
+        finite = jnp.isfinite(so3.sum_leading(new.R, 2) + so3.sum_leading(new.Omega))
         new_acc = metrics.update(acc, phase, sample, finite)
         if masked:
             live = k < n

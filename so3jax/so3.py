@@ -59,6 +59,16 @@ def rmatmul(a, b):
     return jnp.stack([rmatvec(a, b[:, j]) for j in range(3)], axis=1)
 
 
+def sum_leading(x, n: int = 1):
+    """Sum over the leading n (component) axes, written out as adds: on CPU a reduce
+    over leading axes is a strided kernel of its own, a chain of adds fuses with its operands."""
+    flat = x.reshape((-1,) + x.shape[n:])
+    total = flat[0]
+    for row in flat[1:]:
+        total = total + row
+    return total
+
+
 def transpose(m):
     return jnp.swapaxes(m, 0, 1)
 

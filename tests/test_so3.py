@@ -181,3 +181,9 @@ def test_project_to_so3():
         np.testing.assert_allclose(P, R, atol=1e-3)
     reflection = np.diag([1.0, 1.0, -1.0])
     assert np.linalg.det(so3.project_to_so3(reflection)) > 0
+
+
+def test_sum_leading_is_a_sum_over_the_component_axes():
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(3, 3, 5)))
+    np.testing.assert_allclose(so3.sum_leading(x, 2), jnp.sum(x, axis=(0, 1)), rtol=1e-14)
+    np.testing.assert_allclose(so3.sum_leading(x), jnp.sum(x, axis=0), rtol=1e-14)

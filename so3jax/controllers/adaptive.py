@@ -52,17 +52,8 @@ def _apply_gamma(Gamma, Phi):
     Gamma = jnp.asarray(Gamma)
     kind = Gamma.ndim - (Phi.ndim - 1)  # 0: scalar, 1: diagonal, 2: full
     if kind == 2:
-        return jnp.stack([_sum_rows(Gamma[i] * Phi) for i in range(Gamma.shape[0])])
+        return jnp.stack([so3.sum_leading(Gamma[i] * Phi) for i in range(Gamma.shape[0])])
     return Gamma * Phi
-
-
-def _sum_rows(x):
-    """x[0] + x[1] + ... written out: an unrolled sum fuses with its operands on CPU,
-    where a reduce over the leading axis is a separate, strided kernel."""
-    total = x[0]
-    for row in x[1:]:
-        total = total + row
-    return total
 
 
 class AdaptiveTerms(NamedTuple):
@@ -100,7 +91,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controll
 
     def torque(gains, theta_hat, measured, desired, t):
         terms = materialize(adaptive_terms(gains, measured, desired, log_derivative), t)
-        feedforward = _sum_rows(theta_hat * terms.Phi[:, None])
+        feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
         tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
         return tau, theta_dot
