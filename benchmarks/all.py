@@ -32,6 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.throughput import cpu_model
+
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
@@ -74,17 +76,6 @@ def _slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
 
 
-def _cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
 def device_tag() -> str:
     """cpu-<cores>core-<model> on a CPU-only machine, gpu-<device kind> when JAX sees a GPU."""
     code = "import jax; d = jax.devices()[0]; print(d.platform, '|', d.device_kind)"
@@ -94,7 +85,7 @@ def device_tag() -> str:
     if proc.returncode == 0 and platform_ in ("gpu", "cuda", "rocm"):
         return "gpu-" + _slug(kind)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"cpu-{cores}core-" + _slug(_cpu_model())
+    return f"cpu-{cores}core-" + _slug(cpu_model())
 
 
 def run_benchmark(name: str, script: str, args: list[str], limit: float) -> dict:
@@ -196,7 +187,7 @@ def main(argv=None) -> int:
         "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
         "quick": args.quick,
         "machine": {
-            "cpu_model": _cpu_model(),
+            "cpu_model": cpu_model(),
             "cpus": os.cpu_count(),
             "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
             "platform": platform.platform(),

@@ -506,7 +506,7 @@ def plot(path: str, report: dict) -> None:
     plt.close(fig)
 
 
-def _cpu_model() -> str:
+def cpu_model() -> str:
     try:
         with open("/proc/cpuinfo") as f:
             for line in f:
@@ -573,7 +573,7 @@ def main(argv=None) -> int:
         "machine": {
             "device": f"{device.platform}:{device.device_kind}",
             "jax_devices": len(jax.devices()),
-            "cpu_model": _cpu_model(),
+            "cpu_model": cpu_model(),
             "cpus": os.cpu_count(),
             "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
             "platform": platform.platform(),
