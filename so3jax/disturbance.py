@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.extend.random import threefry2x32_p
 
 from so3jax._pytree import pytree_dataclass
+
+try:  # JAX's Threefry-2x32 written out round by round (how JAX lowers it on GPU).
+    from jax._src.random.threefry2x32 import _threefry2x32_lowering as _threefry_unrolled
+except ImportError:  # other JAX versions: the primitive (same bits, slower on CPU)
+    _threefry_unrolled = None
 
 
 @pytree_dataclass
@@ -27,12 +34,49 @@ class SinusoidPlusNoise:
 
 
 def noise(key, k, dtype):
-    """eta_k = normal(fold_in(key, k), (3,)) per key; (3, *key.shape) (batch axes last)."""
-    draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)
-    if key.ndim == 0:
-        return draw(key)
-    flat = jax.vmap(draw)(key.reshape(-1))
-    return flat.T.reshape((3,) + key.shape)
+    """eta_k = jax.random.normal(jax.random.fold_in(key, k), (3,), dtype) per key,
+    as (3, *key.shape) (batch axes last).
+
+    For threefry keys (JAX's default) the same bits are computed here on component
+    arrays of the key's batch shape: on CPU, JAX lowers Threefry to a rolled loop
+    that runs its 20 rounds as separate passes over memory (6x slower in a rollout);
+    written out, the hash, the uniform and the inverse error function fuse into one
+    loop. Tested bit for bit against jax.random (tests/test_dynamics.py).
+    """
+    dtype = jnp.dtype(dtype)
+    if str(jax.random.key_impl(key)) != "threefry2x32" or dtype.itemsize not in (4, 8):
+        draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)
+        return draw(key) if key.ndim == 0 else jax.vmap(draw)(key.reshape(-1)).T.reshape((3,) + key.shape)
+    data = jax.random.key_data(key)
+    zero = jnp.zeros(key.shape, jnp.uint32)
+    # fold_in: the key hashed with the counter (0, k); the (3,) draw: counters (0, i).
+    folded = _threefry(data[..., 0], data[..., 1], zero, zero + jnp.asarray(k).astype(jnp.uint32))
+    return jnp.stack([_normal_from_bits(_threefry(*folded, zero, zero + np.uint32(i)), dtype) for i in range(3)])
+
+
+def _threefry(k1, k2, x1, x2):
+    """Threefry-2x32 (Salmon et al. 2011) of counters (x1, x2) under key (k1, k2), uint32."""
+    args = jnp.broadcast_arrays(k1, k2, x1, x2)
+    if _threefry_unrolled is None:
+        return tuple(threefry2x32_p.bind(*args))
+    return tuple(_threefry_unrolled(*args, use_rolled_loops=False))
+
+
+def _normal_from_bits(words, dtype):
+    """jax.random.normal's map from one element's Threefry output to N(0, 1) in dtype:
+    random mantissa bits -> uniform on [nextafter(-1, 0), 1) -> sqrt(2) erfinv."""
+    w1, w2 = words
+    if dtype.itemsize == 8:
+        uint, bits = jnp.uint64, (w1.astype(jnp.uint64) << np.uint64(32)) | w2.astype(jnp.uint64)
+    else:
+        uint, bits = jnp.uint32, w1 ^ w2
+    nbits, nmant = 8 * dtype.itemsize, jnp.finfo(dtype).nmant
+    one = np.array(1.0, dtype).view(uint)
+    mantissa = jax.lax.shift_right_logical(bits, uint(nbits - nmant)) | one
+    floats = jax.lax.bitcast_convert_type(mantissa, dtype) - np.array(1.0, dtype)
+    lo, hi = np.nextafter(np.array(-1.0, dtype), np.array(0.0, dtype)), np.array(1.0, dtype)
+    uniform = jnp.maximum(lo, floats * (hi - lo) + lo)
+    return np.array(np.sqrt(2), dtype) * jax.lax.erf_inv(uniform)
 
 
 def no_disturbance(dtype=float) -> SinusoidPlusNoise:

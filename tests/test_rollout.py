@@ -28,6 +28,26 @@ def test_disturbance_follows_the_fold_in_recipe():
         np.testing.assert_allclose(d(jax.random.key(7), jnp.asarray(k), jnp.asarray(t)), expected, rtol=1e-15)
 
 
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_noise_is_jax_random_normal_bit_for_bit(dtype):
+    """so3jax's written-out draw = jax.random.normal(fold_in(key, k), (3,)), every bit:
+    a batch of keys, a block of steps (the rollout's vmap over k), and large k."""
+    from so3jax.disturbance import noise
+
+    seeds = jnp.array([0, 1, 7, 2**31 - 1, 123456], jnp.int32)
+    keys = jax.vmap(jax.random.key)(seeds)
+    ks = jnp.concatenate([jnp.arange(300, dtype=jnp.int32), jnp.array([2**20 + 3, 2**31 - 1], jnp.int32)])
+    expected = jax.vmap(lambda k: jax.vmap(lambda key: jax.random.normal(jax.random.fold_in(key, k), (3,), dtype))(keys))(ks)
+    got = jax.jit(jax.vmap(lambda k: noise(keys, k, dtype)))(ks)  # (K, 3, B)
+    assert got.dtype == dtype
+    np.testing.assert_array_equal(np.asarray(got), np.asarray(expected).transpose(0, 2, 1))
+    one = noise(jax.random.key(7), jnp.int32(12345), dtype)  # a single key: (3,)
+    np.testing.assert_array_equal(one, jax.random.normal(jax.random.fold_in(jax.random.key(7), 12345), (3,), dtype))
+    # other PRNG implementations take jax.random's own path, same recipe
+    rbg = jax.random.key(3, impl="rbg")
+    np.testing.assert_array_equal(noise(rbg, 5, dtype), jax.random.normal(jax.random.fold_in(rbg, 5), (3,), dtype))
+
 def test_disturbance_reaches_the_plant():
     """One step with and without noise differs by dt/J-scaled noise, as the plant says."""
     controller = sj.geometric_pd()
