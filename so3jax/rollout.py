@@ -253,6 +253,13 @@ def _batch_first(tree):
     return jax.tree.map(lambda x: jnp.moveaxis(x, -1, 0) if jnp.ndim(x) else x, tree)
 
 
+# Trajectories per natively batched XLA:CPU loop. Larger batches are slower per
+# trajectory there (the step's temporaries leave the L1/L2 caches): 2-core AMD EPYC,
+# float64, M steps/s PD / adaptive at batch 64: 3.9 / 2.0, 128: 4.6 / 2.1, 256: 3.4 / 1.8,
+# 1024: 2.7 / 1.6 (benchmarks/throughput.py). GPUs take the whole batch at once.
+CPU_SUB_BATCH = 128
+
+
 def rollout_batch(
     scenario: Scenario,
     controller: Controller,
@@ -271,21 +278,46 @@ def rollout_batch(
     scenario_axes / gains_axes: vmap-style in_axes prefixes, 0 (leading batch axis)
     or None (shared by the batch). A shared reference or inertia is evaluated once per
     stage for the whole batch. Outputs have the batch axis first, as vmap's would.
+    On CPU, batches above ``CPU_SUB_BATCH`` run as consecutive sub-batches of that size.
     """
-    result = rollout(
-        _batch_last(scenario, scenario_axes),
-        controller,
-        _batch_last(gains, gains_axes),
-        jnp.asarray(seeds),
-        record_every=record_every,
-        unroll=unroll,
-    )
-    metrics_, history, final = result
-    history = jax.tree.map(
-        lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (final.Omega.shape[-1],) + x.shape),
-        history,
-    )
-    return Result(_batch_first(metrics_), history, _batch_first(final))
+    args = (scenario, gains, jnp.asarray(seeds))
+    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0)
+
+    def run(args):
+        scenario, gains, seeds = args
+        result = rollout(
+            _batch_last(scenario, scenario_axes),
+            controller,
+            _batch_last(gains, gains_axes),
+            seeds,
+            record_every=record_every,
+            unroll=unroll,
+        )
+        metrics_, history, final = result
+        history = jax.tree.map(
+            lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (seeds.shape[0],) + x.shape),
+            history,
+        )
+        return Result(_batch_first(metrics_), history, _batch_first(final))
+
+    if args[2].shape[0] <= CPU_SUB_BATCH:
+        return run(args)
+    sub_batched = lambda args: _in_sub_batches(run, args, axes, CPU_SUB_BATCH)
+    return jax.lax.platform_dependent(args, cpu=sub_batched, default=run)
+
+
+def _in_sub_batches(run, args, axes, size: int):
+    """run(args) computed sub-batch by sub-batch (``lax.map``) of at most ``size``
+    elements of the leaves whose axis is 0 (the last sub-batch padded by repeating the
+    last element), concatenated back; leaves with axis None are shared."""
+    n = args[2].shape[0]
+    count = -(-n // size)
+    index = jnp.minimum(jnp.arange(count * size), n - 1).reshape(count, size)
+    leaves, treedef = jax.tree.flatten(args)
+    leaf_axes = treedef.flatten_up_to(axes)
+    take = lambda i: treedef.unflatten([x if ax is None else jnp.asarray(x)[i] for x, ax in zip(leaves, leaf_axes)])
+    parts = jax.lax.map(lambda i: run(take(i)), index)
+    return jax.tree.map(lambda x: x.reshape((count * size,) + x.shape[2:])[:n], parts)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))

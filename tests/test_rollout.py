@@ -1,6 +1,7 @@
 """The rollout: disturbance recipe, in-scan metrics, phases, vmap/grad, divergence."""
 
 import dataclasses
+import importlib
 import warnings
 
 import jax
@@ -191,7 +192,8 @@ def test_float32_follows_the_scenario_dtype():
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
 
 
-def test_rollout_batch_equals_vmap_of_rollout():
+@pytest.mark.parametrize("sub_batch", [None, 2])
+def test_rollout_batch_equals_vmap_of_rollout(sub_batch, monkeypatch):
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves."""
     from so3jax.rollout import rollout_batch
 
@@ -215,6 +217,8 @@ def test_rollout_batch_equals_vmap_of_rollout():
         Omega0=None,
     )
     seeds = jnp.array([0, 5, 9])
+    if sub_batch:  # on CPU: sub-batches of 2, the last one padded
+        monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "CPU_SUB_BATCH", sub_batch)
     for controller, gains in (
         (sj.geometric_pd(), sj.PAPER_PD_GAINS),
         (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS),
