@@ -11,6 +11,10 @@ What it measures, in one process (one XLA device, as a plain ``import so3jax`` g
   one history block (``record_every = n_steps``); compile (lower + compile) timed
   apart; the median of ``--repeats`` runs after one warm-up run;
 * one trajectory (``rollout`` with a scalar seed, the path ``simulate`` takes): µs/step;
+* so3jax on every core (a subprocess with one XLA host device per core, as the CLI
+  sets up): batch 4096 split evenly over the devices, each running its own compiled
+  rollout_batch, dispatched together -- the equal-work comparison with Numba's prange,
+  which also uses every core (``so3jax_all_cores_over_numba_best`` in the summary);
 * the baselines in the same run, same protocol: NumPy (batch 1 and 256, short
   horizons, ~1 ms/step) and Numba (batch 1, 256, 4096; float64 only; skipped when
   numba is not installed), with ratios so3jax / baseline. The baselines get their
@@ -149,6 +153,47 @@ def so3jax_single(controller, dtype, n_steps, repeats) -> dict:
     compiled, compile_s = _compile(fn, seed)
     median, times = _median_time(lambda: compiled(seed), repeats)
     return _row("so3jax-single", controller, dtype, 1, n_steps, median, times, compile_s=compile_s)
+
+
+def so3jax_all_cores(controller, dtype, batch, n_steps, repeats) -> dict:
+    """The batch split evenly over one XLA host device per core (what the CLI sets up),
+    each device running its own compiled rollout_batch on its part, dispatched together
+    (as ``so3jax sweep`` does): equal work to Numba's prange over all cores. In a
+    subprocess, since the device count must be set before JAX starts."""
+    spec = {"controller": controller, "dtype": dtype, "batch": batch, "n_steps": n_steps, "repeats": repeats}
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    code = (
+        f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r}); "
+        f"from benchmarks import throughput; throughput._all_cores_child({json.dumps(spec)!r})"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False)
+    if proc.returncode:
+        raise RuntimeError(f"all-cores child failed:\n{proc.stderr[-3000:]}")
+    r = json.loads(proc.stdout.strip().splitlines()[-1])
+    return _row("so3jax-all-cores", controller, dtype, batch, n_steps, r["median"], r["times"], devices=r["devices"])
+
+
+def _all_cores_child(spec: str) -> None:
+    from so3jax._xla_flags import use_every_core
+
+    use_every_core()
+    import jax
+    import jax.numpy as jnp
+
+    import so3jax  # noqa: F401
+
+    jax.config.update("jax_enable_x64", True)
+    spec = json.loads(spec)
+    devices = jax.devices()
+    batch, n = spec["batch"], len(devices)
+    if batch % n:
+        raise ValueError(f"batch {batch} is not a multiple of the {n} devices")
+    fn = _batched_fn(spec["controller"], spec["dtype"], spec["n_steps"])
+    part = batch // n
+    shards = [jax.device_put(jnp.arange(i * part, (i + 1) * part, dtype=jnp.int32), d) for i, d in enumerate(devices)]
+    compiled = [fn.lower(shard).compile() for shard in shards]
+    median, times = _median_time(lambda: [f(shard) for f, shard in zip(compiled, shards)], spec["repeats"])
+    print(json.dumps({"median": median, "times": times, "devices": n}))
 
 
 def _row(impl, controller, dtype, batch, n_steps, median, times, **extra) -> dict:
@@ -413,7 +458,7 @@ def ratios(rows: list[dict]) -> list[dict]:
     """so3jax / baseline trajectory-steps/s at equal controller and batch (baseline dtype float64
     unless it was run in the same dtype)."""
     out = []
-    ours = [r for r in rows if r["impl"] == "so3jax"]
+    ours = [r for r in rows if r["impl"] in ("so3jax", "so3jax-all-cores")]
     for base in (r for r in rows if r["impl"] in ("numpy", "numba")):
         for r in ours:
             if r["controller"] != base["controller"] or r["batch"] != base["batch"]:
@@ -426,10 +471,13 @@ def ratios(rows: list[dict]) -> list[dict]:
                 for b in rows
             ):
                 continue  # the same-dtype baseline exists: compare with that one
+            if r["impl"] == "so3jax-all-cores" and base["impl"] != "numba":
+                continue
             out.append(
                 {
                     "controller": r["controller"],
                     "batch": r["batch"],
+                    "so3jax": r["impl"],
                     "so3jax_dtype": r["dtype"],
                     "baseline": base["impl"],
                     "baseline_dtype": base["dtype"],
@@ -476,7 +524,7 @@ def plot(path: str, report: dict) -> None:
 
     rows = report["throughput"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
-    styles = {"so3jax": "-o", "numpy": ":s", "numba": "--^"}
+    styles = {"so3jax": "-o", "so3jax-all-cores": "-D", "numpy": ":s", "numba": "--^"}
     for ax, controller in zip(axes, CONTROLLERS):
         for impl, style in styles.items():
             for dtype in DTYPES:
@@ -537,6 +585,9 @@ def main(argv=None) -> int:
     )
     parser.add_argument("--numpy-batches", nargs="+", type=int, help="NumPy baseline batches (default 1 256)")
     parser.add_argument("--numba-batches", nargs="+", type=int, help="Numba baseline batches (default 1 256 4096)")
+    parser.add_argument(
+        "--all-cores-batches", nargs="+", type=int, help="so3jax on every core (host devices) batches (default 4096)"
+    )
     parser.add_argument("--no-baselines", action="store_true", help="skip timing the baselines (the gate still runs)")
     parser.add_argument("--no-paper", action="store_true", help="skip the so3jax paper wall time")
     parser.add_argument("--paper-timeout", type=float, default=180.0)
@@ -556,6 +607,7 @@ def main(argv=None) -> int:
     numpy_batches = args.numpy_batches or ([1] if quick else [1, 256])
     numba_batches = args.numba_batches or ([1, 16] if quick else [1, 256, 4096])
     matmul_n = args.matmul_n or (1024 if quick else 4096)
+    all_cores_batches = args.all_cores_batches or ([16] if quick else [4096])
 
     import jax
 
@@ -611,6 +663,11 @@ def main(argv=None) -> int:
         for batch in batches:
             rows.append(so3jax_batched(controller, dtype, batch, _steps_for(batch, target, 100, 40_000), repeats))
 
+    def all_cores(controller, dtype):
+        for batch in all_cores_batches:
+            n_steps = _steps_for(batch, 5 * target, 100, 40_000)
+            rows.append(so3jax_all_cores(controller, dtype, batch, n_steps, repeats))
+
     def cost(controller, dtype, batch):
         costs[controller][dtype]["batched" if batch else "single"] = step_cost(controller, dtype, batch)
 
@@ -650,6 +707,8 @@ def main(argv=None) -> int:
             tasks.append((f"numpy {c} float64", functools.partial(numpy_baseline, c, "float64")))
             if numba_loop is not None:
                 tasks.append((f"numba {c}", functools.partial(numba_baseline, c)))
+    for c in args.controllers:
+        tasks.append((f"so3jax all cores {c} {first}", functools.partial(all_cores, c, first)))
     for c in args.controllers:
         tasks.append((f"step cost {c} {first}", functools.partial(cost, c, first, None)))
     tasks.append(("PRNG cost", lambda: report.__setitem__("prng_cost", {first: prng_cost(first)})))
@@ -745,9 +804,19 @@ def summary(report: dict) -> dict:
                 entry[f"{impl}_best_batch"] = best["batch"]
             if single:
                 entry[f"{impl}_single_us_per_step"] = single["us_per_step"]
+        all_cores = pick("so3jax-all-cores")
+        if all_cores:
+            entry["so3jax_all_cores_float64_best_Msteps_per_s"] = all_cores["trajectory_steps_per_s"] / 1e6
+            entry["so3jax_all_cores_best_batch"] = all_cores["batch"]
+            entry["so3jax_all_cores_devices"] = all_cores["devices"]
         if "numba_best_Msteps_per_s" in entry and "so3jax_float64_best_Msteps_per_s" in entry:
             entry["so3jax_over_numba_best"] = (
                 entry["so3jax_float64_best_Msteps_per_s"] / entry["numba_best_Msteps_per_s"]
+            )
+        if "numba_best_Msteps_per_s" in entry and all_cores:
+            # both on every core: Numba's prange threads, so3jax's host devices
+            entry["so3jax_all_cores_over_numba_best"] = (
+                entry["so3jax_all_cores_float64_best_Msteps_per_s"] / entry["numba_best_Msteps_per_s"]
             )
         cost = report.get("step_cost", {}).get(controller, {}).get("float64")
         if cost and cost["single"]:

@@ -101,7 +101,7 @@ def _field(scenario: Scenario, controller: Controller, gains, phase, disturbance
 
 def _sample(state: State, tau, desired: Desired) -> metrics.Sample:
     err = tracking_error(Measured(state.R, state.Omega), desired)
-    angle = so3.safe_norm(so3.log(err.R_e))
+    angle = so3.angle(err.R_e)
     return metrics.Sample(err.Omega_e, state.Omega - desired.Omega_d, tau, angle)
 
 

@@ -180,6 +180,11 @@ def exp(v):
     return eye_like(v) + expm1(v)
 
 
+def angle(r):
+    """Rotation angle |log(R)^vee| = atan2(|(R - R^T)^vee| / 2, (tr R - 1) / 2) in [0, pi] [rad]."""
+    return jnp.arctan2(safe_norm(skew_vee(r)), 0.5 * (trace(r) - 1.0))
+
+
 def log(r):
     """Rotation vector log(R)^vee, |log| = theta in [0, pi].
 
@@ -191,7 +196,7 @@ def log(r):
     c = 0.5 * (trace(r) - 1.0)
     s2 = dot(s, s)
     sin_t = safe_norm(s)
-    theta = jnp.arctan2(sin_t, c)
+    theta = angle(r)
 
     near_pi = c < _NEAR_PI_COS
 
