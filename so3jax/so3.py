@@ -14,13 +14,19 @@ log) the functions switch to Taylor series or to another formula with the
 
 from __future__ import annotations
 
+import math
+
 import jax
 import jax.numpy as jnp
 
 # Below these squared angles the Taylor series used are exact to float64 round-off
 # (first omitted term < 1e-17 relative).
 _SMALL_ANGLE2 = 1e-3
-_SMALL_SIN2 = 1e-8
+# theta / sin(theta) = arcsin(x) / x (x = sin theta, theta < pi / 2) by its Maclaurin
+# series, sum_n C(2n, n) / (4^n (2n + 1)) x^(2n): ten terms are exact to float64 round-off
+# (remainder < 6e-18 relative) for x^2 < _SERIES_SIN2, i.e. theta < 10 degrees.
+_SERIES_SIN2 = 0.03
+_ASIN_RATIO_COEFFICIENTS = tuple(math.comb(2 * n, n) / (4**n * (2 * n + 1)) for n in range(10))
 _JR_SERIES_ANGLE2 = 0.05
 # log(R) takes the axis from the symmetric part of R when cos(theta) is below this.
 _NEAR_PI_COS = -0.99
@@ -180,33 +186,52 @@ def exp(v):
     return eye_like(v) + expm1(v)
 
 
+def _asin_ratio_series(s2):
+    """theta / sin(theta) for sin(theta)^2 = s2 < _SERIES_SIN2 and cos(theta) > 0 (Horner)."""
+    ratio = _ASIN_RATIO_COEFFICIENTS[-1]
+    for coefficient in _ASIN_RATIO_COEFFICIENTS[-2::-1]:
+        ratio = coefficient + s2 * ratio
+    return ratio
+
+
+def _axis_terms(r):
+    """s = (R - R^T)^vee / 2 = sin(theta) axis, c = (tr R - 1) / 2 = cos(theta), |s|^2, and
+    where the series for theta / sin(theta) holds."""
+    s = skew_vee(r)
+    c = 0.5 * (trace(r) - 1.0)
+    s2 = dot(s, s)
+    return s, c, s2, (s2 < _SERIES_SIN2) & (c > 0)
+
+
 def angle(r):
-    """Rotation angle |log(R)^vee| = atan2(|(R - R^T)^vee| / 2, (tr R - 1) / 2) in [0, pi] [rad]."""
-    return jnp.arctan2(safe_norm(skew_vee(r)), 0.5 * (trace(r) - 1.0))
+    """Rotation angle |log(R)^vee| in [0, pi] [rad]: atan2(|s|, c), or |s| times the
+    series for theta / sin(theta) below 10 degrees (no arctangent when all are small)."""
+    s, c, s2, small = _axis_terms(r)
+    sin_t = safe_norm(s)
+    return _branch(small, lambda _: sin_t * _asin_ratio_series(s2), lambda _: jnp.arctan2(sin_t, c), r)
 
 
 def log(r):
     """Rotation vector log(R)^vee, |log| = theta in [0, pi].
 
     theta = atan2(|s|, c) with s = (R - R^T)^vee / 2 = sin(theta) axis and
-    c = (tr R - 1) / 2; a series for theta / sin(theta) near the identity; near a half
-    turn the axis comes from the symmetric part R + R^T = 2c I + 2(1 - c) axis axis^T.
+    c = (tr R - 1) / 2; below 10 degrees, the series for theta / sin(theta) instead
+    (no arctangent); near a half turn the axis comes from the symmetric part
+    R + R^T = 2c I + 2(1 - c) axis axis^T.
     """
-    s = skew_vee(r)
-    c = 0.5 * (trace(r) - 1.0)
-    s2 = dot(s, s)
-    sin_t = safe_norm(s)
-    theta = angle(r)
-
+    s, c, s2, small = _axis_terms(r)
     near_pi = c < _NEAR_PI_COS
 
-    def generic(r):
-        # theta / sin(theta) = arcsin(x)/x for x = sin(theta), c > 0.
-        small = (s2 < _SMALL_SIN2) & (c > 0)
-        ratio = jnp.where(small, 1.0 + s2 / 6.0 + 0.075 * s2 * s2, theta / jnp.where(small | near_pi, 1.0, sin_t))
-        return ratio * s
+    def series(r):
+        return _asin_ratio_series(s2) * s
+
+    def generic(r):  # theta / sin(theta) for c > _NEAR_PI_COS (selected where not small)
+        sin_t = safe_norm(s)
+        theta = jnp.arctan2(sin_t, c)
+        return (theta / jnp.where(small | near_pi, 1.0, sin_t)) * s
 
     def half_turn(r):
+        theta = jnp.arctan2(safe_norm(s), c)
         sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
         diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
         pick = _first_max_indicator(diag).astype(r.dtype)
@@ -216,7 +241,7 @@ def log(r):
         sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
         return (sign * theta) * axis
 
-    return _branch(~near_pi, generic, half_turn, r)
+    return _branch(small, series, lambda r: _branch(~near_pi, generic, half_turn, r), r)
 
 
 def _first_max_indicator(v):

@@ -88,6 +88,21 @@ def test_log_matches_scipy():
     np.testing.assert_allclose(ours[away], theirs[away], atol=1e-12)
 
 
+def test_log_and_angle_across_the_series_threshold():
+    """Below 10 degrees theta / sin(theta) comes from its series (no arctangent): against
+    scipy to round-off on both sides of the switch (so continuous across it), for a
+    batch all below it (the series alone) and a mixed one."""
+    theta_switch = np.arcsin(np.sqrt(so3._SERIES_SIN2))
+    angles = np.concatenate([[0.0, 1e-9, 1e-3, 0.05, 0.1], theta_switch * (1 + np.array([-1e-9, -1e-15, 1e-15, 1e-9]))])
+    v = rotvecs_at(angles)
+    R = Rotation.from_rotvec(v).as_matrix()
+    theirs = Rotation.from_matrix(R).as_rotvec()
+    for batch in (slice(0, 6), slice(None)):  # all in the series' range; both ranges
+        ours = first(so3.log(last(R[batch])))
+        np.testing.assert_allclose(ours, theirs[batch], rtol=2e-15, atol=1e-300)
+        np.testing.assert_allclose(so3.angle(last(R[batch])), np.linalg.norm(theirs[batch], axis=1), rtol=2e-15)
+
+
 def test_log_exp_roundtrip_and_skew_vee():
     v = random_rotvecs(100, np.pi - 1e-3)
     np.testing.assert_allclose(first(so3.log(so3.exp(last(v)))), v, atol=1e-12)
@@ -153,7 +168,7 @@ def test_jr_inv_gradients(angle):
     _check_derivatives(lambda x: so3.jr_inv_apply(x, w), jnp.asarray(e))
 
 
-@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 1.0, 3.0, np.pi - 1e-2])
+@pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.1, 1.0, 3.0, np.pi - 1e-2])
 def test_log_gradients(angle):
     """d log(exp(v) exp(hat(x))) / dx at x = 0 equals J_r^{-1}(v); FD on R's entries near it."""
     v = jnp.asarray(rotvecs_at([angle])[0])
