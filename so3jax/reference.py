@@ -45,10 +45,16 @@ def piecewise_constant_rate(rates, phase_times) -> PiecewiseConstantRate:
     """Reference that holds rates[p] from phase_times[p] (phase_times[0] must be 0)."""
     rates = jnp.asarray(rates)
     phase_times = jnp.asarray(phase_times, dtype=rates.dtype)
+    return PiecewiseConstantRate(rates, phase_times, _start_attitudes(rates, phase_times))
+
+
+@jax.jit
+def _start_attitudes(rates, phase_times):
+    """R_d at each phase start (P, 3, 3); jitted: one compilation instead of one per eager op."""
     starts = [jnp.eye(3, dtype=rates.dtype)]
     for p in range(1, rates.shape[0]):
         starts.append(so3.matmul(starts[-1], so3.exp(rates[p - 1] * (phase_times[p] - phase_times[p - 1]))))
-    return PiecewiseConstantRate(rates, phase_times, jnp.stack(starts))
+    return jnp.stack(starts)
 
 
 @pytree_dataclass

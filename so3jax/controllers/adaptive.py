@@ -64,8 +64,11 @@ class AdaptiveTerms(NamedTuple):
     Phi: jax.Array  # (9,) regressor
 
 
-def adaptive_terms(gains, measured, desired, log_derivative="exact") -> AdaptiveTerms:
+def adaptive_terms(gains, measured, desired, log_derivative="exact", t=None) -> AdaptiveTerms:
+    """e, z, Phi of the law; t (the time, traced) only marks values for XLA:CPU to compute once."""
     err = tracking_error(measured, desired)
+    if t is not None:
+        err = materialize(err, t)
     Omega = measured.Omega
     e = so3.log(err.R_e)
     beta = -gains.K_r * e + err.Omega_r
@@ -90,7 +93,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controll
         return regressor_parameters(J)
 
     def torque(gains, theta_hat, measured, desired, t):
-        terms = materialize(adaptive_terms(gains, measured, desired, log_derivative), t)
+        terms = materialize(adaptive_terms(gains, measured, desired, log_derivative, t), t)
         feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
         tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]

@@ -7,6 +7,7 @@ from typing import NamedTuple
 import jax
 
 from so3jax import so3
+from so3jax._fusion import materialize
 from so3jax.controllers.base import Controller, tracking_error
 
 
@@ -28,7 +29,7 @@ def geometric_pd(J_hat=None) -> Controller:
         return ()
 
     def torque(gains, state, measured, desired, t):
-        err = tracking_error(measured, desired)
+        err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
         nominal = (lambda v: v) if J_hat is None else (lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v))
         e_R = so3.skew_vee(err.R_e)
