@@ -19,6 +19,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax import metrics, so3
+from so3jax._fusion import materialize
 from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
 from so3jax.integrate import lie_rk4_step
 from so3jax.plant import angular_acceleration, inertia_rate
@@ -92,7 +93,8 @@ def _field(scenario: Scenario, controller: Controller, gains, phase, disturbance
             if scenario.variable_inertia_term
             else None
         )
-        Omega_dot = angular_acceleration(J, Omega, tau + disturbance, J_dot)
+        # computed once (XLA:CPU would otherwise recompute the torque for each component of the solve)
+        Omega_dot = angular_acceleration(J, Omega, materialize(tau + disturbance, t), J_dot)
         rates = (Omega,) if len(rotations) == 1 else (Omega, desired.Omega_d)
         return rates, (Omega_dot, controller_dot), (tau, desired)
 
