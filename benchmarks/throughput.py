@@ -184,16 +184,15 @@ def _all_cores_child(spec: str) -> None:
 
     jax.config.update("jax_enable_x64", True)
     spec = json.loads(spec)
-    devices = jax.devices()
-    batch, n = spec["batch"], len(devices)
-    if batch % n:
-        raise ValueError(f"batch {batch} is not a multiple of the {n} devices")
+    import numpy as np
+
+    devices = jax.devices()[: spec["batch"]]
     fn = _batched_fn(spec["controller"], spec["dtype"], spec["n_steps"])
-    part = batch // n
-    shards = [jax.device_put(jnp.arange(i * part, (i + 1) * part, dtype=jnp.int32), d) for i, d in enumerate(devices)]
+    parts = np.array_split(np.arange(spec["batch"], dtype=np.int32), len(devices))  # sizes differ by 1 at most
+    shards = [jax.device_put(jnp.asarray(part), d) for part, d in zip(parts, devices)]
     compiled = [fn.lower(shard).compile() for shard in shards]
     median, times = _median_time(lambda: [f(shard) for f, shard in zip(compiled, shards)], spec["repeats"])
-    print(json.dumps({"median": median, "times": times, "devices": n}))
+    print(json.dumps({"median": median, "times": times, "devices": len(devices)}))
 
 
 def _row(impl, controller, dtype, batch, n_steps, median, times, **extra) -> dict:

@@ -40,6 +40,8 @@ def test_throughput_quick_smoke():
         "1",
         "--matmul-n",
         "256",
+        "--all-cores-batches",
+        "2",
     ]
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -60,7 +62,9 @@ def test_throughput_quick_smoke():
     assert gate["passed"] and gate["max_relative_deviation"] <= 1e-9
     assert {c["against"] for c in gate["checks"]} >= {"numpy"}
     impls = {row["impl"] for row in report["throughput"]}
-    assert {"so3jax", "so3jax-single", "numpy"} <= impls
+    assert {"so3jax", "so3jax-single", "so3jax-all-cores", "numpy"} <= impls
+    all_cores = next(r for r in report["throughput"] if r["impl"] == "so3jax-all-cores")
+    assert all_cores["batch"] == 2 and 1 <= all_cores["devices"] <= 2
     assert ("numba" in impls) == report["numba_available"]
     for row in report["throughput"]:
         assert row["trajectory_steps_per_s"] > 0 and len(row["runs_s"]) == 3
