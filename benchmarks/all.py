@@ -40,11 +40,13 @@ ROOT = HERE.parent
 # name: (script, arguments, time limit [s]); the limits add up to 14.7 minutes (quick: 6).
 # Measured on 2 cores at load 4-5 before the speed work: throughput 413 s, sweep 187 s,
 # gradients 113 s + 159 s; after it, at load ~2: throughput ~200 s, sweep 74 s, gradients
-# 97 s + more than 180 s (adaptive reverse mode: its compilations dominate).
+# 97 s + more than 180 s (adaptive reverse mode: its compilations dominate); 2026-11-23,
+# load 1-2: throughput 232 s (before its all-cores runs got longer), sweep 76 s,
+# gradients 104 s + 258 s.
 GRADIENTS = ["--batch", "2", "--modes", "reverse", "--jobs", "2"]
 PLAN = {
-    "throughput": ("throughput", [], 300),
-    "sweep": ("sweep", ["--devices", "1,2,4", "--T", "50", "--samples", "128", "--chunk", "64"], 150),
+    "throughput": ("throughput", [], 330),
+    "sweep": ("sweep", ["--devices", "1,2,4", "--T", "50", "--samples", "128", "--chunk", "64"], 120),
     "gradients_pd": (
         "gradients",
         ["--controllers", "pd", "--horizons", "10000", "100000", "--fd-horizon", "10000", *GRADIENTS],
