@@ -41,7 +41,7 @@ def noise(key, k, dtype):
     arrays of the key's batch shape: on CPU, JAX lowers Threefry to a rolled loop
     that runs its 20 rounds as separate passes over memory (6x slower in a rollout);
     written out, the hash, the uniform and the inverse error function fuse into one
-    loop. Tested bit for bit against jax.random (tests/test_dynamics.py).
+    loop. Tested bit for bit against jax.random (tests/test_rollout.py).
     """
     dtype = jnp.dtype(dtype)
     if str(jax.random.key_impl(key)) != "threefry2x32" or dtype.itemsize not in (4, 8):
