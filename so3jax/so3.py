@@ -203,12 +203,16 @@ def _axis_terms(r):
     return s, c, s2, (s2 < _SERIES_SIN2) & (c > 0)
 
 
+def _arctan_angle(s, c):
+    """theta = atan2(|s|, c) in [0, pi], for s, c of _axis_terms."""
+    return jnp.arctan2(safe_norm(s), c)
+
+
 def angle(r):
     """Rotation angle |log(R)^vee| in [0, pi] [rad]: atan2(|s|, c), or |s| times the
     series for theta / sin(theta) below 10 degrees (no arctangent when all are small)."""
     s, c, s2, small = _axis_terms(r)
-    sin_t = safe_norm(s)
-    return _branch(small, lambda _: sin_t * _asin_ratio_series(s2), lambda _: jnp.arctan2(sin_t, c), r)
+    return _branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2), lambda _: _arctan_angle(s, c), r)
 
 
 def log(r):
@@ -226,12 +230,9 @@ def log(r):
         return _asin_ratio_series(s2) * s
 
     def generic(r):  # theta / sin(theta) for c > _NEAR_PI_COS (selected where not small)
-        sin_t = safe_norm(s)
-        theta = jnp.arctan2(sin_t, c)
-        return (theta / jnp.where(small | near_pi, 1.0, sin_t)) * s
+        return (_arctan_angle(s, c) / jnp.where(small | near_pi, 1.0, safe_norm(s))) * s
 
     def half_turn(r):
-        theta = jnp.arctan2(safe_norm(s), c)
         sym = 0.5 * (r + transpose(r)) - c * eye_like(s)
         diag = jnp.stack([sym[0, 0], sym[1, 1], sym[2, 2]])
         pick = _first_max_indicator(diag).astype(r.dtype)
@@ -239,7 +240,7 @@ def log(r):
         scale2 = jnp.where(near_pi, (1.0 - c) * dot(diag, pick), 1.0)
         axis = column / jnp.sqrt(scale2)
         sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
-        return (sign * theta) * axis
+        return (sign * _arctan_angle(s, c)) * axis
 
     return _branch(small, series, lambda r: _branch(~near_pi, generic, half_turn, r), r)
 

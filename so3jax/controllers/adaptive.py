@@ -65,16 +65,16 @@ class AdaptiveTerms(NamedTuple):
 
 
 def adaptive_terms(gains, measured, desired, log_derivative="exact", t=None) -> AdaptiveTerms:
-    """e, z, Phi of the law; t (the time, traced) only marks values for XLA:CPU to compute once."""
-    err = tracking_error(measured, desired)
-    if t is not None:
-        err = materialize(err, t)
+    """e, z, Phi of the law. t (the time, traced), when given, marks the tracking error
+    and the terms for XLA:CPU to compute once (:mod:`so3jax._fusion`); values unchanged."""
+    once = (lambda x: x) if t is None else (lambda x: materialize(x, t))
+    err = once(tracking_error(measured, desired))
     Omega = measured.Omega
     e = so3.log(err.R_e)
     beta = -gains.K_r * e + err.Omega_r
     e_dot = so3.jr_inv_apply(e, err.Omega_e) if log_derivative == "exact" else err.Omega_e
     beta_dot = -gains.K_r * e_dot - so3.cross(Omega, err.Omega_r) + err.feedforward_dot
-    return AdaptiveTerms(e, Omega - beta, regressor(Omega, beta_dot))
+    return once(AdaptiveTerms(e, Omega - beta, regressor(Omega, beta_dot)))
 
 
 def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controller:
@@ -93,7 +93,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controll
         return regressor_parameters(J)
 
     def torque(gains, theta_hat, measured, desired, t):
-        terms = materialize(adaptive_terms(gains, measured, desired, log_derivative, t), t)
+        terms = adaptive_terms(gains, measured, desired, log_derivative, t)
         feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
         tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
