@@ -101,7 +101,11 @@ def _child(spec: dict) -> dict:
         "rss_after_import_mb": rss_start,
         "peak_rss_after_compile_mb": rss_compiled,
         "xla_temp_mb": memory.temp_size_in_bytes / 2**20 if memory is not None else None,
+        "device": f"{jax.devices()[0].platform}:{jax.devices()[0].device_kind}",
     }
+    stats = jax.devices()[0].memory_stats() if jax.default_backend() != "cpu" else None
+    if stats and "peak_bytes_in_use" in stats:  # on an accelerator the peak that matters is the device's
+        result["device_peak_mb"] = stats["peak_bytes_in_use"] / 2**20
     if spec["what"] == "value":
         result["value"] = float(out)
         if spec.get("fd"):
@@ -207,6 +211,8 @@ def main() -> None:
                 continue
             value = by_what["value"]
             entry = {"value_s": value["run_s"], "peak_rss_mb": {w: r["peak_rss_mb"] for w, r in by_what.items()}}
+            if "device_peak_mb" in value:
+                entry["device_peak_mb"] = {w: r.get("device_peak_mb") for w, r in by_what.items()}
             for mode in args.modes:
                 if mode in by_what:
                     entry[f"{mode}_s"] = by_what[mode]["run_s"]
@@ -227,6 +233,7 @@ def main() -> None:
     report = {
         "benchmark": "gradients",
         "machine": {
+            "device": f"{jax.devices()[0].platform}:{jax.devices()[0].device_kind}",
             "platform": platform.platform(),
             "cpus": os.cpu_count(),
             "affinity": len(os.sched_getaffinity(0)),

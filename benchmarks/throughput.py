@@ -18,12 +18,14 @@ What it measures, in one process (one XLA device, as a plain ``import so3jax`` g
 * the baselines in the same run, same protocol: NumPy (batch 1 and 256, short
   horizons, ~1 ms/step) and Numba (batch 1, 256, 4096, prange over every core, timed
   over as many trajectory-steps as so3jax on every core; float64 only; skipped when
-  numba is not installed), with ratios so3jax / baseline. The baselines get their
-  noise precomputed (so3jax draws it inside the step: its timings include the PRNG);
+  numba is not installed), with ratios so3jax / baseline. so3jax draws the noise inside
+  the step (its timings include the PRNG); NumPy and "numba" get it precomputed, outside
+  their timing; "numba-draw" draws the same bits inside its kernel (equal work);
 * FLOPs and transcendentals of one closed-loop RK4 step from XLA's cost analysis
   (one trajectory, and per trajectory in a batched step), achieved FLOP/s, and the
   fraction of the machine's peak, measured here by a float64 numpy matmul (best of 3),
-  with all BLAS threads and with one (a subprocess);
+  with all BLAS threads and with one (a subprocess) -- on a GPU by a jitted JAX matmul
+  on the device, float64 and float32, each dtype's rows set against its own peak;
 * the wall time of ``so3jax paper --no-figures --json`` (both controllers, 400 000
   steps, compile included; a subprocess, as a user runs it): its own
   ``config.wall_time_s`` and the process's total.
@@ -53,6 +55,7 @@ import sys
 import tempfile
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 if __package__ in (None, ""):  # run as a script: the repository root on the path
@@ -167,6 +170,7 @@ def so3jax_all_cores(controller, dtype, batch, n_steps, repeats) -> dict:
     subprocess, since the device count must be set before JAX starts."""
     spec = {"controller": controller, "dtype": dtype, "batch": batch, "n_steps": n_steps, "repeats": repeats}
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env["JAX_PLATFORMS"] = "cpu"  # host devices, also on a machine with a GPU
     code = (
         f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r}); "
         f"from benchmarks import throughput; throughput._all_cores_child({json.dumps(spec)!r})"
@@ -195,7 +199,9 @@ def _all_cores_child(spec: str) -> None:
     fn = _batched_fn(spec["controller"], spec["dtype"], spec["n_steps"])
     parts = np.array_split(np.arange(spec["batch"], dtype=np.int32), len(devices))  # sizes differ by 1 at most
     shards = [jax.device_put(jnp.asarray(part), d) for part, d in zip(parts, devices)]
-    compiled = [fn.lower(shard).compile() for shard in shards]
+    lowered = [fn.lower(shard) for shard in shards]
+    with ThreadPoolExecutor(len(lowered)) as pool:  # compiled in parallel, as so3jax sweep does
+        compiled = list(pool.map(lambda low: low.compile(), lowered))
     median, times = _median_time(lambda: [f(shard) for f, shard in zip(compiled, shards)], spec["repeats"])
     print(json.dumps({"median": median, "times": times, "devices": len(devices)}))
 
@@ -233,18 +239,20 @@ def _numba():
 
 
 def baseline(module, impl, controller, dtype, batch, n_steps, repeats) -> dict:
+    """impl "numba-draw": the Numba kernel draws the noise itself (equal work: so3jax's
+    timings include its PRNG); "numpy", "numba": the noise precomputed, outside the timing."""
     import numpy as np
 
     from benchmarks.baselines.noise import paper_noise_batch
 
     seeds = list(range(batch))
-    noise = paper_noise_batch(seeds, n_steps, np.dtype(dtype))
+    noise = "draw" if impl == "numba-draw" else paper_noise_batch(seeds, n_steps, np.dtype(dtype))
     start = time.perf_counter()
     module.simulate(controller, n_steps, seeds, dtype=dtype, noise=noise)  # numba: compile (or cache load)
     first_s = time.perf_counter() - start
     median, times = _median_time(lambda: module.simulate(controller, n_steps, seeds, dtype=dtype, noise=noise), repeats)
     extra = {"first_call_s": first_s}
-    if impl == "numba":
+    if impl.startswith("numba"):
         import numba
 
         extra["threads"] = numba.get_num_threads()
@@ -285,13 +293,15 @@ def correctness(quick: bool, controllers=CONTROLLERS) -> dict:
         cases.append(
             ("numba", numba_loop, 2700, [0, 1], 1.0, "2700 steps at dt = 1 s: both switches (t = 500, 2600 s)")
         )
+        cases.append(("numba-draw", numba_loop, 2700, [0, 1], 1.0, "as above, the noise drawn in the kernel"))
         if not quick:
             cases.append(("numba", numba_loop, 50_300, [0, 1], 0.01, "50 300 steps at dt = 0.01 s: across t = 500 s"))
     checks = []
     for impl, module, n_steps, seeds, dt, what in cases:
         for controller in controllers:
             start = time.perf_counter()
-            theirs = module.simulate(controller, n_steps, seeds, dt=dt)
+            noise = "draw" if impl == "numba-draw" else None
+            theirs = module.simulate(controller, n_steps, seeds, dt=dt, noise=noise)
             ours = _so3jax_metrics(controller, n_steps, tuple(seeds), dt, "float64")
             dev = _deviation(ours, theirs)
             checks.append(
@@ -308,7 +318,7 @@ def correctness(quick: bool, controllers=CONTROLLERS) -> dict:
                 }
             )
             log(
-                f"  check vs {impl:5s} {controller:8s} N={n_steps:<6d} dt={dt}: max relative deviation {max(dev.values()):.2e}"
+                f"  check vs {impl:10s} {controller:8s} N={n_steps:<6d} dt={dt}: max relative deviation {max(dev.values()):.2e}"
             )
     worst = max(c["max"] for c in checks)
     return {
@@ -401,8 +411,36 @@ def _timed(fn) -> float:
     return time.perf_counter() - start
 
 
+def _device_matmul_peak(dtype: str, n: int, repeats: int = 5) -> float:
+    """FLOP/s of a jitted n x n matmul on JAX's default device (best of ``repeats``)."""
+    import jax
+    import jax.numpy as jnp
+
+    keys = jax.random.split(jax.random.key(0))
+    a, b = (jax.random.normal(k, (n, n), dtype) for k in keys)
+    matmul = jax.jit(lambda a, b: jnp.matmul(a, b, precision="highest"))
+    matmul(a, b).block_until_ready()  # compile and warm up
+    best = min(_timed(lambda: matmul(a, b).block_until_ready()) for _ in range(repeats))
+    return 2.0 * n**3 / best
+
+
 def peak_flops(n: int) -> dict:
-    """float64 matmul FLOP/s: all BLAS threads (here) and one thread (a subprocess)."""
+    """The machine's peak, by matmul FLOP/s. On CPU: float64 numpy, all BLAS threads
+    (here) and one thread (a subprocess). On an accelerator: a jitted JAX matmul on the
+    device, float64 and float32 (each dtype's rows are set against its own peak)."""
+    import jax
+
+    if jax.default_backend() != "cpu":
+        n = max(n, 8192)  # a GPU needs a large matmul to reach its peak
+        by_dtype = {d: _device_matmul_peak(d, n) for d in DTYPES}
+        log("  peak matmul on the device, " + ", ".join(f"{d} {v / 1e12:.1f} TFLOP/s" for d, v in by_dtype.items()))
+        return {
+            "matmul_n": n,
+            "flops_per_s": by_dtype["float64"],
+            "flops_per_s_by_dtype": by_dtype,
+            "flops_per_s_one_thread": None,
+            "what": f"best of 5, jax.jit matmul (precision highest) on {jax.devices()[0].device_kind}",
+        }
     all_threads = _matmul_peak(n)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     n1 = min(n, 2048)  # one thread reaches its peak by then, in a quarter of the time
@@ -463,7 +501,7 @@ def ratios(rows: list[dict]) -> list[dict]:
     unless it was run in the same dtype)."""
     out = []
     ours = [r for r in rows if r["impl"] in ("so3jax", "so3jax-all-cores")]
-    for base in (r for r in rows if r["impl"] in ("numpy", "numba")):
+    for base in (r for r in rows if r["impl"] in ("numpy", "numba", "numba-draw")):
         for r in ours:
             if r["controller"] != base["controller"] or r["batch"] != base["batch"]:
                 continue
@@ -475,7 +513,7 @@ def ratios(rows: list[dict]) -> list[dict]:
                 for b in rows
             ):
                 continue  # the same-dtype baseline exists: compare with that one
-            if r["impl"] == "so3jax-all-cores" and base["impl"] != "numba":
+            if r["impl"] == "so3jax-all-cores" and not base["impl"].startswith("numba"):
                 continue
             out.append(
                 {
@@ -502,6 +540,7 @@ def flop_rates(rows, costs, peak) -> list[dict]:
         if cost is None:
             continue
         achieved = cost["flops"] * r["trajectory_steps_per_s"]
+        peak_here = peak.get("flops_per_s_by_dtype", {}).get(r["dtype"], peak["flops_per_s"])
         out.append(
             {
                 "impl": r["impl"],
@@ -511,7 +550,7 @@ def flop_rates(rows, costs, peak) -> list[dict]:
                 "flops_per_step": cost["flops"],
                 "flops_counted_on": cost_from,
                 "achieved_flops_per_s": achieved,
-                "fraction_of_peak": achieved / peak["flops_per_s"],
+                "fraction_of_peak": achieved / peak_here,
                 "fraction_of_one_thread_peak": achieved / peak["flops_per_s_one_thread"]
                 if peak["flops_per_s_one_thread"]
                 else None,
@@ -528,7 +567,7 @@ def plot(path: str, report: dict) -> None:
 
     rows = report["throughput"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
-    styles = {"so3jax": "-o", "so3jax-all-cores": "-D", "numpy": ":s", "numba": "--^"}
+    styles = {"so3jax": "-o", "so3jax-all-cores": "-D", "numpy": ":s", "numba": "--^", "numba-draw": "--v"}
     for ax, controller in zip(axes, CONTROLLERS):
         for impl, style in styles.items():
             for dtype in DTYPES:
@@ -646,7 +685,8 @@ def main(argv=None) -> int:
             "dt": 0.01,
             "scenario": "the paper's (phase 0 at these horizons)",
             "so3jax": "jax.jit(rollout_batch(..., scenario_axes=None, record_every=n_steps)), AOT-compiled",
-            "baselines": "noise precomputed outside the timing; so3jax draws it (threefry) inside",
+            "baselines": "numpy, numba: noise precomputed outside the timing; numba-draw: drawn inside its "
+            "kernel (the same bits), as so3jax draws it (threefry) inside",
         },
     }
 
@@ -684,7 +724,8 @@ def main(argv=None) -> int:
     def numba_baseline(controller):
         for batch in numba_batches:
             n_steps = _steps_for(batch, ALL_CORES_TARGET_FACTOR * target, 200, 200_000)
-            rows.append(baseline(numba_loop, "numba", controller, "float64", batch, n_steps, repeats))
+            for impl in ("numba", "numba-draw"):
+                rows.append(baseline(numba_loop, impl, controller, "float64", batch, n_steps, repeats))
 
     def peak():
         report["peak"] = peak_flops(matmul_n)
@@ -801,13 +842,14 @@ def summary(report: dict) -> dict:
                 entry[f"so3jax_{dtype}_best_batch"] = best["batch"]
             if single:
                 entry[f"so3jax_{dtype}_single_us_per_step"] = single["us_per_step"]
-        for impl in ("numpy", "numba"):
+        for impl in ("numpy", "numba", "numba-draw"):
             best, single = pick(impl), pick(impl, batch=1)
+            name = impl.replace("-", "_")
             if best:
-                entry[f"{impl}_best_Msteps_per_s"] = best["trajectory_steps_per_s"] / 1e6
-                entry[f"{impl}_best_batch"] = best["batch"]
+                entry[f"{name}_best_Msteps_per_s"] = best["trajectory_steps_per_s"] / 1e6
+                entry[f"{name}_best_batch"] = best["batch"]
             if single:
-                entry[f"{impl}_single_us_per_step"] = single["us_per_step"]
+                entry[f"{name}_single_us_per_step"] = single["us_per_step"]
         all_cores = pick("so3jax-all-cores")
         if all_cores:
             entry["so3jax_all_cores_float64_best_Msteps_per_s"] = all_cores["trajectory_steps_per_s"] / 1e6
@@ -817,11 +859,12 @@ def summary(report: dict) -> dict:
             entry["so3jax_over_numba_best"] = (
                 entry["so3jax_float64_best_Msteps_per_s"] / entry["numba_best_Msteps_per_s"]
             )
-        if "numba_best_Msteps_per_s" in entry and all_cores:
+        for name in ("numba", "numba_draw") if all_cores else ():
             # both on every core: Numba's prange threads, so3jax's host devices
-            entry["so3jax_all_cores_over_numba_best"] = (
-                entry["so3jax_all_cores_float64_best_Msteps_per_s"] / entry["numba_best_Msteps_per_s"]
-            )
+            if f"{name}_best_Msteps_per_s" in entry:
+                entry[f"so3jax_all_cores_over_{name}_best"] = (
+                    entry["so3jax_all_cores_float64_best_Msteps_per_s"] / entry[f"{name}_best_Msteps_per_s"]
+                )
         cost = report.get("step_cost", {}).get(controller, {}).get("float64")
         if cost and cost["single"]:
             entry["flops_per_step"] = cost["single"]["flops"]

@@ -10,6 +10,11 @@ psi' = J_r^{-1}(psi) Omega, with Omega and Theta_hat integrated alongside and th
 controller evaluated at every stage. Units: SI (s, rad, rad/s, N m, kg m^2). float64
 only; compiled with FMA contraction allowed (no other fast-math).
 
+The disturbance noise eta_k is either passed in precomputed (B, n_steps, 3) or, with
+``noise="draw"``, drawn inside the kernel from the trajectory's seed, CHUNK steps at a
+time before they are advanced, bit for bit as JAX draws it (:mod:`numba_noise`), so a
+timing includes the PRNG as so3jax's does.
+
 The scenario data and argument handling come from :mod:`numpy_loop`; the dynamics
 and control arithmetic here are written independently of it.
 """
@@ -29,6 +34,7 @@ except ImportError as exc:  # numba is an optional dependency
         "the NumPy baseline benchmarks.baselines.numpy_loop does not"
     ) from exc
 
+from benchmarks.baselines.numba_noise import fill_eta, key_array
 from benchmarks.baselines.numpy_loop import (
     DIST_AMPLITUDE,
     DIST_FREQUENCY,
@@ -244,10 +250,18 @@ def _fill_table(k0, nk, h, k1, k2, wd, table, dist):
 
 
 @_jit
-def _advance(adaptive, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, table, dist, Rio, wio, th, ths, acc, sums):
+def _advance(adaptive, draw, key, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, etab, ubuf, table, dist, Rio, wio,
+             th, ths, acc, sums):  # fmt: skip
     """Advance one trajectory (state Rio (3, 3), wio (3), th (9, 3), updated in place) over
     steps k0 .. k0+nk-1 with RK4 (SPEC §5), adding its metrics to sums (SPEC §6).
-    ths, acc: (9, 3) scratch for the stage value and the RK4 sum of Theta_hat'."""
+    eta_k: noise[k] or, if draw, drawn here for the chunk from the key words key (2,) of
+    its seed into etab (CHUNK, 3) (ubuf (3 CHUNK): scratch). ths, acc: (9, 3) scratch for
+    the stage value and the RK4 sum of Theta_hat'."""
+    if draw:
+        fill_eta(key[0], key[1], k0, nk, etab, ubuf)
+        eta, base = etab, 0
+    else:
+        eta, base = noise, k0
     R = (Rio[0, 0], Rio[0, 1], Rio[0, 2], Rio[1, 0], Rio[1, 1], Rio[1, 2], Rio[2, 0], Rio[2, 1], Rio[2, 2])
     w0, w1, w2 = wio[0], wio[1], wio[2]
     c = 0.5 * h
@@ -255,9 +269,9 @@ def _advance(adaptive, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, table, dist
     for i in range(nk):
         k = k0 + i
         phase = 0 if k < k1 else (1 if k < k2 else 2)
-        d0 = dist[i] + NOISE_STD * noise[k, 0]
-        d1 = dist[i] + NOISE_STD * noise[k, 1]
-        d2 = dist[i] + NOISE_STD * noise[k, 2]
+        d0 = dist[i] + NOISE_STD * eta[base + i, 0]
+        d1 = dist[i] + NOISE_STD * eta[base + i, 1]
+        d2 = dist[i] + NOISE_STD * eta[base + i, 2]
         o1 = _stage(adaptive, True, g0, g1, gam, R, 0.0, 0.0, 0.0, w0, w1, w2, th,
                     table[i, 0], s, d0, d1, d2)  # fmt: skip
         if adaptive:
@@ -315,21 +329,24 @@ def _advance(adaptive, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, table, dist
 
 
 @numba.njit(cache=True, parallel=True)
-def _batch(n_groups, adaptive, n_steps, h, k1, k2, g0, g1, gam, wd, scale, noise, R, Omega, Theta, sums):
+def _batch(n_groups, adaptive, draw, keys, n_steps, h, k1, k2, g0, g1, gam, wd, scale, noise, R, Omega, Theta, sums):
     """Split the batch into n_groups groups (prange, one per thread); each goes through the
-    steps in chunks of CHUNK: tabulate the time terms, then advance its trajectories."""
+    steps in chunks of CHUNK: tabulate the time terms, then advance its trajectories.
+    draw: eta drawn in _advance from keys (B, 2) (noise is then a (B, 1, 3) placeholder)."""
     B = scale.shape[0]
     for g in numba.prange(n_groups):
         table = np.empty((CHUNK, 3, N_TT))
         dist = np.empty(CHUNK)
+        etab = np.empty((CHUNK if draw else 1, 3))
+        ubuf = np.empty(3 * CHUNK if draw else 1)
         ths = np.empty((9, 3))
         acc = np.empty((9, 3))
         for k0 in range(0, n_steps, CHUNK):
             nk = min(CHUNK, n_steps - k0)
             _fill_table(k0, nk, h, k1, k2, wd, table, dist)
             for b in range(g * B // n_groups, (g + 1) * B // n_groups):
-                _advance(adaptive, k0, nk, h, k1, k2, g0, g1, gam, wd, scale[b], noise[b], table,
-                         dist, R[b], Omega[b], Theta[b], ths, acc, sums[b])  # fmt: skip
+                _advance(adaptive, draw, keys[b], k0, nk, h, k1, k2, g0, g1, gam, wd, scale[b], noise[b], etab,
+                         ubuf, table, dist, R[b], Omega[b], Theta[b], ths, acc, sums[b])  # fmt: skip
 
 
 def simulate(
@@ -341,17 +358,23 @@ def simulate(
     gains: dict | None = None,
     inertia_scale: np.ndarray | None = None,
     dtype=np.float64,
-    noise: np.ndarray | None = None,
+    noise: np.ndarray | str | None = None,
 ) -> dict:
     """Run the paper's scenario (SPEC §4) for a batch of len(seeds) trajectories.
 
     Same signature and result as :func:`benchmarks.baselines.numpy_loop.simulate`
-    (see there); dtype must be float64.
+    (see there); dtype must be float64. One more choice for noise: "draw" draws eta_k
+    inside the compiled loop from each seed (in [0, 2**31)), so a timing includes it;
+    the same values as noise=None, which draws them with JAX before the loop.
     """
     if np.dtype(dtype) != np.float64:
         raise ValueError(f"the Numba baseline computes in float64 only, got dtype={dtype}")
-    setup = prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise)
+    setup = prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise, allow_draw=True)
     B = setup.noise.shape[0]
+    draw = isinstance(noise, str)
+    if draw and setup.n_steps > 2**32:
+        raise ValueError(f"noise='draw' folds the step k in as a uint32: n_steps must be <= 2**32, got {n_steps}")
+    keys = key_array([int(s) for s in seeds]) if draw else np.zeros((B, 2), np.uint32)  # as prepare reads seeds
     g = setup.gains
     if setup.adaptive:
         g0, g1, gam = g["K_r"], g["K_w"], g["Gamma"]
@@ -364,8 +387,8 @@ def simulate(
     Theta[:, 6:, :] = np.eye(3)  # Theta(J_hat = I)
     sums = np.zeros((B, N_SUMS))
     n_groups = min(B, numba.get_num_threads())
-    _batch(n_groups, setup.adaptive, setup.n_steps, setup.dt, setup.k1, setup.k2, g0, g1, gam, OMEGA_D0,
-           setup.scale, setup.noise, R, Omega, Theta, sums)  # fmt: skip
+    _batch(n_groups, setup.adaptive, draw, keys, setup.n_steps, setup.dt, setup.k1, setup.k2, g0, g1, gam,
+           OMEGA_D0, setup.scale, setup.noise, R, Omega, Theta, sums)  # fmt: skip
     named = {
         "we2": sums[:, 0:3], "tau2": sums[:, 3:6], "ang2": sums[:, 6:9],
         "tau_max": sums[:, 9:12], "ang_max": sums[:, 12:15], "wu2": sums[:, 15],

@@ -54,11 +54,12 @@ class Setup(NamedTuple):
     k2: int  # first step of phase 2 (after docking)
     gains: dict  # floats; "Gamma" a (9,) diagonal
     scale: np.ndarray  # (B,) inertia scale
-    noise: np.ndarray  # (B, n_steps, 3) eta
+    noise: np.ndarray  # (B, n_steps, 3) eta; (B, 1, 3) zeros if the kernel draws it (noise="draw")
 
 
-def prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise) -> Setup:
-    """Check the arguments of ``simulate`` and fill in defaults (SPEC §4)."""
+def prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise, allow_draw=False) -> Setup:
+    """Check the arguments of ``simulate`` and fill in defaults (SPEC §4). allow_draw: the
+    caller draws eta itself when noise == "draw" (numba_loop)."""
     if controller not in PAPER_GAINS:
         raise ValueError(f"controller must be 'pd' or 'adaptive', got {controller!r}")
     dtype = np.dtype(dtype)
@@ -91,10 +92,13 @@ def prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise) 
     if scale.shape != (batch,) or not np.all(np.isfinite(scale)) or not np.all(scale > 0):
         raise ValueError(f"inertia_scale must be a positive finite array of shape ({batch},)")
 
+    draw = isinstance(noise, str)
+    if draw and not (allow_draw and noise == "draw"):
+        raise ValueError(f"noise must be None or an array (numba_loop also takes 'draw'), got {noise!r}")
     if noise is None:
         noise = paper_noise_batch(seeds, n_steps, dtype)
-    noise = np.ascontiguousarray(noise, dtype=dtype)
-    if noise.shape != (batch, n_steps, 3):
+    noise = np.zeros((batch, 1, 3), dtype) if draw else np.ascontiguousarray(noise, dtype=dtype)
+    if not draw and noise.shape != (batch, n_steps, 3):
         raise ValueError(f"noise must have shape ({batch}, {n_steps}, 3), got {noise.shape}")
 
     k1, k2 = round(T_GROW / dt), round(T_DOCK / dt)
