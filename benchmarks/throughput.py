@@ -163,12 +163,18 @@ def so3jax_single(controller, dtype, n_steps, repeats) -> dict:
     return _row("so3jax-single", controller, dtype, 1, n_steps, median, times, compile_s=compile_s)
 
 
-def so3jax_all_cores(controller, dtype, batch, n_steps, repeats) -> dict:
+def so3jax_all_cores(controller, dtype, batch, n_steps, repeats, head_to_head=False) -> dict:
     """The batch split evenly over one XLA host device per core (what the CLI sets up),
     each device running its own compiled rollout_batch on its part, dispatched together
     (as ``so3jax sweep`` does): equal work to Numba's prange over all cores. In a
-    subprocess, since the device count must be set before JAX starts."""
+    subprocess, since the device count must be set before JAX starts.
+
+    head_to_head: the same process also times the Numba baseline at the same batch and
+    horizon (noise precomputed, and drawn in its kernel), in rounds that alternate the
+    three, so each ratio compares runs seconds apart: this machine's rate drifts by
+    +-15-30 % over minutes, more than the ratios being measured."""
     spec = {"controller": controller, "dtype": dtype, "batch": batch, "n_steps": n_steps, "repeats": repeats}
+    spec["head_to_head"] = head_to_head
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
     env["JAX_PLATFORMS"] = "cpu"  # host devices, also on a machine with a GPU
     code = (
@@ -179,7 +185,14 @@ def so3jax_all_cores(controller, dtype, batch, n_steps, repeats) -> dict:
     if proc.returncode:
         raise RuntimeError(f"all-cores child failed:\n{proc.stderr[-3000:]}")
     r = json.loads(proc.stdout.strip().splitlines()[-1])
-    return _row("so3jax-all-cores", controller, dtype, batch, n_steps, r["median"], r["times"], devices=r["devices"])
+    extra = {"devices": r["devices"]}
+    if "head_to_head" in r:
+        extra["head_to_head"] = r["head_to_head"]
+        log(
+            "  interleaved with Numba: so3jax / Numba "
+            + ", ".join(f"{k} {v['ratio_median']:.2f}x" for k, v in r["head_to_head"].items())
+        )
+    return _row("so3jax-all-cores", controller, dtype, batch, n_steps, r["median"], r["times"], **extra)
 
 
 def _all_cores_child(spec: str) -> None:
@@ -202,8 +215,44 @@ def _all_cores_child(spec: str) -> None:
     lowered = [fn.lower(shard) for shard in shards]
     with ThreadPoolExecutor(len(lowered)) as pool:  # compiled in parallel, as so3jax sweep does
         compiled = list(pool.map(lambda low: low.compile(), lowered))
-    median, times = _median_time(lambda: [f(shard) for f, shard in zip(compiled, shards)], spec["repeats"])
-    print(json.dumps({"median": median, "times": times, "devices": len(devices)}))
+    run = lambda: [f(shard) for f, shard in zip(compiled, shards)]
+    median, times = _median_time(run, spec["repeats"])
+    out = {"median": median, "times": times, "devices": len(devices)}
+    numba_loop = _numba() if spec.get("head_to_head") else None
+    if numba_loop is not None:
+        out["head_to_head"] = _head_to_head(run, numba_loop, spec)
+    print(json.dumps(out))
+
+
+def _head_to_head(run, numba_loop, spec) -> dict:
+    """Rounds of (so3jax, Numba with precomputed noise, Numba drawing it), the order rotated
+    each round; per baseline the median over rounds of baseline time / so3jax time."""
+    import jax
+
+    from benchmarks.baselines.noise import paper_noise_batch
+
+    seeds = list(range(spec["batch"]))
+    noise = paper_noise_batch(seeds, spec["n_steps"])
+    contenders = {
+        "so3jax": lambda: jax.block_until_ready(run()),
+        "numba": lambda: numba_loop.simulate(spec["controller"], spec["n_steps"], seeds, noise=noise),
+        "numba-draw": lambda: numba_loop.simulate(spec["controller"], spec["n_steps"], seeds, noise="draw"),
+    }
+    for fn in contenders.values():
+        fn()  # warm-up (Numba: compile or cache load)
+    times = {name: [] for name in contenders}
+    names = list(contenders)
+    for r in range(max(5, spec["repeats"])):
+        for name in names[r % 3 :] + names[: r % 3]:
+            times[name].append(_timed(contenders[name]))
+    return {
+        name: {
+            "so3jax_s": times["so3jax"],
+            "baseline_s": times[name],
+            "ratio_median": statistics.median(b / a for a, b in zip(times["so3jax"], times[name])),
+        }
+        for name in names[1:]
+    }
 
 
 def _row(impl, controller, dtype, batch, n_steps, median, times, **extra) -> dict:
@@ -710,7 +759,8 @@ def main(argv=None) -> int:
     def all_cores(controller, dtype):
         for batch in all_cores_batches:
             n_steps = _steps_for(batch, ALL_CORES_TARGET_FACTOR * target, 100, 40_000)
-            rows.append(so3jax_all_cores(controller, dtype, batch, n_steps, repeats))
+            head_to_head = numba_loop is not None and dtype == "float64"
+            rows.append(so3jax_all_cores(controller, dtype, batch, n_steps, repeats, head_to_head))
 
     def cost(controller, dtype, batch):
         costs[controller][dtype]["batched" if batch else "single"] = step_cost(controller, dtype, batch)
@@ -865,6 +915,9 @@ def summary(report: dict) -> dict:
                 entry[f"so3jax_all_cores_over_{name}_best"] = (
                     entry["so3jax_all_cores_float64_best_Msteps_per_s"] / entry[f"{name}_best_Msteps_per_s"]
                 )
+            interleaved = all_cores.get("head_to_head", {}).get(name.replace("_", "-"))
+            if interleaved:  # same batch, runs seconds apart: the robust ratio
+                entry[f"so3jax_all_cores_over_{name}_interleaved"] = interleaved["ratio_median"]
         cost = report.get("step_cost", {}).get(controller, {}).get("float64")
         if cost and cost["single"]:
             entry["flops_per_step"] = cost["single"]["flops"]

@@ -30,6 +30,8 @@ def lie_rk4_step(field, t, dt, rotations, vectors):
     """
 
     def stage(c, psis, vecs):
+        # the stage's inputs (x_k + c dt k_prev) computed once, not in each of their consumers
+        psis, vecs = materialize((psis, vecs), t)
         moved = materialize(tuple(R + so3.matmul(R, so3.expm1(p)) for R, p in zip(rotations, psis)), t)
         rates, vdot, _ = field(t + c * dt, moved, vecs)
         rates, vdot = materialize((rates, vdot), t)

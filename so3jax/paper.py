@@ -47,9 +47,13 @@ def register(subparsers) -> None:
 
 
 def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
-    """Run PD and adaptive at the paper's gains, one device each when there are two.
+    """Run PD and adaptive at the paper's gains, one CPU device each when there are two.
 
-    Returns {name: Result} with numpy leaves, and the wall time [s] (compile included).
+    On the CPU also where JAX sees a GPU: one trajectory is a chain of tiny steps, which a
+    GPU runs launch-bound (H100: 63 / 84 us per step, against 0.8 / 0.8 on one CPU core,
+    benchmarks/results/h100-gpu-throughput-2026-11-23.json). Batches (sweep, tune) are
+    where a GPU pays off. Returns {name: Result} with numpy leaves, and the wall time [s]
+    (compile included).
     """
     import jax
 
@@ -61,7 +65,7 @@ def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
         "pd": (sj.geometric_pd(), sj.PAPER_PD_GAINS),
         "adaptive": (sj.adaptive_backstepping(log_derivative=log_derivative), sj.PAPER_ADAPTIVE_GAINS),
     }
-    devices = jax.devices()
+    devices = jax.devices("cpu")
 
     def simulate(i, name):
         controller, gains = setups[name]
@@ -165,7 +169,7 @@ def run(args) -> int:
         "log_derivative": args.log_derivative,
         "gains": {"pd": sj.PAPER_PD_GAINS._asdict(), "adaptive": sj.PAPER_ADAPTIVE_GAINS._asdict()},
         "wall_time_s": wall,
-        "devices": [str(d) for d in jax.devices()],
+        "devices": [str(d) for d in jax.devices("cpu")],  # where run_both ran them
     }
     write_json(args.out / "metrics.json", report)
     figures = [] if args.no_figures else write_figures(args.out, results, scenario)
