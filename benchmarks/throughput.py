@@ -14,7 +14,9 @@ What it measures, in one process (one XLA device, as a plain ``import so3jax`` g
 * so3jax on every core (a subprocess with one XLA host device per core, as the CLI
   sets up): batch 4096 split evenly over the devices, each running its own compiled
   rollout_batch, dispatched together -- the equal-work comparison with Numba's prange,
-  which also uses every core (``so3jax_all_cores_over_numba_best`` in the summary);
+  which also uses every core; the same process times Numba too, in rounds alternating
+  with so3jax, and the median ratio is ``so3jax_all_cores_over_numba[_draw]_interleaved``
+  in the summary (``..._best``: against the separate Numba rows, minutes apart);
 * the baselines in the same run, same protocol: NumPy (batch 1 and 256, short
   horizons, ~1 ms/step) and Numba (batch 1, 256, 4096, prange over every core, timed
   over as many trajectory-steps as so3jax on every core; float64 only; skipped when
@@ -617,6 +619,13 @@ def plot(path: str, report: dict) -> None:
     rows = report["throughput"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), sharey=True)
     styles = {"so3jax": "-o", "so3jax-all-cores": "-D", "numpy": ":s", "numba": "--^", "numba-draw": "--v"}
+    labels = {
+        "so3jax": "so3jax, one core",
+        "so3jax-all-cores": "so3jax, every core",
+        "numpy": "NumPy",
+        "numba": "Numba, every core, noise given",
+        "numba-draw": "Numba, every core, draws noise",
+    }
     for ax, controller in zip(axes, CONTROLLERS):
         for impl, style in styles.items():
             for dtype in DTYPES:
@@ -626,7 +635,9 @@ def plot(path: str, report: dict) -> None:
                     if r["impl"] == impl and r["controller"] == controller and r["dtype"] == dtype
                 )
                 if pts:
-                    ax.plot(*zip(*pts), style, label=f"{impl} {dtype}", alpha=1.0 if dtype == "float64" else 0.55)
+                    ax.plot(
+                        *zip(*pts), style, label=f"{labels[impl]} {dtype}", alpha=1.0 if dtype == "float64" else 0.55
+                    )
         ax.set_xscale("log", base=2)
         ax.set_yscale("log")
         ax.set_title(f"{controller}")
