@@ -50,10 +50,10 @@ def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
     """Run PD and adaptive at the paper's gains, one CPU device each when there are two.
 
     On the CPU also where JAX sees a GPU: one trajectory is a chain of tiny steps, which a
-    GPU runs launch-bound (H100: 63 / 84 us per step, against 0.8 / 0.8 on one CPU core,
-    benchmarks/results/h100-gpu-throughput-2026-11-23.json). Batches (sweep, tune) are
-    where a GPU pays off. Returns {name: Result} with numpy leaves, and the wall time [s]
-    (compile included).
+    GPU runs launch-bound (H100: 63 / 84 us per step, against ~1 on one CPU core,
+    benchmarks/results/h100-gpu-throughput-2026-11-23.json); a GPU pays off from batches
+    of thousands (a sweep's chunks). Returns {name: Result} with numpy leaves, and the
+    wall time [s] (compile included).
     """
     import jax
 
