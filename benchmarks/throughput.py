@@ -231,14 +231,14 @@ def _head_to_head(run, numba_loop, spec) -> dict:
     each round; per baseline the median over rounds of baseline time / so3jax time."""
     import jax
 
-    from benchmarks.baselines.noise import paper_noise_batch
-
     seeds = list(range(spec["batch"]))
-    noise = paper_noise_batch(seeds, spec["n_steps"])
+    noise = {impl: _noise_argument(impl, seeds, spec["n_steps"], "float64") for impl in ("numba", "numba-draw")}
     contenders = {
         "so3jax": lambda: jax.block_until_ready(run()),
-        "numba": lambda: numba_loop.simulate(spec["controller"], spec["n_steps"], seeds, noise=noise),
-        "numba-draw": lambda: numba_loop.simulate(spec["controller"], spec["n_steps"], seeds, noise="draw"),
+        **{
+            impl: functools.partial(numba_loop.simulate, spec["controller"], spec["n_steps"], seeds, noise=arg)
+            for impl, arg in noise.items()
+        },
     }
     for fn in contenders.values():
         fn()  # warm-up (Numba: compile or cache load)
@@ -289,15 +289,19 @@ def _numba():
     return numba_loop
 
 
-def baseline(module, impl, controller, dtype, batch, n_steps, repeats) -> dict:
-    """impl "numba-draw": the Numba kernel draws the noise itself (equal work: so3jax's
-    timings include its PRNG); "numpy", "numba": the noise precomputed, outside the timing."""
+def _noise_argument(impl, seeds, n_steps, dtype):
+    """The baselines' ``noise``: "draw" for impl "numba-draw" (the Numba kernel draws it, as
+    so3jax's timings include its PRNG), else eta precomputed outside the timing."""
     import numpy as np
 
     from benchmarks.baselines.noise import paper_noise_batch
 
+    return "draw" if impl == "numba-draw" else paper_noise_batch(seeds, n_steps, np.dtype(dtype))
+
+
+def baseline(module, impl, controller, dtype, batch, n_steps, repeats) -> dict:
     seeds = list(range(batch))
-    noise = "draw" if impl == "numba-draw" else paper_noise_batch(seeds, n_steps, np.dtype(dtype))
+    noise = _noise_argument(impl, seeds, n_steps, dtype)
     start = time.perf_counter()
     module.simulate(controller, n_steps, seeds, dtype=dtype, noise=noise)  # numba: compile (or cache load)
     first_s = time.perf_counter() - start
@@ -351,7 +355,7 @@ def correctness(quick: bool, controllers=CONTROLLERS) -> dict:
     for impl, module, n_steps, seeds, dt, what in cases:
         for controller in controllers:
             start = time.perf_counter()
-            noise = "draw" if impl == "numba-draw" else None
+            noise = _noise_argument(impl, seeds, n_steps, "float64")
             theirs = module.simulate(controller, n_steps, seeds, dt=dt, noise=noise)
             ours = _so3jax_metrics(controller, n_steps, tuple(seeds), dt, "float64")
             dev = _deviation(ours, theirs)
@@ -920,13 +924,14 @@ def summary(report: dict) -> dict:
             entry["so3jax_over_numba_best"] = (
                 entry["so3jax_float64_best_Msteps_per_s"] / entry["numba_best_Msteps_per_s"]
             )
-        for name in ("numba", "numba_draw") if all_cores else ():
+        for impl in ("numba", "numba-draw") if all_cores else ():
             # both on every core: Numba's prange threads, so3jax's host devices
+            name = impl.replace("-", "_")
             if f"{name}_best_Msteps_per_s" in entry:
                 entry[f"so3jax_all_cores_over_{name}_best"] = (
                     entry["so3jax_all_cores_float64_best_Msteps_per_s"] / entry[f"{name}_best_Msteps_per_s"]
                 )
-            interleaved = all_cores.get("head_to_head", {}).get(name.replace("_", "-"))
+            interleaved = all_cores.get("head_to_head", {}).get(impl)
             if interleaved:  # same batch, runs seconds apart: the robust ratio
                 entry[f"so3jax_all_cores_over_{name}_interleaved"] = interleaved["ratio_median"]
         cost = report.get("step_cost", {}).get(controller, {}).get("float64")

@@ -66,6 +66,13 @@ def test_throughput_quick_smoke():
     all_cores = next(r for r in report["throughput"] if r["impl"] == "so3jax-all-cores")
     assert all_cores["batch"] == 2 and 1 <= all_cores["devices"] <= 2
     assert ("numba" in impls) == report["numba_available"]
+    if report["numba_available"]:  # timed head to head with Numba, noise given and drawn
+        assert set(all_cores["head_to_head"]) == {"numba", "numba-draw"}
+        for h2h in all_cores["head_to_head"].values():
+            assert len(h2h["so3jax_s"]) == len(h2h["baseline_s"]) >= 5 and h2h["ratio_median"] > 0
+        assert "numba-draw" in impls
+        for controller in report["summary"].values():
+            assert controller["so3jax_all_cores_over_numba_draw_interleaved"] > 0
     for row in report["throughput"]:
         assert row["trajectory_steps_per_s"] > 0 and len(row["runs_s"]) == 3
     assert any(r["baseline"] == "numpy" for r in report["ratios"])
