@@ -521,10 +521,12 @@ def peak_flops(n: int) -> dict:
 
 
 def paper_wall_time(timeout: float) -> dict:
-    """``so3jax paper --no-figures --json`` in a subprocess (its default: one host device per core)."""
+    """``so3jax paper --no-figures --json`` in a subprocess (its default: one host device per
+    core), cold: the CLI's persistent compilation cache is turned off, so compile is included."""
     with tempfile.TemporaryDirectory() as out:
         cmd = [sys.executable, "-m", "so3jax.cli", "paper", "--no-figures", "--json", "--out", out]
         env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+        env["SO3JAX_CACHE_DIR"] = ""  # no cached compilations
         start = time.perf_counter()
         try:
             proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, check=False)
@@ -536,7 +538,7 @@ def paper_wall_time(timeout: float) -> dict:
     report = json.loads(proc.stdout.strip().splitlines()[-1])
     config = report["config"]
     result = {
-        "command": "so3jax paper --no-figures --json",
+        "command": "SO3JAX_CACHE_DIR= so3jax paper --no-figures --json",
         "n_steps": config["n_steps"],
         "wall_time_s": config["wall_time_s"],  # both rollouts, compile included (its own clock)
         "process_wall_s": total,  # the whole command: Python + JAX import, validation, output
