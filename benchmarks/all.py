@@ -5,8 +5,8 @@ scaling of the sweep path, and gradient cost and memory against the horizon.
     python -m benchmarks.all [--quick] [--out benchmarks/results] [--tag TAG] [--limit-scale 1]
 
 Each benchmark runs as a subprocess with its own time limit; the limits add up to 15
-minutes (``--quick``: 6); on 2 cores at a load average of ~2 the whole set took about
-10 minutes (before the speed work of issue 5, at load 4-5: 14.6). On a loaded
+minutes (``--quick``: 6); on 2 cores at a load average of ~1-2 the whole set took about
+13.5 minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5 of them). On a loaded
 machine the throughput script skips its lowest-priority work once past its budget (it
 lists what it skipped), a benchmark out of time is recorded with its error (the
 gradients benchmark keeps the runs it finished), and ``--limit-scale`` stretches every
@@ -43,7 +43,7 @@ ROOT = HERE.parent
 # 97 s + more than 180 s (adaptive reverse mode: its compilations dominate); 2026-11-23,
 # load 1-2: throughput 232 s (before its all-cores runs got longer), sweep 76 s,
 # gradients 104 s + 258 s; with the call graph flattened after fusion (adaptive reverse-mode
-# compilations ~270 s, up from ~250): throughput 289 s, sweep 87-95 s, gradients 109 s + 296 s.
+# compilations ~270 s, up from ~250): throughput 289 s, sweep 87-95 s, gradients 104-109 s + 296-314 s.
 GRADIENTS = ["--batch", "2", "--modes", "reverse", "--jobs", "2"]
 PLAN = {
     "throughput": ("throughput", [], 310),
