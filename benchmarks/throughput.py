@@ -245,7 +245,8 @@ def _head_to_head(run, numba_loop, spec) -> dict:
     times = {name: [] for name in contenders}
     names = list(contenders)
     for r in range(max(5, spec["repeats"])):
-        for name in names[r % 3 :] + names[: r % 3]:
+        first = r % len(names)  # who goes first rotates
+        for name in names[first:] + names[:first]:
             times[name].append(_timed(contenders[name]))
     return {
         name: {

@@ -16,7 +16,7 @@ import os
 # calls, as TORAX does on CPU) makes the batched step another 10-15 % faster: both
 # cores, batch 4096, float64, interleaved with Numba: PD 1.73-1.93x -> 2.07-2.24x,
 # adaptive 1.76-1.84x -> 2.07-2.13x; one trajectory unchanged, compile ~10 % longer.
-LOOP_KERNEL_FLAG = (
+BACKEND_OPTIONS_FLAG = (
     "--xla_backend_extra_options="
     "xla_cpu_small_while_loop_byte_threshold=1000000000,xla_cpu_flatten_after_fusion=true"
 )
@@ -45,8 +45,8 @@ def _has_avx512() -> bool:
 
 def configure_cpu_codegen() -> None:
     """Whole while loops as single CPU kernels, call graph flattened after fusion
-    (LOOP_KERNEL_FLAG); 512-bit vectors where the CPU has them (WIDE_VECTOR_FLAG)."""
-    _add(LOOP_KERNEL_FLAG, "xla_backend_extra_options")
+    (BACKEND_OPTIONS_FLAG); 512-bit vectors where the CPU has them (WIDE_VECTOR_FLAG)."""
+    _add(BACKEND_OPTIONS_FLAG, "xla_backend_extra_options")
     if _has_avx512():
         _add(WIDE_VECTOR_FLAG, "xla_cpu_prefer_vector_width")
 

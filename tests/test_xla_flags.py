@@ -10,7 +10,7 @@ def test_flags_are_added_once(monkeypatch):
     _xla_flags.configure_cpu_codegen()
     _xla_flags.configure_cpu_codegen()
     flags = _xla_flags.os.environ["XLA_FLAGS"].split()
-    assert flags == ["--xla_dump_to=/tmp/x", _xla_flags.LOOP_KERNEL_FLAG, _xla_flags.WIDE_VECTOR_FLAG]
+    assert flags == ["--xla_dump_to=/tmp/x", _xla_flags.BACKEND_OPTIONS_FLAG, _xla_flags.WIDE_VECTOR_FLAG]
 
 
 def test_user_settings_win_and_can_opt_out(monkeypatch):
@@ -31,4 +31,4 @@ def test_no_wide_vectors_without_avx512(monkeypatch):
     monkeypatch.delenv("SO3JAX_KEEP_XLA_FLAGS", raising=False)
     monkeypatch.setattr(_xla_flags, "_has_avx512", lambda: False)
     _xla_flags.configure_cpu_codegen()
-    assert _xla_flags.os.environ["XLA_FLAGS"] == _xla_flags.LOOP_KERNEL_FLAG
+    assert _xla_flags.os.environ["XLA_FLAGS"] == _xla_flags.BACKEND_OPTIONS_FLAG
