@@ -122,32 +122,47 @@ def _batched_fn(controller: str, dtype: str, n_steps: int, dt: float = 0.01, ful
     """jit(seeds -> metrics (and the final state if full)) of rollout_batch; AOT-compiled."""
     import jax
 
-    from so3jax.rollout import rollout_batch
+    from so3jax.rollout import VALUE_UNROLL, rollout_batch
 
     scenario, ctrl, gains = _setup(controller, dtype, n_steps, dt)
 
-    def run(seeds):
-        r = rollout_batch(scenario, ctrl, gains, seeds, scenario_axes=None, record_every=n_steps)
+    def run(seeds):  # as so3jax sweep runs it
+        r = rollout_batch(scenario, ctrl, gains, seeds, scenario_axes=None, record_every=n_steps, unroll=VALUE_UNROLL)
         return (r.metrics, r.final) if full else r.metrics
 
     return jax.jit(run)
 
 
-def _compile(fn, *args):
+def _timed_call(fn, *args):
+    """(fn(*args), its wall time in s)."""
     start = time.perf_counter()
-    compiled = fn.lower(*args).compile()
-    return compiled, time.perf_counter() - start
+    out = fn(*args)
+    return out, time.perf_counter() - start
 
 
-def so3jax_batched(controller, dtype, batch, n_steps, repeats) -> dict:
+def _compile(fn, *args):
+    return _timed_call(lambda: fn.lower(*args).compile())
+
+
+def so3jax_batched(controller, dtype, sizes, repeats) -> list[dict]:
+    """One row per (batch, n_steps) of sizes. The programs are compiled first, one per core
+    at a time (each compile_s is that compilation's own wall time), then timed one by one."""
     import jax.numpy as jnp
 
-    seeds = jnp.arange(batch, dtype=jnp.int32)
-    compiled, compile_s = _compile(_batched_fn(controller, dtype, n_steps), seeds)
-    out = compiled(seeds)
-    assert out.rmse.dtype == jnp.dtype(dtype), out.rmse.dtype
-    median, times = _median_time(lambda: compiled(seeds), repeats)
-    return _row("so3jax", controller, dtype, batch, n_steps, median, times, compile_s=compile_s)
+    from so3jax._xla_flags import usable_cores
+
+    seeds = [jnp.arange(batch, dtype=jnp.int32) for batch, _ in sizes]
+    lowered = [_timed_call(_batched_fn(controller, dtype, n_steps).lower, s) for (_, n_steps), s in zip(sizes, seeds)]
+    with ThreadPoolExecutor(min(len(lowered), usable_cores())) as pool:
+        programs = list(pool.map(lambda low: _timed_call(low[0].compile), lowered))
+    rows = []
+    for (batch, n_steps), s, (_, lower_s), (compiled, compile_s) in zip(sizes, seeds, lowered, programs):
+        compile_s += lower_s
+        out = compiled(s)
+        assert out.rmse.dtype == jnp.dtype(dtype), out.rmse.dtype
+        median, times = _median_time(functools.partial(compiled, s), repeats)
+        rows.append(_row("so3jax", controller, dtype, batch, n_steps, median, times, compile_s=compile_s))
+    return rows
 
 
 def so3jax_single(controller, dtype, n_steps, repeats) -> dict:
@@ -722,6 +737,7 @@ def main(argv=None) -> int:
     import jax
 
     import so3jax  # noqa: F401  (before JAX starts its backend: so3jax sets its XLA:CPU flags)
+    from so3jax._xla_flags import usable_cores
 
     jax.config.update("jax_enable_x64", True)  # float64 available; float32 runs build float32 scenarios
     import numpy as np
@@ -737,7 +753,7 @@ def main(argv=None) -> int:
             "jax_devices": len(jax.devices()),
             "cpu_model": cpu_model(),
             "cpus": os.cpu_count(),
-            "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+            "affinity": usable_cores(),
             "platform": platform.platform(),
             "python": platform.python_version(),
             "jax": jax.__version__,
@@ -751,7 +767,7 @@ def main(argv=None) -> int:
             "statistic": "median after one warm-up run",
             "dt": 0.01,
             "scenario": "the paper's (phase 0 at these horizons)",
-            "so3jax": "jax.jit(rollout_batch(..., scenario_axes=None, record_every=n_steps)), AOT-compiled",
+            "so3jax": "jax.jit(rollout_batch(..., scenario_axes=None, record_every=n_steps, unroll=VALUE_UNROLL)), AOT-compiled",
             "baselines": "numpy, numba: noise precomputed outside the timing; numba-draw: drawn inside its "
             "kernel (the same bits), as so3jax draws it (threefry) inside",
         },
@@ -771,8 +787,8 @@ def main(argv=None) -> int:
     tasks = []
 
     def batched(controller, dtype):
-        for batch in batches:
-            rows.append(so3jax_batched(controller, dtype, batch, _steps_for(batch, target, 100, 40_000), repeats))
+        sizes = [(batch, _steps_for(batch, target, 100, 40_000)) for batch in batches]
+        rows.extend(so3jax_batched(controller, dtype, sizes, repeats))
 
     def all_cores(controller, dtype):
         for batch in all_cores_batches:

@@ -51,7 +51,11 @@ def configure_cpu_codegen() -> None:
         _add(WIDE_VECTOR_FLAG, "xla_cpu_prefer_vector_width")
 
 
+def usable_cores() -> int:
+    """CPU cores this process may run on."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def use_every_core() -> None:
     """One XLA host device per core, so sharded batches use the whole CPU."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    _add(f"--xla_force_host_platform_device_count={cores}", "xla_force_host_platform_device_count")
+    _add(f"--xla_force_host_platform_device_count={usable_cores()}", "xla_force_host_platform_device_count")

@@ -192,10 +192,13 @@ def test_float32_follows_the_scenario_dtype():
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
 
 
-@pytest.mark.parametrize("sub_batch", [None, 2])
-def test_rollout_batch_equals_vmap_of_rollout(sub_batch, monkeypatch):
-    """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves."""
-    from so3jax.rollout import rollout_batch
+@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 500), (2, 1, 500), (None, "value", 333)])
+def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, monkeypatch):
+    """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
+    also with the sweeps' unrolled scan over blocks of an odd number of steps."""
+    from so3jax.rollout import VALUE_UNROLL, rollout_batch
+
+    unroll = VALUE_UNROLL if unroll == "value" else unroll
 
     scales = jnp.array([1.0, 1.3, 0.8])
     inertia = SHORT.inertia
@@ -224,10 +227,12 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, monkeypatch):
         (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS),
     ):
         gains = jax.tree.map(jnp.asarray, gains)
-        native = rollout_batch(batched, controller, gains, seeds, scenario_axes=axes, record_every=500)
-        vmapped = jax.vmap(lambda s, seed: rollout(s, controller, gains, seed, record_every=500), in_axes=(axes, 0))(
-            batched, seeds
+        native = rollout_batch(
+            batched, controller, gains, seeds, scenario_axes=axes, record_every=record_every, unroll=unroll
         )
+        vmapped = jax.vmap(
+            lambda s, seed: rollout(s, controller, gains, seed, record_every=record_every), in_axes=(axes, 0)
+        )(batched, seeds)
         for a, b in zip(jax.tree.leaves(native), jax.tree.leaves(vmapped)):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
