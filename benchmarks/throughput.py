@@ -122,12 +122,12 @@ def _batched_fn(controller: str, dtype: str, n_steps: int, dt: float = 0.01, ful
     """jit(seeds -> metrics (and the final state if full)) of rollout_batch; AOT-compiled."""
     import jax
 
-    from so3jax.rollout import VALUE_UNROLL, rollout_batch
+    from so3jax.rollout import rollout_batch
 
     scenario, ctrl, gains = _setup(controller, dtype, n_steps, dt)
 
     def run(seeds):  # as so3jax sweep runs it
-        r = rollout_batch(scenario, ctrl, gains, seeds, scenario_axes=None, record_every=n_steps, unroll=VALUE_UNROLL)
+        r = rollout_batch(scenario, ctrl, gains, seeds, scenario_axes=None, record_every=n_steps)
         return (r.metrics, r.final) if full else r.metrics
 
     return jax.jit(run)
@@ -767,7 +767,7 @@ def main(argv=None) -> int:
             "statistic": "median after one warm-up run",
             "dt": 0.01,
             "scenario": "the paper's (phase 0 at these horizons)",
-            "so3jax": "jax.jit(rollout_batch(..., scenario_axes=None, record_every=n_steps, unroll=VALUE_UNROLL)), AOT-compiled",
+            "so3jax": "jax.jit(rollout_batch(..., scenario_axes=None, record_every=n_steps)), AOT-compiled",
             "baselines": "numpy, numba: noise precomputed outside the timing; numba-draw: drawn inside its "
             "kernel (the same bits), as so3jax draws it (threefry) inside",
         },

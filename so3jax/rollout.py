@@ -255,13 +255,6 @@ def _batch_first(tree):
     return jax.tree.map(lambda x: jnp.moveaxis(x, -1, 0) if jnp.ndim(x) else x, tree)
 
 
-# RK4 steps per iteration of the natively batched scan where only values are wanted
-# (sweeps, benchmarks/throughput.py): XLA:CPU runs two steps per loop iteration faster,
-# 2-core AMD EPYC, batch 4096, float64, interleaved with Numba: adaptive 1.87-1.95x ->
-# 2.03-2.11x Numba's rate, PD unchanged. It compiles in about twice the time, which
-# differentiated rollouts (so3jax.gradients: reverse mode already takes minutes) are spared.
-VALUE_UNROLL = 2
-
 # Trajectories per natively batched XLA:CPU loop. Larger batches are slower per
 # trajectory there (the step's temporaries leave the L1/L2 caches): 2-core AMD EPYC,
 # float64, M steps/s PD / adaptive at batch 64: 3.9 / 2.0, 128: 4.6 / 2.1, 256: 3.4 / 1.8,

@@ -53,7 +53,7 @@ from so3jax.controllers import (
 )
 from so3jax.io import save_figure, save_npz, write_json, write_text
 from so3jax.metrics import Metrics
-from so3jax.rollout import VALUE_UNROLL, rollout_batch
+from so3jax.rollout import rollout_batch
 from so3jax.scenario import (
     PAPER_J0,
     PAPER_J2,
@@ -303,9 +303,7 @@ def simulate_batch(params: disp.RolloutParams, gains, *, controller: str, T: flo
     (:func:`so3jax.rollout.rollout_batch`, the values of a vmap of rollouts)."""
     law = CONTROLLERS[controller][0]()
     scenarios = jax.vmap(lambda p: mission(p, T, dt))(params)
-    return rollout_batch(
-        scenarios, law, gains, params.seed, record_every=scenarios.n_steps, unroll=VALUE_UNROLL
-    ).metrics
+    return rollout_batch(scenarios, law, gains, params.seed, record_every=scenarios.n_steps).metrics
 
 
 def batch_mesh() -> Mesh:

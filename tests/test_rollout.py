@@ -192,13 +192,11 @@ def test_float32_follows_the_scenario_dtype():
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
 
 
-@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 500), (2, 1, 500), (None, "value", 333)])
+@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 500), (2, 1, 500), (None, 2, 333)])
 def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, monkeypatch):
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
-    also with the sweeps' unrolled scan over blocks of an odd number of steps."""
-    from so3jax.rollout import VALUE_UNROLL, rollout_batch
-
-    unroll = VALUE_UNROLL if unroll == "value" else unroll
+    also with an unrolled scan over blocks of an odd number of steps."""
+    from so3jax.rollout import rollout_batch
 
     scales = jnp.array([1.0, 1.3, 0.8])
     inertia = SHORT.inertia
