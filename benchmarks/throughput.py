@@ -126,7 +126,7 @@ def _batched_fn(controller: str, dtype: str, n_steps: int, dt: float = 0.01, ful
 
     scenario, ctrl, gains = _setup(controller, dtype, n_steps, dt)
 
-    def run(seeds):  # as so3jax sweep runs it
+    def run(seeds):
         r = rollout_batch(scenario, ctrl, gains, seeds, scenario_axes=None, record_every=n_steps)
         return (r.metrics, r.final) if full else r.metrics
 
@@ -146,7 +146,8 @@ def _compile(fn, *args):
 
 def so3jax_batched(controller, dtype, sizes, repeats) -> list[dict]:
     """One row per (batch, n_steps) of sizes. The programs are compiled first, one per core
-    at a time (each compile_s is that compilation's own wall time), then timed one by one."""
+    at a time (compile_s: that program's lowering plus its compilation, wall time), then
+    timed one by one."""
     import jax.numpy as jnp
 
     from so3jax._xla_flags import usable_cores
