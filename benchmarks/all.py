@@ -5,8 +5,8 @@ scaling of the sweep path, and gradient cost and memory against the horizon.
     python -m benchmarks.all [--quick] [--out benchmarks/results] [--tag TAG] [--limit-scale 1]
 
 Each benchmark runs as a subprocess with its own time limit; the limits add up to 15
-minutes (``--quick``: 6); on 2 cores at a load average of ~1-2 the whole set took about
-13.5 minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5 of them). On a loaded
+minutes (``--quick``: 6); on 2 cores at a load average of ~1-2 the whole set took 12.5-13.5
+minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5 of them). On a loaded
 machine the throughput script skips its lowest-priority work once past its budget (it
 lists what it skipped), a benchmark out of time is recorded with its error (the
 gradients benchmark keeps the runs it finished), and ``--limit-scale`` stretches every
@@ -43,7 +43,8 @@ ROOT = HERE.parent
 # 97 s + more than 180 s (adaptive reverse mode: its compilations dominate); 2026-11-23,
 # load 1-2: throughput 232 s (before its all-cores runs got longer), sweep 76 s,
 # gradients 104 s + 258 s; with the call graph flattened after fusion (adaptive reverse-mode
-# compilations ~270 s, up from ~250): throughput 289 s, sweep 87-95 s, gradients 104-109 s + 296-314 s.
+# compilations ~270 s, up from ~250): throughput 289 s, sweep 87-95 s, gradients 104-109 s + 296-314 s;
+# with throughput's batch sizes compiled one per core at a time: throughput 260 s.
 GRADIENTS = ["--batch", "2", "--modes", "reverse", "--jobs", "2"]
 PLAN = {
     "throughput": ("throughput", [], 310),
@@ -79,6 +80,11 @@ def _slug(text: str) -> str:
     return re.sub(r"[^a-z0-9]+", "-", text.lower()).strip("-")
 
 
+def _usable_cores() -> int:
+    """so3jax._xla_flags.usable_cores, without importing so3jax (and JAX) in this parent process."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def device_tag() -> str:
     """cpu-<cores>core-<model> on a CPU-only machine, gpu-<device kind> when JAX sees a GPU."""
     code = "import jax; d = jax.devices()[0]; print(d.platform, '|', d.device_kind)"
@@ -87,8 +93,7 @@ def device_tag() -> str:
     platform_, _, kind = proc.stdout.strip().rpartition("\n")[-1].partition(" | ")
     if proc.returncode == 0 and platform_ in ("gpu", "cuda", "rocm"):
         return "gpu-" + _slug(kind)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return f"cpu-{cores}core-" + _slug(cpu_model())
+    return f"cpu-{_usable_cores()}core-" + _slug(cpu_model())
 
 
 def run_benchmark(name: str, script: str, args: list[str], limit: float) -> dict:
@@ -192,7 +197,7 @@ def main(argv=None) -> int:
         "machine": {
             "cpu_model": cpu_model(),
             "cpus": os.cpu_count(),
-            "affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+            "affinity": _usable_cores(),
             "platform": platform.platform(),
             "python": platform.python_version(),
             "load_avg_start": load_start,
