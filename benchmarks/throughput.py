@@ -424,7 +424,7 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.rollout import disturbances, initial_state, step
+    from so3jax.rollout import disturbance_at, initial_state, step
 
     scenario, ctrl, gains = _setup(controller, dtype, 10)
     if batch is None:
@@ -438,7 +438,7 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
 
     def one(key, state):
         k = jnp.int32(0)
-        return step(scenario, ctrl, gains, disturbances(scenario, key, k, 1)[0], state, k)
+        return step(scenario, ctrl, gains, disturbance_at(scenario, key, k), state, k)
 
     cost = jax.jit(one).lower(key, state).compile().cost_analysis()
     if isinstance(cost, (list, tuple)):  # older JAX: one dict per computation

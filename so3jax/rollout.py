@@ -122,10 +122,18 @@ def _time(scenario, k):
     return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
 
 
+def disturbance_at(scenario: Scenario, key, k):
+    """d_k (3, ...) [N m]."""
+    return scenario.disturbance(key, k, _time(scenario, k))
+
+
 def disturbances(scenario: Scenario, key, k0, count: int):
-    """d_k (count, 3, ...) for k = k0 .. k0 + count - 1, drawn in one vectorized call."""
+    """d_k for k = k0 .. k0 + count - 1 as its three axes, each (count, ...), drawn in one
+    vectorized call (per axis where the disturbance offers ``components``: on CPU, one loop
+    that interleaves the axes runs the noise draw ~2x slower)."""
     ks = k0 + jnp.arange(count, dtype=k0.dtype)
-    return jax.vmap(lambda k: scenario.disturbance(key, k, _time(scenario, k)))(ks)
+    draw = getattr(scenario.disturbance, "components", None) or (lambda *args: tuple(scenario.disturbance(*args)))
+    return jax.vmap(lambda k: tuple(draw(key, k, _time(scenario, k))))(ks)
 
 
 def step(scenario: Scenario, controller: Controller, gains, d, state: State, k):
@@ -206,8 +214,7 @@ def rollout(
 
     def one_step(carry, d):
         state, k, acc = carry
-        if d is None:  # not drawn ahead for the block: too large
-            d = scenario.disturbance(key, k, _time(scenario, k))
+        d = disturbance_at(scenario, key, k) if d is None else jnp.stack(d)  # None: not drawn ahead (too large)
         new, phase, sample = step(scenario, controller, gains, d, state, k)
         finite = jnp.isfinite(so3.sum_leading(new.R, 2) + so3.sum_leading(new.Omega))
         new_acc = metrics.update(acc, phase, sample, finite)
