@@ -452,11 +452,14 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
 
 
 def prng_cost(dtype: str) -> dict:
-    """XLA's count for the disturbance draw alone (SPEC 4's fold_in + normal), part of every step."""
+    """XLA's count for the disturbance draw alone (SPEC 4's fold_in + normal, as so3jax draws
+    it), part of every step."""
     import jax
 
+    from so3jax.disturbance import noise
+
     def draw(key, k):
-        return jax.random.normal(jax.random.fold_in(key, k), (3,), dtype)
+        return noise(key, k, dtype)
 
     cost = jax.jit(draw).lower(jax.random.key(0), jax.numpy.int32(0)).compile().cost_analysis()
     if isinstance(cost, (list, tuple)):
