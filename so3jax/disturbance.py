@@ -53,11 +53,12 @@ def noise_components(key, k, dtype):
     For threefry keys (JAX's default) the same bits are computed here on component
     arrays of the key's batch shape: on CPU, JAX lowers Threefry to a rolled loop that
     runs its 20 rounds as separate passes over memory (6x slower in a rollout); written
-    out, the hash and the uniform fuse into one loop. In float32 the result is
-    ``jax.random.normal``'s bit for bit; in float64 the inverse error function is
-    :func:`so3jax._erfinv.erf_inv`, XLA's algorithm without its scalar ``log`` calls:
-    within 3 ulp of ``jax.random.normal``, the same double in ~99.4 % of draws
-    (tests/test_rollout.py).
+    out, the hash and the uniform fuse into one loop. The result is ``jax.random.normal``'s
+    bit for bit, except for a batch of keys in float64: there the inverse error function is
+    :func:`so3jax._erfinv.erf_inv`, XLA's algorithm without its scalar ``log`` calls
+    (a batched draw ~2x faster on CPU), within 3 ulp of ``jax.random.normal``, the same
+    double in ~99.4 % of draws (tests/test_rollout.py). One trajectory (a single key, also
+    under vmap) keeps XLA's: its blocks are too short to gain, and it compiles faster.
     """
     dtype = jnp.dtype(dtype)
     if str(jax.random.key_impl(key)) != "threefry2x32" or dtype.itemsize not in (4, 8):
@@ -69,7 +70,7 @@ def noise_components(key, k, dtype):
     # fold_in: the key hashed with the counter (0, k); the (3,) draw: counters (0, i).
     folded = _threefry(data[..., 0], data[..., 1], zero, zero + jnp.asarray(k).astype(jnp.uint32))
     uniforms = [_uniform_from_bits(_threefry(*folded, zero, zero + np.uint32(i)), dtype) for i in range(3)]
-    if dtype.itemsize == 4:
+    if dtype.itemsize == 4 or key.ndim == 0:
         return tuple(np.array(np.sqrt(2), dtype) * jax.lax.erf_inv(u) for u in uniforms)
     if data.size:
         # The float64 erf_inv is more than one CPU loop (its divisions are not recomputed):

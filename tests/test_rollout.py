@@ -33,8 +33,8 @@ def test_disturbance_follows_the_fold_in_recipe():
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_noise_is_jax_random_normal(dtype):
     """so3jax's written-out draw = jax.random.normal(fold_in(key, k), (3,)): every bit in
-    float32; in float64 (its own vectorized inverse error function) within 3 ulp and the
-    same double in nearly all draws. A batch of keys, a block of steps (the rollout's vmap
+    float32 and for a single key; for a batch of keys in float64 (its own vectorized inverse
+    error function) within 3 ulp and the same double in nearly all draws. A batch of keys, a block of steps (the rollout's vmap
     over k), large k."""
     from so3jax.disturbance import noise
 
@@ -52,8 +52,8 @@ def test_noise_is_jax_random_normal(dtype):
         np.testing.assert_array_equal(one, one_expected)
     else:
         np.testing.assert_array_max_ulp(got, expected, maxulp=3)  # erf_inv's 2, then sqrt(2) x
-        np.testing.assert_array_max_ulp(np.asarray(one), np.asarray(one_expected), maxulp=3)
         assert np.mean(got == expected) > 0.98, np.mean(got == expected)
+        np.testing.assert_array_equal(one, one_expected)  # one key: XLA's erf_inv
     # other PRNG implementations take jax.random's own path, same recipe
     rbg = jax.random.key(3, impl="rbg")
     np.testing.assert_array_equal(noise(rbg, 5, dtype), jax.random.normal(jax.random.fold_in(rbg, 5), (3,), dtype))
