@@ -70,14 +70,13 @@ def noise_components(key, k, dtype):
     # fold_in: the key hashed with the counter (0, k); the (3,) draw: counters (0, i).
     folded = _threefry(data[..., 0], data[..., 1], zero, zero + jnp.asarray(k).astype(jnp.uint32))
     uniforms = [_uniform_from_bits(_threefry(*folded, zero, zero + np.uint32(i)), dtype) for i in range(3)]
-    if dtype.itemsize == 4 or key.ndim == 0:
-        return tuple(np.array(np.sqrt(2), dtype) * jax.lax.erf_inv(u) for u in uniforms)
-    if data.size:
+    inverse = jax.lax.erf_inv if dtype.itemsize == 4 or key.ndim == 0 else erf_inv
+    if inverse is erf_inv and data.size:
         # The float64 erf_inv is more than one CPU loop (its divisions are not recomputed):
         # each uniform is computed once, not its hash in every loop (materialize needs a
         # traced scalar: a word of the key).
         uniforms = materialize(uniforms, data.reshape(-1)[-1].astype(dtype))
-    return tuple(np.sqrt(2) * erf_inv(u) for u in uniforms)
+    return tuple(np.array(np.sqrt(2), dtype) * inverse(u) for u in uniforms)
 
 
 def _threefry(k1, k2, x1, x2):

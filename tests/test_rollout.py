@@ -33,9 +33,9 @@ def test_disturbance_follows_the_fold_in_recipe():
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_noise_is_jax_random_normal(dtype):
     """so3jax's written-out draw = jax.random.normal(fold_in(key, k), (3,)): every bit in
-    float32 and for a single key; for a batch of keys in float64 (its own vectorized inverse
-    error function) within 3 ulp and the same double in nearly all draws. A batch of keys, a block of steps (the rollout's vmap
-    over k), large k."""
+    float32 and for a single key; for a batch of keys in float64 (its own vectorized
+    inverse error function) within 3 ulp and the same double in nearly all draws. A batch
+    of keys, a block of steps (the rollout's vmap over k), large k."""
     from so3jax.disturbance import noise
 
     seeds = jnp.array([0, 1, 7, 2**31 - 1, 123456], jnp.int32)
