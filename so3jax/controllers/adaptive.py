@@ -10,6 +10,8 @@ import jax.numpy as jnp
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.scenario import check_gains
 
 
 class AdaptiveGains(NamedTuple):
@@ -100,3 +102,16 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controll
         return tau, theta_dot
 
     return Controller(init, torque)
+
+
+register(
+    ControllerSpec(
+        name="adaptive",
+        label="adaptive",
+        factory=adaptive_backstepping,
+        gains_type=AdaptiveGains,
+        defaults=PAPER_ADAPTIVE_GAINS,
+        style=dict(ls="-", color="tab:blue", label="adaptive"),
+        check=check_gains,
+    )
+)

@@ -9,6 +9,8 @@ import jax
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.scenario import check_gains
 
 
 class PDGains(NamedTuple):
@@ -39,3 +41,16 @@ def geometric_pd(J_hat=None) -> Controller:
         return tau, ()
 
     return Controller(init, torque)
+
+
+register(
+    ControllerSpec(
+        name="pd",
+        label="PD",
+        factory=geometric_pd,
+        gains_type=PDGains,
+        defaults=PAPER_PD_GAINS,
+        style=dict(ls="--", color="tab:red", label="PD"),
+        check=check_gains,
+    )
+)

@@ -1,0 +1,63 @@
+"""One registry of controllers: name -> factory, gains type, defaults, checks, plot style.
+
+Every command (``paper``, ``fly``, ``tune``, ``sweep``) and the plots read it. A new
+controller is one module that builds its :class:`ControllerSpec` and calls
+:func:`register`, imported by :mod:`so3jax.controllers`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any
+
+from so3jax.controllers.base import Controller
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerSpec:
+    """What the commands need to know of a control law.
+
+    factory(**options) -> Controller; options are the law's construction choices
+    (nominal inertia J_hat, log_derivative, a torque for open loop, ...).
+    gains_type: the NamedTuple of its gains; defaults: the paper's values (or a
+    neutral set). check(gains) raises ValueError on gains the law cannot use.
+    tunable: whether ``tune`` may optimize its gains (a law without gains cannot).
+    """
+
+    name: str
+    label: str
+    factory: Callable[..., Controller]
+    gains_type: type
+    defaults: Any
+    style: dict
+    check: Callable[[Any], None]
+    tunable: bool = True
+
+
+_REGISTRY: dict[str, ControllerSpec] = {}
+
+
+def register(spec: ControllerSpec) -> ControllerSpec:
+    if spec.name in _REGISTRY and _REGISTRY[spec.name] != spec:
+        raise ValueError(f"a controller named {spec.name!r} is already registered")
+    _REGISTRY[spec.name] = spec
+    return spec
+
+
+def names(tunable: bool | None = None) -> tuple[str, ...]:
+    """Registered names, in registration order (only the tunable ones if tunable=True)."""
+    return tuple(n for n, s in _REGISTRY.items() if tunable is None or s.tunable == tunable)
+
+
+def get(name: str) -> ControllerSpec:
+    """The spec of a registered controller; ValueError naming the choices otherwise."""
+    try:
+        return _REGISTRY[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown controller {name!r}; known: {', '.join(_REGISTRY)}") from None
+
+
+def style(name: str) -> dict:
+    """Matplotlib keyword arguments (line style, color, label) of a controller."""
+    return dict(_REGISTRY[name].style) if name in _REGISTRY else {"label": name}
