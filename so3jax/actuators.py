@@ -1,0 +1,290 @@
+"""Actuators: the controller's command tau_c in, the torque on the body out (SPEC 8.4).
+
+Each actuator is a pytree with
+
+* ``init(batch_shape, dtype)``: its state, () or the wheel speeds Omega_w (N, *batch) [rad/s];
+* ``command(state, tau_c, omega_hat)``: the input held over a control period, computed
+  at the tick from the command tau_c (3, *b) [N m] and the estimated rate omega_hat [rad/s];
+* ``body_torque(held)``: the torque the actuator puts on the body (3, *b) [N m];
+* ``derivative(J, Omega, state, held, d, t, J_dot=None)``: (Omega', state'), the plant of
+  SPEC 1 (ideal, saturated) or SPEC 8.4 (wheels);
+* ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of shape b;
+* ``speed_ratio(state)``: max_i |Omega_w,i| / Omega_max,i (0 without wheels);
+* ``momentum(state, Omega)``: the wheels' angular momentum h_w in the body frame (3, *b) [N m s];
+* ``check()``: one-line ValueErrors on bad parameters, before compilation.
+
+Arrays follow :mod:`so3jax.so3`: components first, batch axes last; wheel arrays are
+(N, *b). Parameters are cast to the dtype of the arrays they meet.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import so3
+from so3jax._fusion import materialize
+from so3jax._pytree import pytree_dataclass, static_field
+from so3jax.plant import angular_acceleration
+
+_UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis
+_RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
+
+
+def _no_limit(held):
+    """False of the batch shape of a (3 or N, *b) array."""
+    return jnp.zeros(held.shape[1:], bool)
+
+
+def _concrete(*arrays) -> bool:
+    return not any(isinstance(a, jax.core.Tracer) for a in arrays)
+
+
+def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool = False) -> None:
+    """One-line ValueError unless x has ``shape`` and finite (positive / non-negative) values."""
+    if np.shape(x) != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
+    if not _concrete(x):
+        return
+    v = np.asarray(x)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be finite, got {v.tolist()}")
+    if positive and np.any(v <= 0):
+        raise ValueError(f"{name} must be positive, got {v.tolist()}")
+    if nonnegative and np.any(v < 0):
+        raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
+
+
+def _rigid_derivative(J, Omega, held, d, t, J_dot):
+    """SPEC 1 with the body torque held: J Omega' = -Omega x J Omega + held + d [- J' Omega]."""
+    return angular_acceleration(J, Omega, materialize(held + d, t), J_dot), ()
+
+
+# --- ideal and saturated body torques --------------------------------------------------
+
+
+@pytree_dataclass
+class Ideal:
+    """tau = tau_c (SPEC 8.4 ``ideal``)."""
+
+    def init(self, batch_shape, dtype):
+        return ()
+
+    def command(self, state, tau_c, omega_hat):
+        return tau_c
+
+    def body_torque(self, held):
+        return held
+
+    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
+        return _rigid_derivative(J, Omega, held, d, t, J_dot)
+
+    def limits(self, state, held, tau_c):
+        return _no_limit(held), _no_limit(held)
+
+    def speed_ratio(self, state):
+        return 0.0
+
+    def momentum(self, state, Omega):
+        return jnp.zeros_like(Omega)
+
+    def check(self) -> None:
+        pass
+
+
+@pytree_dataclass
+class Saturated:
+    """tau_i = clip(tau_c,i, -max_torque_i, max_torque_i) per body axis (SPEC 8.4 ``saturated``).
+
+    max_torque: (3,) or a scalar for every axis, N m.
+    """
+
+    max_torque: jax.Array
+
+    def _limit(self, like):
+        return so3.batch_like(jnp.asarray(self.max_torque).astype(like.dtype), 1, like)
+
+    def init(self, batch_shape, dtype):
+        return ()
+
+    def command(self, state, tau_c, omega_hat):
+        limit = self._limit(tau_c)
+        return jnp.clip(tau_c, -limit, limit)
+
+    def body_torque(self, held):
+        return held
+
+    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
+        return _rigid_derivative(J, Omega, held, d, t, J_dot)
+
+    def limits(self, state, held, tau_c):
+        """(any |tau_c,i| > max_torque_i, False), of the batch shape."""
+        over = jnp.abs(tau_c) > self._limit(tau_c)
+        return over[0] | over[1] | over[2], _no_limit(held)
+
+    def speed_ratio(self, state):
+        return 0.0
+
+    def momentum(self, state, Omega):
+        return jnp.zeros_like(Omega)
+
+    def check(self) -> None:
+        """One-line ValueErrors: max_torque (3,) or a scalar, finite, non-negative."""
+        scalar = np.shape(self.max_torque) == ()
+        _check_values("saturated max_torque [N m]", self.max_torque, () if scalar else (3,), nonnegative=True)
+
+
+# --- reaction wheels ---------------------------------------------------------------------
+
+
+def _per_wheel(x, like):
+    """A (N,) parameter as (N, 1, ...) in the dtype of ``like`` (N or 3, *b)."""
+    return so3.batch_like(jnp.asarray(x).astype(like.dtype), 1, like)
+
+
+def _spin_sum(G, x):
+    """G x = sum_i g_i x_i for G (3, N, ...), x (N, ...) -> (3, ...)."""
+    total = G[:, 0] * x[0]
+    for i in range(1, G.shape[1]):
+        total = total + G[:, i] * x[i]
+    return total
+
+
+def _weighted_gram(G, w):
+    """sum_i w_i g_i g_i^T = G diag(w) G^T, (3, 3), for G (3, N), w (N,)."""
+    total = w[0] * so3.outer(G[:, 0], G[:, 0])
+    for i in range(1, G.shape[1]):
+        total = total + w[i] * so3.outer(G[:, i], G[:, i])
+    return total
+
+
+@pytree_dataclass
+class Wheels:
+    """N reaction wheels (SPEC 8.4 ``wheels``).
+
+    axes: G_s (3, N), unit spin axes g_i as columns; spin_inertia: J_s (N,) kg m^2;
+    max_torque: u_max (N,) N m; max_speed: Omega_max (N,) rad/s; initial_speed:
+    Omega_w(0) (N,) rad/s, relative to the body. The held input is the motor torques
+    u (N, *b) [N m]; the body receives -G_s u. momentum_compensation: the command becomes
+    tau_c + omega_hat x h_w_hat before it is distributed.
+    """
+
+    axes: jax.Array
+    spin_inertia: jax.Array
+    max_torque: jax.Array
+    max_speed: jax.Array
+    initial_speed: jax.Array
+    momentum_compensation: bool = static_field(default=True)
+
+    @property
+    def count(self) -> int:
+        return np.shape(self.axes)[1]
+
+    def _axes(self, like):
+        """G_s as (3, N, 1, ...) in the dtype of ``like`` (3 or N, *b)."""
+        return so3.batch_like(jnp.asarray(self.axes).astype(like.dtype), 2, like)
+
+    def init(self, batch_shape, dtype):
+        """Omega_w(0) broadcast to (N, *batch_shape) [rad/s]."""
+        speed = jnp.asarray(self.initial_speed).astype(dtype)
+        speed = speed.reshape(speed.shape + (1,) * len(batch_shape))
+        return jnp.broadcast_to(speed, speed.shape[:1] + tuple(batch_shape))
+
+    def locked_wheel_inertia(self, J):
+        """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (SPEC 8.4): the body without
+        the wheels' spin inertia."""
+        J = jnp.asarray(J)
+        G = jnp.asarray(self.axes).astype(J.dtype)
+        wheel = _weighted_gram(G, jnp.asarray(self.spin_inertia).astype(J.dtype))
+        return J - wheel.reshape((3, 3) + (1,) * (J.ndim - 2))
+
+    def momentum(self, state, Omega):
+        """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (SPEC 8.4)."""
+        G = self._axes(Omega)
+        return _spin_sum(G, _per_wheel(self.spin_inertia, Omega) * (so3.rmatvec(G, Omega) + state))
+
+    def distribute(self, tau):
+        """Minimum-norm motor torques u = -G_s^T (G_s G_s^T)^{-1} tau (N, *b) [N m], so that
+        -G_s u = tau (SPEC 8.4), before any limit."""
+        G = jnp.asarray(self.axes).astype(tau.dtype)
+        gram = so3.batch_like(_weighted_gram(G, jnp.ones(self.count, tau.dtype)), 2, tau)
+        return -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
+
+    def command(self, state, tau_c, omega_hat):
+        """Motor torques u (N, *b) [N m] held over the period (SPEC 8.4): the command
+        (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
+        tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
+        wheel at its speed limit that it would spin faster."""
+        tau = tau_c + so3.cross(omega_hat, self.momentum(state, omega_hat)) if self.momentum_compensation else tau_c
+        u_max = _per_wheel(self.max_torque, tau)
+        u = jnp.clip(self.distribute(tau), -u_max, u_max)
+        faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
+        return jnp.where(faster, jnp.zeros_like(u), u)
+
+    def body_torque(self, held):
+        """-G_s u (3, *b) [N m]."""
+        return -_spin_sum(self._axes(held), held)
+
+    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
+        """(Omega', Omega_w') of SPEC 8.4 [rad/s^2]:
+        (J - G_s J_s G_s^T) Omega' = -Omega x (J Omega + G_s J_s Omega_w) - G_s u + d [- J' Omega],
+        Omega_w' = J_s^{-1} u - G_s^T Omega'."""
+        G = self._axes(Omega)
+        spin = _per_wheel(self.spin_inertia, Omega)
+        wheel_momentum = _spin_sum(G, spin * state)
+        rhs = d - _spin_sum(G, held) - so3.cross(Omega, so3.matvec(J, Omega) + wheel_momentum)
+        if J_dot is not None:
+            rhs = rhs - so3.matvec(J_dot, Omega)
+        wheel = _weighted_gram(jnp.asarray(self.axes).astype(Omega.dtype), jnp.asarray(self.spin_inertia).astype(Omega.dtype))
+        Omega_dot = so3.solve_spd(J - so3.batch_like(wheel, 2, Omega), materialize(rhs, t))
+        return Omega_dot, held / spin - so3.rmatvec(G, Omega_dot)
+
+    def limits(self, state, held, tau_c):
+        """(a motor torque clipped at u_max, a wheel at |Omega_w,i| >= Omega_max,i), of
+        the batch shape. The clipped torque is read from the held u: |u_i| = u_max,i
+        exactly where the clip bound (the command may include momentum compensation,
+        which tau_c does not show)."""
+        at_torque = jnp.any(jnp.abs(held) >= _per_wheel(self.max_torque, held), axis=0)
+        return at_torque, jnp.any(jnp.abs(state) >= _per_wheel(self.max_speed, state), axis=0)
+
+    def speed_ratio(self, state):
+        """max_i |Omega_w,i| / Omega_max,i, of the batch shape."""
+        return jnp.max(jnp.abs(state) / _per_wheel(self.max_speed, state), axis=0)
+
+    def check(self) -> None:
+        """One-line ValueErrors: shapes, finite values, unit axes spanning 3-D, J_s > 0,
+        u_max >= 0, Omega_max > 0 (J_B > 0 is checked against the plant's inertia elsewhere)."""
+        shape = np.shape(self.axes)
+        if len(shape) != 2 or shape[0] != 3 or shape[1] < 1:
+            raise ValueError(f"wheel axes must be a (3, N) array of spin axes (columns), got shape {shape}")
+        n = shape[1]
+        _check_values("wheel axes", self.axes, shape)
+        _check_values("wheel spin_inertia [kg m^2]", self.spin_inertia, (n,), positive=True)
+        _check_values("wheel max_torque [N m]", self.max_torque, (n,), nonnegative=True)
+        _check_values("wheel max_speed [rad/s]", self.max_speed, (n,), positive=True)
+        _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
+        if not isinstance(self.momentum_compensation, bool):
+            raise ValueError(f"wheel momentum_compensation must be True or False, got {self.momentum_compensation!r}")
+        if not _concrete(self.axes):
+            return
+        G = np.asarray(self.axes, dtype=float)
+        norms = np.linalg.norm(G, axis=0)
+        if np.any(np.abs(norms - 1.0) > _UNIT_TOLERANCE):
+            raise ValueError(f"wheel spin axes must be unit vectors, got norms {norms.tolist()}")
+        if n < 3 or np.linalg.svd(G, compute_uv=False).min() < _RANK_TOLERANCE:
+            raise ValueError(f"the {n} wheel spin axes span less than 3-D: the wheels cannot produce torque about every axis")
+
+
+def pyramid_axes(n: int = 4, elevation_deg: float = 54.74, azimuth0_deg: float = 0.0) -> np.ndarray:
+    """(3, n) unit spin axes at ``elevation_deg`` from the body z axis, 360/n degrees apart
+    in azimuth from ``azimuth0_deg`` (SPEC 8.5: four wheels at 54.74 deg, 90 deg apart)."""
+    elevation = math.radians(elevation_deg)
+    azimuth = np.radians(azimuth0_deg + 360.0 / n * np.arange(n))
+    return np.stack([math.sin(elevation) * np.cos(azimuth), math.sin(elevation) * np.sin(azimuth),
+                     np.full(n, math.cos(elevation))])
+
+
+ACTUATORS = {"ideal": Ideal, "saturated": Saturated, "wheels": Wheels}
