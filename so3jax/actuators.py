@@ -39,17 +39,21 @@ def _no_limit(held):
     return jnp.zeros(held.shape[1:], bool)
 
 
-def _concrete(*arrays) -> bool:
-    return not any(isinstance(a, jax.core.Tracer) for a in arrays)
+def _values(x):
+    """x as a numpy array, or None for a traced value (checked when it is concrete)."""
+    try:
+        return np.asarray(x, dtype=float)
+    except jax.errors.TracerArrayConversionError:
+        return None
 
 
 def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool = False) -> None:
     """One-line ValueError unless x has ``shape`` and finite (positive / non-negative) values."""
     if np.shape(x) != shape:
         raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
-    if not _concrete(x):
+    v = _values(x)
+    if v is None:
         return
-    v = np.asarray(x)
     if not np.all(np.isfinite(v)):
         raise ValueError(f"{name} must be finite, got {v.tolist()}")
     if positive and np.any(v <= 0):
@@ -193,13 +197,15 @@ class Wheels:
         speed = speed.reshape(speed.shape + (1,) * len(batch_shape))
         return jnp.broadcast_to(speed, speed.shape[:1] + tuple(batch_shape))
 
+    def _spin_inertia_matrix(self, dtype):
+        """G_s J_s G_s^T (3, 3) [kg m^2]."""
+        return _weighted_gram(jnp.asarray(self.axes).astype(dtype), jnp.asarray(self.spin_inertia).astype(dtype))
+
     def locked_wheel_inertia(self, J):
         """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (SPEC 8.4): the body without
         the wheels' spin inertia."""
         J = jnp.asarray(J)
-        G = jnp.asarray(self.axes).astype(J.dtype)
-        wheel = _weighted_gram(G, jnp.asarray(self.spin_inertia).astype(J.dtype))
-        return J - wheel.reshape((3, 3) + (1,) * (J.ndim - 2))
+        return J - self._spin_inertia_matrix(J.dtype).reshape((3, 3) + (1,) * (J.ndim - 2))
 
     def momentum(self, state, Omega):
         """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (SPEC 8.4)."""
@@ -238,15 +244,16 @@ class Wheels:
         rhs = d - _spin_sum(G, held) - so3.cross(Omega, so3.matvec(J, Omega) + wheel_momentum)
         if J_dot is not None:
             rhs = rhs - so3.matvec(J_dot, Omega)
-        wheel = _weighted_gram(jnp.asarray(self.axes).astype(Omega.dtype), jnp.asarray(self.spin_inertia).astype(Omega.dtype))
-        Omega_dot = so3.solve_spd(J - so3.batch_like(wheel, 2, Omega), materialize(rhs, t))
+        J_B = J - so3.batch_like(self._spin_inertia_matrix(Omega.dtype), 2, Omega)
+        Omega_dot = so3.solve_spd(J_B, materialize(rhs, t))
         return Omega_dot, held / spin - so3.rmatvec(G, Omega_dot)
 
     def limits(self, state, held, tau_c):
         """(a motor torque clipped at u_max, a wheel at |Omega_w,i| >= Omega_max,i), of
-        the batch shape. The clipped torque is read from the held u: |u_i| = u_max,i
-        exactly where the clip bound (the command may include momentum compensation,
-        which tau_c does not show)."""
+        the batch shape. Clipping is read from the held u, |u_i| = u_max,i exactly where
+        the clip binds: the distributed command includes the momentum compensation,
+        which tau_c does not show. A clipped torque then zeroed by the speed limit counts
+        at the speed limit only."""
         at_torque = jnp.any(jnp.abs(held) >= _per_wheel(self.max_torque, held), axis=0)
         return at_torque, jnp.any(jnp.abs(state) >= _per_wheel(self.max_speed, state), axis=0)
 
@@ -256,26 +263,27 @@ class Wheels:
 
     def check(self) -> None:
         """One-line ValueErrors: shapes, finite values, unit axes spanning 3-D, J_s > 0,
-        u_max >= 0, Omega_max > 0 (J_B > 0 is checked against the plant's inertia elsewhere)."""
+        u_max > 0, Omega_max > 0 (J_B > 0 is checked against the plant's inertia elsewhere)."""
         shape = np.shape(self.axes)
         if len(shape) != 2 or shape[0] != 3 or shape[1] < 1:
             raise ValueError(f"wheel axes must be a (3, N) array of spin axes (columns), got shape {shape}")
         n = shape[1]
         _check_values("wheel axes", self.axes, shape)
         _check_values("wheel spin_inertia [kg m^2]", self.spin_inertia, (n,), positive=True)
-        _check_values("wheel max_torque [N m]", self.max_torque, (n,), nonnegative=True)
+        _check_values("wheel max_torque [N m]", self.max_torque, (n,), positive=True)
         _check_values("wheel max_speed [rad/s]", self.max_speed, (n,), positive=True)
         _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
         if not isinstance(self.momentum_compensation, bool):
             raise ValueError(f"wheel momentum_compensation must be True or False, got {self.momentum_compensation!r}")
-        if not _concrete(self.axes):
+        G = _values(self.axes)
+        if G is None:
             return
-        G = np.asarray(self.axes, dtype=float)
         norms = np.linalg.norm(G, axis=0)
         if np.any(np.abs(norms - 1.0) > _UNIT_TOLERANCE):
             raise ValueError(f"wheel spin axes must be unit vectors, got norms {norms.tolist()}")
         if n < 3 or np.linalg.svd(G, compute_uv=False).min() < _RANK_TOLERANCE:
-            raise ValueError(f"the {n} wheel spin axes span less than 3-D: the wheels cannot produce torque about every axis")
+            raise ValueError(f"the {n} wheel spin axes span less than 3-D: "
+                             "the wheels cannot produce torque about every axis")
 
 
 def pyramid_axes(n: int = 4, elevation_deg: float = 54.74, azimuth0_deg: float = 0.0) -> np.ndarray:
