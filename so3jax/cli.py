@@ -1,4 +1,4 @@
-"""Command line: ``so3jax paper | tune | sweep``.
+"""Command line: ``so3jax paper | fly | tune | sweep``.
 
 Each command lives in its own module, which exposes ``register(subparsers)``; the
 parser it adds sets ``func(args) -> int``. JAX is configured here (precision, one
@@ -16,7 +16,7 @@ from pathlib import Path
 
 from so3jax import _xla_flags
 
-COMMAND_MODULES = ("so3jax.paper", "so3jax.tune", "so3jax.sweep")
+COMMAND_MODULES = ("so3jax.paper", "so3jax.fly", "so3jax.tune", "so3jax.sweep")
 
 
 def build_parser() -> argparse.ArgumentParser:

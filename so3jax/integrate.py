@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import jax
 
+from typing import NamedTuple
+
 from so3jax import so3
 from so3jax._fusion import materialize
 
@@ -49,3 +51,42 @@ def lie_rk4_step(field, t, dt, rotations, vectors):
     new_rotations = tuple(R + so3.matmul(R, so3.expm1(p)) for R, p in zip(rotations, increment[0]))
     new_vectors = _tree_map(lambda x, dx: x + dx, vectors, increment[1])
     return new_rotations, new_vectors, aux
+
+
+class OnSO3(NamedTuple):
+    """Marks a rotation in a state pytree: :func:`rk4_step` steps it on SO(3). In a
+    derivative of the state, the same node holds the body rate w (R' = R hat(w))."""
+
+    R: jax.Array
+
+
+def _is_rotation(node) -> bool:
+    return isinstance(node, OnSO3)
+
+
+def rk4_step(field, t, dt, state):
+    """Advance a state pytree from t to t + dt: :class:`OnSO3` leaves on SO(3), every
+    other leaf additively (:func:`lie_rk4_step`).
+
+    field(t, state) -> (derivative, aux): the derivative has the state's structure, with
+    body rates in its OnSO3 nodes. Returns (state, aux of the first stage).
+    """
+    leaves, treedef = jax.tree_util.tree_flatten(state, is_leaf=_is_rotation)
+    marked = [_is_rotation(leaf) for leaf in leaves]
+
+    def join(rotations, vectors):
+        rotations, vectors = iter(rotations), iter(vectors)
+        return treedef.unflatten([OnSO3(next(rotations)) if m else next(vectors) for m in marked])
+
+    def split(tree):
+        parts = treedef.flatten_up_to(tree)
+        return (tuple(p.R for p, m in zip(parts, marked) if m), [p for p, m in zip(parts, marked) if not m])
+
+    def flat_field(t, rotations, vectors):
+        derivative, aux = field(t, join(rotations, vectors))
+        rates, vector_rates = split(derivative)
+        return rates, vector_rates, aux
+
+    rotations, vectors = split(state)
+    rotations, vectors, aux = lie_rk4_step(flat_field, t, dt, rotations, vectors)
+    return join(rotations, vectors), aux

@@ -18,25 +18,14 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax import metrics, so3
-from so3jax._fusion import materialize
-from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
-from so3jax.integrate import lie_rk4_step
-from so3jax.plant import angular_acceleration, inertia_rate
+from so3jax import flight_metrics, metrics, so3
+from so3jax.controllers.base import Controller, Measured, tracking_error
+from so3jax.loop import PAPER_LOOP, Loop, State, check_loop, held_step, initial_state, observe, step, tick, time
 from so3jax.scenario import Scenario, check_gains, check_scenario
 
 
-class State(NamedTuple):
-    """Closed-loop state; batch axes, if any, last."""
-
-    R: jax.Array  # (3, 3)
-    Omega: jax.Array  # (3,) rad/s
-    controller: Any  # the controller's internal state
-    R_d: Any  # (3, 3) when the reference is integrated, else ()
-
-
 class History(NamedTuple):
-    """Samples at the start of every block of ``record_every`` steps."""
+    """The continuous wiring's samples at the start of every block of ``record_every`` steps."""
 
     t: jax.Array  # (M,) s
     R: jax.Array  # (M, 3, 3)
@@ -50,76 +39,36 @@ class History(NamedTuple):
     controller: Any  # controller state, leading axis M
 
 
+class FlightHistory(NamedTuple):
+    """The sampled wiring's samples at the control tick that starts every block."""
+
+    t: jax.Array  # (M,) s
+    R: jax.Array  # (M, 3, 3) true attitude
+    Omega: jax.Array  # (M, 3) rad/s, true body rate
+    R_d: jax.Array  # (M, 3, 3)
+    Omega_e: jax.Array  # (M, 3) rad/s, true tracking error (body)
+    angle: jax.Array  # (M,) attitude error |log(R_e)^vee|, rad
+    R_hat: jax.Array  # (M, 3, 3) estimate
+    Omega_hat: jax.Array  # (M, 3) rad/s
+    bias: jax.Array  # (M, 3) true gyro bias, rad/s
+    bias_hat: jax.Array  # (M, 3) rad/s
+    std: jax.Array  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s)
+    tau_cmd: jax.Array  # (M, 3) N m
+    tau_applied: jax.Array  # (M, 3) N m, on the body
+    wheel_speed: Any  # (M, N) rad/s, or ()
+    momentum: jax.Array  # (M, 3) wheel momentum h_w, body frame, N m s
+    controller: Any  # controller state, leading axis M
+
+
 class Result(NamedTuple):
     metrics: metrics.Metrics
-    history: History
+    history: Any  # History (continuous wiring) or FlightHistory (sampled)
     final: State
-
-
-def _has_closed_form(reference) -> bool:
-    return reference.attitude(0.0, 0) is not None
-
-
-def _phase(scenario: Scenario, k):
-    """Index of the phase holding at step k (phase switches on step boundaries)."""
-    return sum((k >= K).astype(jnp.int32) for K in scenario.phase_steps) if scenario.phase_steps else 0
-
-
-def _broadcast(x, core_ndim, batch_shape):
-    """x (core, [batch or unit axes]) -> (core, *batch)."""
-    x = jnp.asarray(x)
-    x = x.reshape(x.shape + (1,) * (core_ndim + len(batch_shape) - x.ndim))
-    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
-
-
-def _desired(scenario: Scenario, t, phase, integrated_R_d, like) -> Desired:
-    """R_d, Omega_d, Omega_d' at t; a reference shared by a batch is computed once."""
-    ref = scenario.reference
-    R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(ref.attitude(t, phase), 2, like)
-    return Desired(R_d, so3.batch_like(ref.rate(t, phase), 1, like), so3.batch_like(ref.rate_dot(t, phase), 1, like))
-
-
-def _field(scenario: Scenario, controller: Controller, gains, phase, disturbance):
-    """The closed-loop vector field of one step (phase and disturbance held)."""
-
-    def field(t, rotations, vectors):
-        R = rotations[0]
-        Omega, controller_state = vectors
-        desired = _desired(scenario, t, phase, rotations[1] if len(rotations) > 1 else None, Omega)
-        tau, controller_dot = controller.torque(gains, controller_state, Measured(R, Omega), desired, t)
-        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega)
-        J_dot = (
-            so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
-            if scenario.variable_inertia_term
-            else None
-        )
-        # computed once (XLA:CPU would otherwise recompute the torque for each component of the solve)
-        Omega_dot = angular_acceleration(J, Omega, materialize(tau + disturbance, t), J_dot)
-        rates = (Omega,) if len(rotations) == 1 else (Omega, desired.Omega_d)
-        return rates, (Omega_dot, controller_dot), (tau, desired)
-
-    return field
-
-
-def _sample(state: State, tau, desired: Desired) -> metrics.Sample:
-    err = tracking_error(Measured(state.R, state.Omega), desired)
-    angle = so3.angle(err.R_e)
-    return metrics.Sample(err.Omega_e, state.Omega - desired.Omega_d, tau, angle)
-
-
-def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape=()) -> State:
-    """The state at t = 0, every leaf broadcast to (core, *batch_shape)."""
-    dtype = scenario.R0.dtype
-    R_d = () if _has_closed_form(scenario.reference) else _broadcast(jnp.eye(3, dtype=dtype), 2, batch_shape)
-    controller_state = jax.tree.map(lambda x: _broadcast(x, x.ndim, batch_shape), controller.init(gains))
-    return State(
-        _broadcast(scenario.R0, 2, batch_shape), _broadcast(scenario.Omega0, 1, batch_shape), controller_state, R_d
-    )
+    flight: Any = ()  # flight_metrics.FlightMetrics of the sampled wiring
 
 
 def _time(scenario, k):
-    dtype = scenario.R0.dtype
-    return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
+    return time(scenario, k)
 
 
 def disturbance_at(scenario: Scenario, key, k):
@@ -134,36 +83,6 @@ def disturbances(scenario: Scenario, key, k0, count: int):
     ks = k0 + jnp.arange(count, dtype=k0.dtype)
     draw = getattr(scenario.disturbance, "components", None) or (lambda *args: tuple(scenario.disturbance(*args)))
     return jax.vmap(lambda k: tuple(draw(key, k, _time(scenario, k))))(ks)
-
-
-def step(scenario: Scenario, controller: Controller, gains, d, state: State, k):
-    """Advance the closed loop over step k with disturbance d_k held.
-    Returns (state, phase, metrics sample at t_k)."""
-    dtype = scenario.R0.dtype
-    t = _time(scenario, k)
-    phase = _phase(scenario, k)
-    field = _field(scenario, controller, gains, phase, d)
-    integrated = isinstance(state.R_d, jax.Array)
-    rotations = (state.R, state.R_d) if integrated else (state.R,)
-    rotations, (Omega, ctrl), (tau, desired) = lie_rk4_step(
-        field, t, jnp.asarray(scenario.dt, dtype), rotations, (state.Omega, state.controller)
-    )
-    new = State(rotations[0], Omega, ctrl, rotations[1] if integrated else ())
-    return new, phase, _sample(state, tau, desired)
-
-
-def observe(scenario: Scenario, controller: Controller, gains, state: State, k):
-    """Time, torque, desired signals, metrics sample and J at step start k (no step taken)."""
-    dtype = scenario.R0.dtype
-    t = k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
-    phase = _phase(scenario, k)
-    field = _field(scenario, controller, gains, phase, jnp.zeros_like(state.Omega))
-    rotations = (state.R, state.R_d) if isinstance(state.R_d, jax.Array) else (state.R,)
-    _, _, (tau, desired) = field(t, rotations, (state.Omega, state.controller))
-    batch = state.Omega.shape[1:]
-    desired = Desired(*(_broadcast(x, x.ndim - len(batch), batch) for x in desired))
-    J = _broadcast(so3.batch_like(scenario.inertia(t, phase), 2, state.Omega), 2, batch)
-    return t, tau, desired, _sample(state, tau, desired), J
 
 
 def _keys(seed):
@@ -183,27 +102,38 @@ def default_record_every(n_steps: int) -> int:
     return -(-n_steps // n_blocks)
 
 
+def block_steps(n_steps: int, record_every: int | None, period_steps: int | None) -> int:
+    """Steps per block: record_every (~sqrt(N) by default), at most N, and a whole
+    number of control periods in the sampled wiring."""
+    block = min(record_every or default_record_every(n_steps), n_steps)
+    m = period_steps or 1
+    return -(-block // m) * m
+
+
 def rollout(
     scenario: Scenario,
     controller: Controller,
     gains,
     seed,
     *,
+    loop: Loop = PAPER_LOOP,
     record_every: int | None = None,
     unroll: int = 1,
 ) -> Result:
-    """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6). Pure; no validation.
+    """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6; SPEC 8 for a
+    sampled ``loop``). Pure; no validation.
 
     One trajectory for an int seed. For an array of seeds of shape (B,), a natively
     batched rollout with the batch axis LAST everywhere (the so3 convention): every
-    scenario/gains leaf then carries a trailing batch axis of size B or 1 (shared);
+    scenario/gains/loop leaf then carries a trailing batch axis of size B or 1 (shared);
     see :func:`rollout_batch` for the batch-first interface.
 
-    record_every: steps per block (history sample and checkpoint), ~sqrt(N) by default.
-    When it does not divide N, the last block's surplus steps are computed but masked.
+    record_every: steps per block (history sample and checkpoint), ~sqrt(N) by default
+    (rounded up to whole control periods). When blocks overrun N, the surplus steps are
+    computed but masked.
     """
     n = scenario.n_steps
-    block = min(record_every or default_record_every(n), n)
+    block = block_steps(n, record_every, loop.period_steps)
     n_blocks = -(-n // block)
     masked = n_blocks * block != n
     key = _keys(seed)
@@ -212,36 +142,102 @@ def rollout(
     # per-call overhead is then paid once per block), unless that array would be big.
     draw_ahead = 3 * block * math.prod(key.shape) <= _MAX_DRAWN_AHEAD
 
-    def one_step(carry, d):
-        state, k, acc = carry
+    def advance(state, k, acc, d, take_step):
         d = disturbance_at(scenario, key, k) if d is None else jnp.stack(d)  # None: not drawn ahead (too large)
-        new, phase, sample = step(scenario, controller, gains, d, state, k)
+        new, phase, sample = take_step(d, state, k)
         finite = jnp.isfinite(so3.sum_leading(new.R, 2) + so3.sum_leading(new.Omega))
         new_acc = metrics.update(acc, phase, sample, finite)
         if masked:
             live = k < n
             new, new_acc = jax.tree.map(lambda a, b: jnp.where(live, a, b), (new, new_acc), (state, acc))
-        return (new, k + 1, new_acc), None
+        return new, k + 1, new_acc
+
+    def draw(k0):
+        return disturbances(scenario, key, k0, block) if draw_ahead else None
+
+    if loop.continuous:
+        take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop)
+
+        def one_step(carry, d):
+            return advance(*carry, d, take_step), None
+
+        @functools.partial(jax.checkpoint, prevent_cse=False)
+        def run_block(carry):
+            return jax.lax.scan(one_step, carry, draw(carry[1]), length=block, unroll=min(unroll, block))[0]
+
+        def record(carry):
+            state, k = carry[0], carry[1]
+            t, tau, desired, sample, J = observe(scenario, controller, gains, state, k, loop)
+            return History(t, state.R, state.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle,
+                           J, state.controller)
+
+        carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
+                 metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
+        # The block-start states are emitted by the scan, their torque and desired signals
+        # derived after it: derived inside, they change XLA:CPU's fusion of the step, and
+        # with it the last bits of the paper's results.
+        (final, _, acc), starts = jax.lax.scan(lambda c, _: (run_block(c), c), carry, None, length=n_blocks)
+        history = jax.vmap(record)(starts)
+        return Result(metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R), history, final)
+
+    m = loop.period_steps
+    ticks = block // m
+    take_step = lambda d, state, k: held_step(scenario, loop, d, state, k)
+
+    def one_step(carry, d):
+        return advance(*carry, d, take_step), None
+
+    def one_tick(carry, ds):
+        state, k, acc, flight = carry
+        new, out = tick(scenario, loop, controller, gains, key, state, k // m)
+        sample, record = _tick_sample(loop, state, new, out), _flight_record(loop, controller, state, out)
+        flight = flight_metrics.update(flight, sample, k < n)
+        if masked:
+            new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
+        new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
+        return (new, k, acc, flight), record
 
     @functools.partial(jax.checkpoint, prevent_cse=False)
     def run_block(carry):
-        ds = disturbances(scenario, key, carry[1], block) if draw_ahead else None
-        return jax.lax.scan(one_step, carry, ds, length=block, unroll=min(unroll, block))[0]
+        ds = draw(carry[1])
+        ds = None if ds is None else tuple(x.reshape((ticks, m) + x.shape[1:]) for x in ds)
+        carry, records = jax.lax.scan(one_tick, carry, ds, length=ticks)
+        return carry, jax.tree.map(lambda x: x[0], records)
 
-    def outer(carry, _):
-        return run_block(carry), (carry[0], carry[1])
-
-    acc0 = metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape)
-    carry = (initial_state(scenario, controller, gains, key.shape), jnp.zeros((), jnp.int32), acc0)
-    (final, _, acc), (states, ks) = jax.lax.scan(outer, carry, None, length=n_blocks)
-
-    observe_all = jax.vmap(lambda s, k: observe(scenario, controller, gains, s, k))
-    t, tau, desired, sample, J = observe_all(states, ks)
-    history = History(
-        t, states.R, states.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle, J, states.controller
+    carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
+             metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape), flight_metrics.init(dtype, key.shape))
+    (final, _, acc, flight), history = jax.lax.scan(lambda c, _: run_block(c), carry, None, length=n_blocks)
+    return Result(
+        metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R),
+        history,
+        final,
+        flight_metrics.finalize(flight, jnp.asarray(m * scenario.dt, dtype)),
     )
-    result_metrics = metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R)
-    return Result(result_metrics, history, final)
+
+
+def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics.TickSample:
+    """A tick's contribution to the flight metrics: estimation errors against the truth at t_j, limits."""
+    est = out.estimate
+    at_torque, at_speed = loop.actuator.limits(before.actuator, after.held, out.tau_cmd)
+    return flight_metrics.TickSample(
+        so3.angle(so3.rmatmul(est.R_hat, before.R)),
+        est.bias_hat - out.bias,
+        out.tau_cmd,
+        after.held,
+        at_torque,
+        at_speed,
+        loop.actuator.speed_ratio(before.actuator),
+    )
+
+
+def _flight_record(loop: Loop, controller, state: State, out) -> FlightHistory:
+    err = tracking_error(Measured(state.R, state.Omega), out.desired)
+    est = out.estimate
+    return FlightHistory(
+        out.t, state.R, state.Omega, out.desired.R_d, err.Omega_e, so3.angle(err.R_e), est.R_hat, est.omega_hat,
+        out.bias, est.bias_hat, est.std, out.tau_cmd, out.tau_applied, state.actuator,
+        loop.actuator.momentum(state.actuator, state.Omega), state.controller,
+    )
 
 
 def _axes_tree(axes, tree):
@@ -277,6 +273,7 @@ def rollout_batch(
     *,
     scenario_axes=0,
     gains_axes=None,
+    loop: Loop = PAPER_LOOP,
     record_every: int | None = None,
     unroll: int = 1,
 ) -> Result:
@@ -285,29 +282,30 @@ def rollout_batch(
     faster depends on the device and batch size: see benchmarks/throughput.py.
 
     scenario_axes / gains_axes: vmap-style in_axes prefixes, 0 (leading batch axis)
-    or None (shared by the batch). A shared reference or inertia is evaluated once per
+    or None (shared by the batch); the loop's components are shared (their parameters
+    without batch axes, broadcast by the components themselves). A shared reference or inertia is evaluated once per
     stage for the whole batch. Outputs have the batch axis first, as vmap's would.
     On CPU, batches above ``CPU_SUB_BATCH`` run as consecutive sub-batches of that size.
     """
-    args = (scenario, gains, jnp.asarray(seeds))
-    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0)
+    args = (scenario, gains, jnp.asarray(seeds), loop)
+    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, _axes_tree(None, loop))
 
     def run(args):
-        scenario, gains, seeds = args
+        scenario, gains, seeds, loop = args
         result = rollout(
             _batch_last(scenario, scenario_axes),
             controller,
             _batch_last(gains, gains_axes),
             seeds,
+            loop=loop,
             record_every=record_every,
             unroll=unroll,
         )
-        metrics_, history, final = result
         history = jax.tree.map(
             lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (seeds.shape[0],) + x.shape),
-            history,
+            result.history,
         )
-        return Result(_batch_first(metrics_), history, _batch_first(final))
+        return Result(_batch_first(result.metrics), history, _batch_first(result.final), _batch_first(result.flight))
 
     if args[2].shape[0] <= CPU_SUB_BATCH:
         return run(args)
@@ -330,15 +328,18 @@ def _in_sub_batches(run, args, axes, size: int):
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))
-def _simulate_jit(scenario, controller, gains, seed, record_every, unroll):
-    return rollout(scenario, controller, gains, seed, record_every=record_every, unroll=unroll)
+def _simulate_jit(scenario, controller, gains, seed, loop, record_every, unroll):
+    return rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
-def simulate(scenario: Scenario, controller: Controller, gains, seed=0, *, record_every=None, unroll=1) -> Result:
+def simulate(
+    scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
+) -> Result:
     """Validate the inputs (SPEC 6), then run the jitted rollout."""
     check_scenario(scenario)
     check_gains(gains)
     if record_every is not None and (int(record_every) != record_every or record_every < 1):
         raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
-    gains = jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), gains)
-    return _simulate_jit(scenario, controller, gains, seed, record_every, unroll)
+    check_loop(loop, scenario.inertia.matrices())
+    as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
+    return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)

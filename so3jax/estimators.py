@@ -1,0 +1,176 @@
+"""Estimators: measurements in, attitude and rate estimates out, once per control tick
+(SPEC 8.3): ``truth``, ``raw`` and a multiplicative EKF on attitude and gyro bias.
+
+Each is a pytree with ``init(R0, batch_shape, dtype)`` -> state, ``update(state,
+measured, R, Omega, period)`` -> (state for the next tick, :class:`Estimate`) and
+``check()``. Arrays follow :mod:`so3jax.so3` (batch axes last); parameters have no batch axes.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import so3
+from so3jax._pytree import pytree_dataclass
+
+
+class Estimate(NamedTuple):
+    R_hat: jax.Array  # (3, 3, *b)
+    omega_hat: jax.Array  # (3, *b) rad/s
+    bias_hat: jax.Array  # (3, *b) rad/s (zeros without a bias estimate)
+    std: jax.Array  # (6, *b): sqrt(diag P) after the update (attitude rad, bias rad/s); zeros without a filter
+
+
+def _batch(x, core_ndim, batch_shape, dtype):
+    x = jnp.asarray(x).astype(dtype)
+    x = x.reshape(x.shape[:core_ndim] + (1,) * (core_ndim + len(batch_shape) - x.ndim) + x.shape[core_ndim:])
+    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
+
+
+def _zero_std(Omega):
+    return jnp.zeros((6,) + Omega.shape[1:], Omega.dtype)
+
+
+@pytree_dataclass
+class Truth:
+    """R_hat = R(t_j), omega_hat = Omega(t_j)."""
+
+    def init(self, R0, batch_shape, dtype):
+        return ()
+
+    def update(self, state, measured, R, Omega, period):
+        return state, Estimate(R, Omega, jnp.zeros_like(Omega), _zero_std(Omega))
+
+    def check(self) -> None:
+        pass
+
+
+@pytree_dataclass
+class Raw:
+    """R_hat = the latest star-tracker sample (held between samples), omega_hat = omega_m.
+    State: that sample (3, 3, *b), R0 before the first."""
+
+    def init(self, R0, batch_shape, dtype):
+        return _batch(R0, 2, batch_shape, dtype)
+
+    def update(self, state, measured, R, Omega, period):
+        R_hat = jnp.where(measured.star_valid, measured.R_m, state)
+        return R_hat, Estimate(R_hat, measured.omega_m, jnp.zeros_like(Omega), _zero_std(Omega))
+
+    def check(self) -> None:
+        pass
+
+
+class Covariance(NamedTuple):
+    """P (6 x 6) of the error state (delta theta, delta b) by its 3 x 3 blocks, each (3, 3, *b)."""
+
+    A: jax.Array  # attitude-attitude, rad^2
+    B: jax.Array  # attitude-bias, rad^2/s
+    C: jax.Array  # bias-bias, rad^2/s^2
+
+    def matrix(self):
+        """P as (6, 6, *b)."""
+        top = jnp.concatenate([self.A, self.B], axis=1)
+        bottom = jnp.concatenate([so3.transpose(self.B), self.C], axis=1)
+        return jnp.concatenate([top, bottom], axis=0)
+
+
+class MEKFState(NamedTuple):
+    """The prior at the next tick."""
+
+    R_hat: jax.Array  # (3, 3, *b)
+    bias_hat: jax.Array  # (3, *b) rad/s
+    P: Covariance
+
+
+def _columns(fn, M):
+    """(fn(M[:, 0]), fn(M[:, 1]), fn(M[:, 2])) stacked as the columns of a (3, 3, *b) matrix."""
+    return jnp.stack([fn(M[:, j]) for j in range(3)], axis=1)
+
+
+def _sym(M):
+    return 0.5 * (M + so3.transpose(M))
+
+
+def _diag(M):
+    return jnp.stack([M[0, 0], M[1, 1], M[2, 2]])
+
+
+@pytree_dataclass
+class MEKF:
+    """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (SPEC 8.3):
+    star-tracker update (Joseph form), output omega_hat = omega_m - b_hat, then
+    propagation to the next tick with w = omega_hat."""
+
+    sigma_theta0: jax.Array  # initial attitude sigma [rad]
+    sigma_b0: jax.Array  # initial bias sigma [rad/s]
+    theta0: jax.Array  # (3,) initial error: R_hat(0) = R0 exp(hat(theta0)) [rad]
+    arw: jax.Array  # the filter's gyro angle random walk sigma_v [rad/sqrt(s)]
+    rrw: jax.Array  # the filter's gyro rate random walk sigma_u [rad/s^(3/2)]
+    sigma_st: jax.Array  # the filter's star-tracker sigma [rad]
+
+    def init(self, R0, batch_shape, dtype):
+        R0 = _batch(R0, 2, batch_shape, dtype)
+        theta0 = _batch(self.theta0, 1, batch_shape, dtype)
+        eye = so3.eye_like(theta0)
+        zero = jnp.zeros_like(eye)
+        var = lambda s: jnp.asarray(s).astype(dtype) ** 2
+        P = Covariance(var(self.sigma_theta0) * eye, zero, var(self.sigma_b0) * eye)
+        return MEKFState(so3.matmul(R0, so3.exp(theta0)), jnp.zeros_like(theta0), P)
+
+    def update(self, state: MEKFState, measured, R, Omega, period):
+        dtype = Omega.dtype
+        param = lambda x: jnp.asarray(x).astype(dtype)
+        dc = jnp.asarray(period, dtype)
+        R_hat, b_hat, (A, B, C) = state
+        eye = so3.eye_like(Omega)
+        # measurement update (SPEC 8.3), where a star-tracker sample exists
+        s2 = param(self.sigma_st) ** 2
+        r = so3.log(so3.rmatmul(R_hat, measured.R_m))
+        S = A + s2 * eye
+        K1 = so3.transpose(_columns(lambda a: so3.solve_spd(S, a), A))  # A S^-1
+        K2 = so3.transpose(_columns(lambda b: so3.solve_spd(S, b), B))  # B^T S^-1
+        I_K1 = eye - K1
+        M11, M12 = so3.matmul(I_K1, A), so3.matmul(I_K1, B)
+        M21, M22 = so3.transpose(B) - so3.matmul(K2, A), C - so3.matmul(K2, B)
+        A_u = _sym(so3.matmul(M11, so3.transpose(I_K1)) + s2 * so3.matmul(K1, so3.transpose(K1)))
+        B_u = M12 - so3.matmul(M11, so3.transpose(K2)) + s2 * so3.matmul(K1, so3.transpose(K2))
+        C_u = _sym(M22 - so3.matmul(M21, so3.transpose(K2)) + s2 * so3.matmul(K2, so3.transpose(K2)))
+        updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r))), b_hat + so3.matvec(K2, r),
+                            Covariance(A_u, B_u, C_u))
+        R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
+        omega_hat = measured.omega_m - b_hat
+        std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
+        estimate = Estimate(R_hat, omega_hat, b_hat, std)
+        # propagation to the next tick with w = omega_hat
+        E = so3.exp(-omega_hat * dc)  # exp(-hat(w) Delta_c)
+        EB = so3.matmul(E, B)
+        qv, qu = param(self.arw) ** 2, param(self.rrw) ** 2
+        A_p = _sym(so3.matmul(so3.matmul(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
+                   + (qv * dc + qu * dc**3 / 3.0) * eye)
+        B_p = EB - dc * C - (qu * dc**2 / 2.0) * eye
+        C_p = C + qu * dc * eye
+        R_next = so3.matmul(R_hat, so3.exp(omega_hat * dc))
+        return MEKFState(R_next, b_hat, Covariance(A_p, B_p, C_p)), estimate
+
+    def check(self) -> None:
+        for name in ("sigma_theta0", "sigma_b0", "arw", "rrw", "sigma_st"):
+            value = getattr(self, name)
+            if isinstance(value, jax.core.Tracer):
+                continue
+            v = np.asarray(value, dtype=float)
+            if v.shape != () or not np.isfinite(v) or v < 0:
+                raise ValueError(f"estimator {name} must be a finite non-negative number, got {v.tolist()}")
+        if not isinstance(self.theta0, jax.core.Tracer):
+            t = np.asarray(self.theta0, dtype=float)
+            if t.shape != (3,) or not np.all(np.isfinite(t)):
+                raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {t.tolist()}")
+        if not isinstance(self.sigma_st, jax.core.Tracer) and float(np.asarray(self.sigma_st)) == 0.0:
+            raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")
+
+
+ESTIMATORS = {"truth": Truth, "raw": Raw, "mekf": MEKF}

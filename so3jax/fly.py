@@ -1,0 +1,227 @@
+"""``so3jax fly``: a mission flown by the closed loop of SPEC 8 (sensors, estimator,
+sampled-data control, actuators), each controller on the same mission and seed."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import math
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+PHASE_LABELS = ("capture", "deployment", "detumble")
+METRICS = ("rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase", "max_angle_phase",
+           "max_torque", "orthogonality_error")
+FLIGHT_METRICS = ("attitude_estimation_rms", "attitude_estimation_max", "bias_estimation_rms", "bias_estimation_max",
+                  "command_effort", "actuator_effort", "time_at_torque_limit", "time_at_speed_limit",
+                  "max_wheel_speed_ratio")
+TRAJECTORY = ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed")
+
+
+def register(subparsers) -> None:
+    from so3jax.cli import add_precision_argument
+
+    p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels")
+    p.add_argument("mission", nargs="?", type=Path,
+                   help="mission file (TOML); default: the flight mission (missions/flight.toml)")
+    p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
+    p.add_argument("--seed", type=int, help="disturbance and sensor-noise seed (default: the mission's)")
+    p.add_argument("--controllers", help="comma-separated controllers (default: the mission's)")
+    p.add_argument("--record-every", type=int, help="trajectory sampling [steps] (default: the mission's)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a mission entry, e.g. --set control.period=0.05 (repeatable)")
+    p.add_argument("--out", type=Path, default=Path("results/fly"), help="output folder (default results/fly)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_precision_argument(p)
+    p.set_defaults(func=run)
+
+
+def overrides(args) -> list[str]:
+    """The command-line options as mission overrides (after --set's)."""
+    items = list(args.set)
+    for key, value in (("T", args.T), ("seed", args.seed), ("record_every", args.record_every)):
+        if value is not None:
+            items.append(f"{key}={value!r}")
+    if args.controllers is not None:
+        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
+    return items
+
+
+def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
+    """Every controller of the mission on its own CPU device (compilations in parallel).
+    Returns {name: Result with NumPy leaves} and the wall time [s], compile included."""
+    import jax
+
+    import so3jax as sj
+
+    scenario, loop = mission.scenario(dtype), mission.loop(dtype)
+    devices = jax.devices("cpu")
+
+    def simulate(i, name):
+        controller, gains = mission.controller(name)
+        with warnings.catch_warnings(), jax.default_device(devices[i % len(devices)]):
+            warnings.simplefilter("ignore", sj.InertiaWarning)  # reported once, when the mission was read
+            result = sj.simulate(scenario, controller, gains, mission.seed, loop=loop,
+                                 record_every=mission.record_every)
+            return jax.tree.map(np.asarray, result)
+
+    start = time.perf_counter()
+    with concurrent.futures.ThreadPoolExecutor(len(mission.controllers)) as pool:
+        futures = {name: pool.submit(simulate, i, name) for i, name in enumerate(mission.controllers)}
+        results = {name: f.result() for name, f in futures.items()}
+    return results, time.perf_counter() - start
+
+
+def _value(x):
+    """A metric as JSON: NaN and infinities become None (the run is flagged diverged)."""
+    x = np.asarray(x, dtype=float)
+    if x.ndim:
+        return [_value(v) for v in x]
+    return float(x) if math.isfinite(x) else None
+
+
+def report(mission, result) -> dict:
+    """SPEC 6 metrics (phases the horizon never reached omitted) and the flight metrics."""
+    m = result.metrics._asdict()
+    reached = sum(1 for n in mission.scenario().steps_per_phase if n > 0)
+    out = {k: _value(np.asarray(m[k])[..., :reached] if k.endswith("_phase") else m[k]) for k in METRICS}
+    out["diverged"] = bool(m["diverged"])
+    if mission.period_steps is not None:
+        f = result.flight._asdict()
+        out.update({k: _value(f[k]) for k in FLIGHT_METRICS})
+    return out
+
+
+def _cell(x, fmt):
+    return "diverged" if x is None else format(x, fmt)
+
+
+def format_table(mission, reports: dict) -> str:
+    """One column per controller."""
+    names = list(reports)
+    width = max(14, *(len(n) + 2 for n in names))
+    lines = [f"{'':34s}" + "".join(f"{n:>{width}s}" for n in names)]
+
+    def row(label, fn, fmt):
+        lines.append(f"{label:34s}" + "".join(f"{_cell(fn(reports[n]), fmt):>{width}s}" for n in names))
+
+    row("RMSE [rad/s]", lambda r: r["rmse"], ".4e")
+    row("effort (body torque) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
+    for p in range(len(reports[names[0]]["rmse_phase"])):
+        label = PHASE_LABELS[p] if p < len(PHASE_LABELS) else f"phase {p + 1}"
+        row(f"  RMSE {label} [rad/s]", lambda r, p=p: r["rmse_phase"][p], ".4e")
+        row(f"  max attitude error {label} [deg]", lambda r, p=p: None if r["max_angle_phase"][p] is None
+            else math.degrees(r["max_angle_phase"][p]), ".3f")
+    row("max |tau| on the body [N m]", lambda r: r["max_torque"], ".4f")
+    if mission.period_steps is not None:
+        row("command effort [N^2 m^2 s]", lambda r: r["command_effort"], ".2f")
+        wheels = mission.actuator["kind"] == "wheels"
+        row("motor effort [N^2 m^2 s]" if wheels else "actuator effort [N^2 m^2 s]",
+            lambda r: r["actuator_effort"], ".2f")
+        row("attitude estimation RMS [arcsec]", lambda r: _arcsec(r["attitude_estimation_rms"]), ".2f")
+        row("attitude estimation max [arcsec]", lambda r: _arcsec(r["attitude_estimation_max"]), ".2f")
+        row("bias estimation RMS [deg/h]", lambda r: _deg_h(r["bias_estimation_rms"]), ".4f")
+        row("bias estimation max [deg/h]", lambda r: _deg_h(r["bias_estimation_max"]), ".4f")
+        row("max wheel speed / limit", lambda r: r["max_wheel_speed_ratio"], ".3f")
+        row("time at a torque limit [s]", lambda r: r["time_at_torque_limit"], ".1f")
+        row("time at a speed limit [s]", lambda r: r["time_at_speed_limit"], ".1f")
+    lines.append(f"{'diverged':34s}" + "".join(f"{str(reports[n]['diverged']):>{width}s}" for n in names))
+    return "\n".join(lines)
+
+
+def _arcsec(x):
+    return None if x is None else math.degrees(x) * 3600.0
+
+
+def _deg_h(x):
+    return None if x is None else math.degrees(x) * 3600.0
+
+
+def trajectory_arrays(results: dict) -> dict:
+    """{controller/quantity: array} of the recorded histories (t shared)."""
+    arrays = {}
+    for name, r in results.items():
+        h = r.history
+        values = {"t": h.t, "R": h.R, "Omega": h.Omega}
+        if hasattr(h, "R_hat"):
+            values.update(R_hat=h.R_hat, Omega_hat=h.Omega_hat, bias=h.bias, bias_hat=h.bias_hat,
+                          tau_cmd=h.tau_cmd, tau_applied=h.tau_applied,
+                          wheel_speed=h.wheel_speed if np.ndim(h.wheel_speed) == 2 else np.zeros((len(h.t), 0)))
+        else:
+            values.update(R_hat=h.R, Omega_hat=h.Omega, bias=np.zeros_like(h.Omega), bias_hat=np.zeros_like(h.Omega),
+                          tau_cmd=h.tau, tau_applied=h.tau, wheel_speed=np.zeros((len(h.t), 0)))
+        arrays.update({f"{name}/{k}": np.asarray(v) for k, v in values.items()})
+    return arrays
+
+
+def write_figures(out: Path, mission, results: dict) -> list[Path]:
+    from so3jax import flight_plots, plots
+    from so3jax.io import save_figure
+
+    phases = mission.scenario().phase_times
+    histories = {name: r.history for name, r in results.items()}
+    if mission.period_steps is None:
+        figures = {"attitude_error.png": plots.attitude_error_figure(histories, phases),
+                   "torque.png": plots.torque_figure(histories, phases)}
+    else:
+        figures = {
+            "attitude.png": flight_plots.attitude_figure(histories, phases, mission.T),
+            "bias.png": flight_plots.bias_figure(histories, phases, mission.T),
+            "torque.png": flight_plots.torque_figure(histories, phases, mission.T),
+        }
+        if mission.actuator["kind"] == "wheels":
+            w = mission.actuator["wheels"]
+            G = np.asarray(w["axes"]).T
+            capacity = np.abs(G) @ (w["spin_inertia"] * w["max_speed"])
+            figures["wheel_speeds.png"] = flight_plots.wheel_speed_figure(histories, phases, mission.T, w["max_speed"])
+            figures["momentum.png"] = flight_plots.momentum_figure(histories, phases, mission.T, capacity)
+    paths = []
+    for name, fig in figures.items():
+        save_figure(fig, out / name)
+        plots.plt.close(fig)
+        paths.append(out / name)
+    return paths
+
+
+def run(args) -> int:
+    from so3jax import mission as missions
+    from so3jax.io import save_npz, write_json
+
+    mission = missions.load(args.mission, overrides(args))
+    _check_output_folder(args.out)
+    print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
+          + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
+          + " ...", file=sys.stderr, flush=True)
+    results, wall = fly(mission, args.precision)
+    reports = {name: report(mission, r) for name, r in results.items()}
+    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall,
+                         "mission_file": None if args.mission is None else str(args.mission)}
+    write_json(args.out / "metrics.json", reports)
+    save_npz(args.out / "trajectory.npz", **trajectory_arrays(results))
+    figures = [] if args.no_figures else write_figures(args.out, mission, results)
+    diverged = [n for n in mission.controllers if reports[n]["diverged"]]
+    if diverged:
+        print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(reports))
+    else:
+        print(format_table(mission, {n: reports[n] for n in mission.controllers}))
+        print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
+              f"results in {args.out}/ (metrics.json, trajectory.npz, {len(figures)} figures)")
+    return 1 if diverged else 0
+
+
+def _check_output_folder(out: Path) -> None:
+    """The output folder can be created and written, checked before the work."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".so3jax-write-check"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as err:
+        raise ValueError(f"output folder {out} cannot be written: {err.strerror or err}") from None

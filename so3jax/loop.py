@@ -1,0 +1,264 @@
+"""The closed loop as a wiring of components (SPEC 1-6, 8).
+
+    true state --sensors--> measurements --estimator--> estimate --controller--> command
+        ^                                                                          |
+        +------ plant (RK4 at dt) <-- applied torque <-- actuator (held over a tick) +
+
+A :class:`Loop` holds the sensors, the estimator, the actuator and the control period;
+the plant (inertia), reference and disturbance come from the :class:`~so3jax.scenario.Scenario`,
+the law from a :class:`~so3jax.controllers.Controller`. Each component owns a field of
+:class:`State`. Two wirings of the same parts:
+
+* continuous (``period_steps=None``, the paper's mode, SPEC 5): the controller reads
+  the true state in every RK4 stage, its internal state is integrated with the plant,
+  and the actuator acts in every stage (``truth`` and no sensors);
+* sampled (``period_steps=m``, SPEC 8.1): at every m-th step sensors -> estimator ->
+  controller -> actuator run once (the controller's state by forward Euler over the
+  period), and the plant's RK4 steps see the actuator's input held over the period.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import metrics, so3
+from so3jax._pytree import pytree_dataclass, static_field
+from so3jax.actuators import Ideal
+from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
+from so3jax.estimators import Truth
+from so3jax.integrate import OnSO3, rk4_step
+from so3jax.plant import inertia_rate
+from so3jax.scenario import Scenario
+from so3jax.sensors import Sensors
+
+
+@pytree_dataclass
+class Loop:
+    """The components between the true state and the torque on the body.
+
+    period_steps: control period in plant steps (Delta_c = m dt, SPEC 8.1); None for
+    the continuous-time controller of the paper's mode. The components' parameters have
+    no batch axes: a batch of trajectories shares them (``so3.batch_like``).
+    """
+
+    sensors: Any = Sensors()
+    estimator: Any = Truth()
+    actuator: Any = Ideal()
+    period_steps: int | None = static_field(default=None)
+
+    @property
+    def continuous(self) -> bool:
+        return self.period_steps is None
+
+
+PAPER_LOOP = Loop()
+
+
+class State(NamedTuple):
+    """Closed-loop state, a field per component; batch axes, if any, last."""
+
+    R: jax.Array  # (3, 3) plant attitude, body -> inertial
+    Omega: jax.Array  # (3,) plant body rate, rad/s
+    controller: Any  # the law's internal state (SPEC 3)
+    R_d: Any  # (3, 3) reference attitude when it is integrated, else ()
+    actuator: Any = ()  # wheel speeds (N,) rad/s, or ()
+    sensors: Any = ()  # gyro bias (3,) rad/s, or ()
+    estimator: Any = ()  # the estimator's state (the prior for the next tick)
+    held: Any = ()  # the actuator's input held over the current period
+
+
+class Tick(NamedTuple):
+    """What a control tick computed (SPEC 8.1), at t_j."""
+
+    t: jax.Array  # s
+    desired: Desired
+    estimate: Any  # estimators.Estimate
+    bias: jax.Array  # (3,) true gyro bias b_j, rad/s
+    tau_cmd: jax.Array  # (3,) the controller's command, N m
+    tau_applied: jax.Array  # (3,) the actuator's torque on the body, N m
+
+
+def time(scenario: Scenario, k):
+    """t_k = k dt [s] in the scenario's dtype."""
+    dtype = scenario.R0.dtype
+    return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
+
+
+def phase(scenario: Scenario, k):
+    """Index of the phase holding at step k (phase switches on step boundaries)."""
+    return sum((k >= K).astype(jnp.int32) for K in scenario.phase_steps) if scenario.phase_steps else 0
+
+
+def integrates_reference(scenario: Scenario) -> bool:
+    """R_d is integrated when the reference has no closed form."""
+    return scenario.reference.attitude(0.0, 0) is None
+
+
+def desired(scenario: Scenario, t, phase, integrated_R_d, like) -> Desired:
+    """R_d, Omega_d, Omega_d' at t; a reference shared by a batch is computed once."""
+    ref = scenario.reference
+    R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(ref.attitude(t, phase), 2, like)
+    return Desired(R_d, so3.batch_like(ref.rate(t, phase), 1, like), so3.batch_like(ref.rate_dot(t, phase), 1, like))
+
+
+def broadcast(x, core_ndim, batch_shape):
+    """x (core, [batch or unit axes]) -> (core, *batch)."""
+    x = jnp.asarray(x)
+    x = x.reshape(x.shape + (1,) * (core_ndim + len(batch_shape) - x.ndim))
+    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
+
+
+def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape=(), loop: Loop = PAPER_LOOP) -> State:
+    """The state at t = 0, every leaf broadcast to (core, *batch_shape)."""
+    dtype = scenario.R0.dtype
+    R_d = broadcast(jnp.eye(3, dtype=dtype), 2, batch_shape) if integrates_reference(scenario) else ()
+    controller_state = jax.tree.map(lambda x: broadcast(x, x.ndim, batch_shape), controller.init(gains))
+    R0, Omega0 = broadcast(scenario.R0, 2, batch_shape), broadcast(scenario.Omega0, 1, batch_shape)
+    state = State(R0, Omega0, controller_state, R_d, loop.actuator.init(batch_shape, dtype))
+    if loop.continuous:
+        return state
+    zero = jnp.zeros_like(Omega0)
+    return state._replace(
+        sensors=loop.sensors.init(batch_shape, dtype),
+        estimator=loop.estimator.init(R0, batch_shape, dtype),
+        held=loop.actuator.command(state.actuator, zero, zero),
+    )
+
+
+# --- the plant's step -------------------------------------------------------------------
+
+
+def _integrated(state: State, with_controller: bool) -> State:
+    """The continuous part of the state, rotations marked for the SO(3) integrator."""
+    R_d = OnSO3(state.R_d) if isinstance(state.R_d, jax.Array) else ()
+    return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
+
+
+def _field(scenario: Scenario, loop: Loop, phase, d, law):
+    """The vector field of one step (phase and disturbance held). law(t, x, desired) ->
+    (actuator input, controller state rate): the controller in every stage
+    (continuous), or the held input (sampled)."""
+
+    def field(t, x: State):
+        Omega = x.Omega
+        wanted = desired(scenario, t, phase, x.R_d.R if isinstance(x.R_d, OnSO3) else None, Omega)
+        held, controller_dot = law(t, x, wanted)
+        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega)
+        J_dot = (
+            so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
+            if scenario.variable_inertia_term
+            else None
+        )
+        Omega_dot, actuator_dot = loop.actuator.derivative(J, Omega, x.actuator, held, d, t, J_dot)
+        R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
+        return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
+
+    return field
+
+
+def sample(state: State, tau, wanted: Desired) -> metrics.Sample:
+    """The SPEC 6 metrics' sample of a step start (true state; tau: torque on the body)."""
+    err = tracking_error(Measured(state.R, state.Omega), wanted)
+    return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e))
+
+
+def _advance(scenario: Scenario, loop: Loop, law, with_controller, d, state: State, k):
+    dtype = scenario.R0.dtype
+    t, p = time(scenario, k), phase(scenario, k)
+    field = _field(scenario, loop, p, d, law)
+    x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, with_controller))
+    new = state._replace(
+        R=x.R.R,
+        Omega=x.Omega,
+        controller=x.controller if with_controller else state.controller,
+        R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
+        actuator=x.actuator,
+    )
+    return new, p, sample(state, loop.actuator.body_torque(held), wanted)
+
+
+def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP):
+    """Advance the continuous wiring over step k with disturbance d_k held (SPEC 5).
+    Returns (state, phase, metrics sample at t_k)."""
+
+    def law(t, x, wanted):
+        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
+        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
+
+    return _advance(scenario, loop, law, True, d, state, k)
+
+
+def held_step(scenario: Scenario, loop: Loop, d, state: State, k):
+    """Advance the sampled wiring's plant over step k with the actuator input held (SPEC 8.1)."""
+    return _advance(scenario, loop, lambda t, x, wanted: (state.held, ()), False, d, state, k)
+
+
+def observe(scenario: Scenario, controller: Controller, gains, state: State, k, loop: Loop = PAPER_LOOP):
+    """Time, torque, desired signals, metrics sample and J at step start k of the
+    continuous wiring (no step taken)."""
+    t, p = time(scenario, k), phase(scenario, k)
+
+    def law(t, x, wanted):
+        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
+        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
+
+    field = _field(scenario, loop, p, jnp.zeros_like(state.Omega), law)
+    _, (held, wanted) = field(t, _integrated(state, True))
+    tau = loop.actuator.body_torque(held)
+    batch = state.Omega.shape[1:]
+    wanted = Desired(*(broadcast(x, x.ndim - len(batch), batch) for x in wanted))
+    J = broadcast(so3.batch_like(scenario.inertia(t, p), 2, state.Omega), 2, batch)
+    return t, tau, wanted, sample(state, tau, wanted), J
+
+
+# --- the sampled wiring's control tick ----------------------------------------------------
+
+
+def period(scenario: Scenario, loop: Loop):
+    """Delta_c = m dt [s] in the scenario's dtype."""
+    return jnp.asarray(loop.period_steps * scenario.dt, scenario.R0.dtype)
+
+
+def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j):
+    """Control tick j at step k = j m (SPEC 8.1): sensors sample the true state, the
+    estimator updates, the controller commands from the estimate (its state advanced by
+    forward Euler over the period), the actuator turns the command into the held input."""
+    k = j * loop.period_steps
+    t, p, dc = time(scenario, k), phase(scenario, k), period(scenario, loop)
+    sensors, measured = loop.sensors.measure(state.sensors, state.R, state.Omega, key, j, dc)
+    estimator, estimate = loop.estimator.update(state.estimator, measured, state.R, state.Omega, dc)
+    wanted = desired(scenario, t, p, state.R_d, state.Omega)
+    tau_cmd, controller_dot = controller.torque(
+        gains, state.controller, Measured(estimate.R_hat, estimate.omega_hat), wanted, t
+    )
+    held = loop.actuator.command(state.actuator, tau_cmd, estimate.omega_hat)
+    new = state._replace(
+        controller=jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot),
+        sensors=sensors,
+        estimator=estimator,
+        held=held,
+    )
+    bias = loop.sensors.true_bias(state.sensors, state.Omega)
+    return new, Tick(t, wanted, estimate, bias, tau_cmd, loop.actuator.body_torque(held))
+
+
+def check_loop(loop: Loop, inertias: dict) -> None:
+    """One-line ValueErrors, before compilation: the control period, each component's
+    own checks, and the wiring (SPEC 8). inertias: name -> J (3, 3) the plant will use."""
+    m = loop.period_steps
+    if m is None:
+        if loop.sensors.gyro is not None or loop.sensors.star_tracker is not None or not isinstance(loop.estimator, Truth):
+            raise ValueError("a continuous-time controller reads the true state: sensors and an estimator need a control period")
+    elif isinstance(m, bool) or not isinstance(m, int) or m < 1:
+        raise ValueError(f"the control period must be a whole number (>= 1) of steps, got {m!r}")
+    for part in (loop.sensors, loop.estimator, loop.actuator):
+        part.check()
+    body_inertia = getattr(loop.actuator, "locked_wheel_inertia", None)
+    if body_inertia is not None:
+        for name, J in inertias.items():
+            if not isinstance(J, jax.core.Tracer) and np.any(np.linalg.eigvalsh(np.asarray(body_inertia(J))) <= 0):
+                raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) is not positive definite")

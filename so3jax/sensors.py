@@ -1,0 +1,128 @@
+"""Sensors: the true state in, measurements out, sampled at the control ticks (SPEC 8.2).
+
+Noise: eta_{s,j} = jax.random.normal(fold_in(fold_in(key(seed), s), j), (3,), dtype) with
+stream s = 1 (gyro white noise), 2 (gyro bias walk), 3 (star tracker), j the tick. The
+disturbance draws fold_in(key(seed), k), so turning sensors on changes no disturbance draw.
+Arrays follow :mod:`so3jax.so3` (batch axes last); parameters have no batch axes.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import so3
+from so3jax._pytree import pytree_dataclass, static_field
+from so3jax.disturbance import noise_components
+
+GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (SPEC 8.2)
+
+
+def sensor_noise(key, stream: int, j, dtype):
+    """eta_{s,j} (3, *key.shape): normal(fold_in(fold_in(key, s), j), (3,), dtype)."""
+    fold = lambda k: jax.random.fold_in(k, stream)
+    folded = fold(key) if key.ndim == 0 else jax.vmap(fold)(key.reshape(-1)).reshape(key.shape)
+    return jnp.stack(noise_components(folded, j, dtype))
+
+
+def _like(x, like):
+    """A parameter without batch axes, cast and shaped to broadcast against ``like`` (3, *b)."""
+    x = jnp.asarray(x).astype(like.dtype)
+    return so3.batch_like(x, x.ndim, like)
+
+
+def _check(name: str, x, shape=()) -> None:
+    if isinstance(x, jax.core.Tracer):
+        return
+    v = np.asarray(x, dtype=float)
+    if v.shape != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {v.shape}")
+    if not np.all(np.isfinite(v)) or (shape == () and v < 0):
+        raise ValueError(f"{name} must be a finite{' non-negative' if shape == () else ''} number, got {v.tolist()}")
+
+
+@pytree_dataclass
+class Gyro:
+    """Rate gyro, Farrenkopf model at the ticks (SPEC 8.2):
+    omega_m,j = Omega(t_j) + b_j + (arw / sqrt(Delta_c)) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j."""
+
+    arw: jax.Array  # sigma_v, angle random walk [rad/sqrt(s)]
+    rrw: jax.Array  # sigma_u, rate random walk [rad/s^(3/2)]
+    bias0: jax.Array  # (3,) b_0 [rad/s]
+
+    def init(self, batch_shape, dtype):
+        """b_0 as (3, *batch_shape) [rad/s]."""
+        b = jnp.asarray(self.bias0).astype(dtype)
+        return jnp.broadcast_to(b.reshape((3,) + (1,) * len(batch_shape)), (3, *batch_shape))
+
+    def measure(self, bias, Omega, key, j, period):
+        """(omega_m, b_{j+1}) from the true rate Omega (3, *b) at tick j [rad/s]."""
+        dtype = Omega.dtype
+        period = jnp.asarray(period, dtype)
+        white = sensor_noise(key, GYRO_WHITE, j, dtype)
+        walk = sensor_noise(key, GYRO_BIAS_WALK, j, dtype)
+        omega_m = Omega + bias + _like(self.arw, Omega) / jnp.sqrt(period) * white
+        return omega_m, bias + _like(self.rrw, Omega) * jnp.sqrt(period) * walk
+
+    def check(self) -> None:
+        _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
+        _check("sensors.gyro.rrw [rad/s^(3/2)]", self.rrw)
+        _check("sensors.gyro.bias0 [rad/s]", self.bias0, (3,))
+
+
+@pytree_dataclass
+class StarTracker:
+    """R_m,j = R(t_j) exp(hat(sigma eta_3,j)), a sample every ``every`` ticks (SPEC 8.2)."""
+
+    sigma: jax.Array  # per axis [rad]
+    every: int = static_field(default=1)
+
+    def measure(self, R, key, j):
+        """(R_m (3, 3, *b), whether tick j has a sample)."""
+        eta = sensor_noise(key, STAR_TRACKER, j, R.dtype)
+        error = _like(self.sigma, eta) * eta
+        return so3.matmul(R, so3.exp(error)), (j % self.every) == 0
+
+    def check(self) -> None:
+        _check("sensors.star_tracker.sigma [rad]", self.sigma)
+        if isinstance(self.every, bool) or not isinstance(self.every, int) or self.every < 1:
+            raise ValueError(f"sensors.star_tracker.every must be an integer >= 1, got {self.every!r}")
+
+
+class Measurements(NamedTuple):
+    omega_m: jax.Array  # (3, *b) rad/s
+    R_m: jax.Array  # (3, 3, *b)
+    star_valid: jax.Array  # bool scalar: a star-tracker sample exists at this tick
+
+
+@pytree_dataclass
+class Sensors:
+    """The sensor suite; a part that is None is perfect (reads the true state)."""
+
+    gyro: Any = None
+    star_tracker: Any = None
+
+    def init(self, batch_shape, dtype):
+        """The gyro bias (3, *batch_shape), or () without a gyro."""
+        return () if self.gyro is None else self.gyro.init(batch_shape, dtype)
+
+    def measure(self, state, R, Omega, key, j, period):
+        """(state at tick j + 1, Measurements at tick j) from the true R, Omega at t_j."""
+        omega_m, state = (Omega, state) if self.gyro is None else self.gyro.measure(state, Omega, key, j, period)
+        if self.star_tracker is None:
+            R_m, valid = R, jnp.asarray(True)
+        else:
+            R_m, valid = self.star_tracker.measure(R, key, j)
+        return state, Measurements(omega_m, R_m, valid)
+
+    def true_bias(self, state, like):
+        """The gyro bias b_j (3, *b) [rad/s], zeros without a gyro (``like``: a (3, *b) array)."""
+        return jnp.zeros_like(like) if self.gyro is None else state
+
+    def check(self) -> None:
+        for part in (self.gyro, self.star_tracker):
+            if part is not None:
+                part.check()

@@ -1,0 +1,84 @@
+"""Mission files (SPEC 8.5): the shipped missions, and one clear error per bad entry."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from so3jax import mission as missions
+from tests.test_cli import run_cli
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_flight_mission_file_equals_the_defaults():
+    shipped, default = missions.load(ROOT / "missions" / "flight.toml"), missions.load()
+    assert shipped.describe() == default.describe()
+    assert default.period_steps == 10 and default.estimator["kind"] == "mekf" and default.actuator["kind"] == "wheels"
+    G = np.asarray(default.actuator["wheels"]["axes"])
+    np.testing.assert_allclose(np.degrees(np.arccos(G[:, 2])), 54.74, atol=1e-9)
+
+
+def test_the_paper_mission_is_the_continuous_wiring():
+    m = missions.load(ROOT / "missions" / "paper.toml")
+    assert m.period_steps is None and m.gyro is None and m.star_tracker is None
+    assert m.estimator["kind"] == "truth" and m.actuator["kind"] == "ideal"
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("colour=1", "unknown mission key"),
+        ("sensors.gyro.arw_typo=1.0", "unknown key"),
+        ("sensors.gyro.arw=-1e-6", "sensors.gyro.arw"),
+        ("sensors.star_tracker.sigma='big'", "sensors.star_tracker.sigma"),
+        ("control.period=0.015", "whole number"),
+        ("control.period=0.0", "whole number"),
+        ("actuator.wheels.axes=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.7071067811865476, 0.7071067811865476, 0.0]]",
+         "every axis"),
+        ("actuator.wheels.axes=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]]", "unit"),
+        ("actuator.wheels.max_speed=-1.0", "max_speed"),
+        ("estimator.kind='kalman'", "estimator.kind"),
+        ("actuator.kind='thrusters'", "actuator.kind"),
+        ("controllers='pid'", "controllers"),
+        ("deployment.tau_J=-50.0", "tau_J"),
+        ("gains.pd.k_R=-1.0", "k_R"),
+        ("sensors.star_tracker.every=0", "every"),
+        ("inertia.J0.nominal=[[1.0, 0.0], [0.0, 1.0]]", "shape"),
+    ],
+)
+def test_bad_entries_get_one_clear_error(override, message):
+    with pytest.raises(ValueError, match=message):
+        missions.load(None, [override])
+
+
+def test_a_single_controller_name_is_a_one_element_list():
+    assert missions.load(None, ["controllers=pd"]).controllers == ("pd",)
+
+
+def test_fly_command_end_to_end(tmp_path):
+    out = tmp_path / "fly"
+    proc = run_cli("fly", "--T", "20", "--json", "--out", str(out), "--controllers", "pd,adaptive", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert set(report) == {"pd", "adaptive", "config"}
+    for name in ("pd", "adaptive"):
+        r = report[name]
+        assert r["diverged"] is False and len(r["rmse_phase"]) == 1  # only the capture phase is reached in 20 s
+        assert 0 < r["attitude_estimation_rms"] < 1e-4 and 0 < r["bias_estimation_rms"] < 2e-4
+        assert 0 <= r["max_wheel_speed_ratio"] < 1
+    assert report["config"]["period_steps"] == 10
+    with np.load(out / "trajectory.npz") as npz:
+        for key in ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed"):
+            assert f"pd/{key}" in npz.files
+        assert npz["adaptive/wheel_speed"].shape == (20, 4)
+    for fig in ("attitude", "bias", "torque", "wheel_speeds", "momentum"):
+        assert (out / f"{fig}.png").stat().st_size > 10_000
+    assert json.loads((out / "metrics.json").read_text())["pd"] == report["pd"]
+
+
+def test_fly_bad_input_exits_2_without_traceback(tmp_path):
+    proc = run_cli("fly", "--set", "control.period=0.015", "--out", str(tmp_path), cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert "whole number" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
