@@ -8,7 +8,8 @@ source tree (e.g. the previous commit), all on every core of this machine.
   that alternate the two wirings; the median of the per-round ratios flight / paper.
   Also one trajectory (``rollout`` with a scalar seed, what ``simulate`` runs), in µs/step.
 * ``--against TREE``: the paper's mode of this tree and of TREE (a checkout of another
-  revision), in child processes that alternate, round by round; the median ratio.
+  revision), batched and one trajectory, in child processes that alternate, round by
+  round; the median ratios (above 1: this tree is faster).
 
     python -m benchmarks.flight [--batch 4096] [--steps 2000] [--rounds 5] [--against /tmp/base]
 
@@ -144,15 +145,18 @@ def _child(spec: str) -> None:
     run = _programs("paper", spec["controller"], spec["batch"], spec["n_steps"])
     run()
     t = statistics.median(_time(run) for _ in range(spec["repeats"]))
-    print(json.dumps({"M_steps_per_s": spec["batch"] * spec["n_steps"] / t / 1e6}))
+    single = _single("paper", spec["controller"], spec["single_steps"])
+    print(json.dumps({"M_steps_per_s": spec["batch"] * spec["n_steps"] / t / 1e6, "single_us_per_step": single}))
 
 
 def against(tree: Path, batch: int, n_steps: int, rounds: int) -> dict:
     """Paper's mode here and in ``tree``, child processes alternating round by round."""
     out = {}
     for controller in CONTROLLERS:
-        spec = json.dumps({"controller": controller, "batch": batch, "n_steps": n_steps, "repeats": 3})
+        spec = json.dumps({"controller": controller, "batch": batch, "n_steps": n_steps, "repeats": 3,
+                           "single_steps": 20 * n_steps})
         got = {"here": [], "there": []}
+        single = {"here": [], "there": []}
         for _ in range(rounds):
             for side, path in (("here", ROOT), ("there", tree)):
                 env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
@@ -161,12 +165,18 @@ def against(tree: Path, batch: int, n_steps: int, rounds: int) -> dict:
                                       capture_output=True, text=True, cwd=path, check=False)
                 if proc.returncode:
                     raise RuntimeError(proc.stderr[-2000:])
-                got[side].append(json.loads(proc.stdout.strip().splitlines()[-1])["M_steps_per_s"])
+                child = json.loads(proc.stdout.strip().splitlines()[-1])
+                got[side].append(child["M_steps_per_s"])
+                single[side].append(child["single_us_per_step"])
         per_round = [a / b for a, b in zip(got["here"], got["there"])]
+        single_rounds = [b / a for a, b in zip(single["here"], single["there"])]  # speed ratio: time there / here
         out[controller] = {"here_M_steps_per_s": got["here"], "there_M_steps_per_s": got["there"],
-                           "here_over_there_median": statistics.median(per_round), "rounds": per_round}
-        log(f"{controller}: this tree / {tree}: {statistics.median(per_round):.3f} "
-            f"(rounds {', '.join(f'{r:.3f}' for r in per_round)})")
+                           "here_over_there_median": statistics.median(per_round), "rounds": per_round,
+                           "single_here_us_per_step": single["here"], "single_there_us_per_step": single["there"],
+                           "single_speed_here_over_there_median": statistics.median(single_rounds)}
+        log(f"{controller}: this tree / {tree}: batched {statistics.median(per_round):.3f} "
+            f"(rounds {', '.join(f'{r:.3f}' for r in per_round)}), one trajectory "
+            f"{statistics.median(single_rounds):.3f} (rounds {', '.join(f'{r:.3f}' for r in single_rounds)})")
     return out
 
 

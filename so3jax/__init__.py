@@ -20,19 +20,23 @@ from so3jax.disturbance import SinusoidPlusNoise, no_disturbance
 from so3jax.metrics import Metrics
 from so3jax.plant import ConstantInertia, InertiaFunction, PaperInertia
 from so3jax.reference import PiecewiseConstantRate, RateFunction, piecewise_constant_rate
-from so3jax.rollout import History, Result, State, rollout, simulate
+from so3jax.loop import PAPER_LOOP, Loop
+from so3jax.rollout import FlightHistory, History, Result, State, rollout, rollout_batch, simulate
 from so3jax.scenario import InertiaWarning, Scenario, paper_scenario, steps_for_horizon
 
 __all__ = [
     "PAPER_ADAPTIVE_GAINS",
+    "PAPER_LOOP",
     "PAPER_PD_GAINS",
     "AdaptiveGains",
     "ConstantInertia",
     "Controller",
+    "FlightHistory",
     "Desired",
     "History",
     "InertiaFunction",
     "InertiaWarning",
+    "Loop",
     "Measured",
     "Metrics",
     "PDGains",
@@ -49,6 +53,7 @@ __all__ = [
     "paper_scenario",
     "piecewise_constant_rate",
     "rollout",
+    "rollout_batch",
     "simulate",
     "so3",
     "steps_for_horizon",

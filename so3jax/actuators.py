@@ -6,6 +6,9 @@ Each actuator is a pytree with
 * ``command(state, tau_c, omega_hat)``: the input held over a control period, computed
   at the tick from the command tau_c (3, *b) [N m] and the estimated rate omega_hat [rad/s];
 * ``body_torque(held)``: the torque the actuator puts on the body (3, *b) [N m];
+* ``delivered(state, held, omega_hat)``: the control torque the command became (3, *b)
+  [N m]: the body torque, less the momentum compensation the wheels add; tau_c where no
+  limit binds (what the metrics' effort and the torque figures count);
 * ``derivative(J, Omega, state, held, d, t, J_dot=None)``: (Omega', state'), the plant of
   SPEC 1 (ideal, saturated) or SPEC 8.4 (wheels);
 * ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of shape b;
@@ -30,7 +33,7 @@ from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.plant import angular_acceleration
 
-_UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis
+_UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
 
 
@@ -83,6 +86,9 @@ class Ideal:
     def body_torque(self, held):
         return held
 
+    def delivered(self, state, held, omega_hat):
+        return held
+
     def derivative(self, J, Omega, state, held, d, t, J_dot=None):
         return _rigid_derivative(J, Omega, held, d, t, J_dot)
 
@@ -119,6 +125,9 @@ class Saturated:
         return jnp.clip(tau_c, -limit, limit)
 
     def body_torque(self, held):
+        return held
+
+    def delivered(self, state, held, omega_hat):
         return held
 
     def derivative(self, J, Omega, state, held, d, t, J_dot=None):
@@ -224,7 +233,7 @@ class Wheels:
         (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
         tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
         wheel at its speed limit that it would spin faster."""
-        tau = tau_c + so3.cross(omega_hat, self.momentum(state, omega_hat)) if self.momentum_compensation else tau_c
+        tau = tau_c + self._compensation(state, omega_hat)
         u_max = _per_wheel(self.max_torque, tau)
         u = jnp.clip(self.distribute(tau), -u_max, u_max)
         faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
@@ -233,6 +242,15 @@ class Wheels:
     def body_torque(self, held):
         """-G_s u (3, *b) [N m]."""
         return -_spin_sum(self._axes(held), held)
+
+    def _compensation(self, state, omega_hat):
+        """omega_hat x h_w_hat (3, *b) [N m], or 0 without momentum compensation."""
+        return so3.cross(omega_hat, self.momentum(state, omega_hat)) if self.momentum_compensation else 0.0
+
+    def delivered(self, state, held, omega_hat):
+        """-G_s u less the momentum compensation omega_hat x h_w_hat: the command tau_c
+        itself where no limit binds [N m]."""
+        return self.body_torque(held) - self._compensation(state, omega_hat)
 
     def derivative(self, J, Omega, state, held, d, t, J_dot=None):
         """(Omega', Omega_w') of SPEC 8.4 [rad/s^2]:
@@ -278,8 +296,9 @@ class Wheels:
         G = _values(self.axes)
         if G is None:
             return
+        tolerance = max(_UNIT_TOLERANCE, 100 * float(np.finfo(np.asarray(self.axes).dtype).eps))
         norms = np.linalg.norm(G, axis=0)
-        if np.any(np.abs(norms - 1.0) > _UNIT_TOLERANCE):
+        if np.any(np.abs(norms - 1.0) > tolerance):
             raise ValueError(f"wheel spin axes must be unit vectors, got norms {norms.tolist()}")
         if n < 3 or np.linalg.svd(G, compute_uv=False).min() < _RANK_TOLERANCE:
             raise ValueError(f"the {n} wheel spin axes span less than 3-D: "

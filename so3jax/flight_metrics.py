@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax import so3
+from so3jax.metrics import safe_sqrt
 
 
 class Accumulator(NamedTuple):
@@ -75,9 +76,7 @@ def update(acc: Accumulator, s: TickSample, live=True) -> Accumulator:
 
 def _rms(total, count):
     """sqrt(total / count); NaN stays NaN, 0 -> 0 with a finite gradient."""
-    x = total / jnp.maximum(count, 1.0)
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), x)
+    return safe_sqrt(total / jnp.maximum(count, 1.0))
 
 
 def finalize(acc: Accumulator, period) -> FlightMetrics:

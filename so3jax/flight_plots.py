@@ -47,18 +47,25 @@ def attitude_figure(histories, phase_times, T):
 
 
 def bias_figure(histories, phase_times, T):
-    """Gyro bias b and its estimate b_hat with the filter's 3-sigma bound, per axis [deg/h]."""
+    """Gyro bias b and its estimate b_hat with the filter's 3-sigma bound, per axis [deg/h];
+    the y range follows the values after the first 2 % of the horizon (the filter's
+    initial sigma would dwarf them)."""
     to_deg_h = np.degrees(1.0) * 3600.0
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for i, ax in enumerate(axes):
+        shown = []
         for n, (name, h) in enumerate(histories.items()):
             style = registry.style(name)
+            bias, estimate, bound = (x * to_deg_h for x in (h.bias[:, i], h.bias_hat[:, i], 3.0 * h.std[:, 3 + i]))
             if n == 0:
-                ax.plot(h.t, h.bias[:, i] * to_deg_h, color="k", lw=1.2, label="true bias")
-            ax.plot(h.t, h.bias_hat[:, i] * to_deg_h, lw=1.0, **style)
-            bound = 3.0 * h.std[:, 3 + i] * to_deg_h
-            ax.fill_between(h.t, (h.bias_hat[:, i] - 0) * to_deg_h - bound, h.bias_hat[:, i] * to_deg_h + bound,
-                            color=style.get("color"), alpha=0.15, lw=0)
+                ax.plot(h.t, bias, color="k", lw=1.2, label="true bias")
+            ax.plot(h.t, estimate, lw=1.0, **style)
+            ax.fill_between(h.t, estimate - bound, estimate + bound, color=style.get("color"), alpha=0.15, lw=0)
+            late = h.t >= 0.02 * T
+            shown += [bias[late], estimate[late] - bound[late], estimate[late] + bound[late]]
+        low, high = np.min(np.concatenate(shown)), np.max(np.concatenate(shown))
+        pad = 0.1 * max(high - low, 1e-12)
+        ax.set_ylim(low - pad, high + pad)
         _frame(ax, phase_times, T, f"b {AXES[i]} [deg/h]")
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("t [s]")

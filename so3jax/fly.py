@@ -111,13 +111,13 @@ def format_table(mission, reports: dict) -> str:
         lines.append(f"{label:34s}" + "".join(f"{_cell(fn(reports[n]), fmt):>{width}s}" for n in names))
 
     row("RMSE [rad/s]", lambda r: r["rmse"], ".4e")
-    row("effort (body torque) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
+    row("effort (delivered) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
     for p in range(len(reports[names[0]]["rmse_phase"])):
         label = PHASE_LABELS[p] if p < len(PHASE_LABELS) else f"phase {p + 1}"
         row(f"  RMSE {label} [rad/s]", lambda r, p=p: r["rmse_phase"][p], ".4e")
         row(f"  max attitude error {label} [deg]", lambda r, p=p: None if r["max_angle_phase"][p] is None
             else math.degrees(r["max_angle_phase"][p]), ".3f")
-    row("max |tau| on the body [N m]", lambda r: r["max_torque"], ".4f")
+    row("max |tau| delivered [N m]", lambda r: r["max_torque"], ".4f")
     if mission.period_steps is not None:
         row("command effort [N^2 m^2 s]", lambda r: r["command_effort"], ".2f")
         wheels = mission.actuator["kind"] == "wheels"

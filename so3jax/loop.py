@@ -79,7 +79,7 @@ class Tick(NamedTuple):
     estimate: Any  # estimators.Estimate
     bias: jax.Array  # (3,) true gyro bias b_j, rad/s
     tau_cmd: jax.Array  # (3,) the controller's command, N m
-    tau_applied: jax.Array  # (3,) the actuator's torque on the body, N m
+    tau_applied: jax.Array  # (3,) the control torque delivered (actuators.delivered), N m
 
 
 def time(scenario: Scenario, k):
@@ -166,7 +166,7 @@ def sample(state: State, tau, wanted: Desired) -> metrics.Sample:
     return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e))
 
 
-def _advance(scenario: Scenario, loop: Loop, law, with_controller, d, state: State, k):
+def _advance(scenario: Scenario, loop: Loop, law, with_controller, d, state: State, k, tau=None):
     dtype = scenario.R0.dtype
     t, p = time(scenario, k), phase(scenario, k)
     field = _field(scenario, loop, p, d, law)
@@ -178,7 +178,7 @@ def _advance(scenario: Scenario, loop: Loop, law, with_controller, d, state: Sta
         R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
         actuator=x.actuator,
     )
-    return new, p, sample(state, loop.actuator.body_torque(held), wanted)
+    return new, p, sample(state, loop.actuator.body_torque(held) if tau is None else tau, wanted)
 
 
 def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP):
@@ -192,9 +192,10 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
     return _advance(scenario, loop, law, True, d, state, k)
 
 
-def held_step(scenario: Scenario, loop: Loop, d, state: State, k):
-    """Advance the sampled wiring's plant over step k with the actuator input held (SPEC 8.1)."""
-    return _advance(scenario, loop, lambda t, x, wanted: (state.held, ()), False, d, state, k)
+def held_step(scenario: Scenario, loop: Loop, d, state: State, k, tau_applied):
+    """Advance the sampled wiring's plant over step k with the actuator input held (SPEC 8.1);
+    the metrics sample counts tau_applied, the control torque delivered over the period."""
+    return _advance(scenario, loop, lambda t, x, wanted: (state.held, ()), False, d, state, k, tau_applied)
 
 
 def observe(scenario: Scenario, controller: Controller, gains, state: State, k, loop: Loop = PAPER_LOOP):
@@ -243,7 +244,8 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
         held=held,
     )
     bias = loop.sensors.true_bias(state.sensors, state.Omega)
-    return new, Tick(t, wanted, estimate, bias, tau_cmd, loop.actuator.body_torque(held))
+    tau_applied = loop.actuator.delivered(state.actuator, held, estimate.omega_hat)
+    return new, Tick(t, wanted, estimate, bias, tau_cmd, tau_applied)
 
 
 def check_loop(loop: Loop, inertias: dict) -> None:

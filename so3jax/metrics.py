@@ -69,10 +69,10 @@ def update(acc: Accumulator, phase, sample: Sample, finite) -> Accumulator:
     )
 
 
-def _safe_sqrt(x):
-    """sqrt with a finite gradient at 0."""
+def safe_sqrt(x):
+    """sqrt with a finite gradient at 0; NaN (a diverged run) stays NaN."""
     pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), jnp.where(x == 0, 0.0, jnp.nan).astype(x.dtype))
 
 
 def finalize(acc: Accumulator, steps_per_phase, dt, final_R) -> Metrics:
@@ -82,12 +82,12 @@ def finalize(acc: Accumulator, steps_per_phase, dt, final_R) -> Metrics:
     n = float(sum(steps_per_phase))
     max_torque_phase = acc.max_torque
     return Metrics(
-        rmse=_safe_sqrt(jnp.sum(acc.sq_rate_error, axis=0) / n),
-        rmse_unrotated=_safe_sqrt(jnp.sum(acc.sq_rate_error_unrotated, axis=0) / n),
+        rmse=safe_sqrt(jnp.sum(acc.sq_rate_error, axis=0) / n),
+        rmse_unrotated=safe_sqrt(jnp.sum(acc.sq_rate_error_unrotated, axis=0) / n),
         effort=jnp.sum(acc.sq_torque, axis=0) * dt,
-        rmse_phase=_safe_sqrt(acc.sq_rate_error / n_safe),
+        rmse_phase=safe_sqrt(acc.sq_rate_error / n_safe),
         effort_phase=acc.sq_torque * dt,
-        rms_angle_phase=_safe_sqrt(acc.sq_angle / n_safe),
+        rms_angle_phase=safe_sqrt(acc.sq_angle / n_safe),
         max_angle_phase=acc.max_angle,
         max_torque_phase=max_torque_phase,
         max_torque=jnp.max(max_torque_phase, axis=0),

@@ -8,8 +8,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from so3jax.controllers.registry import style
+
 AXES = ("x", "y", "z")
-STYLES = {"pd": dict(ls="--", color="tab:red", label="PD"), "adaptive": dict(ls="-", color="tab:blue", label="adaptive")}
 PHASE_COLORS = ("#f2f2f2", "#e3ecf7", "#f7ebe3", "#e8f5e3")
 
 
@@ -43,7 +44,7 @@ def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, referen
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             keep = slice(None) if t_max is None else h.t < t_max
-            ax.plot(h.t[keep], series(h)[keep, i], lw=1.0, **STYLES[name])
+            ax.plot(h.t[keep], series(h)[keep, i], lw=1.0, **style(name))
         if reference is not None:
             h = next(iter(histories.values()))
             keep = slice(None) if t_max is None else h.t < t_max
@@ -77,7 +78,7 @@ def torque_figure(histories, phase_times):
 def _scalar_figure(histories, phase_times, series, ylabel, title, log=False):
     fig, ax = plt.subplots(figsize=(10, 3.5))
     for name, h in histories.items():
-        ax.plot(h.t, series(h), lw=1.0, **STYLES[name])
+        ax.plot(h.t, series(h), lw=1.0, **style(name))
     shade_phases(ax, phase_times, next(iter(histories.values())).t[-1])
     if log:
         ax.set_yscale("log")

@@ -54,7 +54,7 @@ class FlightHistory(NamedTuple):
     bias_hat: jax.Array  # (M, 3) rad/s
     std: jax.Array  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s)
     tau_cmd: jax.Array  # (M, 3) N m
-    tau_applied: jax.Array  # (M, 3) N m, on the body
+    tau_applied: jax.Array  # (M, 3) N m, the control torque delivered (actuators: `delivered`)
     wheel_speed: Any  # (M, N) rad/s, or ()
     momentum: jax.Array  # (M, 3) wheel momentum h_w, body frame, N m s
     controller: Any  # controller state, leading axis M
@@ -182,10 +182,6 @@ def rollout(
 
     m = loop.period_steps
     ticks = block // m
-    take_step = lambda d, state, k: held_step(scenario, loop, d, state, k)
-
-    def one_step(carry, d):
-        return advance(*carry, d, take_step), None
 
     def one_tick(carry, ds):
         state, k, acc, flight = carry
@@ -194,6 +190,8 @@ def rollout(
         flight = flight_metrics.update(flight, sample, k < n)
         if masked:
             new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
+        take_step = lambda d, state, k: held_step(scenario, loop, d, state, k, out.tau_applied)
+        one_step = lambda carry, d: (advance(*carry, d, take_step), None)
         new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
         return (new, k, acc, flight), record
 

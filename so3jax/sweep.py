@@ -43,14 +43,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
 from so3jax import dispersions as disp
-from so3jax.controllers import (
-    PAPER_ADAPTIVE_GAINS,
-    PAPER_PD_GAINS,
-    AdaptiveGains,
-    PDGains,
-    adaptive_backstepping,
-    geometric_pd,
-)
+from so3jax.controllers import registry
 from so3jax.io import save_figure, save_npz, write_json, write_text
 from so3jax.metrics import Metrics
 from so3jax.rollout import rollout_batch
@@ -65,8 +58,8 @@ from so3jax.scenario import (
     steps_for_horizon,
 )
 
-CONTROLLERS = {"pd": (geometric_pd, PDGains), "adaptive": (adaptive_backstepping, AdaptiveGains)}
-PAPER_GAINS = {"pd": PAPER_PD_GAINS, "adaptive": PAPER_ADAPTIVE_GAINS}
+CONTROLLERS = {n: (registry.get(n).factory, registry.get(n).gains_type) for n in registry.names(tunable=True)}
+PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
 PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
 BATCH = "batch"
@@ -655,10 +648,10 @@ def figures(config: SweepConfig, cols: dict) -> dict:
     """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale."""
     from matplotlib.figure import Figure
 
-    from so3jax.plots import STYLES
+    from so3jax.controllers.registry import style
 
     names = config.controllers
-    color = {c: {"color": STYLES[c]["color"], "label": STYLES[c]["label"]} for c in names}
+    color = {c: {"color": style(c)["color"], "label": style(c)["label"]} for c in names}
     good = {c: cols[f"{c}_diverged"] == 0 for c in names}
     title = f"{len(cols['index'])} samples, T = {config.T:g} s (diverged samples left out)"
     cdf, hist = Figure(figsize=(10, 3.8), layout="constrained"), Figure(figsize=(10, 3.8), layout="constrained")

@@ -41,21 +41,14 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from so3jax import io
-from so3jax.controllers import (
-    PAPER_ADAPTIVE_GAINS,
-    PAPER_PD_GAINS,
-    AdaptiveGains,
-    PDGains,
-    adaptive_backstepping,
-    geometric_pd,
-)
+from so3jax.controllers import registry
 from so3jax.gradients import MODES, Batch, batch_metrics, make_batch, value_and_grad
 from so3jax.scenario import Scenario, check_gains, check_scenario, paper_scenario
 
 # One instance per controller, so that jit caches hit across runs in one process.
-CONTROLLERS = {"pd": geometric_pd(), "adaptive": adaptive_backstepping()}
-GAIN_TYPES = {"pd": PDGains, "adaptive": AdaptiveGains}
-PAPER_GAINS = {"pd": PAPER_PD_GAINS, "adaptive": PAPER_ADAPTIVE_GAINS}
+CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
+GAIN_TYPES = {n: registry.get(n).gains_type for n in CONTROLLERS}
+PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
 COST_MODES = ("weighted", "equal_effort")
 METHODS = ("gradient", "es")
 CHECKPOINT = "checkpoint.npz"

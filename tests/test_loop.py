@@ -58,15 +58,18 @@ def _final_error(a, b):
     return float(np.linalg.norm(a.final.Omega - b.final.Omega) + np.linalg.norm(a.final.R - b.final.R))
 
 
-def test_sampled_loop_converges_to_the_continuous_one_at_first_order():
+@pytest.mark.parametrize("refine", ["dt, m = 1", "m, dt fixed"])
+def test_sampled_loop_converges_to_the_continuous_one_at_first_order(refine):
     """truth + ideal + zero-order hold at Delta_c = m dt -> the paper's mode as Delta_c -> 0,
-    with an error proportional to Delta_c (SPEC 8.1)."""
-    T = 8.0
-    reference = sj.simulate(custom_scenario(T, 0.0025, Omega0=(0.02, -0.01, 0.03)), sj.geometric_pd(), PD)
-    scenario = custom_scenario(T, 0.005, Omega0=(0.02, -0.01, 0.03))
-    errors = [
-        _final_error(sj.simulate(scenario, sj.geometric_pd(), PD, loop=_sampled(m)), reference) for m in (8, 4, 2)
-    ]
+    with an error proportional to Delta_c (SPEC 8.1): m = 1 with dt halved, or dt fixed
+    with m halved."""
+    T, Omega0 = 8.0, (0.02, -0.01, 0.03)
+    reference = sj.simulate(custom_scenario(T, 0.00125, Omega0=Omega0), sj.geometric_pd(), PD)
+    if refine == "dt, m = 1":
+        runs = [(custom_scenario(T, dt, Omega0=Omega0), 1) for dt in (0.02, 0.01, 0.005)]
+    else:
+        runs = [(custom_scenario(T, 0.005, Omega0=Omega0), m) for m in (8, 4, 2)]
+    errors = [_final_error(sj.simulate(sc, sj.geometric_pd(), PD, loop=_sampled(m)), reference) for sc, m in runs]
     ratios = np.array(errors[:-1]) / np.array(errors[1:])
     assert errors[-1] < 1e-3
     np.testing.assert_allclose(ratios, 2.0, rtol=0.15)
