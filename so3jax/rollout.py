@@ -20,7 +20,19 @@ import jax.numpy as jnp
 
 from so3jax import flight_metrics, metrics, so3
 from so3jax.controllers.base import Controller, Measured, tracking_error
-from so3jax.loop import PAPER_LOOP, Loop, State, check_loop, held_step, initial_state, observe, step, tick, time
+from so3jax.loop import (
+    PAPER_LOOP,
+    Loop,
+    State,
+    broadcast,
+    check_loop,
+    held_step,
+    initial_state,
+    observe,
+    step,
+    tick,
+    time,
+)
 from so3jax.scenario import Scenario, check_gains, check_scenario
 
 
@@ -231,8 +243,9 @@ def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics
 def _flight_record(loop: Loop, controller, state: State, out) -> FlightHistory:
     err = tracking_error(Measured(state.R, state.Omega), out.desired)
     est = out.estimate
+    R_d = broadcast(out.desired.R_d, 2, state.Omega.shape[1:])  # a shared reference: once per batch
     return FlightHistory(
-        out.t, state.R, state.Omega, out.desired.R_d, err.Omega_e, so3.angle(err.R_e), est.R_hat, est.omega_hat,
+        out.t, state.R, state.Omega, R_d, err.Omega_e, so3.angle(err.R_e), est.R_hat, est.omega_hat,
         out.bias, est.bias_hat, est.std, out.tau_cmd, out.tau_applied, state.actuator,
         loop.actuator.momentum(state.actuator, state.Omega), state.controller,
     )

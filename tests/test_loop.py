@@ -144,6 +144,9 @@ def test_batched_flight_equals_one_trajectory_at_a_time():
         np.testing.assert_allclose(batch.flight.attitude_estimation_rms[i], one.flight.attitude_estimation_rms,
                                    rtol=1e-9)
         np.testing.assert_allclose(batch.metrics.rmse[i], one.metrics.rmse, rtol=1e-12)
+        for name in ("R", "R_d", "R_hat", "bias_hat", "std", "tau_applied"):
+            np.testing.assert_allclose(getattr(batch.history, name)[i], getattr(one.history, name), rtol=1e-9,
+                                       atol=1e-14, err_msg=name)
 
 
 def test_gradients_through_the_flight_loop_match_central_differences():

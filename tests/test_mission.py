@@ -82,3 +82,16 @@ def test_fly_bad_input_exits_2_without_traceback(tmp_path):
     proc = run_cli("fly", "--set", "control.period=0.015", "--out", str(tmp_path), cwd=tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert "whole number" in proc.stderr and len(proc.stderr.strip().splitlines()) == 1
+
+
+def test_a_diverged_flight_is_reported_as_diverged_never_as_a_number(tmp_path):
+    """A PD with k_Omega Delta_c / J far above 2 diverges under sampled control: null in
+    JSON, "diverged" in the table, exit code 1."""
+    args = ("fly", "--T", "20", "--controllers", "pd", "--no-figures", "--set", "gains.pd.k_Omega=1e6",
+            "--set", "actuator.kind=ideal", "--out", str(tmp_path))
+    proc = run_cli(*args, "--json", cwd=tmp_path)
+    assert proc.returncode == 1, proc.stderr
+    r = json.loads(proc.stdout.strip().splitlines()[-1])["pd"]
+    assert r["diverged"] is True and r["rmse"] is None and r["effort"] is None
+    table = run_cli(*args, cwd=tmp_path)
+    assert "diverged" in table.stdout.splitlines()[1] and "warning: diverged: pd" in table.stderr
