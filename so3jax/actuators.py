@@ -65,23 +65,14 @@ def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool
         raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
 
 
-def _rigid_derivative(J, Omega, held, d, t, J_dot):
-    """SPEC 1 with the body torque held: J Omega' = -Omega x J Omega + held + d [- J' Omega]."""
-    return angular_acceleration(J, Omega, materialize(held + d, t), J_dot), ()
-
-
 # --- ideal and saturated body torques --------------------------------------------------
 
 
-@pytree_dataclass
-class Ideal:
-    """tau = tau_c (SPEC 8.4 ``ideal``)."""
+class _BodyTorque:
+    """An actuator whose held input is the body torque itself: no state, the plant of SPEC 1."""
 
     def init(self, batch_shape, dtype):
         return ()
-
-    def command(self, state, tau_c, omega_hat):
-        return tau_c
 
     def body_torque(self, held):
         return held
@@ -90,10 +81,8 @@ class Ideal:
         return held
 
     def derivative(self, J, Omega, state, held, d, t, J_dot=None):
-        return _rigid_derivative(J, Omega, held, d, t, J_dot)
-
-    def limits(self, state, held, tau_c):
-        return _no_limit(held), _no_limit(held)
+        """SPEC 1 with the body torque held: J Omega' = -Omega x J Omega + held + d [- J' Omega]."""
+        return angular_acceleration(J, Omega, materialize(held + d, t), J_dot), ()
 
     def speed_ratio(self, state):
         return 0.0
@@ -101,12 +90,23 @@ class Ideal:
     def momentum(self, state, Omega):
         return jnp.zeros_like(Omega)
 
+
+@pytree_dataclass
+class Ideal(_BodyTorque):
+    """tau = tau_c (SPEC 8.4 ``ideal``)."""
+
+    def command(self, state, tau_c, omega_hat):
+        return tau_c
+
+    def limits(self, state, held, tau_c):
+        return _no_limit(held), _no_limit(held)
+
     def check(self) -> None:
         pass
 
 
 @pytree_dataclass
-class Saturated:
+class Saturated(_BodyTorque):
     """tau_i = clip(tau_c,i, -max_torque_i, max_torque_i) per body axis (SPEC 8.4 ``saturated``).
 
     max_torque: (3,) or a scalar for every axis, N m.
@@ -117,32 +117,14 @@ class Saturated:
     def _limit(self, like):
         return so3.batch_like(jnp.asarray(self.max_torque).astype(like.dtype), 1, like)
 
-    def init(self, batch_shape, dtype):
-        return ()
-
     def command(self, state, tau_c, omega_hat):
         limit = self._limit(tau_c)
         return jnp.clip(tau_c, -limit, limit)
-
-    def body_torque(self, held):
-        return held
-
-    def delivered(self, state, held, omega_hat):
-        return held
-
-    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
-        return _rigid_derivative(J, Omega, held, d, t, J_dot)
 
     def limits(self, state, held, tau_c):
         """(any |tau_c,i| > max_torque_i, False), of the batch shape."""
         over = jnp.abs(tau_c) > self._limit(tau_c)
         return over[0] | over[1] | over[2], _no_limit(held)
-
-    def speed_ratio(self, state):
-        return 0.0
-
-    def momentum(self, state, Omega):
-        return jnp.zeros_like(Omega)
 
     def check(self) -> None:
         """One-line ValueErrors: max_torque (3,) or a scalar, finite, non-negative."""

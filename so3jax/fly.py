@@ -161,7 +161,7 @@ def trajectory_arrays(results: dict) -> dict:
 
 def write_figures(out: Path, mission, results: dict) -> list[Path]:
     from so3jax import flight_plots, plots
-    from so3jax.io import save_figure
+    from so3jax.io import save_figures
 
     phases = mission.scenario().phase_times
     histories = {name: r.history for name, r in results.items()}
@@ -180,12 +180,7 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
             capacity = np.abs(G) @ (w["spin_inertia"] * w["max_speed"])
             figures["wheel_speeds.png"] = flight_plots.wheel_speed_figure(histories, phases, mission.T, w["max_speed"])
             figures["momentum.png"] = flight_plots.momentum_figure(histories, phases, mission.T, capacity)
-    paths = []
-    for name, fig in figures.items():
-        save_figure(fig, out / name)
-        plots.plt.close(fig)
-        paths.append(out / name)
-    return paths
+    return save_figures(out, figures)
 
 
 def run(args) -> int:

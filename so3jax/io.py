@@ -61,3 +61,16 @@ def save_figure(fig, path) -> None:
     path = Path(path)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", dpi=120, bbox_inches="tight")
+
+
+def save_figures(out, figures: dict) -> list:
+    """Save {file name: matplotlib figure} into the folder ``out``, each atomically, and
+    close them. Returns the paths written."""
+    import matplotlib.pyplot as plt
+
+    paths = []
+    for name, fig in figures.items():
+        save_figure(fig, Path(out) / name)
+        plt.close(fig)
+        paths.append(Path(out) / name)
+    return paths

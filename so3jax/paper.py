@@ -125,7 +125,7 @@ def format_table(metrics: dict) -> str:
 
 def write_figures(out: Path, results: dict, scenario) -> list[Path]:
     from so3jax import plots
-    from so3jax.io import save_figure
+    from so3jax.io import save_figures
 
     histories = {name: r.history for name, r in results.items()}
     h = histories["pd"]
@@ -139,12 +139,7 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
         "fig5_torque_norm.png": plots.torque_norm_figure(histories, phases),
         "fig6_attitude_error.png": plots.attitude_error_figure(histories, phases),
     }
-    paths = []
-    for name, fig in figures.items():
-        save_figure(fig, out / name)
-        plots.plt.close(fig)
-        paths.append(out / name)
-    return paths
+    return save_figures(out, figures)
 
 
 def run(args) -> int:

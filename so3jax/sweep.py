@@ -31,7 +31,6 @@ import operator
 import re
 import sys
 import time
-import tomllib
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -42,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
 
+from so3jax import config as cfg
 from so3jax import dispersions as disp
 from so3jax.controllers import registry
 from so3jax.io import save_figure, save_npz, write_json, write_text
@@ -121,16 +121,6 @@ _TOP_KEYS = ("samples", "seed", "T", "dt", "controllers", "chunk", "max_draws", 
 _TABLES = ("inertia", "deployment", "orbit", "disturbance", "initial", "gains")
 
 
-def _table(d: dict, key: str, allowed, where: str) -> dict:
-    t = d.get(key, {})
-    if not isinstance(t, dict):
-        raise ValueError(f"{where}{key} must be a table")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
-    unknown = set(t) - set(allowed)
-    if unknown:
-        raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
-    return t
-
-
 def _inertia(t: dict, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
     fields = {}
     if "nominal" in t:
@@ -144,16 +134,8 @@ def _inertia(t: dict, where: str, default: disp.InertiaDispersion) -> disp.Inert
         if name in t:
             fields[name] = disp.parse_distribution(t[name], f"{where}.{name}")
     if "rotation_deg" in t:
-        fields["rotation_deg"] = _number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
+        fields["rotation_deg"] = cfg.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
     return dataclasses.replace(default, **fields)
-
-
-def _number(value, where: str, low=-math.inf, high=math.inf, integer=False):
-    ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not (low <= value <= high):
-        kind = "an integer" if integer else "a number"
-        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {value!r}")
-    return value if integer else float(value)
 
 
 def config_from_dict(d: dict) -> SweepConfig:
@@ -165,39 +147,35 @@ def config_from_dict(d: dict) -> SweepConfig:
     top = {}
     for key in ("samples", "chunk", "max_draws"):
         if key in d:
-            top[key] = _number(d[key], key, low=1, integer=True)
+            top[key] = cfg.number(d[key], key, low=1, integer=True)
     if "seed" in d:
-        top["seed"] = _number(d["seed"], "seed", low=0, high=2**32 - 1, integer=True)
+        top["seed"] = cfg.number(d["seed"], "seed", low=0, high=2**32 - 1, integer=True)
     for key in ("T", "dt"):
         if key in d:
-            top[key] = _number(d[key], key, low=0.0)
+            top[key] = cfg.number(d[key], key, low=0.0)
     if "divergence_angle_deg" in d:
-        top["divergence_angle_deg"] = _number(d["divergence_angle_deg"], "divergence_angle_deg", 0.0, 180.0)
+        top["divergence_angle_deg"] = cfg.number(d["divergence_angle_deg"], "divergence_angle_deg", 0.0, 180.0)
     if "controllers" in d:
-        names = tuple(d["controllers"])
-        bad = [c for c in names if c not in CONTROLLERS]
-        if bad or not names or len(set(names)) != len(names):
-            raise ValueError(f"controllers must be distinct names among {', '.join(CONTROLLERS)}, got {list(names)}")
-        top["controllers"] = names
+        top["controllers"] = cfg.names(d["controllers"], "controllers", tuple(CONTROLLERS))
     config = dataclasses.replace(base, **top)
     steps_for_horizon(config.T, config.dt)
 
-    inertia = _table(d, "inertia", ("J0", "J1", "J2"), "")
+    inertia = cfg.table(d, "inertia", ("J0", "J1", "J2"), "")
     inertia_keys = ("nominal", "scale", "axis_scale", "rotation_deg", "products")
     base_d = base.dispersions
     fields = {
-        name: _inertia(_table(inertia, name, inertia_keys, "inertia."), f"inertia.{name}", getattr(base_d, name))
+        name: _inertia(cfg.table(inertia, name, inertia_keys, "inertia."), f"inertia.{name}", getattr(base_d, name))
         for name in ("J0", "J1", "J2")
     }
     for table, keys in (("deployment", ("tau_J",)), ("orbit", ("n",)), ("disturbance", ("amplitude", "frequency", "noise_std"))):
-        t = _table(d, table, keys + (("seed",) if table == "disturbance" else ()), "")
+        t = cfg.table(d, table, keys + (("seed",) if table == "disturbance" else ()), "")
         fields.update({k: disp.parse_distribution(t[k], f"{table}.{k}") for k in keys if k in t})
-    seed = _table(d, "disturbance", ("seed", "amplitude", "frequency", "noise_std"), "").get("seed", "random")
+    seed = cfg.table(d, "disturbance", ("seed", "amplitude", "frequency", "noise_std"), "").get("seed", "random")
     if seed != "random":
-        fields["disturbance_seed"] = _number(seed, "disturbance.seed ('random' or a seed)", 0, 2**31 - 1, integer=True)
-    initial = _table(d, "initial", ("max_angle_deg", "rate"), "")
+        fields["disturbance_seed"] = cfg.number(seed, "disturbance.seed ('random' or a seed)", 0, 2**31 - 1, integer=True)
+    initial = cfg.table(d, "initial", ("max_angle_deg", "rate"), "")
     if "max_angle_deg" in initial:
-        fields["initial_angle_deg"] = _number(initial["max_angle_deg"], "initial.max_angle_deg", 0.0, 180.0)
+        fields["initial_angle_deg"] = cfg.number(initial["max_angle_deg"], "initial.max_angle_deg", 0.0, 180.0)
     if "rate" in initial:
         fields["initial_rate"] = disp.parse_distribution(initial["rate"], "initial.rate")
     dispersions = dataclasses.replace(base_d, **fields)
@@ -208,10 +186,10 @@ def config_from_dict(d: dict) -> SweepConfig:
         )
 
     gains = dict(base.gains)
-    gain_tables = _table(d, "gains", tuple(CONTROLLERS), "")
+    gain_tables = cfg.table(d, "gains", tuple(CONTROLLERS), "")
     for name, t in gain_tables.items():
         kind = CONTROLLERS[name][1]
-        t = _table(gain_tables, name, kind._fields, "gains.")
+        t = cfg.table(gain_tables, name, kind._fields, "gains.")
         gains[name] = gains[name]._replace(**{k: np.asarray(v, dtype=float) if isinstance(v, list) else v for k, v in t.items()})
     for g in gains.values():
         check_gains(g)
@@ -244,28 +222,9 @@ def config_to_dict(config: SweepConfig) -> dict:
     return d
 
 
-def _parse_value(text: str):
-    """A TOML value (number, string, array, inline table), else the text as a string."""
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text
-
-
 def load_config(path: Path | None = None, overrides: tuple = ()) -> SweepConfig:
     """Config from a TOML file (or the defaults), then ``KEY=VALUE`` overrides (dotted keys)."""
-    d = tomllib.loads(Path(path).read_text()) if path is not None else {}
-    for item in overrides:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"override {item!r} is not KEY=VALUE")
-        *tables, leaf = key.strip().split(".")
-        target = d
-        for t in tables:
-            target = target.setdefault(t, {})
-            if not isinstance(target, dict):
-                raise ValueError(f"override {item!r}: {t} is not a table")  # noqa: TRY004
-        target[leaf] = _parse_value(value.strip())
+    d = cfg.load(path, overrides)
     return config_from_dict(d)
 
 

@@ -29,7 +29,6 @@ import io as _stringio
 import json
 import math
 import time
-import tomllib
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -40,6 +39,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from so3jax import config as cfg
 from so3jax import io
 from so3jax.controllers import registry
 from so3jax.gradients import MODES, Batch, batch_metrics, make_batch, value_and_grad
@@ -247,27 +247,6 @@ def validate(config: TuneConfig) -> None:
         raise ValueError("config key 'diagonal_gamma' applies to the adaptive controller only")
 
 
-def _set_key(table: dict, dotted: str, value) -> None:
-    *parents, last = dotted.split(".")
-    for key in parents:
-        table = table.setdefault(key, {})
-        if not isinstance(table, dict):
-            raise ValueError(f"config key {dotted!r}: {key!r} is not a table")  # noqa: TRY004
-    table[last] = value
-
-
-def parse_override(text: str) -> tuple[str, Any]:
-    """'key.sub=VALUE' with VALUE a TOML value (a bare word is taken as a string)."""
-    key, sep, value = text.partition("=")
-    if not sep or not key.strip():
-        raise ValueError(f"override {text!r} must read KEY=VALUE")
-    try:
-        parsed = tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
-        parsed = value
-    return key.strip(), parsed
-
-
 def parse_config(table: dict, base_dir=".") -> TuneConfig:
     """A validated TuneConfig from a TOML-like table; gain-file paths relative to base_dir."""
     table = json.loads(json.dumps(table))  # a deep copy
@@ -283,12 +262,10 @@ def parse_config(table: dict, base_dir=".") -> TuneConfig:
 
 def load_config(path, overrides=()) -> TuneConfig:
     """Read a TOML campaign file and apply (dotted key, value) overrides."""
-    path = Path(path)
-    with open(path, "rb") as f:
-        table = tomllib.load(f)
+    table = cfg.read_toml(path)
     for key, value in overrides:
-        _set_key(table, key, value)
-    return parse_config(table, path.parent)
+        cfg.set_dotted(table, key, value)
+    return parse_config(table, Path(path).parent)
 
 
 # --- gains -------------------------------------------------------------------------
@@ -823,7 +800,7 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
 
 
 def _command(args) -> int:
-    overrides = [parse_override(text) for text in args.set]
+    overrides = [cfg.parse_override(text) for text in args.set]
     if args.iterations is not None:
         overrides.append(("iterations", args.iterations))
     if args.T is not None:
