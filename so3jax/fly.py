@@ -185,10 +185,16 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
 
 def run(args) -> int:
     from so3jax import mission as missions
-    from so3jax.io import save_npz, write_json
+    from so3jax import runfolder
 
     mission = missions.load(args.mission, overrides(args))
-    _check_output_folder(args.out)
+    with runfolder.claim(args.out, "fly"):
+        return _fly_into(args, mission)
+
+
+def _fly_into(args, mission) -> int:
+    from so3jax.io import save_npz, write_json
+
     print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
           + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
           + " ...", file=sys.stderr, flush=True)
@@ -209,14 +215,3 @@ def run(args) -> int:
         print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
               f"results in {args.out}/ (metrics.json, trajectory.npz, {len(figures)} figures)")
     return 1 if diverged else 0
-
-
-def _check_output_folder(out: Path) -> None:
-    """The output folder can be created and written, checked before the work."""
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".so3jax-write-check"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as err:
-        raise ValueError(f"output folder {out} cannot be written: {err.strerror or err}") from None

@@ -143,6 +143,13 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
 
 
 def run(args) -> int:
+    from so3jax import runfolder
+
+    with runfolder.claim(args.out, "paper"):
+        return _run(args)
+
+
+def _run(args) -> int:
     import jax
 
     import so3jax as sj

@@ -43,6 +43,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceShardin
 
 from so3jax import config as cfg
 from so3jax import dispersions as disp
+from so3jax import runfolder
 from so3jax.controllers import registry
 from so3jax.io import save_figure, save_npz, write_json, write_text
 from so3jax.metrics import Metrics
@@ -312,24 +313,32 @@ def _chunk_path(out: Path, controller: str, first: int) -> Path:
     return out / "chunks" / f"{controller}-{first:09d}.npz"
 
 
-def load_chunks(out: Path, controllers, n_samples: int) -> dict:
-    """{controller: {field: array (n_samples, ...)}, plus 'done' (bool)} from OUT/chunks."""
+def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dict:
+    """{controller: {field: array (n_samples, ...)}, plus 'done' (bool)} from OUT/chunks; every
+    chunk must carry this sweep's fingerprint."""
     results = {}
     pattern = re.compile(r"(\w+)-(\d{9})\.npz")
+    remedy = "delete it and rerun with --resume to recompute it"
     for path in sorted((out / "chunks").glob("*.npz")):
         match = pattern.fullmatch(path.name)
         if not match or match.group(1) not in controllers:
             continue
-        with np.load(path) as f:
-            keep = f["index"] < n_samples
-            index = f["index"][keep]
-            r = results.setdefault(match.group(1), {"done": np.zeros(n_samples, bool)})
-            for field in Metrics._fields:
-                value = f[field][keep]
-                if field not in r:
-                    r[field] = np.full((n_samples,) + value.shape[1:], np.nan)
-                r[field][index] = value
-            r["done"][index] = True
+        try:
+            with np.load(path) as f:
+                chunk = {key: f[key] for key in ("fingerprint", "index", *Metrics._fields)}
+        except Exception as err:  # a truncated or foreign file: zip, pickle or key errors
+            raise runfolder.corrupt(path, err, remedy) from None
+        if str(chunk["fingerprint"]) != fingerprint:
+            raise ValueError(f"{path} belongs to another sweep (fingerprint {chunk['fingerprint']}, this one {fingerprint}); use another --out")
+        keep = chunk["index"] < n_samples
+        index = chunk["index"][keep]
+        r = results.setdefault(match.group(1), {"done": np.zeros(n_samples, bool)})
+        for field in Metrics._fields:
+            value = chunk[field][keep]
+            if field not in r:
+                r[field] = np.full((n_samples,) + value.shape[1:], np.nan)
+            r[field][index] = value
+        r["done"][index] = True
     return results
 
 
@@ -342,30 +351,43 @@ def _fingerprint(config: SweepConfig) -> dict:
     return d
 
 
-def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> None:
+def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
+    """Check the run description in OUT/sweep.json against this sweep's; returns its fingerprint."""
     from so3jax.io import to_builtin
 
-    fingerprint = to_builtin(_fingerprint(config))
+    description = to_builtin(_fingerprint(config))
+    description["fingerprint"] = runfolder.fingerprint(description)
     stamp = out / "sweep.json"
+    has_chunks = any((out / "chunks").glob("*.npz"))
     if resume and stamp.exists():
         import json
 
-        previous = json.loads(stamp.read_text())
-        changed = sorted(k for k in set(previous) | set(fingerprint) if previous.get(k) != fingerprint.get(k))
+        try:
+            previous = json.loads(stamp.read_text())
+        except (OSError, ValueError) as err:
+            raise runfolder.corrupt(stamp, err, "delete the folder or choose another --out") from None
+        changed = sorted(k for k in set(previous) | set(description) if k != "fingerprint" and previous.get(k) != description.get(k))
         if changed:
             raise ValueError(f"--resume: {out} holds a sweep with other settings ({', '.join(changed)}); use another --out")
-    elif not resume and any((out / "chunks").glob("*.npz")):
+    elif resume and has_chunks:
+        raise ValueError(f"--resume: {stamp} is missing, so the chunks in {out} cannot be matched to this sweep; use another --out")
+    elif not resume and has_chunks:
         raise ValueError(f"{out} already holds a sweep: pass --resume to finish it, or choose another --out")
     if jax.process_index() == 0:
-        write_json(stamp, fingerprint)
+        write_json(stamp, description)
+    return description["fingerprint"]
 
 
 def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None) -> dict:
     """Run (or finish, with resume) a sweep; write the output folder; return the summary."""
     from tqdm import tqdm
 
-    out = Path(out)
-    _prepare_out(out, config, resume)
+    with runfolder.claim(out, "sweep", lock=jax.process_index() == 0) as out:
+        return _run_sweep(config, out, resume, progress)
+
+
+def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress) -> dict:
+    fingerprint = _prepare_out(out, config, resume)
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
     params = jax.tree.map(lambda x: x.astype(dtype) if x.dtype.kind == "f" else x, samples.params)
@@ -373,7 +395,7 @@ def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress:
     n_steps = steps_for_horizon(config.T, config.dt)
     mesh = batch_mesh()
     chunk = padded_chunk(config.chunk, mesh.size)
-    done = load_chunks(out, config.controllers, config.samples)
+    done = load_chunks(out, config.controllers, config.samples, fingerprint)
     todo = {c: valid[~done[c]["done"][valid]] if c in done else valid for c in config.controllers}
     total = len(valid) * len(config.controllers)
     writer = jax.process_index() == 0
@@ -395,13 +417,13 @@ def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress:
                 chunk_params = jax.tree.map(operator.itemgetter(padded), params)
                 metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh)
                 if writer:
-                    save_npz(_chunk_path(out, controller, int(index[0])), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
+                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
                 computed += len(index)
                 rate = computed / (time.perf_counter() - start)
                 bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
                 bar.update(len(index))
     wall = time.perf_counter() - start
-    results = load_chunks(out, config.controllers, config.samples)
+    results = load_chunks(out, config.controllers, config.samples, fingerprint)
     summary = summarize(config, samples, results)
     summary["run"] = {
         "devices": mesh.size,

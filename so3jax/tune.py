@@ -23,7 +23,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import functools
-import hashlib
 import inspect
 import io as _stringio
 import json
@@ -40,7 +39,7 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from so3jax import config as cfg
-from so3jax import io
+from so3jax import io, runfolder
 from so3jax.controllers import registry
 from so3jax.gradients import MODES, Batch, batch_metrics, make_batch, value_and_grad
 from so3jax.scenario import Scenario, check_gains, check_scenario, paper_scenario
@@ -52,6 +51,7 @@ PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
 COST_MODES = ("weighted", "equal_effort")
 METHODS = ("gradient", "es")
 CHECKPOINT = "checkpoint.npz"
+DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
 
 
 # --- configuration ---------------------------------------------------------------------
@@ -510,9 +510,8 @@ def cost_refs(config: TuneConfig, problem: Problem, initial_metrics, batch: Batc
 
 
 def _fingerprint(config: TuneConfig) -> str:
-    """Hash of everything but the iteration count (a resumed run may be extended)."""
-    table = dataclasses.asdict(dataclasses.replace(config, iterations=0))
-    return hashlib.sha256(json.dumps(table, sort_keys=True, default=str).encode()).hexdigest()[:16]
+    """Fingerprint of everything but the iteration count (a resumed run may be extended)."""
+    return runfolder.fingerprint(dataclasses.asdict(dataclasses.replace(config, iterations=0)))
 
 
 def save_checkpoint(path, fingerprint, iteration, state, refs, rows) -> None:
@@ -528,19 +527,22 @@ def save_checkpoint(path, fingerprint, iteration, state, refs, rows) -> None:
 
 def load_checkpoint(path, fingerprint, state_template, refs_template):
     """(iteration, state, refs, rows); leaf shapes and dtypes follow the templates."""
-    with np.load(path) as data:
-        if str(data["fingerprint"]) != fingerprint:
-            raise ValueError(f"{path} was written for another configuration; use a new --out folder")
-        leaves_template, treedef = jax.tree.flatten((state_template, refs_template))
-        leaves = []
-        for i, template in enumerate(leaves_template):
-            leaf = data[f"leaf_{i}"]
-            template = np.asarray(template)
-            if leaf.shape != template.shape:
-                raise ValueError(f"{path}: checkpoint leaf {i} has shape {leaf.shape}, expected {template.shape}")
-            leaves.append(jnp.asarray(leaf, template.dtype))
-        state, refs = jax.tree.unflatten(treedef, leaves)
-        return int(data["iteration"]), state, CostRefs(*refs), json.loads(str(data["rows"]))
+    leaves_template, treedef = jax.tree.flatten((state_template, refs_template))
+    try:
+        with np.load(path) as data:
+            found = str(data["fingerprint"])
+            iteration, rows = int(data["iteration"]), json.loads(str(data["rows"]))
+            leaves = [data[f"leaf_{i}"] for i in range(len(leaves_template))]
+    except Exception as err:  # a truncated or foreign file: zip, pickle, key or JSON errors
+        raise runfolder.corrupt(path, err, "delete it to start the run over, or choose another --out") from None
+    if found != fingerprint:
+        raise ValueError(f"{path} was written for another configuration; use a new --out folder")
+    for i, (leaf, template) in enumerate(zip(leaves, leaves_template)):
+        if leaf.shape != np.shape(template):
+            raise ValueError(f"{path}: checkpoint leaf {i} has shape {leaf.shape}, expected {np.shape(template)}")
+    leaves = [jnp.asarray(leaf, np.asarray(template).dtype) for leaf, template in zip(leaves, leaves_template)]
+    state, refs = jax.tree.unflatten(treedef, leaves)
+    return iteration, state, CostRefs(*refs), rows
 
 
 def write_history(out: Path, rows: list[dict]) -> None:
@@ -667,10 +669,14 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
 
     Raises NonFiniteGradientError, after saving, when a cost or gradient is not finite.
     """
+    validate(config)
+    with runfolder.claim(out, "tune") as out:
+        return _tune(config, out, resume, progress)
+
+
+def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     from tqdm import tqdm
 
-    validate(config)
-    out = Path(out)
     checkpoint = out / CHECKPOINT
     if checkpoint.exists() and not resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that run, or choose another --out")
@@ -754,10 +760,15 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
                 finite = True
             if not finite:
                 write_history(out, rows + [row])
+                kept = (
+                    f"best and last good gains: {out / 'best_gains.json'}"
+                    if rows
+                    else "no gains were written (the initial gains already fail)"
+                )
                 raise NonFiniteGradientError(
                     f"non-finite cost or gradient at iteration {iteration} (cost {row['cost']}, gradient norm "
                     f"{row['grad_norm']}, {row['diverged']} of {n_train} training rollouts diverged) with gains "
-                    f"{gain_columns(gains)}; stopped. Best and last good gains: {out / 'best_gains.json'}"
+                    f"{gain_columns(gains)}; stopped; {kept}"
                 )
             rows.append(row)
             state = new_state
@@ -806,7 +817,7 @@ def _command(args) -> int:
     if args.T is not None:
         overrides.append(("scenario.T", args.T))
     config = load_config(args.config, overrides)
-    out = Path(args.out) if args.out else Path(args.config).with_suffix("")
+    out = Path(args.out) if args.out else DEFAULT_OUT / Path(args.config).stem
     try:
         report = tune(config, out, resume=args.resume)
     except NonFiniteGradientError as err:
@@ -850,7 +861,7 @@ def register(subparsers) -> None:
     parser.add_argument("config", help="campaign file (TOML), e.g. tuning/adaptive_equal_effort.toml")
     parser.add_argument("--iterations", type=int, help="number of iterations (overrides the config)")
     parser.add_argument("--T", type=float, help="horizon [s] (overrides scenario.T)")
-    parser.add_argument("--out", help="run folder (default: the config path without .toml)")
+    parser.add_argument("--out", help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
     parser.add_argument("--resume", action="store_true", help="continue the run saved in the run folder")
     parser.add_argument(
         "--set",

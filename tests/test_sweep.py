@@ -5,6 +5,7 @@ mission phases in 5400 steps) and one shard size (8), so each controller compile
 """
 
 import dataclasses
+import io
 import json
 import os
 import subprocess
@@ -234,6 +235,25 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
         run(config(), tmp_path)
     with pytest.raises(ValueError, match="other settings"):
         run(config("seed=1"), tmp_path, resume=True)
+
+    # a resume refuses what it cannot match to this sweep, before computing anything
+    stamp = tmp_path / "sweep.json"
+    description = stamp.read_text()
+    stamp.unlink()
+    with pytest.raises(ValueError, match="sweep.json is missing"):
+        run(config("seed=1"), tmp_path, resume=True)
+    stamp.write_text(description)
+    chunk = tmp_path / "chunks" / "pd-000000000.npz"
+    good = chunk.read_bytes()
+    chunk.write_bytes(good[:200])
+    with pytest.raises(ValueError, match=r"pd-000000000\.npz cannot be read .*delete it and rerun with --resume"):
+        run(config(), tmp_path, resume=True)
+    with np.load(io.BytesIO(good)) as f:
+        arrays = dict(f)
+    np.savez(chunk, **{**arrays, "fingerprint": np.array("0123456789abcdef")})
+    with pytest.raises(ValueError, match="belongs to another sweep"):
+        run(config(), tmp_path, resume=True)
+    chunk.write_bytes(good)
 
     run_chunk, computed = sweep.run_chunk, []
     monkeypatch.setattr(sweep, "run_chunk", lambda params, *a: computed.append(len(params.seed)) or run_chunk(params, *a))

@@ -1,0 +1,125 @@
+"""Output folders: checked before the work, locked while a run writes, stale locks reported;
+a tuning checkpoint that cannot be read is a one-line error naming it."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from so3jax import runfolder, tune
+
+ROOT = Path(__file__).resolve().parents[1]
+HOLD = "import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep'):\n    print('locked', flush=True)\n    time.sleep(120)\n"
+
+
+def cli(*args, cwd):
+    env = {**os.environ, "SO3JAX_CACHE_DIR": ""}
+    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+
+
+@pytest.fixture
+def holder(tmp_path):
+    """Another process holding the lock of tmp_path / 'out'."""
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-c", HOLD, str(out)], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        assert proc.stdout.readline().strip() == "locked"
+        yield out, proc
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+
+
+def test_fingerprint_depends_on_every_value_and_not_on_key_order():
+    a = runfolder.fingerprint({"T": 10.0, "seeds": (0, 1)})
+    assert a == runfolder.fingerprint({"seeds": [0, 1], "T": 10.0})
+    assert a != runfolder.fingerprint({"T": 10.0, "seeds": (0, 2)})
+    assert len(a) == 16 and int(a, 16) >= 0
+
+
+@pytest.mark.parametrize("where", ["file", "under_a_file", "proc"])
+def test_an_unwritable_output_folder_is_an_error_before_the_work(tmp_path, where):
+    (tmp_path / "f").write_text("x")
+    out = {"file": tmp_path / "f", "under_a_file": tmp_path / "f" / "sub", "proc": Path("/proc/so3jax-out")}[where]
+    with pytest.raises(ValueError, match="choose another --out"):
+        with runfolder.claim(out, "paper"):
+            pytest.fail("the block must not run")
+
+
+def test_the_cli_refuses_an_unwritable_out_with_one_line_and_exit_2(tmp_path):
+    (tmp_path / "f").write_text("x")
+    proc = cli("paper", "--T", "1", "--out", str(tmp_path / "f"), cwd=tmp_path)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines() == [f"so3jax paper: error: output folder {tmp_path / 'f'} is a file; choose another --out"]
+
+
+def test_the_lock_is_held_during_the_block_and_released_after_it_even_on_error(tmp_path):
+    with runfolder.claim(tmp_path, "sweep"):
+        owner = json.loads((tmp_path / runfolder.LOCK).read_text())
+        assert owner["pid"] == os.getpid() and owner["host"] == socket.gethostname() and owner["command"] == "sweep"
+    assert not (tmp_path / runfolder.LOCK).exists()
+    with pytest.raises(RuntimeError), runfolder.claim(tmp_path, "tune"):
+        raise RuntimeError
+    assert not (tmp_path / runfolder.LOCK).exists()
+
+
+def test_a_second_run_into_a_locked_folder_is_refused(holder):
+    out, proc = holder
+    with pytest.raises(ValueError, match=rf"in use by so3jax sweep \(process {proc.pid} on {socket.gethostname()}"):
+        with runfolder.claim(out, "sweep"):
+            pytest.fail("the block must not run")
+    assert json.loads((out / runfolder.LOCK).read_text())["pid"] == proc.pid  # the owner keeps its lock
+
+
+def test_two_commands_against_one_out_the_second_gets_one_line_and_exit_2(holder):
+    out, proc = holder
+    result = cli("sweep", "--samples", "8", "--T", "10", "--out", str(out), cwd=out.parent)
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    error = result.stderr.strip().splitlines()[-1]  # warnings about the config may come first
+    assert error.startswith("so3jax sweep: error: ") and f"in use by so3jax sweep (process {proc.pid}" in error
+    assert not (out / "sweep.json").exists()
+
+
+def test_a_stale_lock_from_a_dead_process_is_reported_and_taken_over(tmp_path, capsys):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    lock = tmp_path / runfolder.LOCK
+    lock.write_text(json.dumps({"pid": pid, "host": socket.gethostname(), "command": "tune", "since": 0}))
+    with runfolder.claim(tmp_path, "tune"):
+        assert json.loads(lock.read_text())["pid"] == os.getpid()
+    assert f"locked by process {pid}, which is gone" in capsys.readouterr().err
+
+
+def test_a_lock_from_another_host_is_not_broken(tmp_path):
+    lock = tmp_path / runfolder.LOCK
+    lock.write_text(json.dumps({"pid": 1, "host": "elsewhere.invalid", "command": "sweep", "since": 0}))
+    with pytest.raises(ValueError, match="process 1 on elsewhere.invalid"):
+        with runfolder.claim(tmp_path, "sweep"):
+            pass
+    lock.write_text("not json")
+    with pytest.raises(ValueError, match="not a valid lock file"):
+        with runfolder.claim(tmp_path, "sweep"):
+            pass
+
+
+def _campaign():
+    return tune.parse_config(
+        {"controller": "pd", "iterations": 1, "scenario": {"T": 10.0}, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}
+    )
+
+
+def test_a_corrupt_checkpoint_names_the_file_and_the_remedy(tmp_path):
+    (tmp_path / tune.CHECKPOINT).write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(ValueError, match=r"checkpoint\.npz cannot be read .*delete it to start the run over"):
+        tune.tune(_campaign(), tmp_path, resume=True, progress=False)
+
+
+def test_tune_refuses_a_locked_run_folder(holder):
+    out, proc = holder
+    with pytest.raises(ValueError, match=f"process {proc.pid}"):
+        tune.tune(_campaign(), out, progress=False)
+    assert not (out / tune.CHECKPOINT).exists()
