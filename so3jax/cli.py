@@ -36,6 +36,14 @@ def add_precision_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def add_memory_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="refuse a run estimated to need more memory than SIZE, e.g. 4G (default: the memory available)",
+    )
+
+
 CACHE_MAX_BYTES = 2 << 30
 
 

@@ -23,7 +23,7 @@ TRAJECTORY = ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument
 
     p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels")
     p.add_argument("mission", nargs="?", type=Path,
@@ -37,6 +37,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, default=Path("results/fly"), help="output folder (default results/fly)")
     p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=run)
 
@@ -193,14 +194,20 @@ def run(args) -> int:
 
 
 def _fly_into(args, mission) -> int:
+    from so3jax import memory
     from so3jax.io import save_npz, write_json
 
+    scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
+    needed = sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
+                 for name in mission.controllers)
+    budget = memory.check(needed, memory.from_args(args), f"T = {mission.T:g} s at record_every = {mission.record_every}",
+                          "raise --record-every or shorten --T")
     print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
           + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
           + " ...", file=sys.stderr, flush=True)
     results, wall = fly(mission, args.precision)
     reports = {name: report(mission, r) for name, r in results.items()}
-    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall,
+    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
                          "mission_file": None if args.mission is None else str(args.mission)}
     write_json(args.out / "metrics.json", reports)
     save_npz(args.out / "trajectory.npz", **trajectory_arrays(results))

@@ -30,7 +30,7 @@ METRIC_NAMES = (
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument
 
     p = subparsers.add_parser("paper", help="reproduce the paper's mission with both controllers (table + figures)")
     p.add_argument("--T", type=float, default=4000.0, help="horizon [s] (default 4000)")
@@ -42,6 +42,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default results/paper)")
     p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=run)
 
@@ -58,13 +59,10 @@ def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
     import jax
 
     import so3jax as sj
-    from so3jax.controllers import registry
     from so3jax.scenario import check_scenario
 
     check_scenario(scenario)  # warnings (J0's triangle inequality) once, here
-    options = {"adaptive": {"log_derivative": log_derivative}}
-    specs = {name: registry.get(name) for name in CONTROLLERS}
-    setups = {name: (spec.factory(**options.get(name, {})), spec.defaults) for name, spec in specs.items()}
+    setups = controller_setups(log_derivative)
     devices = jax.devices("cpu")
 
     def simulate(i, name):
@@ -79,6 +77,14 @@ def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
         futures = {name: pool.submit(simulate, i, name) for i, name in enumerate(setups)}
         results = {name: future.result() for name, future in futures.items()}
     return results, time.perf_counter() - start
+
+
+def controller_setups(log_derivative="exact") -> dict:
+    """{name: (controller, paper gains)} of the paper's two controllers."""
+    from so3jax.controllers import registry
+
+    options = {"adaptive": {"log_derivative": log_derivative}}
+    return {name: (registry.get(name).factory(**options.get(name, {})), registry.get(name).defaults) for name in CONTROLLERS}
 
 
 def metrics_dict(result) -> dict:
@@ -158,6 +164,12 @@ def _run(args) -> int:
     scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
     if args.record_every < 1:
         raise SystemExit("--record-every must be a positive integer")
+    from so3jax import memory
+
+    needed = sum(memory.simulate_bytes(scenario, c, g, args.seed, record_every=args.record_every)
+                 for c, g in controller_setups(args.log_derivative).values())
+    budget = memory.check(needed, memory.from_args(args), f"--T {args.T:g} at --record-every {args.record_every}",
+                          "raise --record-every or shorten --T")
     results, wall = run_both(scenario, args.seed, args.log_derivative, args.record_every)
     report = {name: metrics_dict(r) for name, r in results.items()}
     report["config"] = {
@@ -172,6 +184,7 @@ def _run(args) -> int:
         "gains": {name: sj.controllers.get(name).defaults._asdict() for name in CONTROLLERS},
         "wall_time_s": wall,
         "devices": [str(d) for d in jax.devices("cpu")],  # where run_both ran them
+        "memory": budget,
     }
     write_json(args.out / "metrics.json", report)
     figures = [] if args.no_figures else write_figures(args.out, results, scenario)

@@ -378,15 +378,35 @@ def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
     return description["fingerprint"]
 
 
-def run_sweep(config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None) -> dict:
-    """Run (or finish, with resume) a sweep; write the output folder; return the summary."""
+def run_sweep(
+    config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None, max_memory: int | None = None
+) -> dict:
+    """Run (or finish, with resume) a sweep; write the output folder; return the summary.
+    ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate."""
     from tqdm import tqdm
 
     with runfolder.claim(out, "sweep", lock=jax.process_index() == 0) as out:
-        return _run_sweep(config, out, resume, progress)
+        return _run_sweep(config, out, resume, progress, max_memory)
 
 
-def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress) -> dict:
+def memory_needed(config: SweepConfig, params, chunk: int) -> int:
+    """Bytes a sweep holds at its peak: one chunk's inputs and outputs, and the results table."""
+    from so3jax import memory
+
+    dtype = jnp.result_type(float)
+    first = jax.tree.map(lambda x: x[:1], params)
+    per_sample = 0
+    for controller in config.controllers:
+        gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
+        run = functools.partial(simulate_batch, controller=controller, T=config.T, dt=config.dt)
+        per_sample = max(per_sample, memory.outputs(run, first, gains) + memory.nbytes(first))
+    table = config.samples * len(config.controllers) * (per_sample + memory.nbytes(first))
+    return chunk * per_sample + table
+
+
+def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory) -> dict:
+    from so3jax import memory
+
     fingerprint = _prepare_out(out, config, resume)
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
@@ -395,6 +415,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress) -> dict:
     n_steps = steps_for_horizon(config.T, config.dt)
     mesh = batch_mesh()
     chunk = padded_chunk(config.chunk, mesh.size)
+    budget = memory.check(memory_needed(config, params, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
+                          "lower --chunk or --samples")
     done = load_chunks(out, config.controllers, config.samples, fingerprint)
     todo = {c: valid[~done[c]["done"][valid]] if c in done else valid for c in config.controllers}
     total = len(valid) * len(config.controllers)
@@ -428,6 +450,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress) -> dict:
     summary["run"] = {
         "devices": mesh.size,
         "chunk": chunk,
+        "memory": budget,
         "computed_samples": computed,
         "wall_s": wall,
         "samples_per_s": computed / wall if computed else None,
@@ -676,7 +699,7 @@ def figures(config: SweepConfig, cols: dict) -> dict:
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument
 
     p = subparsers.add_parser(
         "sweep",
@@ -699,6 +722,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
     p.add_argument("--distributed", action="store_true", help="multi-host: call jax.distributed.initialize() first")
+    add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=main)
 
@@ -715,7 +739,9 @@ def main(args: argparse.Namespace) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("once", InertiaWarning)
         config = load_config(args.config, tuple(overrides))
-    summary = run_sweep(config, args.out, resume=args.resume)
+    from so3jax import memory
+
+    summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args))
     if jax.process_index() == 0:
         print(format_summary(summary))
         run = summary["run"]
