@@ -27,6 +27,7 @@ import inspect
 import io as _stringio
 import json
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -821,7 +822,7 @@ def _command(args) -> int:
     try:
         report = tune(config, out, resume=args.resume)
     except NonFiniteGradientError as err:
-        print(f"so3jax tune: {err}")
+        print(f"so3jax tune: {err}", file=sys.stderr)
         return 1
     print(markdown_table([report]))
     print(f"results in {out}/")

@@ -123,3 +123,15 @@ def test_tune_refuses_a_locked_run_folder(holder):
     with pytest.raises(ValueError, match=f"process {proc.pid}"):
         tune.tune(_campaign(), out, progress=False)
     assert not (out / tune.CHECKPOINT).exists()
+
+
+def test_a_shipped_campaign_runs_into_results_and_a_failed_run_claims_no_gains(tmp_path):
+    shipped = ROOT / "tuning" / "pd_equal_effort"
+    before = {p.name: p.read_bytes() for p in shipped.iterdir()}
+    proc = cli("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--T", "1", "--iterations", "1",
+               "--set", "initial_gains={k_R=1e12, k_Omega=25.0}", cwd=tmp_path)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    run = tmp_path / "results" / "tune" / "pd_equal_effort"
+    assert "non-finite cost" in proc.stderr and "no gains were written" in proc.stderr
+    assert (run / "history.csv").exists() and not (run / "best_gains.json").exists()
+    assert {p.name: p.read_bytes() for p in shipped.iterdir()} == before
