@@ -21,7 +21,7 @@ from so3jax.sensors import Gyro, Sensors, StarTracker
 from tests.helpers import J_BODY, custom_scenario
 from tests.test_cli import run_cli
 
-PINNED = json.loads((Path(__file__).parent / "data" / "paper_metrics_seed0_seed7.json").read_text())
+PINNED = json.loads((Path(__file__).parent / "data" / "paper_metrics_pinned.json").read_text())["platforms"]
 PD = jax.tree.map(jnp.asarray, sj.PAPER_PD_GAINS)
 
 
@@ -29,15 +29,40 @@ def _sampled(m, **parts):
     return Loop(period_steps=m, **parts)
 
 
+def _platform() -> dict:
+    """What fixes the last bits of a compiled rollout: JAX's version and the CPU's vector ISA
+    (XLA compiles for the host: FMA contraction and vector widths differ between ISAs)."""
+    import platform
+
+    import jaxlib
+
+    try:
+        flags = set(Path("/proc/cpuinfo").read_text().split())
+    except OSError:
+        flags = set()
+    isa = [f for f in ("avx512f", "avx2", "fma", "asimd", "sve") if f in flags]
+    return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "machine": platform.machine(), "isa": isa}
+
+
 @pytest.mark.parametrize("seed", [0, 7])
 def test_paper_json_is_pinned(tmp_path, seed):
-    """`so3jax paper --json` gives the recorded metrics to the last digit (seeds 0 and 7)."""
+    """`so3jax paper --json` gives the recorded metrics to the last digit (seeds 0 and 7) on
+    every platform recorded in tests/data/paper_metrics_pinned.json, and agrees to 1e-12 on
+    others (a platform is recorded by running ``so3jax paper --json --no-figures --seed S``
+    at the recorded commit there and adding its metrics)."""
     proc = run_cli("paper", "--json", "--no-figures", "--seed", str(seed), "--out", str(tmp_path), cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout.strip().splitlines()[-1])
-    for name, pinned in PINNED[str(seed)].items():
-        for key, value in pinned.items():
-            assert report[name][key] == value, (name, key)
+    here = _platform()
+    exact = [p for p in PINNED if p["platform"] == here]
+    for entry in exact or PINNED:
+        for name, pinned in entry["metrics"][str(seed)].items():
+            for key, value in pinned.items():
+                if exact:
+                    assert report[name][key] == value, (name, key, here)
+                else:  # the orthogonality error is round-off itself: compared absolutely
+                    atol = 1e-13 if key == "orthogonality_error" else 0.0
+                    np.testing.assert_allclose(report[name][key], value, rtol=1e-12, atol=atol, err_msg=f"{name} {key}")
 
 
 def test_fly_paper_mission_prints_the_paper_numbers(tmp_path):
