@@ -14,7 +14,7 @@ import os
 import sys
 from pathlib import Path
 
-from so3jax import _xla_flags
+from so3jax import _xla_flags, distributed
 
 COMMAND_MODULES = ("so3jax.paper", "so3jax.fly", "so3jax.tune", "so3jax.sweep")
 
@@ -74,6 +74,9 @@ def main(argv=None) -> int:
     except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
         print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except distributed.PeerFailure as err:  # another process of a multi-process run stopped
+        print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130

@@ -43,6 +43,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceShardin
 
 from so3jax import config as cfg
 from so3jax import dispersions as disp
+from so3jax import distributed
 from so3jax import runfolder
 from so3jax.controllers import registry
 from so3jax.io import save_figure, save_npz, write_json, write_text
@@ -373,7 +374,7 @@ def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
         raise ValueError(f"--resume: {stamp} is missing, so the chunks in {out} cannot be matched to this sweep; use another --out")
     elif not resume and has_chunks:
         raise ValueError(f"{out} already holds a sweep: pass --resume to finish it, or choose another --out")
-    if jax.process_index() == 0:
+    if distributed.writer():
         write_json(stamp, description)
     return description["fingerprint"]
 
@@ -383,9 +384,7 @@ def run_sweep(
 ) -> dict:
     """Run (or finish, with resume) a sweep; write the output folder; return the summary.
     ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate."""
-    from tqdm import tqdm
-
-    with runfolder.claim(out, "sweep", lock=jax.process_index() == 0) as out:
+    with runfolder.claim(out, "sweep", lock=distributed.writer()) as out:
         return _run_sweep(config, out, resume, progress, max_memory)
 
 
@@ -405,9 +404,12 @@ def memory_needed(config: SweepConfig, params, chunk: int) -> int:
 
 
 def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory) -> dict:
+    from tqdm import tqdm
+
     from so3jax import memory
 
     fingerprint = _prepare_out(out, config, resume)
+    distributed.barrier("sweep: output folder checked")
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
     params = jax.tree.map(lambda x: x.astype(dtype) if x.dtype.kind == "f" else x, samples.params)
@@ -420,7 +422,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     done = load_chunks(out, config.controllers, config.samples, fingerprint)
     todo = {c: valid[~done[c]["done"][valid]] if c in done else valid for c in config.controllers}
     total = len(valid) * len(config.controllers)
-    writer = jax.process_index() == 0
+    writer = distributed.writer()
     bar = tqdm(
         total=total,
         initial=total - sum(map(len, todo.values())),
@@ -437,7 +439,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
                 index = todo[controller][first : first + chunk]
                 padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
                 chunk_params = jax.tree.map(operator.itemgetter(padded), params)
-                metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh)
+                with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
+                    metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh)
                 if writer:
                     save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
                 computed += len(index)
@@ -445,6 +448,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
                 bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
                 bar.update(len(index))
     wall = time.perf_counter() - start
+    distributed.barrier("sweep: every chunk saved")
     results = load_chunks(out, config.controllers, config.samples, fingerprint)
     summary = summarize(config, samples, results)
     summary["run"] = {
@@ -721,15 +725,14 @@ def register(subparsers) -> None:
     )
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
-    p.add_argument("--distributed", action="store_true", help="multi-host: call jax.distributed.initialize() first")
+    distributed.add_arguments(p)
     add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=main)
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.distributed:
-        jax.distributed.initialize()
+    distributed.initialize(args)
     overrides = list(args.set)
     for key in ("samples", "T", "chunk", "seed"):
         if getattr(args, key) is not None:
@@ -742,7 +745,7 @@ def main(args: argparse.Namespace) -> int:
     from so3jax import memory
 
     summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args))
-    if jax.process_index() == 0:
+    if distributed.writer():
         print(format_summary(summary))
         run = summary["run"]
         if run["computed_samples"]:
