@@ -123,7 +123,8 @@ def reached_phases(steps_per_phase) -> list[bool]:
 
 def phase_values(values, steps_per_phase) -> list:
     """Per-phase values (P,) as a list, None for a phase the horizon never reached."""
-    return [float(v) if reached else None for v, reached in zip(np.asarray(values, dtype=float), reached_phases(steps_per_phase))]
+    values = np.asarray(values, dtype=float)
+    return [float(v) if reached else None for v, reached in zip(values, reached_phases(steps_per_phase))]
 
 
 def finite_values(values) -> tuple[np.ndarray, int]:

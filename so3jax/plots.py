@@ -70,14 +70,16 @@ def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, referen
 
 def rate_figure(histories, phase_times, T=None):
     """Fig. 2: Omega against Omega_d [rad/s]."""
-    return _per_axis(histories, phase_times, lambda h: h.Omega, "Ω [rad/s]", "Angular velocity", reference=lambda h: h.Omega_d, T=T)
+    return _per_axis(
+        histories, phase_times, lambda h: h.Omega, "Ω [rad/s]", "Angular velocity", reference=lambda h: h.Omega_d, T=T
+    )
 
 
 def rate_error_figure(histories, phase_times, t_max, T=None):
     """Fig. 3: Omega - Omega_d before capture [rad/s]."""
     return _per_axis(
-        histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]", "Angular velocity tracking error before capture", t_max,
-        T=T,
+        histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]",
+        "Angular velocity tracking error before capture", t_max, T=T,
     )
 
 
@@ -101,7 +103,9 @@ def _scalar_figure(histories, phase_times, series, ylabel, title, log=False, T=N
 
 def torque_norm_figure(histories, phase_times, T=None):
     """Fig. 5: |tau| [N m]."""
-    return _scalar_figure(histories, phase_times, lambda h: np.linalg.norm(h.tau, axis=-1), "|τ| [N m]", "Torque norm", T=T)
+    return _scalar_figure(
+        histories, phase_times, lambda h: np.linalg.norm(h.tau, axis=-1), "|τ| [N m]", "Torque norm", T=T
+    )
 
 
 def attitude_error_figure(histories, phase_times, T=None):

@@ -780,7 +780,8 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
                 raise NonFiniteGradientError(
                     f"non-finite cost or gradient at iteration {iteration} (cost {row['cost']}{gradient}, "
                     f"{row['diverged']} of {n_train} training rollouts diverged) with gains "
-                    f"{gain_columns(to_gains(state.params))}; stopped. Best and last good gains: {out / 'best_gains.json'}"
+                    f"{gain_columns(to_gains(state.params))}; stopped. "
+                    f"Best and last good gains: {out / 'best_gains.json'}"
                 )
             rows.append(row)
             state = new_state
