@@ -14,8 +14,7 @@ from so3jax.plots import AXES, plt, shade_phases
 
 
 def _frame(ax, phase_times, T, ylabel):
-    shade_phases(ax, [p for p in phase_times if p < T], T)
-    ax.set_xlim(0.0, T)
+    shade_phases(ax, phase_times, T)
     ax.set_ylabel(ylabel)
 
 

@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from so3jax.metrics import cell
+
 PHASE_LABELS = ("capture", "deployment", "detumble")
 METRICS = ("rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase", "max_angle_phase",
            "max_torque", "orthogonality_error")
@@ -78,28 +80,27 @@ def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
     return results, time.perf_counter() - start
 
 
-def _value(x):
-    """A metric as JSON: NaN and infinities become None (the run is flagged diverged)."""
-    x = np.asarray(x, dtype=float)
-    if x.ndim:
-        return [_value(v) for v in x]
-    return float(x) if math.isfinite(x) else None
-
-
 def report(mission, result) -> dict:
-    """SPEC 6 metrics (phases the horizon never reached omitted) and the flight metrics."""
+    """SPEC 6 metrics (phases the horizon never reached omitted) and the flight metrics, as
+    JSON-ready data: every metric of a diverged run None (null), the run flagged diverged."""
+    from so3jax.io import to_builtin
+    from so3jax.metrics import reached_phases, reported
+
     m = result.metrics._asdict()
-    reached = sum(1 for n in mission.scenario().steps_per_phase if n > 0)
-    out = {k: _value(np.asarray(m[k])[..., :reached] if k.endswith("_phase") else m[k]) for k in METRICS}
-    out["diverged"] = bool(m["diverged"])
+    diverged = bool(m["diverged"])
+    reached = sum(reached_phases(mission.scenario().steps_per_phase))
+    out = {k: to_builtin(reported(m[k], diverged)[..., :reached] if k.endswith("_phase") else reported(m[k], diverged))
+           for k in METRICS}
+    out["diverged"] = diverged
     if mission.period_steps is not None:
         f = result.flight._asdict()
-        out.update({k: _value(f[k]) for k in FLIGHT_METRICS})
+        out.update({k: to_builtin(reported(f[k], diverged)) for k in FLIGHT_METRICS})
     return out
 
 
 def _cell(x, fmt):
-    return "diverged" if x is None else format(x, fmt)
+    """None here is a diverged run's metric (phases never reached are left out)."""
+    return "diverged" if x is None else cell(x, fmt)
 
 
 def format_table(mission, reports: dict) -> str:
@@ -167,8 +168,8 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
     phases = mission.scenario().phase_times
     histories = {name: r.history for name, r in results.items()}
     if mission.period_steps is None:
-        figures = {"attitude_error.png": plots.attitude_error_figure(histories, phases),
-                   "torque.png": plots.torque_figure(histories, phases)}
+        figures = {"attitude_error.png": plots.attitude_error_figure(histories, phases, mission.T),
+                   "torque.png": plots.torque_figure(histories, phases, mission.T)}
     else:
         figures = {
             "attitude.png": flight_plots.attitude_figure(histories, phases, mission.T),
@@ -195,7 +196,7 @@ def run(args) -> int:
 
 def _fly_into(args, mission) -> int:
     from so3jax import memory
-    from so3jax.io import save_npz, write_json
+    from so3jax.io import dumps, save_npz, write_json
 
     scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
     needed = sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
@@ -216,7 +217,7 @@ def _fly_into(args, mission) -> int:
     if diverged:
         print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
     if args.json:
-        print(json.dumps(reports))
+        print(dumps(reports))
     else:
         print(format_table(mission, {n: reports[n] for n in mission.controllers}))
         print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -32,19 +33,27 @@ def atomic_path(path):
 
 
 def to_builtin(x):
-    """Arrays and numpy scalars -> lists and Python numbers, for JSON."""
+    """Arrays and numpy scalars -> lists and Python numbers, for JSON. A non-finite float
+    (NaN: a diverged rollout; infinities) becomes None, JSON's null: JSON has no NaN."""
     if isinstance(x, dict):
         return {str(k): to_builtin(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [to_builtin(v) for v in x]
     if hasattr(x, "tolist"):
-        return np.asarray(x).tolist()
+        return to_builtin(np.asarray(x).tolist())
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
     return x
+
+
+def dumps(obj, **kwargs) -> str:
+    """Strict JSON text of obj (to_builtin first: never NaN or Infinity)."""
+    return json.dumps(to_builtin(obj), allow_nan=False, **kwargs)
 
 
 def write_json(path, obj) -> None:
     with atomic_path(path) as tmp:
-        tmp.write_text(json.dumps(to_builtin(obj), indent=2) + "\n")
+        tmp.write_text(dumps(obj, indent=2) + "\n")
 
 
 def write_text(path, text: str) -> None:

@@ -6,10 +6,12 @@ so a full mission needs no stored trajectory.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from so3jax import so3
 
@@ -94,3 +96,48 @@ def finalize(acc: Accumulator, steps_per_phase, dt, final_R) -> Metrics:
         orthogonality_error=so3.orthogonality_error(final_R),
         diverged=~(acc.finite & jnp.all(jnp.isfinite(final_R), axis=(0, 1))),
     )
+
+
+# --- reporting ----------------------------------------------------------------------------
+# Conventions of every report (paper, fly, sweep, tune): NaN is a diverged rollout's metric
+# (null in JSON, "diverged" in tables); None is a per-phase metric of a phase the horizon
+# never reached (null in JSON, "—" in tables), never 0.
+
+UNREACHED = "—"
+
+
+def reported(value, diverged):
+    """A metric (NumPy, float) as reported: NaN wherever its rollout diverged, so that no
+    diverged rollout reads as a number (a maximum taken before the blow-up, say).
+    ``diverged``: bool of the batch shape, leading axes of ``value``."""
+    value = np.asarray(value, dtype=float)
+    diverged = np.asarray(diverged, dtype=bool)
+    diverged = diverged.reshape(diverged.shape + (1,) * (value.ndim - diverged.ndim))
+    return np.where(diverged, np.nan, value)
+
+
+def reached_phases(steps_per_phase) -> list[bool]:
+    """Which phases the horizon reaches (at least one step)."""
+    return [n > 0 for n in steps_per_phase]
+
+
+def phase_values(values, steps_per_phase) -> list:
+    """Per-phase values (P,) as a list, None for a phase the horizon never reached."""
+    values = np.asarray(values, dtype=float)
+    return [float(v) if reached else None for v, reached in zip(values, reached_phases(steps_per_phase))]
+
+
+def finite_values(values) -> tuple[np.ndarray, int]:
+    """(the finite values, how many were not finite) of a 1-D sample."""
+    values = np.asarray(values, dtype=float).reshape(-1)
+    finite = np.isfinite(values)
+    return values[finite], int((~finite).sum())
+
+
+def cell(value, fmt: str) -> str:
+    """A table cell: "diverged" for a non-finite metric, "—" for None (a phase never
+    reached, or no finite sample), else the formatted number."""
+    if value is None:
+        return UNREACHED
+    value = float(value)
+    return format(value, fmt) if math.isfinite(value) else "diverged"

@@ -4,13 +4,14 @@
 from __future__ import annotations
 
 import concurrent.futures
-import json
 import sys
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
+
+from so3jax.metrics import UNREACHED, cell
 
 # Table II of the paper (effort in N^2 m^2 s; see SPEC 7.5).
 PAPER_TABLE = {"pd": {"rmse": 4.024e-3, "effort": 155.61}, "adaptive": {"rmse": 2.776e-3, "effort": 143.10}}
@@ -87,41 +88,61 @@ def controller_setups(log_derivative="exact") -> dict:
     return {name: (registry.get(name).factory(**options.get(name, {})), registry.get(name).defaults) for name in CONTROLLERS}
 
 
-def metrics_dict(result) -> dict:
+def metrics_dict(result, steps_per_phase=None) -> dict:
+    """SPEC 6 metrics of one rollout: every value NaN when it diverged; per-phase values
+    None for the phases the horizon never reached (all reached when steps_per_phase is None)."""
+    from so3jax.metrics import phase_values, reported
+
     m = result.metrics._asdict()
-    return {k: (bool(m[k]) if k == "diverged" else np.asarray(m[k]).tolist()) for k in METRIC_NAMES}
+    diverged = bool(m["diverged"])
+    out = {}
+    for k in METRIC_NAMES:
+        if k == "diverged":
+            out[k] = diverged
+        elif k.endswith("_phase") and steps_per_phase is not None:
+            out[k] = phase_values(reported(m[k], diverged), steps_per_phase)
+        else:
+            out[k] = reported(m[k], diverged).tolist()
+    return out
 
 
 def _relative(ours, theirs) -> str:
+    """ours against theirs in percent; "—" when either is not a finite number (diverged)."""
+    if ours is None or theirs is None or not (np.isfinite(ours) and np.isfinite(theirs)):
+        return UNREACHED
     return f"{100.0 * (ours - theirs) / theirs:+.1f} %"
 
 
 def format_table(metrics: dict) -> str:
-    """Our Table II beside the paper's; relative differences computed (SPEC 7.5)."""
+    """Our Table II beside the paper's; relative differences computed (SPEC 7.5). A
+    diverged controller's cells read "diverged" and it enters no comparison; a phase
+    never reached reads "—"."""
     pd, ad = metrics["pd"], metrics["adaptive"]
     rows = [f"{'':28s}{'PD':>12s}{'paper PD':>12s}{'adaptive':>12s}{'paper ad.':>12s}"]
 
     def row(label, key, fmt, paper=True):
-        cells = [fmt.format(pd[key]), fmt.format(PAPER_TABLE["pd"][key]) if paper else "",
-                 fmt.format(ad[key]), fmt.format(PAPER_TABLE["adaptive"][key]) if paper else ""]
+        cells = [cell(pd[key], fmt), format(PAPER_TABLE["pd"][key], fmt) if paper else "",
+                 cell(ad[key], fmt), format(PAPER_TABLE["adaptive"][key], fmt) if paper else ""]
         rows.append(f"{label:28s}" + "".join(f"{c:>12s}" for c in cells))
 
-    row("RMSE [rad/s]", "rmse", "{:.4e}")
-    row("Effort [N^2 m^2 s]", "effort", "{:.2f}")
+    def ours(label, a, b, fmt):
+        rows.append(f"{label:28s}{cell(a, fmt):>12s}{'':>12s}{cell(b, fmt):>12s}")
+
+    row("RMSE [rad/s]", "rmse", ".4e")
+    row("Effort [N^2 m^2 s]", "effort", ".2f")
     for p in range(len(pd["rmse_phase"])):
-        rows.append(f"{f'  RMSE phase {p + 1} [rad/s]':28s}{pd['rmse_phase'][p]:>12.4e}{'':>12s}{ad['rmse_phase'][p]:>12.4e}")
+        ours(f"  RMSE phase {p + 1} [rad/s]", pd["rmse_phase"][p], ad["rmse_phase"][p], ".4e")
     for p in range(len(pd["effort_phase"])):
-        rows.append(f"{f'  effort phase {p + 1}':28s}{pd['effort_phase'][p]:>12.2f}{'':>12s}{ad['effort_phase'][p]:>12.2f}")
-    rows.append(f"{'RMSE unrotated [rad/s]':28s}{pd['rmse_unrotated']:>12.4e}{'':>12s}{ad['rmse_unrotated']:>12.4e}")
-    rows.append(f"{'max |tau| [N m]':28s}{pd['max_torque']:>12.4f}{'':>12s}{ad['max_torque']:>12.4f}")
-    rows.append(f"{'|R^T R - I| at end':28s}{pd['orthogonality_error']:>12.1e}{'':>12s}{ad['orthogonality_error']:>12.1e}")
+        ours(f"  effort phase {p + 1}", pd["effort_phase"][p], ad["effort_phase"][p], ".2f")
+    ours("RMSE unrotated [rad/s]", pd["rmse_unrotated"], ad["rmse_unrotated"], ".4e")
+    ours("max |tau| [N m]", pd["max_torque"], ad["max_torque"], ".4f")
+    ours("|R^T R - I| at end", pd["orthogonality_error"], ad["orthogonality_error"], ".1e")
     rows.append(f"{'diverged':28s}{pd['diverged']!s:>12s}{'':>12s}{ad['diverged']!s:>12s}")
     rows.append("")
     rows.append("adaptive vs PD            ours        paper")
     for key, label in (("rmse", "RMSE"), ("effort", "Effort")):
-        ours = _relative(ad[key], pd[key])
         theirs = _relative(PAPER_TABLE["adaptive"][key], PAPER_TABLE["pd"][key])
-        rows.append(f"  {label:20s}{ours:>12s}{theirs:>12s}")
+        rows.append(f"  {label:20s}{_relative(ad[key], pd[key]):>12s}{theirs:>12s}")
     rows.append("ours vs paper             PD          adaptive")
     for key, label in (("rmse", "RMSE"), ("effort", "Effort")):
         rows.append(f"  {label:20s}{_relative(pd[key], PAPER_TABLE['pd'][key]):>12s}"
@@ -135,15 +156,15 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
 
     histories = {name: r.history for name, r in results.items()}
     h = histories["pd"]
-    phases = scenario.phase_times
-    t_capture = phases[-1] if phases else h.t[-1]
+    phases, T = scenario.phase_times, scenario.horizon
+    t_capture = phases[-1] if phases else T
     figures = {
-        "fig1_inertia.png": plots.inertia_figure(h.t, h.J, phases),
-        "fig2_angular_velocity.png": plots.rate_figure(histories, phases),
-        "fig3_tracking_error.png": plots.rate_error_figure(histories, phases, t_capture),
-        "fig4_torque.png": plots.torque_figure(histories, phases),
-        "fig5_torque_norm.png": plots.torque_norm_figure(histories, phases),
-        "fig6_attitude_error.png": plots.attitude_error_figure(histories, phases),
+        "fig1_inertia.png": plots.inertia_figure(h.t, h.J, phases, T),
+        "fig2_angular_velocity.png": plots.rate_figure(histories, phases, T),
+        "fig3_tracking_error.png": plots.rate_error_figure(histories, phases, t_capture, T),
+        "fig4_torque.png": plots.torque_figure(histories, phases, T),
+        "fig5_torque_norm.png": plots.torque_norm_figure(histories, phases, T),
+        "fig6_attitude_error.png": plots.attitude_error_figure(histories, phases, T),
     }
     return save_figures(out, figures)
 
@@ -159,7 +180,7 @@ def _run(args) -> int:
     import jax
 
     import so3jax as sj
-    from so3jax.io import write_json
+    from so3jax.io import dumps, write_json
 
     scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
     if args.record_every < 1:
@@ -171,11 +192,12 @@ def _run(args) -> int:
     budget = memory.check(needed, memory.from_args(args), f"--T {args.T:g} at --record-every {args.record_every}",
                           "raise --record-every or shorten --T")
     results, wall = run_both(scenario, args.seed, args.log_derivative, args.record_every)
-    report = {name: metrics_dict(r) for name, r in results.items()}
+    report = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
     report["config"] = {
         "T": args.T,
         "dt": args.dt,
         "n_steps": scenario.n_steps,
+        "steps_per_phase": list(scenario.steps_per_phase),
         "seed": args.seed,
         "precision": args.precision,
         "tau_J": args.tau_J,
@@ -192,7 +214,7 @@ def _run(args) -> int:
     if diverged:
         print(f"warning: diverged rollout(s): {', '.join(diverged)}", file=sys.stderr)
     if args.json:
-        print(json.dumps(report))
+        print(dumps(report))
     else:
         print(format_table(report))
         print(f"\n{scenario.n_steps} steps x 2 controllers in {wall:.1f} s (compile included); "

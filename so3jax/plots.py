@@ -1,4 +1,7 @@
-"""Matplotlib figures of rollouts (the paper's Figs. 1-5, plus the attitude error)."""
+"""Matplotlib figures of rollouts (the paper's Figs. 1-5, plus the attitude error).
+
+Each figure ends at the horizon T [s] when given (else at the last sample): x axis
+[0, T], and only the phases that start before T shaded."""
 
 from __future__ import annotations
 
@@ -15,22 +18,29 @@ PHASE_COLORS = ("#f2f2f2", "#e3ecf7", "#f7ebe3", "#e8f5e3")
 
 
 def shade_phases(ax, phase_times, t_end):
-    """Shade the mission phases [s] behind a time plot."""
-    bounds = (0.0,) + tuple(phase_times) + (t_end,)
+    """Shade the mission phases [s] behind a time plot that ends at t_end [s] (the
+    horizon): phases starting at or after t_end are left out, and the x axis is [0, t_end]."""
+    bounds = (0.0,) + tuple(p for p in phase_times if p < t_end) + (t_end,)
     for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
         ax.axvspan(a, b, color=PHASE_COLORS[p % len(PHASE_COLORS)], zorder=0, lw=0)
         ax.text((a + b) / 2, 1.0, f"phase {p + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+    ax.set_xlim(0.0, t_end)
 
 
-def inertia_figure(t, J, phase_times):
-    """Fig. 1: entries of J(t) [kg m^2]; J: (M, 3, 3)."""
+def _end(histories, T):
+    """The figure's last time [s]: the horizon T, or the last sample without one."""
+    return float(T) if T is not None else float(next(iter(histories.values())).t[-1])
+
+
+def inertia_figure(t, J, phase_times, T=None):
+    """Fig. 1: entries of J(t) [kg m^2]; J: (M, 3, 3); up to the horizon T [s]."""
     fig, (diag, off) = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
     for i, a in enumerate(AXES):
         diag.plot(t, J[:, i, i], label=f"J{a}{a}")
     for i, j in ((0, 1), (0, 2), (1, 2)):
         off.plot(t, J[:, i, j], label=f"J{AXES[i]}{AXES[j]}")
     for ax, title in ((diag, "principal moments"), (off, "products of inertia")):
-        shade_phases(ax, phase_times, t[-1])
+        shade_phases(ax, phase_times, float(t[-1]) if T is None else float(T))
         ax.set(xlabel="t [s]", ylabel="[kg m²]")
         ax.set_title(title, pad=14)
         ax.legend(fontsize=8)
@@ -38,19 +48,19 @@ def inertia_figure(t, J, phase_times):
     return fig
 
 
-def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, reference=None):
-    """One subplot per body axis; series(history) -> (M, 3)."""
+def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, reference=None, T=None):
+    """One subplot per body axis; series(history) -> (M, 3); up to min(T, t_max) [s]."""
+    t_end = _end(histories, T) if t_max is None else min(_end(histories, T), t_max)
     fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
-            keep = slice(None) if t_max is None else h.t < t_max
+            keep = slice(None) if t_max is None else h.t < t_end
             ax.plot(h.t[keep], series(h)[keep, i], lw=1.0, **style(name))
         if reference is not None:
             h = next(iter(histories.values()))
-            keep = slice(None) if t_max is None else h.t < t_max
+            keep = slice(None) if t_max is None else h.t < t_end
             ax.plot(h.t[keep], reference(h)[keep, i], ls=":", color="k", lw=1.5, label="desired")
-        t_end = min(h.t[-1], t_max) if t_max is not None else h.t[-1]
-        shade_phases(ax, [p for p in phase_times if p < t_end], t_end)
+        shade_phases(ax, phase_times, t_end)
         ax.set_ylabel(f"{ylabel} {AXES[i]}")
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("t [s]")
@@ -58,28 +68,31 @@ def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, referen
     return fig
 
 
-def rate_figure(histories, phase_times):
+def rate_figure(histories, phase_times, T=None):
     """Fig. 2: Omega against Omega_d [rad/s]."""
-    return _per_axis(histories, phase_times, lambda h: h.Omega, "Ω [rad/s]", "Angular velocity", reference=lambda h: h.Omega_d)
-
-
-def rate_error_figure(histories, phase_times, t_max):
-    """Fig. 3: Omega - Omega_d before capture [rad/s]."""
     return _per_axis(
-        histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]", "Angular velocity tracking error before capture", t_max
+        histories, phase_times, lambda h: h.Omega, "Ω [rad/s]", "Angular velocity", reference=lambda h: h.Omega_d, T=T
     )
 
 
-def torque_figure(histories, phase_times):
+def rate_error_figure(histories, phase_times, t_max, T=None):
+    """Fig. 3: Omega - Omega_d before capture [rad/s]."""
+    return _per_axis(
+        histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]",
+        "Angular velocity tracking error before capture", t_max, T=T,
+    )
+
+
+def torque_figure(histories, phase_times, T=None):
     """Fig. 4: control torque per axis [N m]."""
-    return _per_axis(histories, phase_times, lambda h: h.tau, "τ [N m]", "Control torque")
+    return _per_axis(histories, phase_times, lambda h: h.tau, "τ [N m]", "Control torque", T=T)
 
 
-def _scalar_figure(histories, phase_times, series, ylabel, title, log=False):
+def _scalar_figure(histories, phase_times, series, ylabel, title, log=False, T=None):
     fig, ax = plt.subplots(figsize=(10, 3.5))
     for name, h in histories.items():
         ax.plot(h.t, series(h), lw=1.0, **style(name))
-    shade_phases(ax, phase_times, next(iter(histories.values())).t[-1])
+    shade_phases(ax, phase_times, _end(histories, T))
     if log:
         ax.set_yscale("log")
     ax.set(xlabel="t [s]", ylabel=ylabel)
@@ -88,13 +101,15 @@ def _scalar_figure(histories, phase_times, series, ylabel, title, log=False):
     return fig
 
 
-def torque_norm_figure(histories, phase_times):
+def torque_norm_figure(histories, phase_times, T=None):
     """Fig. 5: |tau| [N m]."""
-    return _scalar_figure(histories, phase_times, lambda h: np.linalg.norm(h.tau, axis=-1), "|τ| [N m]", "Torque norm")
+    return _scalar_figure(
+        histories, phase_times, lambda h: np.linalg.norm(h.tau, axis=-1), "|τ| [N m]", "Torque norm", T=T
+    )
 
 
-def attitude_error_figure(histories, phase_times):
+def attitude_error_figure(histories, phase_times, T=None):
     """Attitude error angle |log(R_d^T R)| [deg]."""
     return _scalar_figure(
-        histories, phase_times, lambda h: np.degrees(h.angle), "|log(R_dᵀR)| [deg]", "Attitude error", log=True
+        histories, phase_times, lambda h: np.degrees(h.angle), "|log(R_dᵀR)| [deg]", "Attitude error", log=True, T=T
     )

@@ -47,7 +47,7 @@ from so3jax import distributed
 from so3jax import runfolder
 from so3jax.controllers import registry
 from so3jax.io import save_figure, save_npz, write_json, write_text
-from so3jax.metrics import Metrics
+from so3jax.metrics import Metrics, cell, finite_values, reported
 from so3jax.rollout import rollout_batch
 from so3jax.scenario import (
     PAPER_J0,
@@ -482,7 +482,8 @@ def diverged(config: SweepConfig, r: dict) -> np.ndarray:
 
 
 def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
-    """Per-sample table: parameters, then each controller's metrics (NaN where not simulated)."""
+    """Per-sample table: parameters, then each controller's metrics: NaN where not
+    simulated, and every metric NaN where the state became non-finite (``nonfinite``)."""
     p = samples.params
     cols: dict[str, Any] = {
         "index": np.arange(len(p.seed)),
@@ -509,10 +510,12 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     for c in config.controllers:
         r = results.get(c, {})
         done = r.get("done", np.zeros(n, bool))
+        nonfinite = done & (r.get("diverged", np.zeros(n)) == 1)
         for field in Metrics._fields:
             if field == "diverged":
                 continue
             value = r.get(field, np.full((n, len(PHASE_NAMES)) if field.endswith("_phase") else n, np.nan))
+            value = reported(value, nonfinite)
             if field.endswith("_phase"):
                 cols.update({f"{c}_{field.removesuffix('_phase')}_{name}": value[:, i] for i, name in phases})
             else:
@@ -523,11 +526,12 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
 
 
 def _stats(x) -> dict:
-    x = np.asarray(x, dtype=float)
+    """Statistics over the finite values of x (None without any), and their number."""
+    x, _ = finite_values(x)
     if not len(x):
-        return dict.fromkeys(STAT_NAMES)
+        return {**dict.fromkeys(STAT_NAMES), "samples": 0}
     p50, p95, p99 = np.percentile(x, [50, 95, 99])
-    return {"mean": x.mean(), "std": x.std(), "p50": p50, "p95": p95, "p99": p99, "max": x.max()}
+    return {"mean": x.mean(), "std": x.std(), "p50": p50, "p95": p95, "p99": p99, "max": x.max(), "samples": len(x)}
 
 
 def _row(cols: dict, i: int) -> dict:
@@ -536,8 +540,9 @@ def _row(cols: dict, i: int) -> dict:
 
 def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     """Statistics of RMSE [rad/s] and effort [N^2 m^2 s] per controller and phase over the
-    samples that did not diverge; counts and parameters of diverged and rejected samples;
-    paired comparisons (each later controller against each earlier one)."""
+    samples that did not diverge (each with its number of samples; None where there is
+    none); counts and parameters of diverged and rejected samples; paired comparisons (each
+    later controller against each earlier one, on the samples where neither diverged)."""
     cols = columns(config, samples, results)
     phases = _phases(config)
     summary: dict[str, Any] = {
@@ -588,6 +593,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
 
 
 def _quantiles(x):
+    x, _ = finite_values(x)
     if not len(x):
         return (None,) * 4
     return (float(np.mean(x)), *map(float, np.percentile(x, [5, 50, 95])))
@@ -603,11 +609,13 @@ def format_summary(summary: dict) -> str:
         f"{s['nonphysical_inertia']} with a non-physical inertia (triangle inequality)"
     )
     for metric, label in (("rmse", "RMSE [rad/s]"), ("effort", "effort [N^2 m^2 s]")):
-        lines += ["", f"| {label} | phase | " + " | ".join(STAT_NAMES) + " |", "|---|---|" + "---:|" * len(STAT_NAMES)]
+        lines += ["", f"| {label} | phase | " + " | ".join(STAT_NAMES) + " | samples |",
+                  "|---|---|" + "---:|" * (len(STAT_NAMES) + 1)]
         for c, entry in summary["controllers"].items():
             for phase, st in entry[metric].items():
-                cells = ["" if st[k] is None else f"{st[k]:.4g}" for k in STAT_NAMES]
-                lines.append(f"| {c} | {phase} | " + " | ".join(cells) + " |")
+                none = "diverged" if entry["diverged"] else "—"  # no sample left: all diverged, or none simulated
+                cells = [none if st[k] is None else cell(st[k], ".4g") for k in STAT_NAMES]
+                lines.append(f"| {c} | {phase} | " + " | ".join(cells) + f" | {st.get('samples', '')} |")
     lines += ["", "| controller | simulated | diverged | non-finite |", "|---|---:|---:|---:|"]
     for c, e in summary["controllers"].items():
         lines.append(f"| {c} | {e['simulated']} | {e['diverged']} | {e['nonfinite']} |")
@@ -628,11 +636,23 @@ def format_summary(summary: dict) -> str:
 
 
 def write_csv(path: Path, cols: dict) -> None:
+    """One row per sample: an empty cell where a value does not exist (a rejected sample's
+    metrics, a controller not simulated), "nan" for a diverged rollout's metrics."""
+    flags = sorted((k for k in cols if k.endswith("_nonfinite")), key=len, reverse=True)  # NaN where not simulated
+    owner = {k: next((f for f in flags if k.startswith(f.removesuffix("nonfinite"))), None) for k in cols}
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     writer.writerow(cols)
     for i in range(len(cols["index"])):
-        writer.writerow(["" if isinstance(v, float) and math.isnan(v) else v for v in _row(cols, i).values()])
+        row = _row(cols, i)
+
+        def text(key, v):
+            if not (isinstance(v, float) and math.isnan(v)):
+                return v
+            flag = owner[key]
+            return "nan" if flag is not None and not math.isnan(row[flag]) else ""
+
+        writer.writerow([text(k, v) for k, v in row.items()])
     write_text(path, buffer.getvalue())
 
 

@@ -43,6 +43,7 @@ from so3jax import config as cfg
 from so3jax import io, runfolder
 from so3jax.controllers import registry
 from so3jax.gradients import MODES, Batch, batch_metrics, make_batch, value_and_grad
+from so3jax.metrics import cell, finite_values, reported
 from so3jax.scenario import Scenario, check_gains, check_scenario, paper_scenario
 
 # One instance per controller, so that jit caches hit across runs in one process.
@@ -602,7 +603,8 @@ def _gains_from_row(row, template):
 
 
 def _best_row(rows):
-    return min(rows, key=lambda r: r["cost"])
+    """The row of the lowest finite cost (the first row when none is finite)."""
+    return min(rows, key=lambda r: r["cost"] if math.isfinite(r["cost"]) else math.inf)
 
 
 def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
@@ -619,13 +621,29 @@ def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
 
 
 def _metrics_table(metrics) -> dict:
+    """Per-scenario RMSE and effort (None for a diverged scenario, flagged in ``diverged``)
+    and their means over the scenarios that did not diverge (None if every one did)."""
+    diverged = np.asarray(metrics.diverged, dtype=bool)
+    rmse, effort = (reported(x, diverged) for x in (metrics.rmse, metrics.effort))
+
+    def mean(x):
+        finite, _ = finite_values(x)
+        return float(np.mean(finite)) if len(finite) else None
+
     return {
-        "rmse": np.asarray(metrics.rmse).tolist(),
-        "effort": np.asarray(metrics.effort).tolist(),
-        "diverged": np.asarray(metrics.diverged).tolist(),
-        "mean_rmse": float(jnp.mean(metrics.rmse)),
-        "mean_effort": float(jnp.mean(metrics.effort)),
+        "rmse": io.to_builtin(rmse),
+        "effort": io.to_builtin(effort),
+        "diverged": diverged.tolist(),
+        "diverged_count": int(np.sum(diverged | ~np.isfinite(rmse) | ~np.isfinite(effort))),
+        "mean_rmse": mean(rmse),
+        "mean_effort": mean(effort),
     }
+
+
+def _mean_cost(metrics, refs, mode):
+    """The SPEC 6 cost over the scenarios, None when a scenario diverged (its cost is not a number)."""
+    cost = float(jnp.mean(scenario_costs(metrics, refs, mode)))
+    return cost if math.isfinite(cost) and not np.any(metrics.diverged) else None
 
 
 def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_train: CostRefs) -> dict:
@@ -659,8 +677,8 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
         }
     report["cost"] = {
         "mode": config.cost.mode,
-        "initial": float(jnp.mean(scenario_costs(initial_metrics, refs, config.cost.mode))),
-        "tuned": float(jnp.mean(scenario_costs(best_metrics, refs, config.cost.mode))),
+        "initial": _mean_cost(initial_metrics, refs, config.cost.mode),
+        "tuned": _mean_cost(best_metrics, refs, config.cost.mode),
     }
     return report
 
@@ -701,11 +719,13 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     refs = CostRefs(scalar, jnp.zeros((n_train,), dtype) if per_scenario else scalar, scalar)
 
     start = time.perf_counter()
+    initial_diverged = 0  # training scenarios the initial gains diverge on
     if resume and checkpoint.exists():
         iteration, state, refs, rows = load_checkpoint(checkpoint, fingerprint, state, refs)
         start -= rows[-1]["wall_s"] if rows else 0.0
     else:
         initial_metrics = evaluate(problem, initial, problem.train)
+        initial_diverged = int(np.sum(initial_metrics.diverged))
         refs = cost_refs(config, problem, initial_metrics, problem.train)
         iteration, rows = 0, []
         if config.method == "es":
@@ -749,7 +769,9 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 )
                 new_state = es_select(state, candidates, evaluations)
                 rollouts += config.es.population * n_train
-                parent = Evaluation(new_state.cost, new_state.rmse, new_state.effort, jnp.zeros((), jnp.int32))
+                # a finite cost has no diverged scenario; the parent stays the initial gains until one is finite
+                parent_diverged = 0 if math.isfinite(float(new_state.cost)) else initial_diverged
+                parent = Evaluation(new_state.cost, new_state.rmse, new_state.effort, parent_diverged)
                 row = _row(
                     iteration,
                     parent,
@@ -758,7 +780,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     rollouts,
                     sigma=float(new_state.sigma),
                 )
-                finite = True
+                finite = math.isfinite(row["cost"])
             if not finite:
                 write_history(out, rows + [row])
                 kept = (
@@ -766,10 +788,11 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     if rows
                     else "no gains were written (the initial gains already fail)"
                 )
+                gradient = f", gradient norm {row['grad_norm']}" if "grad_norm" in row else ""
                 raise NonFiniteGradientError(
-                    f"non-finite cost or gradient at iteration {iteration} (cost {row['cost']}, gradient norm "
-                    f"{row['grad_norm']}, {row['diverged']} of {n_train} training rollouts diverged) with gains "
-                    f"{gain_columns(gains)}; stopped; {kept}"
+                    f"non-finite cost or gradient at iteration {iteration} (cost {row['cost']}{gradient}, "
+                    f"{row['diverged']} of {n_train} training rollouts diverged) with gains "
+                    f"{gain_columns(to_gains(state.params))}; stopped; {kept}"
                 )
             rows.append(row)
             state = new_state
@@ -804,6 +827,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             "weight": float(refs.weight),
         },
     }
+    report = io.to_builtin(report)
     io.write_json(out / "validation.json", report)
     return report
 
@@ -830,7 +854,8 @@ def _command(args) -> int:
 
 
 def markdown_table(reports: list[dict]) -> str:
-    """Paper (initial) vs tuned gains, RMSE and effort on the held-out scenarios."""
+    """Paper (initial) vs tuned gains, RMSE and effort on the held-out scenarios (means
+    over the scenarios that did not diverge, with their count; "diverged" if all did)."""
     lines = [
         "| campaign | controller | gains | held-out RMSE [rad/s] | held-out effort [N² m² s] |",
         "|---|---|---|---|---|",
@@ -844,9 +869,20 @@ def markdown_table(reports: list[dict]) -> str:
             gains = ", ".join(f"{k}={_fmt(v)}" for k, v in entry["gains"].items())
             controller = report["budget"]["controller"] if label.startswith("budget") else report["controller"]
             lines.append(
-                f"| {name} ({label}) | {controller} | {gains} | {entry['mean_rmse']:.4e} | {entry['mean_effort']:.2f} |"
+                f"| {name} ({label}) | {controller} | {gains} | {_mean_cell(entry, 'mean_rmse', '.4e')} "
+                f"| {_mean_cell(entry, 'mean_effort', '.2f')} |"
             )
     return "\n".join(lines)
+
+
+def _mean_cell(entry: dict, key: str, fmt: str) -> str:
+    """A validation mean: the number, and how many scenarios diverged if any did."""
+    total = len(entry["diverged"])
+    count = entry.get("diverged_count", sum(map(bool, entry["diverged"])))
+    value = entry[key]
+    if value is None or not math.isfinite(value):
+        return "diverged" if count else cell(None, fmt)
+    return format(value, fmt) + (f" ({count} of {total} diverged)" if count else "")
 
 
 def _fmt(value) -> str:

@@ -4,6 +4,7 @@ Every in-process run shares one horizon and step (T = 2700 s at dt = 0.5 s: all 
 mission phases in 5400 steps) and one shard size (8), so each controller compiles once.
 """
 
+import csv
 import dataclasses
 import io
 import json
@@ -196,7 +197,7 @@ def test_outputs(reference):
         for metric in ("rmse", "effort"):
             assert set(summary["controllers"][c][metric]) == {"mission", "capture", "deployment", "detumble"}
             stats = summary["controllers"][c][metric]["mission"]
-            assert set(stats) == {"mean", "std", "p50", "p95", "p99", "max"}
+            assert set(stats) == {"mean", "std", "p50", "p95", "p99", "max", "samples"} and stats["samples"] == 11
             assert stats["max"] == pytest.approx(t[f"{c}_{metric}"].max())
     pair = summary["paired"]["adaptive_vs_pd"]
     better = np.mean(t["adaptive_rmse"] < t["pd_rmse"])
@@ -313,4 +314,54 @@ def test_diverged_samples_are_flagged_and_reported(tmp_path):
     assert [row["index"] for row in listed] == np.flatnonzero(diverged).tolist()
     assert {"tau_J", "J0_xx", "Omega0_x", "disturbance_seed", "pd_max_angle_capture"} <= set(listed[0])
     assert entry["rmse"]["mission"]["max"] == pytest.approx(t["pd_rmse"][~diverged].max())  # statistics leave them out
+    assert entry["rmse"]["mission"]["samples"] == entry["effort"]["capture"]["samples"] == (~diverged).sum()
     assert "| pd | 8 | " in (tmp_path / "summary.md").read_text()
+    # a non-finite rollout never reads as a number: NaN in the table, null in JSON, "nan" in the CSV
+    metric_columns = [k for k in t if k.startswith("pd_") and k not in ("pd_nonfinite", "pd_diverged")]
+    assert all(np.isnan(t[k][nonfinite]).all() for k in metric_columns)  # max |tau| before the blow-up too
+    saved = json.loads((tmp_path / "summary.json").read_text(), parse_constant=lambda c: pytest.fail(f"{c} in JSON"))
+    for row in saved["controllers"]["pd"]["diverged_samples"]:
+        assert row["pd_diverged"] == 1
+        if row["pd_nonfinite"] == 1:
+            assert all(row[k] is None for k in metric_columns)
+    with open(tmp_path / "samples.csv") as f:
+        rows = list(csv.DictReader(f))
+    for i in np.flatnonzero(nonfinite):
+        assert rows[i]["pd_rmse"] == rows[i]["pd_max_torque"] == "nan" and rows[i]["status"] == "simulated"
+    assert all(float(rows[i]["pd_rmse"]) > 0 for i in np.flatnonzero(~nonfinite))
+
+
+def test_statistics_are_over_finite_samples_and_null_without_any():
+    """Summaries from made-up results (no rollout): sample 1 non-finite, sample 2 rejected;
+    then every sample non-finite."""
+    cfg = config("samples=3", 'controllers=["pd", "adaptive"]')
+    samples = disp.draw_samples(cfg.dispersions, 0, 3, 20)
+    samples = samples._replace(valid=np.array([True, True, False]))
+    n, phases = 3, len(sweep.PHASE_NAMES)
+
+    def results(rmse, nonfinite):
+        r = {f: np.full((n, phases) if f.endswith("_phase") else n, 0.5) for f in sweep.Metrics._fields}
+        r["rmse"] = np.asarray(rmse, float)
+        r["diverged"] = np.asarray(nonfinite, float)
+        r["max_angle_phase"] = np.where(np.asarray(nonfinite)[:, None] == 1, np.nan, np.full((n, phases), 0.1))
+        r["done"] = np.array([True, True, False])
+        return r
+
+    summary = sweep.summarize(cfg, samples, {"pd": results([1e-3, np.nan, np.nan], [0, 1, 0]),
+                                             "adaptive": results([2e-3, 3e-3, np.nan], [0, 0, 0])})
+    pd = summary["controllers"]["pd"]
+    assert summary["samples"]["rejected"] == 1 and pd["simulated"] == 2 and pd["diverged"] == pd["nonfinite"] == 1
+    assert pd["rmse"]["mission"]["mean"] == 1e-3 and pd["rmse"]["mission"]["samples"] == 1
+    assert summary["controllers"]["adaptive"]["rmse"]["mission"]["mean"] == pytest.approx(2.5e-3)
+    pair = summary["paired"]["adaptive_vs_pd"]
+    assert pair["samples"] == 1 and pair["diverged_only_pd"] == 1
+    assert pair["rmse"]["relative_change"]["p50"] == pytest.approx(1.0)
+
+    summary = sweep.summarize(cfg, samples, {"pd": results([np.nan] * 3, [1, 1, 0]),
+                                             "adaptive": results([np.nan] * 3, [1, 1, 0])})
+    stats = summary["controllers"]["pd"]["rmse"]["mission"]
+    assert stats == {**dict.fromkeys(sweep.STAT_NAMES), "samples": 0}
+    assert summary["paired"]["adaptive_vs_pd"]["rmse"]["relative_change"]["mean"] is None
+    text = sweep.format_summary(summary)
+    assert "| pd | mission | " + " | ".join(["diverged"] * len(sweep.STAT_NAMES)) + " | 0 |" in text
+    assert "nan" not in text.lower() and "lower in" not in text

@@ -292,3 +292,50 @@ def test_cli_overrides_and_resume(tmp_path, capsys):
         cli.main(["tune", str(path), "--T", "20", "--set", "optimizer.name=adamm", "--out", str(tmp_path / "x")]) == 2
     )
     assert "optimizer.name" in capsys.readouterr().err
+
+
+# --- diverged rollouts: reported as diverged, never as a number ----------------------
+
+
+def strict_json(path):
+    return json.loads(Path(path).read_text(), parse_constant=lambda c: pytest.fail(f"{c} in {path}"))
+
+
+def test_a_diverged_validation_scenario_is_null_and_left_out_of_the_means(tmp_path):
+    """A held-out scenario at 1e-4 of the inertia: k_Omega dt / J far beyond RK4's
+    stability, it diverges with any gains; the other one does not."""
+    cfg = config(iterations=1, validation={"seeds": [10], "inertia_scales": [1.0, 1e-4]})
+    report = tune.tune(cfg, tmp_path, progress=False)
+    assert strict_json(tmp_path / "validation.json") == report
+    for label in ("initial", "tuned"):
+        entry = report[label]
+        assert entry["diverged"] == [False, True] and entry["diverged_count"] == 1
+        assert entry["rmse"][1] is None and entry["effort"][1] is None and entry["rmse"][0] > 0
+        assert entry["mean_rmse"] == entry["rmse"][0] and entry["mean_effort"] == entry["effort"][0]
+        assert report["cost"][label] is None  # the batch's cost is not a number
+    table = tune.markdown_table([report])
+    assert f"| {report['tuned']['mean_rmse']:.4e} (1 of 2 diverged) |" in table and "nan" not in table.lower()
+    strict_json(tmp_path / "best_gains.json")
+
+
+def test_markdown_table_reads_diverged_when_every_scenario_diverged():
+    entry = {"gains": {"k_R": 1.0, "k_Omega": 2.0}, "rmse": [None, None], "effort": [None, None],
+             "diverged": [True, True], "diverged_count": 2, "mean_rmse": None, "mean_effort": None}
+    table = tune.markdown_table([{"controller": "pd", "initial": entry, "tuned": entry}])
+    assert table.splitlines()[-1].endswith("| diverged | diverged |")
+
+
+def test_es_stops_when_the_initial_gains_diverge_in_training(tmp_path):
+    """Training at 1e-4 of the inertia: every rollout diverges; the baseline stops at once
+    and its history counts the diverged rollouts, with no cost as a number."""
+    cfg = config(method="es", iterations=2, es={"population": 2}, train={"seeds": [0, 1], "inertia_scales": [1e-4]})
+    with pytest.raises(tune.NonFiniteGradientError, match="2 of 2 training rollouts diverged"):
+        tune.tune(cfg, tmp_path, progress=False)
+    (row,) = read_history(tmp_path)
+    assert row["diverged"] == "2" and not math.isfinite(float(row["cost"])) and not math.isfinite(float(row["rmse"]))
+    assert not (tmp_path / "validation.json").exists()
+
+
+def test_best_row_is_the_lowest_finite_cost():
+    rows = [{"cost": float("nan")}, {"cost": 2.0}, {"cost": 1.5}, {"cost": float("inf")}]
+    assert tune._best_row(rows) == {"cost": 1.5}
