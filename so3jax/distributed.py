@@ -151,8 +151,10 @@ def collective(what: str):
     def guard():
         try:
             yield
-        except jax.errors.JaxRuntimeError as err:
-            if jax.process_count() == 1:
+        except Exception as err:  # the runtime's errors: JaxRuntimeError, or others naming the transport
+            text = str(err)
+            runtime = isinstance(err, jax.errors.JaxRuntimeError) or "Gloo" in text or "oordination" in text
+            if jax.process_count() == 1 or not runtime:
                 raise
             first = str(err).strip().splitlines()[0][:200]
             raise PeerFailure(

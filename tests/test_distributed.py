@@ -1,0 +1,139 @@
+"""Several processes on JAX's runtime, tried with two local processes on the CPU (gloo
+collectives, coordinator on 127.0.0.1): the same files as one process with the same
+device count, a stopped process reported and the sweep finished by --resume, a
+coordinator that cannot be reached reported within the timeout. Every process is bounded
+in time and stopped by the test."""
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from so3jax import distributed
+
+SWEEP = ("sweep", "--samples", "24", "--T", "100", "--chunk", "8", "--set", "dt=0.5")
+LIMIT_S = 400
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _start(args, cwd, devices=1, **popen):
+    env = {**os.environ, "SO3JAX_CACHE_DIR": "", "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
+    return subprocess.Popen([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **popen)
+
+
+def _finish(procs, limit=LIMIT_S):
+    """(returncode, stdout, stderr) of each process; every one is killed past ``limit`` seconds."""
+    out, deadline = [], time.monotonic() + limit
+    try:
+        for p in procs:
+            stdout, stderr = p.communicate(timeout=max(1.0, deadline - time.monotonic()))
+            out.append((p.returncode, stdout, stderr))
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
+    return out
+
+
+def _pair(out, cwd, *extra):
+    port = _port()
+    common = (*SWEEP, *extra, "--out", str(out), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--timeout", "60")
+    return [_start((*common, "--process-id", str(i)), cwd) for i in (0, 1)]
+
+
+def _files(out):
+    with np.load(out / "samples.npz") as f:
+        arrays = {k: f[k] for k in f.files}
+    summary = json.loads((out / "summary.json").read_text())
+    summary.pop("run")  # wall times, rates
+    return (out / "samples.csv").read_text(), arrays, summary
+
+
+@pytest.fixture(scope="module")
+def one_process(tmp_path_factory):
+    """The sweep in one process with two devices."""
+    out = tmp_path_factory.mktemp("one") / "out"
+    [(rc, _, stderr)] = _finish([_start((*SWEEP, "--out", str(out)), out.parent, devices=2)])
+    assert rc == 0, stderr
+    return _files(out)
+
+
+def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_process, tmp_path):
+    results = _finish(_pair(tmp_path / "out", tmp_path))
+    assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    ours = [[line for line in stdout.splitlines() if not line.startswith("[Gloo]")] for _, stdout, _ in results]
+    assert any("adaptive vs pd" in line for line in ours[0]) and ours[1] == []  # process 0 reports, once
+    csv, arrays, summary = _files(tmp_path / "out")
+    assert csv == one_process[0] and summary == one_process[2]
+    for key, value in one_process[1].items():
+        np.testing.assert_array_equal(arrays[key], value, err_msg=key)
+
+
+def test_a_stopped_process_is_reported_and_resume_finishes_the_sweep(one_process, tmp_path):
+    out = tmp_path / "out"
+    procs = _pair(out, tmp_path)
+    deadline = time.monotonic() + LIMIT_S
+    while not list((out / "chunks").glob("*.npz")) and time.monotonic() < deadline and procs[0].poll() is None:
+        time.sleep(0.2)
+    procs[1].kill()  # mid-sweep: the adaptive controller still has to compile and run
+    (rc, _, stderr), _ = _finish(procs)
+    assert rc == 1 and "Traceback" not in stderr, stderr[-3000:]
+    assert "so3jax sweep: error: process 0 of 2 stopped at " in stderr and "rerun every process with --resume" in stderr
+    assert not (out / "summary.json").exists()
+
+    results = _finish(_pair(out, tmp_path, "--resume"))
+    assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    csv, arrays, summary = _files(out)
+    assert csv == one_process[0] and summary == one_process[2]
+
+
+def test_a_coordinator_that_cannot_be_reached_is_reported_within_the_timeout(tmp_path):
+    start = time.monotonic()
+    args = (*SWEEP, "--out", str(tmp_path / "out"), "--coordinator", f"127.0.0.1:{_port()}", "--num-processes", "2",
+            "--process-id", "1", "--timeout", "3")
+    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)
+    assert rc == 2 and "Traceback" not in stderr
+    assert "could not reach the coordinator" in stderr.strip().splitlines()[-1]
+    assert time.monotonic() - start < 60
+    assert not (tmp_path / "out").exists()  # nothing written
+
+
+@pytest.mark.parametrize(
+    ("settings", "message"),
+    [
+        ({"coordinator": "localhost", "num_processes": 2, "process_id": 0}, "HOST:PORT"),
+        ({"coordinator": "127.0.0.1:1", "num_processes": 2, "process_id": 2}, "--process-id must be in 0..1"),
+        ({"coordinator": "127.0.0.1:1", "num_processes": 0, "process_id": 0}, "--num-processes must be at least 1"),
+        ({"num_processes": 2}, "needs --coordinator, --num-processes and --process-id"),
+        ({"coordinator": "127.0.0.1:1", "num_processes": 2, "process_id": 0, "timeout": 0}, "--timeout must be positive"),
+    ],
+)
+def test_bad_settings_are_one_line_errors_before_joining(settings, message, monkeypatch):
+    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES", "SO3JAX_PROCESS_ID"):
+        monkeypatch.delenv(key, raising=False)
+    args = argparse.Namespace(**{"distributed": True, "coordinator": None, "num_processes": None, "process_id": None,
+                                 "timeout": 60, **settings})
+    with pytest.raises(ValueError, match=message):
+        distributed.initialize(args)
+
+
+def test_one_process_runs_need_no_setting(monkeypatch):
+    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES", "SO3JAX_PROCESS_ID"):
+        monkeypatch.delenv(key, raising=False)
+    args = argparse.Namespace(distributed=False, coordinator=None, num_processes=None, process_id=None, timeout=60)
+    assert not distributed.requested(args)
+    monkeypatch.setenv("SLURM_NTASKS", "4")
+    assert distributed.requested(args)
