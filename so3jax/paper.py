@@ -146,11 +146,12 @@ def run(args) -> int:
     import jax
 
     import so3jax as sj
+    from so3jax import config as cfg
     from so3jax.io import write_json
 
+    cfg.number(args.record_every, "--record-every [steps]", low=1, integer=True)
+    cfg.number(args.seed, "--seed", low=0, high=2**31 - 1, integer=True)
     scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
-    if args.record_every < 1:
-        raise SystemExit("--record-every must be a positive integer")
     results, wall = run_both(scenario, args.seed, args.log_derivative, args.record_every)
     report = {name: metrics_dict(r) for name, r in results.items()}
     report["config"] = {

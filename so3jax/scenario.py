@@ -176,14 +176,14 @@ INERTIA_SAMPLES = 16  # sample times per phase where a profile is checked as a b
 
 
 def _inertia_checks(scenario: Scenario, batch_last: bool):
-    """(name, J) of every inertia to check: the profile's matrices and J(t) at the start
+    """(name, J) of every inertia to check, in turn: the profile's matrices and J(t) at the start
     of every phase; a profile that does not declare ``convex_phases`` (a user's J(t)) also
     at INERTIA_SAMPLES + 1 times spread over each phase. batch_last: the leaves carry a
     trailing batch axis (a natively batched rollout), moved to the front here."""
     profile = scenario.inertia
     front = (lambda J: jnp.moveaxis(J, -1, 0) if jnp.ndim(J) > 2 else J) if batch_last else (lambda J: J)
-    matrices = getattr(profile, "matrices", dict)()
-    checks = [(name, front(J)) for name, J in matrices.items()]
+    for name, J in getattr(profile, "matrices", dict)().items():
+        yield name, front(J)  # checked (shapes first) before J(t) is evaluated from them
     bounds = (0,) + tuple(min(max(k, 0), scenario.n_steps) for k in scenario.phase_steps) + (scenario.n_steps,)
     n_phases = len(bounds) - 1
     dtype = scenario.R0.dtype
@@ -198,8 +198,7 @@ def _inertia_checks(scenario: Scenario, batch_last: bool):
         where = f"J(t) of phase {p + 1} of {n_phases} (from t = {a * scenario.dt:g} s)"
         if batch_last and jnp.ndim(Js) > 3:
             Js = jnp.moveaxis(Js, -1, 1)
-        checks.append((where, Js))
-    return checks
+        yield where, Js
 
 
 def check_inertia_profile(scenario: Scenario, *, batch_last: bool = False) -> None:
