@@ -157,7 +157,7 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
         if not 0.0 <= inertia.rotation_deg <= 180.0:
             raise ValueError(f"inertia.{J}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
         if inertia.nominal is not None:
-            check_inertia(f"inertia.{J}.nominal", np.asarray(inertia.nominal, dtype=float), warn=warn)
+            check_inertia(f"{J} (inertia.{J}.nominal)", np.asarray(inertia.nominal, dtype=float), warn=warn)
     if not 0.0 <= d.initial_angle_deg <= 180.0:
         raise ValueError(f"initial.max_angle_deg must be in [0, 180], got {d.initial_angle_deg}")
 

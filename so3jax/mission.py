@@ -277,7 +277,7 @@ def from_dict(d: dict) -> Mission:
             raise ValueError(f"[controller.{name}]: {err}") from None
     inertias = {"J0": J0, "J1": J1, "J2": J2}
     for name, J in inertias.items():
-        check_inertia(f"inertia.{name}", J, warn=False)
+        check_inertia(f"{name} (inertia.{name})", J, warn=False)
     check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
     return mission
