@@ -123,10 +123,15 @@ def block_steps(n_steps: int, record_every: int | None, period_steps: int | None
     return -(-block // m) * m
 
 
-def check_inputs(scenario, controller, gains, loop, record_every, *, batch_last=False, gains_batch_axes=0) -> None:
+def check_inputs(
+    scenario, controller, gains, loop, record_every, *, seed=0, batch_last=False, gains_batch_axes=0
+) -> None:
     """SPEC 6's checks of a rollout's inputs, before tracing: types and shapes always,
     values where concrete (so jit, vmap and grad of a rollout keep working).
     batch_last: the scenario's leaves carry a trailing batch axis (see :func:`rollout`)."""
+    seed_dtype = seed.dtype if hasattr(seed, "dtype") else np.asarray(seed).dtype
+    if isinstance(seed, bool) or seed_dtype.kind not in "iu":
+        raise TypeError(f"seed must be an integer or an array of integers, got {seed!r}")
     if not isinstance(controller, Controller):
         raise TypeError(f"controller must be a so3jax Controller (e.g. so3jax.geometric_pd()), got {type(controller).__name__}")
     expected = getattr(controller, "gains_type", None)
@@ -172,7 +177,7 @@ def rollout(
     (rounded up to whole control periods). When blocks overrun N, the surplus steps are
     computed but masked.
     """
-    check_inputs(scenario, controller, gains, loop, record_every, batch_last=jnp.ndim(seed) > 0)
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
     return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
@@ -397,6 +402,6 @@ def simulate(
     scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
 ) -> Result:
     """Validate the inputs (SPEC 6, :func:`check_inputs`), then run the jitted rollout."""
-    check_inputs(scenario, controller, gains, loop, record_every, batch_last=jnp.ndim(seed) > 0)
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
     as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
     return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)

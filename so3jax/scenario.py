@@ -127,6 +127,16 @@ def paper_scenario(
 # --- validation (SPEC 6) -------------------------------------------------------------
 
 
+def _real_dtype(x, what: str) -> None:
+    """TypeError naming ``what`` unless x is a real numeric array (tracers included)."""
+    try:
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    except (TypeError, ValueError):
+        dtype = None
+    if dtype is None or dtype.kind not in "fiu":
+        raise TypeError(f"{what} must be a real numeric array, got {x!r}" + (f" of dtype {dtype}" if dtype is not None else ""))
+
+
 def _concrete(x) -> np.ndarray | None:
     """x as a numpy array, or None under tracing (values unknown before compilation)."""
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x)):
@@ -145,6 +155,7 @@ def check_inertia(name: str, J, *, warn: bool = True) -> bool:
     naming ``name``. Returns whether its principal moments satisfy the triangle inequality
     (J_i <= J_j + J_k, a rigid body); where they do not, warns (InertiaWarning) if
     ``warn``. Shapes are checked under tracing too; values only when concrete."""
+    _real_dtype(J, f"inertia {name}")
     shape = np.shape(J)
     if len(shape) < 2 or shape[-2:] != (3, 3):
         raise ValueError(f"inertia {name} must be a (3, 3) matrix [kg m^2], got shape {shape}")
@@ -228,6 +239,7 @@ def check_gains(gains, *, batch_axes: int = 0) -> None:
     batch_axes: leading batch axes of every gain (a batch of gains)."""
     for path, value in jax.tree_util.tree_flatten_with_path(gains)[0]:
         name = jax.tree_util.keystr(path, simple=True, separator=".")
+        _real_dtype(value, f"gain {name}")
         value = _concrete(value)
         if value is None:
             continue

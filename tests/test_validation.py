@@ -292,3 +292,21 @@ def test_tune_checks_its_scenario_values():
         tune.parse_config(table)
     with pytest.raises(ValueError, match="iterations"):
         tune.parse_config({**table, "iterations": 0, "scenario": {"T": 1.0}})
+
+
+@pytest.mark.parametrize(
+    "args,error,match",
+    [
+        ((GOOD, sj.geometric_pd(), sj.PDGains("stiff", 25.0)), TypeError, "gain k_R must be a real numeric array"),
+        ((dataclasses.replace(GOOD, inertia=sj.ConstantInertia(jnp.asarray(np.eye(3) * (1 + 1j)))), sj.geometric_pd(), sj.PAPER_PD_GAINS),
+         TypeError, "inertia J must be a real numeric array"),
+        ((GOOD, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0.5), TypeError, "seed must be an integer"),
+        ((GOOD, "pd", sj.PAPER_PD_GAINS), TypeError, "controller must be a so3jax Controller"),
+        (("paper", sj.geometric_pd(), sj.PAPER_PD_GAINS), TypeError, "scenario must be a so3jax.Scenario"),
+    ],
+)
+def test_wrong_types_are_named(args, error, match, no_tracing):
+    with pytest.raises(error, match=match):
+        sj.simulate(*args)
+    with pytest.raises(error, match=match):
+        sj.rollout(*args, *(() if len(args) == 4 else (0,)))
