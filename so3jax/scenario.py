@@ -188,13 +188,16 @@ INERTIA_SAMPLES = 16  # sample times per phase where a profile is checked as a b
 
 def _inertia_checks(scenario: Scenario, batch_last: bool):
     """(name, J) of every inertia to check, in turn: the profile's matrices and J(t) at the start
-    of every phase; a profile that does not declare ``convex_phases`` (a user's J(t)) also
-    at INERTIA_SAMPLES + 1 times spread over each phase. batch_last: the leaves carry a
-    trailing batch axis (a natively batched rollout), moved to the front here."""
+    of every phase (unless the profile's parameters are traced); a profile that does not
+    declare ``convex_phases`` (a user's J(t)) also at INERTIA_SAMPLES + 1 times spread over
+    each phase. batch_last: the leaves carry a trailing batch axis (a natively batched
+    rollout), moved to the front here."""
     profile = scenario.inertia
     front = (lambda J: jnp.moveaxis(J, -1, 0) if jnp.ndim(J) > 2 else J) if batch_last else (lambda J: J)
     for name, J in getattr(profile, "matrices", dict)().items():
         yield name, front(J)  # checked (shapes first) before J(t) is evaluated from them
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(profile)):
+        return  # traced: values unknown, and nothing added to the trace
     bounds = (0,) + tuple(min(max(k, 0), scenario.n_steps) for k in scenario.phase_steps) + (scenario.n_steps,)
     n_phases = len(bounds) - 1
     dtype = scenario.R0.dtype
