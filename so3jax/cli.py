@@ -1,4 +1,4 @@
-"""Command line: ``so3jax paper | fly | tune | sweep``.
+"""Command line: so3jax paper | fly | tune | sweep.
 
 Each command lives in its own module, which exposes ``register(subparsers)``; the
 parser it adds sets ``func(args) -> int``. JAX is configured here (precision, one
@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 import os
 import sys
+import warnings
 from pathlib import Path
 
 from so3jax import _xla_flags, distributed
@@ -69,17 +70,33 @@ def main(argv=None) -> int:
     _xla_flags.use_every_core()  # before JAX initializes its backend
     args = build_parser().parse_args(argv)
     configure_jax(args.precision)
-    try:
-        return args.func(args)
-    except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
-        print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
-        return 2
-    except distributed.PeerFailure as err:  # another process of a multi-process run stopped
-        print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
-        return 130
+    with warnings.catch_warnings():
+        warnings.showwarning = _warning_printer(args.command)
+        try:
+            return args.func(args)
+        except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
+            print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
+            return 2
+        except distributed.PeerFailure as err:  # another process of a multi-process run stopped
+            print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
+            return 1
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            return 130
+
+
+def _warning_printer(command: str):
+    """warnings.showwarning for a command: ``so3jax CMD: warning: MESSAGE``, each
+    message once, without the source line."""
+    shown = set()
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = str(message)
+        if text not in shown:
+            shown.add(text)
+            print(f"so3jax {command}: warning: {text}", file=sys.stderr if file is None else file)
+
+    return show
 
 
 if __name__ == "__main__":

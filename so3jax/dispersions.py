@@ -11,7 +11,9 @@ uniform and normal variates and then parameters on the host, in float64 NumPy.
 
 An attempt whose J0, J1 or J2 is not positive definite, or whose tau_J is not positive,
 is drawn again from the next attempt's variates, up to ``max_draws`` attempts; then the
-sample is rejected: never simulated.
+sample is rejected: never simulated. A distribution that cannot draw its quantity's
+domain (a fixed tau_J <= 0, a uniform scale reaching 0, ...) is a ValueError
+(:func:`check`), before anything is drawn.
 """
 
 from __future__ import annotations
@@ -111,6 +113,53 @@ def _checked(dist: Distribution, where: str) -> Distribution:
     if isinstance(dist, Normal) and dist.std < 0 or isinstance(dist, LogNormal) and (dist.sigma < 0 or dist.median <= 0):
         raise ValueError(f"{where}: needs std / sigma >= 0 and median > 0, got {dist}")
     return dist
+
+
+def check_domain(dist: Distribution, where: str, low: float = 0.0, strict: bool = True) -> Distribution:
+    """ValueError unless ``dist`` draws values of its quantity's domain, x > low (x >= low
+    where not ``strict``): a fixed value, or a uniform's whole range (its upper end above
+    ``low`` where strict), in the domain; a normal's mean in it (its tails beyond ``low``
+    are drawn again or, after max_draws, reject the sample, for the physical parameters);
+    a lognormal for low <= 0 (it is positive)."""
+    ok = {
+        Fixed: lambda d: d.value > low if strict else d.value >= low,
+        Uniform: lambda d: d.low >= low and (d.high > low if strict else True),
+        Normal: lambda d: d.mean > low if strict else d.mean >= low,
+        LogNormal: lambda d: low <= 0.0,
+    }[type(dist)](dist)
+    if not ok:
+        raise ValueError(f"{where} must be {'>' if strict else '>='} {low:g}: {describe(dist)} is outside that domain")
+    return dist
+
+
+# The domain of each dispersed quantity (Dispersions field: config name, low, strict).
+DOMAINS = {
+    "tau_J": ("deployment.tau_J [s]", 0.0, True),
+    "n": ("orbit.n [rad/s]", 0.0, False),
+    "noise_std": ("disturbance.noise_std [N m]", 0.0, False),
+    "initial_rate": ("initial.rate [rad/s]", 0.0, False),
+}
+INERTIA_DOMAINS = {"scale": (0.0, True), "axis_scale": (0.0, True)}  # InertiaDispersion field: low, strict
+
+
+def check(d: Dispersions, *, warn: bool = True) -> None:
+    """Every dispersed quantity's distribution in its domain (:func:`check_domain`), and
+    the nominal inertias (SPEC 6; an InertiaWarning for one that breaks the triangle
+    inequality, if ``warn``), before anything is drawn or compiled."""
+    from so3jax.scenario import check_inertia
+
+    for name, (where, low, strict) in DOMAINS.items():
+        check_domain(getattr(d, name), where, low, strict)
+    for J in ("J0", "J1", "J2"):
+        inertia = getattr(d, J)
+        for field, (low, strict) in INERTIA_DOMAINS.items():
+            check_domain(getattr(inertia, field), f"inertia.{J}.{field}", low, strict)
+        if not 0.0 <= inertia.rotation_deg <= 180.0:
+            raise ValueError(f"inertia.{J}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
+        if inertia.nominal is not None:
+            check_inertia(f"{J} (inertia.{J}.nominal)", np.asarray(inertia.nominal, dtype=float), warn=warn)
+    if not 0.0 <= d.initial_angle_deg <= 180.0:
+        raise ValueError(f"initial.max_angle_deg must be in [0, 180], got {d.initial_angle_deg}")
 
 
 def describe(dist: Distribution) -> Any:
@@ -305,6 +354,11 @@ def _draw_block(d: Dispersions, words, max_draws: int):
 
 def draw_samples(dispersions: Dispersions, seed: int, n_samples: int, max_draws: int) -> Samples:
     """Samples 0 .. n_samples-1, in float64. Sample k depends only on (seed, k)."""
+    check(dispersions, warn=False)
+    if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
+        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+    if isinstance(max_draws, bool) or not isinstance(max_draws, int) or max_draws < 1:
+        raise ValueError(f"max_draws must be a positive integer, got {max_draws!r}")
     n_words = 1 + 2 * (OTHER_VARIATES + max_draws * PHYSICAL_VARIATES)
     blocks = []
     for start in range(0, n_samples, BLOCK):

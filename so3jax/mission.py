@@ -20,7 +20,15 @@ from so3jax.controllers import registry
 from so3jax.estimators import MEKF, Raw, Truth
 from so3jax.io import to_builtin
 from so3jax.loop import Loop, check_loop
-from so3jax.scenario import PAPER_J0, PAPER_J2, Scenario, check_inertia, paper_scenario, steps_for_horizon
+from so3jax.scenario import (
+    PAPER_J0,
+    PAPER_J2,
+    Scenario,
+    check_inertia,
+    check_scenario,
+    paper_scenario,
+    steps_for_horizon,
+)
 from so3jax.sensors import Gyro, Sensors, StarTracker
 
 ESTIMATORS = ("truth", "raw", "mekf")
@@ -269,7 +277,8 @@ def from_dict(d: dict) -> Mission:
             raise ValueError(f"[controller.{name}]: {err}") from None
     inertias = {"J0": J0, "J1": J1, "J2": J2}
     for name, J in inertias.items():
-        check_inertia(f"inertia.{name}", J)
+        check_inertia(f"{name} (inertia.{name})", J, warn=False)
+    check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
     return mission
 

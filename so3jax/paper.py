@@ -180,11 +180,12 @@ def _run(args) -> int:
     import jax
 
     import so3jax as sj
+    from so3jax import config as cfg
     from so3jax.io import dumps, write_json
 
+    cfg.number(args.record_every, "--record-every [steps]", low=1, integer=True)
+    cfg.number(args.seed, "--seed", low=0, high=2**31 - 1, integer=True)
     scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
-    if args.record_every < 1:
-        raise SystemExit("--record-every must be a positive integer")
     from so3jax import memory
 
     needed = sum(memory.simulate_bytes(scenario, c, g, args.seed, record_every=args.record_every)

@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from so3jax import so3
 from so3jax._pytree import pytree_dataclass, static_field
@@ -21,6 +22,7 @@ class ConstantInertia:
     """J(t) = J."""
 
     J: jax.Array
+    convex_phases = True  # constant: checking J checks every J(t)
 
     def __call__(self, t, phase):
         return self.J
@@ -35,6 +37,13 @@ class PaperInertia:
 
     phase 0: J0; phase 1 (deployment from t_deploy): J1 - (J1 - J0) exp(-(t - t_deploy)/tau_J);
     phase >= 2 (docking): J2.
+
+    In phase 1, J(t) = (1 - w) J1 + w J0 with w = exp(-(t - t_deploy)/tau_J), which
+    decreases from its value w_s at the phase's first step towards 0 (tau_J > 0), so every
+    J(t) of the phase lies on the segment from J1 to J(t_s). Symmetric positive definite
+    matrices form a convex set, and so do those whose principal moments satisfy the
+    triangle inequality (2 lambda_max(J) <= tr J, lambda_max being convex): checking J0,
+    J1, J2 and J at each phase's first step (``convex_phases``) checks every J(t).
     """
 
     J0: jax.Array
@@ -42,6 +51,18 @@ class PaperInertia:
     J2: jax.Array
     t_deploy: jax.Array
     tau_J: jax.Array
+    convex_phases = True
+
+    def check(self):
+        """tau_J > 0 and t_deploy finite (ValueError), where the values are concrete."""
+        leaves = (self.tau_J, self.t_deploy)
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return
+        tau_J, t_deploy = (np.asarray(x, dtype=np.float64) for x in leaves)
+        if not np.all(np.isfinite(tau_J) & (tau_J > 0)):
+            raise ValueError(f"tau_J (deployment time constant) must be a positive number of seconds, got {tau_J}")
+        if not np.all(np.isfinite(t_deploy)):
+            raise ValueError(f"t_deploy must be finite, got {t_deploy}")
 
     def __call__(self, t, phase):
         blend = jnp.exp(-(t - self.t_deploy) / self.tau_J)
@@ -54,7 +75,11 @@ class PaperInertia:
 
 @pytree_dataclass
 class InertiaFunction:
-    """A user law J(t) (a JAX-traceable function of time [s]), the same in every phase."""
+    """A user law J(t) (a JAX-traceable function of time [s]), the same in every phase.
+
+    Checked before a run (symmetric positive definite, triangle inequality) at sample
+    times spread over each phase of the horizon (:func:`so3jax.scenario.check_scenario`).
+    """
 
     fn: Callable = static_field()
 

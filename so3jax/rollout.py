@@ -17,6 +17,7 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from so3jax import flight_metrics, metrics, so3
 from so3jax.controllers.base import Controller, Measured, tracking_error
@@ -122,6 +123,37 @@ def block_steps(n_steps: int, record_every: int | None, period_steps: int | None
     return -(-block // m) * m
 
 
+def check_inputs(
+    scenario, controller, gains, loop, record_every, *, seed=0, batch_last=False, gains_batch_axes=0
+) -> None:
+    """SPEC 6's checks of a rollout's inputs, before tracing: types and shapes always,
+    values where concrete (so jit, vmap and grad of a rollout keep working).
+    batch_last: the scenario's leaves carry a trailing batch axis (see :func:`rollout`)."""
+    seed_dtype = seed.dtype if hasattr(seed, "dtype") else np.asarray(seed).dtype
+    if isinstance(seed, bool) or seed_dtype.kind not in "iu":
+        raise TypeError(f"seed must be an integer or an array of integers, got {seed!r}")
+    if not isinstance(controller, Controller):
+        raise TypeError(f"controller must be a so3jax Controller (e.g. so3jax.geometric_pd()), got {type(controller).__name__}")
+    expected = getattr(controller, "gains_type", None)
+    if expected is not None and not isinstance(gains, expected):
+        raise TypeError(
+            f"gains must be {expected.__name__}({', '.join(expected._fields)}) for this controller, "
+            f"got {type(gains).__name__}{'(' + ', '.join(gains._fields) + ')' if hasattr(gains, '_fields') else ''}"
+        )
+    if not isinstance(loop, Loop):
+        raise TypeError(f"loop must be a so3jax Loop, got {type(loop).__name__}")
+    if record_every is not None and (
+        isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1
+    ):
+        raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
+    check_scenario(scenario, batch_last=batch_last)
+    check_gains(gains, batch_axes=gains_batch_axes)
+    matrices = scenario.inertia.matrices() if hasattr(scenario.inertia, "matrices") else {}
+    if batch_last:
+        matrices = {k: jnp.moveaxis(J, -1, 0) if jnp.ndim(J) > 2 else J for k, J in matrices.items()}
+    check_loop(loop, matrices)
+
+
 def rollout(
     scenario: Scenario,
     controller: Controller,
@@ -133,7 +165,8 @@ def rollout(
     unroll: int = 1,
 ) -> Result:
     """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6; SPEC 8 for a
-    sampled ``loop``). Pure; no validation.
+    sampled ``loop``). Pure; its inputs are checked first (:func:`check_inputs`: values
+    only where concrete, so it composes with jit, vmap and grad).
 
     One trajectory for an int seed. For an array of seeds of shape (B,), a natively
     batched rollout with the batch axis LAST everywhere (the so3 convention): every
@@ -144,6 +177,12 @@ def rollout(
     (rounded up to whole control periods). When blocks overrun N, the surplus steps are
     computed but masked.
     """
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
+    return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
+
+
+def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every=None, unroll=1) -> Result:
+    """:func:`rollout` without the checks."""
     n = scenario.n_steps
     block = block_steps(n, record_every, loop.period_steps)
     n_blocks = -(-n // block)
@@ -298,12 +337,28 @@ def rollout_batch(
     stage for the whole batch. Outputs have the batch axis first, as vmap's would.
     On CPU, batches above ``CPU_SUB_BATCH`` run as consecutive sub-batches of that size.
     """
-    args = (scenario, gains, jnp.asarray(seeds), loop)
+    seeds = jnp.asarray(seeds)
+    if seeds.ndim != 1 or not jnp.issubdtype(seeds.dtype, jnp.integer):
+        raise ValueError(f"seeds must be a (B,) array of integers, got shape {seeds.shape} and dtype {seeds.dtype}")
+    args = (scenario, gains, seeds, loop)
+    for arg, tree, axes_prefix in (("scenario", scenario, scenario_axes), ("gains", gains, gains_axes)):
+        try:
+            leaf_axes = _axes_tree(axes_prefix, tree)
+        except ValueError as err:
+            raise ValueError(f"{arg}_axes must be 0, None or a prefix of {arg}'s tree (0 or None per subtree): {err}") from None
+        for (path, leaf), ax in zip(jax.tree_util.tree_flatten_with_path(tree)[0], jax.tree.leaves(leaf_axes)):
+            if ax == 0 and (jnp.ndim(leaf) == 0 or jnp.shape(leaf)[0] != seeds.shape[0]):
+                raise ValueError(
+                    f"{arg}{jax.tree_util.keystr(path)} must have a leading batch axis of size {seeds.shape[0]} "
+                    f"(that of seeds), got shape {jnp.shape(leaf)}"
+                )
+    check_inputs(_batch_last(scenario, scenario_axes), controller, gains, loop, record_every, batch_last=True,
+                 gains_batch_axes=1 if gains_axes == 0 else 0)
     axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, _axes_tree(None, loop))
 
     def run(args):
         scenario, gains, seeds, loop = args
-        result = rollout(
+        result = _rollout(
             _batch_last(scenario, scenario_axes),
             controller,
             _batch_last(gains, gains_axes),
@@ -340,17 +395,13 @@ def _in_sub_batches(run, args, axes, size: int):
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))
 def _simulate_jit(scenario, controller, gains, seed, loop, record_every, unroll):
-    return rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
+    return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
 def simulate(
     scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
 ) -> Result:
-    """Validate the inputs (SPEC 6), then run the jitted rollout."""
-    check_scenario(scenario)
-    check_gains(gains)
-    if record_every is not None and (int(record_every) != record_every or record_every < 1):
-        raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
-    check_loop(loop, scenario.inertia.matrices())
+    """Validate the inputs (SPEC 6, :func:`check_inputs`), then run the jitted rollout."""
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
     as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
     return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)

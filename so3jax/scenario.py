@@ -26,7 +26,8 @@ PAPER_DOCK_TIME = 2600.0  # s
 
 
 class InertiaWarning(UserWarning):
-    """A positive definite inertia that no rigid body can have (triangle inequality)."""
+    """A positive definite inertia that no rigid body can have (triangle inequality):
+    accepted (SPEC 4 and 6: the paper's J0 is one), with this warning."""
 
 
 @pytree_dataclass
@@ -117,10 +118,23 @@ def paper_scenario(
         phase_times=(PAPER_DEPLOY_TIME, PAPER_DOCK_TIME),
         variable_inertia_term=variable_inertia_term,
     )
+    scenario.inertia.check()
+    for name, J in scenario.inertia.matrices().items():
+        check_inertia(name, J, warn=False)  # errors here; the warning comes with the run's checks
     return scenario
 
 
 # --- validation (SPEC 6) -------------------------------------------------------------
+
+
+def _real_dtype(x, what: str) -> None:
+    """TypeError naming ``what`` unless x is a real numeric array (tracers included)."""
+    try:
+        dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
+    except (TypeError, ValueError):
+        dtype = None
+    if dtype is None or dtype.kind not in "fiu":
+        raise TypeError(f"{what} must be a real numeric array, got {x!r}" + (f" of dtype {dtype}" if dtype is not None else ""))
 
 
 def _concrete(x) -> np.ndarray | None:
@@ -130,13 +144,24 @@ def _concrete(x) -> np.ndarray | None:
     return np.asarray(x, dtype=np.float64)
 
 
-def check_inertia(name: str, J) -> None:
-    """Symmetric positive definite, else ValueError; triangle inequality, else a warning."""
+TRIANGLE_ADVICE = (
+    "the run goes on (the paper's J0 and J1 are such inertias); if it is meant to be a real body, "
+    "check the matrix's entries and units"
+)
+
+
+def check_inertia(name: str, J, *, warn: bool = True) -> bool:
+    """J (3, 3), or a stack (..., 3, 3): symmetric positive definite, else ValueError
+    naming ``name``. Returns whether its principal moments satisfy the triangle inequality
+    (J_i <= J_j + J_k, a rigid body); where they do not, warns (InertiaWarning) if
+    ``warn``. Shapes are checked under tracing too; values only when concrete."""
+    _real_dtype(J, f"inertia {name}")
+    shape = np.shape(J)
+    if len(shape) < 2 or shape[-2:] != (3, 3):
+        raise ValueError(f"inertia {name} must be a (3, 3) matrix [kg m^2], got shape {shape}")
     J = _concrete(J)
     if J is None:
-        return
-    if J.shape[-2:] != (3, 3):
-        raise ValueError(f"inertia {name} must have shape (..., 3, 3), got {J.shape}")
+        return True
     if not np.all(np.isfinite(J)):
         raise ValueError(f"inertia {name} has non-finite entries")
     if not np.allclose(J, np.swapaxes(J, -1, -2), rtol=1e-12, atol=1e-12 * np.max(np.abs(J))):
@@ -145,25 +170,85 @@ def check_inertia(name: str, J) -> None:
     if np.any(moments <= 0):
         raise ValueError(f"inertia {name} is not positive definite (principal moments {moments.min():.6g} <= 0)")
     slack = moments[..., 0] + moments[..., 1] - moments[..., 2]
-    if np.any(slack < -1e-9 * moments[..., 2]):
+    physical = not np.any(slack < -1e-9 * moments[..., 2])
+    if not physical and warn:
+        i = np.unravel_index(np.argmin(slack), slack.shape)
+        a, b, c = moments[i]
         warnings.warn(
-            f"inertia {name} breaks the triangle inequality of principal moments "
-            f"({np.min(slack):.4g} kg m^2 short): positive definite but not a physical rigid body",
+            f"inertia {name} breaks the triangle inequality of principal moments ({a:.1f} + {b:.1f} < {c:.1f} "
+            f"kg m^2): positive definite, but no rigid body has it; {TRIANGLE_ADVICE}",
+            InertiaWarning,
+            stacklevel=3,
+        )
+    return physical
+
+
+INERTIA_SAMPLES = 16  # sample times per phase where a profile is checked as a black box
+
+
+def _inertia_checks(scenario: Scenario, batch_last: bool):
+    """(name, J) of every inertia to check, in turn: the profile's matrices and J(t) at the start
+    of every phase (unless the profile's parameters are traced); a profile that does not
+    declare ``convex_phases`` (a user's J(t)) also at INERTIA_SAMPLES + 1 times spread over
+    each phase. batch_last: the leaves carry a trailing batch axis (a natively batched
+    rollout), moved to the front here."""
+    profile = scenario.inertia
+    front = (lambda J: jnp.moveaxis(J, -1, 0) if jnp.ndim(J) > 2 else J) if batch_last else (lambda J: J)
+    for name, J in getattr(profile, "matrices", dict)().items():
+        yield name, front(J)  # checked (shapes first) before J(t) is evaluated from them
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(profile)):
+        return  # traced: values unknown, and nothing added to the trace
+    bounds = (0,) + tuple(min(max(k, 0), scenario.n_steps) for k in scenario.phase_steps) + (scenario.n_steps,)
+    n_phases = len(bounds) - 1
+    dtype = scenario.R0.dtype
+    for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+        if b <= a:
+            continue  # the horizon never reaches this phase
+        if getattr(profile, "convex_phases", False):
+            ts = np.asarray([a * scenario.dt])
+        else:
+            ts = np.linspace(a * scenario.dt, b * scenario.dt, INERTIA_SAMPLES + 1)
+        Js = jax.vmap(lambda t, p=p: profile(t, p))(jnp.asarray(ts, dtype))
+        where = f"J(t) of phase {p + 1} of {n_phases} (from t = {a * scenario.dt:g} s)"
+        if batch_last and jnp.ndim(Js) > 3:
+            Js = jnp.moveaxis(Js, -1, 1)
+        yield where, Js
+
+
+def check_inertia_profile(scenario: Scenario, *, batch_last: bool = False) -> None:
+    """Every inertia the run will use, before it runs: the profile's own checks (e.g. a
+    positive time constant), its matrices, and J(t) (see :func:`_inertia_checks`): one
+    ValueError naming the phase; one InertiaWarning listing the inertias that break the
+    triangle inequality."""
+    profile = scenario.inertia
+    if not callable(profile):
+        raise TypeError(f"scenario.inertia must be an inertia profile J(t, phase) (see so3jax.plant), got {profile!r}")
+    check = getattr(profile, "check", None)
+    if check is not None:
+        check()
+    unphysical = [name for name, J in _inertia_checks(scenario, batch_last) if not check_inertia(name, J, warn=False)]
+    named = [name for name in unphysical if not name.startswith("J(t)")] or unphysical  # J(t) only beyond them
+    if unphysical:
+        warnings.warn(
+            f"inertia {', '.join(named)} {'breaks' if len(named) == 1 else 'break'} the triangle inequality of "
+            f"principal moments: positive definite, but no rigid body has it; {TRIANGLE_ADVICE}",
             InertiaWarning,
             stacklevel=3,
         )
 
 
-def check_gains(gains) -> None:
-    """Every gain positive and finite; a matrix Gamma symmetric positive definite."""
+def check_gains(gains, *, batch_axes: int = 0) -> None:
+    """Every gain positive and finite; a matrix Gamma symmetric positive definite.
+    batch_axes: leading batch axes of every gain (a batch of gains)."""
     for path, value in jax.tree_util.tree_flatten_with_path(gains)[0]:
         name = jax.tree_util.keystr(path, simple=True, separator=".")
+        _real_dtype(value, f"gain {name}")
         value = _concrete(value)
         if value is None:
             continue
         if not np.all(np.isfinite(value)):
             raise ValueError(f"gain {name} must be finite, got {value}")
-        if name == "Gamma" and value.ndim >= 2:
+        if name == "Gamma" and value.ndim >= 2 + batch_axes:
             if value.shape[-2:] != (9, 9):
                 raise ValueError(f"gain Gamma must be a scalar, a (9,) diagonal or a (9, 9) matrix, got {value.shape}")
             if not np.allclose(value, np.swapaxes(value, -1, -2), rtol=1e-12, atol=0):
@@ -174,17 +259,28 @@ def check_gains(gains) -> None:
             raise ValueError(f"gain {name} must be positive, got {value}")
 
 
-def check_scenario(scenario: Scenario) -> None:
-    """The checks of SPEC 6 that concern the scenario."""
+def check_scenario(scenario: Scenario, *, batch_last: bool = False) -> None:
+    """The checks of SPEC 6 that concern the scenario (shapes always, values where
+    concrete). batch_last: the leaves carry a trailing batch axis (B or 1)."""
+    if not isinstance(scenario, Scenario):
+        raise TypeError(f"scenario must be a so3jax.Scenario, got {type(scenario).__name__}")
     if not (math.isfinite(scenario.dt) and scenario.dt > 0):
         raise ValueError(f"dt must be positive, got {scenario.dt}")
     if scenario.n_steps < 1:
         raise ValueError(f"n_steps must be at least 1, got {scenario.n_steps}")
-    for name, J in scenario.inertia.matrices().items():
-        check_inertia(name, J)
+    for name, shape in (("R0", (3, 3)), ("Omega0", (3,))):
+        got = np.shape(getattr(scenario, name))
+        n = len(shape)
+        if got[:n] != shape or len(got) > n + batch_last:
+            expected = f"{shape} or {shape[:-1] + (shape[-1], 'B')}" if batch_last else f"{shape}"
+            raise ValueError(f"scenario.{name} must have shape {expected}, got {got}")
+    check_inertia_profile(scenario, batch_last=batch_last)
+    front = (lambda x: np.moveaxis(x, -1, 0)) if batch_last else (lambda x: x)
     R0 = _concrete(scenario.R0)
-    if R0 is not None and not np.allclose(np.swapaxes(R0, -1, -2) @ R0, np.eye(3), atol=1e-6):
-        raise ValueError("R0 is not a rotation matrix (R0^T R0 != I)")
+    if R0 is not None:
+        R0 = front(R0) if R0.ndim > 2 else R0
+        if not np.allclose(np.swapaxes(R0, -1, -2) @ R0, np.eye(3), atol=1e-6):
+            raise ValueError("R0 is not a rotation matrix (R0^T R0 != I)")
     for name in ("R0", "Omega0"):
         value = _concrete(getattr(scenario, name))
         if value is not None and not np.all(np.isfinite(value)):

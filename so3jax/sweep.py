@@ -55,7 +55,6 @@ from so3jax.scenario import (
     InertiaWarning,
     Scenario,
     check_gains,
-    check_inertia,
     paper_scenario,
     steps_for_horizon,
 )
@@ -195,8 +194,7 @@ def config_from_dict(d: dict) -> SweepConfig:
         gains[name] = gains[name]._replace(**{k: np.asarray(v, dtype=float) if isinstance(v, list) else v for k, v in t.items()})
     for g in gains.values():
         check_gains(g)
-    for name in ("J0", "J2"):
-        check_inertia(f"nominal {name}", np.asarray(getattr(dispersions, name).nominal))
+    disp.check(dispersions)
     return dataclasses.replace(config, gains=gains, dispersions=dispersions)
 
 

@@ -231,6 +231,10 @@ def validate(config: TuneConfig) -> None:
     for key in config.scenario:
         if key not in signature or key == "dtype":
             raise ValueError(f"unknown config key 'scenario.{key}' (paper_scenario arguments: {', '.join(signature)})")
+    try:
+        paper_scenario(**config.scenario)  # its values: horizon, step, tau_J, inertias
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"config key 'scenario': {err}") from None
     for key, controller, spec in (
         ("initial_gains", config.controller, config.initial_gains),
         ("cost.budget_gains", cost.budget_controller, cost.budget_gains),

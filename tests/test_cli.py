@@ -7,6 +7,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
+
+from so3jax import cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -37,7 +40,9 @@ def test_paper_json_and_figures(tmp_path):
     assert json.loads((out / "metrics.json").read_text())["pd"] == report["pd"]
     for fig in ("fig1_inertia", "fig2_angular_velocity", "fig3_tracking_error", "fig4_torque", "fig5_torque_norm"):
         assert (out / f"{fig}.png").stat().st_size > 10_000
-    assert "triangle inequality" in proc.stderr
+    warning_lines = [line for line in proc.stderr.splitlines() if "triangle inequality" in line]
+    assert len(warning_lines) == 1 and warning_lines[0].startswith("so3jax paper: warning: inertia J0, J1 break")
+    assert "warnings.warn" not in proc.stderr and "check_scenario(" not in proc.stderr  # no source lines
 
 
 def test_paper_table_and_float32(tmp_path):
@@ -68,3 +73,93 @@ def test_compilations_are_cached_and_reused(tmp_path):
     assert sorted(p.name for p in cache.iterdir()) == entries  # nothing compiled anew
     strip = lambda out: {k: v for k, v in json.loads(out.strip().splitlines()[-1]).items() if k != "config"}
     assert strip(second.stdout) == strip(first.stdout)
+
+
+# --- bad input: one line, exit code 2, before anything compiles ------------------------
+
+TUNE_CONFIG = str(ROOT / "tuning" / "pd_equal_effort.toml")
+
+
+@pytest.fixture
+def in_process(monkeypatch, tmp_path):
+    """cli.main in this process: no persistent cache, XLA_FLAGS untouched, nothing compiled."""
+    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
+    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
+    monkeypatch.chdir(tmp_path)
+
+    def compiled(*args, **kwargs):
+        raise AssertionError("reached compilation")
+
+    import importlib
+
+    monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "_rollout", compiled)
+    return tmp_path
+
+
+@pytest.mark.parametrize(
+    "argv,message",
+    [
+        (["paper", "--tau-J", "-50"], "tau_J (deployment time constant) must be a positive number"),
+        (["paper", "--tau-J", "0"], "tau_J (deployment time constant) must be a positive number"),
+        (["paper", "--T", "0"], "T (horizon) must be a positive"),
+        (["paper", "--T", "-1"], "T (horizon) must be a positive"),
+        (["paper", "--dt", "0"], "dt must be a positive"),
+        (["paper", "--dt", "-0.01"], "dt must be a positive"),
+        (["paper", "--T", "1", "--dt", "2"], "not a multiple of dt"),
+        (["paper", "--record-every", "0"], "--record-every [steps] must be an integer in [1, inf]"),
+        (["paper", "--record-every", "-5"], "--record-every [steps] must be an integer in [1, inf]"),
+        (["paper", "--seed", "-1"], "--seed must be an integer in [0, 2147483647]"),
+        (["fly", "--T", "0"], "T (horizon) must be a positive"),
+        (["fly", "--record-every", "0"], "record_every must be an integer in [1, inf]"),
+        (["fly", "--seed", "-1"], "seed must be an integer in [0, 2147483647]"),
+        (["fly", "--set", "deployment.tau_J=0.0"], "deployment.tau_J [s] must be positive"),
+        (["fly", "--set", "inertia.J2.nominal=[[1.0, 2.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"],
+         "inertia J2 (inertia.J2) is not symmetric"),
+        (["fly", "--set", "inertia.J1.scale=-1.0"], "inertia.J1.scale must be a finite number in [0.0, inf]"),
+        (["sweep", "--samples", "0"], "samples must be an integer in [1, inf]"),
+        (["sweep", "--chunk", "0"], "chunk must be an integer in [1, inf]"),
+        (["sweep", "--seed", "-1"], "seed must be an integer in [0, 4294967295]"),
+        (["sweep", "--set", "deployment.tau_J=-50.0"], "deployment.tau_J [s] must be > 0"),
+        (["sweep", "--set", "deployment.tau_J=0.0"], "deployment.tau_J [s] must be > 0"),
+        (["sweep", "--set", 'deployment.tau_J={dist="uniform", low=400.0, high=200.0}'], "uniform needs low <= high"),
+        (["sweep", "--set", 'disturbance.noise_std={dist="normal", mean=0.025, std=-1.0}'], "std / sigma >= 0"),
+        (["sweep", "--set", "inertia.J0.scale=0.0"], "inertia.J0.scale must be > 0"),
+        (["tune", TUNE_CONFIG, "--iterations", "0"], "'iterations' must be a positive integer"),
+        (["tune", TUNE_CONFIG, "--T", "-1"], "config key 'scenario': T (horizon) must be a positive"),
+        (["tune", TUNE_CONFIG, "--set", "scenario.tau_J=0.0"], "config key 'scenario': tau_J"),
+        (["tune", TUNE_CONFIG, "--set", "record_every=0"], "'record_every' must be a positive integer"),
+    ],
+)
+def test_bad_arguments_are_one_line_errors(argv, message, in_process, capsys):
+    out = in_process / "out"
+    code = cli.main([*argv, "--out", str(out)] + (["--no-figures"] if argv[0] in ("paper", "fly") else []))
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if ": warning: " not in line]
+    assert code == 2 and len(lines) == 1, err
+    assert lines[0].startswith(f"so3jax {argv[0]}: error: ") and message in lines[0], err
+    assert "Traceback" not in err
+
+
+def test_warnings_are_one_line_each_and_shown_once(in_process, capsys):
+    """The paper's J0 breaks the triangle inequality (a warning), then a bad J1 scale (an error)."""
+    code = cli.main(["sweep", "--set", "inertia.J1.scale=0.0", "--out", str(in_process / "s")])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 2
+    assert err[0].startswith("so3jax sweep: warning: inertia J0 (inertia.J0.nominal) breaks the triangle inequality")
+    assert "check the matrix" in err[0]
+    assert err[1:] == ["so3jax sweep: error: inertia.J1.scale must be > 0: 0.0 is outside that domain"]
+    show = cli._warning_printer("fly")
+    for _ in range(3):
+        show(UserWarning("the same advice"), UserWarning, "so3jax/x.py", 1)
+    assert capsys.readouterr().err == "so3jax fly: warning: the same advice\n"
+
+
+@pytest.mark.parametrize("command", [None, "paper", "fly", "tune", "sweep"])
+def test_help_shows_no_markup(command, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["--help"] if command is None else [command, "--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert "usage: so3jax" in text
+    for mark in ("`", "\u00a7", "``"):
+        assert mark not in text, (command, mark)

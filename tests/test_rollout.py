@@ -131,7 +131,9 @@ def test_in_scan_metrics_match_the_recorded_trajectory():
 
 def test_phases_switch_on_step_boundaries():
     """Per-phase sums split at K = round(t_switch / dt): phase sums add up to the total."""
-    scenario = dataclasses.replace(sj.paper_scenario(T=3.0), phase_times=(1.004, 2.0))
+    base = sj.paper_scenario(T=3.0)
+    inertia = dataclasses.replace(base.inertia, t_deploy=jnp.asarray(1.004))  # J(t) deploys with the phase
+    scenario = dataclasses.replace(base, inertia=inertia, phase_times=(1.004, 2.0))
     assert scenario.phase_steps == (100, 200)
     assert scenario.steps_per_phase == (100, 100, 100)
     r = sj.simulate(scenario, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0, record_every=1)

@@ -101,7 +101,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controll
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
         return tau, theta_dot
 
-    return Controller(init, torque)
+    return Controller(init, torque, AdaptiveGains)
 
 
 register(

@@ -6,7 +6,8 @@ A controller is ``Controller(init, torque)``:
   ``()`` for a static law);
 * ``torque(gains, state, measured, desired, t) -> (tau, state_dot)``: the control
   torque [N m] and the time derivative of the internal state, which the rollout
-  integrates with the plant. The true inertia is never passed in.
+  integrates with the plant. The true inertia is never passed in;
+* ``gains_type`` (optional): the NamedTuple of gains it takes, checked before a run.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ class Desired(NamedTuple):
 class Controller(NamedTuple):
     init: Callable[[Any], Any]
     torque: Callable[[Any, Any, Measured, Desired, jax.Array], tuple[jax.Array, Any]]
+    gains_type: type | None = None  # the NamedTuple of gains the law reads (checked by the rollout); None: any
 
 
 class TrackingError(NamedTuple):

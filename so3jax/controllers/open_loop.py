@@ -25,7 +25,7 @@ def open_loop(torque=(0.0, 0.0, 0.0)) -> Controller:
         command = so3.batch_like(jnp.asarray(torque, measured.Omega.dtype), 1, measured.Omega)
         return jnp.broadcast_to(command, measured.Omega.shape), ()
 
-    return Controller(init, tau)
+    return Controller(init, tau, NoGains)
 
 
 def _check(gains) -> None:

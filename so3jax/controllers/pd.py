@@ -40,7 +40,7 @@ def geometric_pd(J_hat=None) -> Controller:
         tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e + inertial - feedforward
         return tau, ()
 
-    return Controller(init, torque)
+    return Controller(init, torque, PDGains)
 
 
 register(
