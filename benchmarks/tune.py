@@ -2,13 +2,18 @@
 
 A tuning step is ``so3jax.tune.cost_and_grad`` (what ``so3jax tune`` runs every
 iteration of a gradient campaign): the cost and its gradient over the tuning batch, the
-batch split over a Mesh of the host devices (``tune.build_problem``). Each device count
+batch split over a Mesh of the host devices as ``tune.build_problem`` chooses (at least
+``tune.MIN_SHARD`` rollouts per device: a campaign's batch of 2 stays on one device; the
+report says how many devices each batch was split over). The cost's normalizers are
+set to 1 (a step's work does not depend on them). Each device count
 runs in its own child process (``--xla_force_host_platform_device_count`` is fixed when
 JAX starts), with the XLA:CPU settings of the ``so3jax`` command and no persistent
 compilation cache. The children compile one after the other (lowering + XLA compilation,
 timed apart), then take turns round by round, one working while the other waits, so each
 round compares runs seconds apart on a machine whose speed drifts; the speed-up of a
-round is (time on one device) / (time on all of them). Batches: the campaign's own
+round is (time on one device) / (time on all of them); CPU seconds per step (all threads
+of the child) are recorded beside the wall time: on a loaded machine the devices' threads
+wait for a core, and the wall-time ratio understates what idle cores give. Batches: the campaign's own
 training batch and a larger one (its inertia scales x enough seeds), at a short horizon.
 The children's costs and gradients are compared too (floating-point reduction order and
 vectorization width only: ~1e-15 relative).
@@ -56,6 +61,7 @@ class _Step:
         import warnings
 
         import jax
+        import jax.numpy as jnp
 
         from so3jax import tune
 
@@ -69,12 +75,18 @@ class _Step:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the campaigns' inertia scales warn (InertiaWarning)
             problem = tune.build_problem(config)
-            initial = tune.resolve_gains(config.controller, config.initial_gains, problem.scenario.R0.dtype,
-                                         config.diagonal_gamma)
-            metrics = tune.evaluate(problem, initial, problem.train)
-            refs = tune.place(tune.cost_refs(config, problem, metrics, problem.train), problem.mesh)
+        dtype = problem.scenario.R0.dtype
+        initial = tune.resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma)
         self.size = int(problem.train.seed.shape[0])
         self.n_steps = int(problem.scenario.n_steps)
+        self.devices_used = 1 if problem.mesh is None else problem.mesh.size
+        # Normalizers of unit value, shaped as tune() makes them (one budget per scenario
+        # where a controller sets it): a step's work does not depend on their values, and
+        # taking them from an evaluation would add a compilation per child and batch.
+        one = jnp.ones((), dtype)
+        per_scenario = config.cost.mode == "equal_effort" and config.cost.budget_controller is not None
+        effort = jnp.ones((self.size,), dtype) if per_scenario else one
+        refs = tune.place(tune.CostRefs(one, effort, jnp.asarray(config.cost.weight, dtype)), problem.mesh)
         self.args = (tune.place(tune.to_params(initial), problem.mesh), problem.scenario, problem.train, refs)
         self.static = {"controller": tune.CONTROLLERS[config.controller], "mode": config.cost.mode,
                        "gradient": config.gradient, "record_every": problem.record_every, "mesh": problem.mesh}
@@ -93,15 +105,17 @@ class _Step:
         params, scenario, batch, refs = self.args
         return self.jax.block_until_ready(self.compiled(params, scenario, batch=batch, refs=refs))
 
-    def run(self, calls: int) -> float:
-        """Median seconds of one step over calls (after one untimed call)."""
+    def run(self, calls: int) -> tuple[float, float]:
+        """Median wall seconds of one step over calls (after one untimed call), and the
+        process's CPU seconds per step (all its threads)."""
         self.call()
         times = []
+        cpu = time.process_time()
         for _ in range(calls):
             start = time.perf_counter()
             self.call()
             times.append(time.perf_counter() - start)
-        return statistics.median(times)
+        return statistics.median(times), (time.process_time() - cpu) / calls
 
     def values(self) -> dict:
         from jax.flatten_util import ravel_pytree
@@ -122,9 +136,12 @@ def _child(spec: dict) -> None:
         batch = request["batch"]
         if request["op"] == "compile":
             steps[batch] = _Step(spec, batch)
-            answer = {"compile_s": steps[batch].compile(), "size": steps[batch].size, "n_steps": steps[batch].n_steps}
+            step = steps[batch]
+            answer = {"compile_s": step.compile(), "size": step.size, "n_steps": step.n_steps,
+                      "devices_used": step.devices_used}
         elif request["op"] == "run":
-            answer = {"step_s": steps[batch].run(request["calls"])}
+            wall, cpu = steps[batch].run(request["calls"])
+            answer = {"step_s": wall, "cpu_s": cpu}
         else:
             answer = steps[batch].values()
         print(json.dumps(answer), flush=True)
@@ -180,9 +197,11 @@ def _relative(a: list, b: list) -> float:
     return max(abs(x - y) for x, y in zip(a, b)) / scale
 
 
-def measure(campaign: str, T: float, batches: list[int], devices: list[int], rounds: int, calls: int) -> dict:
+def measure(campaign: str, T: float, batches: list[int], devices: list[int], rounds: int, calls: int,
+            spawn=None) -> dict:
+    """The report's "batches" section; spawn(n, spec) starts the child for n devices."""
     spec = {"campaign": campaign, "T": T}
-    children = {n: _Process(n, spec) for n in devices}
+    children = {n: (spawn or _Process)(n, spec) for n in devices}
     try:
         out = {}
         for batch in batches:
@@ -190,11 +209,13 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
             for n, child in children.items():
                 compiled[n] = child.ask(op="compile", batch=batch)
                 log(f"batch {compiled[n]['size']} on {n} device(s): compiled in {compiled[n]['compile_s']:.1f} s")
-            times = {n: [] for n in children}
+            times, cpu = {n: [] for n in children}, {n: [] for n in children}
             for r in range(rounds):
                 order = list(children) if r % 2 == 0 else list(children)[::-1]
                 for n in order:
-                    times[n].append(children[n].ask(op="run", batch=batch, calls=calls)["step_s"])
+                    answer = children[n].ask(op="run", batch=batch, calls=calls)
+                    times[n].append(answer["step_s"])
+                    cpu[n].append(answer["cpu_s"])
             values = {n: child.ask(op="values", batch=batch) for n, child in children.items()}
             one, many = devices[0], devices[-1]
             rounds_ratio = [a / b for a, b in zip(times[one], times[many])]
@@ -203,8 +224,9 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
             out[key] = {
                 "scenarios": size,
                 "n_steps": compiled[one]["n_steps"],
-                **{f"devices_{n}": {"compile_s": compiled[n]["compile_s"], "step_s": times[n],
-                                    "step_s_median": statistics.median(times[n])} for n in children},
+                **{f"devices_{n}": {"batch_split_over": compiled[n]["devices_used"], "compile_s": compiled[n]["compile_s"],
+                                    "step_s": times[n], "step_s_median": statistics.median(times[n]),
+                                    "cpu_s_per_step": cpu[n]} for n in children},
                 f"speedup_{many}_over_{one}_rounds": rounds_ratio,
                 f"speedup_{many}_over_{one}_median": statistics.median(rounds_ratio),
                 "max_relative_difference": {
@@ -213,7 +235,8 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
                 },
             }
             log(f"batch {size}: step {statistics.median(times[one]) * 1e3:.1f} ms on {one} device(s), "
-                f"{statistics.median(times[many]) * 1e3:.1f} ms on {many}; speed-up {statistics.median(rounds_ratio):.2f}"
+                f"{statistics.median(times[many]) * 1e3:.1f} ms on {many} (split over "
+                f"{compiled[many]['devices_used']}); speed-up {statistics.median(rounds_ratio):.2f}"
                 f" (rounds {', '.join(f'{x:.2f}' for x in rounds_ratio)})")
         return out
     finally:
