@@ -12,8 +12,10 @@ compilation cache. The children compile one after the other (lowering + XLA comp
 timed apart), then take turns round by round, one working while the other waits, so each
 round compares runs seconds apart on a machine whose speed drifts; the speed-up of a
 round is (time on one device) / (time on all of them); CPU seconds per step (all threads
-of the child) are recorded beside the wall time: on a loaded machine the devices' threads
-wait for a core, and the wall-time ratio understates what idle cores give. Batches: the campaign's own
+of the child) are recorded beside the wall time, and before each round the cores the
+machine gives at that moment (a CPU-bound loop alone and in N processes at once): on a
+loaded machine the devices' threads wait for a core, and no round's speed-up can exceed
+what that round was given. Batches: the campaign's own
 training batch and a larger one (its inertia scales x enough seeds), at a short horizon.
 The children's costs and gradients are compared too (floating-point reduction order and
 vectorization width only: ~1e-15 relative).
@@ -192,6 +194,38 @@ class _Process:
         self.proc.wait(timeout=60)
 
 
+def _spin(n: int) -> int:
+    total = 0
+    for i in range(n):
+        total += i
+    return total
+
+
+class _CoreProbe:
+    """Cores this machine gives right now: a CPU-bound loop timed alone and in n processes
+    at once (n x time alone / time together; ~0.15 s). On a shared machine the other
+    jobs' load moves it from minute to minute, and no speed-up can exceed it."""
+
+    def __init__(self, n: int):
+        import multiprocessing
+
+        self.n = n
+        self.pool = multiprocessing.get_context("spawn").Pool(n)
+        self.pool.map(_spin, [1] * n)
+
+    def __call__(self, work: int = 2_000_000) -> float:
+        start = time.perf_counter()
+        self.pool.apply(_spin, (work,))
+        alone = time.perf_counter() - start
+        start = time.perf_counter()
+        self.pool.map(_spin, [work] * self.n, chunksize=1)
+        return self.n * alone / (time.perf_counter() - start)
+
+    def close(self) -> None:
+        self.pool.close()
+        self.pool.join()
+
+
 def _relative(a: list, b: list) -> float:
     scale = max(max(abs(x) for x in b), 1e-300)
     return max(abs(x - y) for x, y in zip(a, b)) / scale
@@ -202,6 +236,7 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
     """The report's "batches" section; spawn(n, spec) starts the child for n devices."""
     spec = {"campaign": campaign, "T": T}
     children = {n: (spawn or _Process)(n, spec) for n in devices}
+    probe = _CoreProbe(max(devices)) if spawn is None else (lambda: float(max(devices)))
     try:
         out = {}
         for batch in batches:
@@ -209,8 +244,9 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
             for n, child in children.items():
                 compiled[n] = child.ask(op="compile", batch=batch)
                 log(f"batch {compiled[n]['size']} on {n} device(s): compiled in {compiled[n]['compile_s']:.1f} s")
-            times, cpu = {n: [] for n in children}, {n: [] for n in children}
+            times, cpu, free = {n: [] for n in children}, {n: [] for n in children}, []
             for r in range(rounds):
+                free.append(probe())
                 order = list(children) if r % 2 == 0 else list(children)[::-1]
                 for n in order:
                     answer = children[n].ask(op="run", batch=batch, calls=calls)
@@ -229,6 +265,7 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
                                     "cpu_s_per_step": cpu[n]} for n in children},
                 f"speedup_{many}_over_{one}_rounds": rounds_ratio,
                 f"speedup_{many}_over_{one}_median": statistics.median(rounds_ratio),
+                "free_cores_rounds": free,  # _CoreProbe before each round
                 "max_relative_difference": {
                     "cost": _relative([values[many]["cost"]], [values[one]["cost"]]),
                     "grad": _relative(values[many]["grad"], values[one]["grad"]),
@@ -237,11 +274,14 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
             log(f"batch {size}: step {statistics.median(times[one]) * 1e3:.1f} ms on {one} device(s), "
                 f"{statistics.median(times[many]) * 1e3:.1f} ms on {many} (split over "
                 f"{compiled[many]['devices_used']}); speed-up {statistics.median(rounds_ratio):.2f}"
-                f" (rounds {', '.join(f'{x:.2f}' for x in rounds_ratio)})")
+                f" (rounds {', '.join(f'{x:.2f}' for x in rounds_ratio)}; free cores "
+                f"{', '.join(f'{x:.1f}' for x in free)})")
         return out
     finally:
         for child in children.values():
             child.close()
+        if spawn is None:
+            probe.close()
 
 
 def main(argv=None) -> int:
