@@ -305,6 +305,8 @@ def main(argv=None) -> int:
     report = {
         "benchmark": "tune",
         "command": " ".join(["python -m benchmarks.tune", *(argv if argv is not None else sys.argv[1:])]),
+        "commit": subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, cwd=ROOT,
+                                 check=False).stdout.strip() or None,
         "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
         "machine": {"cpu_model": cpu_model(), "cpus": os.cpu_count(), "affinity": _usable_cores(),
                     "platform": platform.platform(), "python": platform.python_version(),

@@ -495,11 +495,12 @@ def place(tree, mesh: Mesh | None):
     return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
 
 
-# Rollouts per device and evaluation, at least, for a batch to be split: one device runs
-# a batch natively vectorized, so small batches cost little more than one rollout (PD,
-# forward gradient, T = 20 s, CPU time per step on one AMD EPYC core: 1 scenario 6.7 ms,
-# 2: 11.7 ms, 4: 13.2 ms). Splitting fewer would spend up to twice the CPU time for a
-# small gain in wall time, and lose on a loaded machine.
+# Rollouts per device and evaluation, at least, for a batch to be split. One device runs a
+# batch natively vectorized (CPU time of a tuning step, PD, forward gradient, T = 20 s, an
+# AMD EPYC core: 1 scenario 6.7 ms, 2: 11.7, 4: 13.2, 32: ~60, 64: ~104), and the shards
+# of a split cost more CPU time together than the whole batch (2 x 32: 120-130 ms): a split
+# gains only where cores are free, and loses on a loaded machine. Small batches (the
+# shipped gradient campaigns' 2 scenarios) therefore stay on one device.
 MIN_SHARD = 4
 
 
