@@ -1,12 +1,14 @@
 """Run the benchmark set and collect it: throughput (so3jax beside the NumPy and Numba
 baselines, FLOPs and the machine's peak, ``so3jax paper`` wall time), multi-device
-scaling of the sweep path, and gradient cost and memory against the horizon.
+scaling of the sweep path and of a tuning step, and gradient cost and memory against the
+horizon.
 
     python -m benchmarks.all [--quick] [--out benchmarks/results] [--tag TAG] [--limit-scale 1]
 
-Each benchmark runs as a subprocess with its own time limit; the limits add up to 15
-minutes (``--quick``: 6); on 2 cores at a load average of ~1-2 the whole set took 12.5-13.5
-minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5 of them). On a loaded
+Each benchmark runs as a subprocess with its own time limit; the limits add up to 19
+minutes (``--quick``: 8); on 2 cores at a load average of ~1-2 the set without the tuning
+step took 12.5-13.5 minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5
+of them). On a loaded
 machine the throughput script skips its lowest-priority work once past its budget (it
 lists what it skipped), a benchmark out of time is recorded with its error (the
 gradients benchmark keeps the runs it finished), and ``--limit-scale`` stretches every
@@ -37,7 +39,7 @@ from benchmarks.throughput import cpu_model
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
-# name: (script, arguments, time limit [s]); the limits add up to 15 minutes (quick: 6).
+# name: (script, arguments, time limit [s]); the limits add up to 19 minutes (quick: 8).
 # Measured on 2 cores at load 4-5 before the speed work: throughput 413 s, sweep 187 s,
 # gradients 113 s + 159 s; after it, at load ~2: throughput ~200 s, sweep 74 s, gradients
 # 97 s + more than 180 s (adaptive reverse mode: its compilations dominate); 2026-11-23,
@@ -59,6 +61,8 @@ PLAN = {
         ["--controllers", "adaptive", "--horizons", "10000", "100000", "--fd-horizon", "10000", *GRADIENTS],
         350,
     ),
+    # compilations dominate (four, 15-45 s each on 2 loaded cores); the steps take seconds
+    "tune": ("tune", ["--T", "20", "--batches", "0,64", "--rounds", "7", "--calls", "5"], 240),
 }
 QUICK_PLAN = {
     "throughput": ("throughput", ["--quick"], 130),
@@ -68,6 +72,7 @@ QUICK_PLAN = {
         ["--controllers", "pd", "--horizons", "10000", "30000", "--fd-horizon", "0", *GRADIENTS],
         120,
     ),
+    "tune": ("tune", ["--T", "5", "--batches", "64", "--rounds", "3", "--calls", "3"], 120),
 }
 THROUGHPUT_RESERVE = 45  # s of its limit kept for the work after its --budget (summary, plot)
 
@@ -176,7 +181,7 @@ def main(argv=None) -> int:
         "--limit-scale",
         type=float,
         default=1.0,
-        help="multiply every time limit (a loaded machine; the 15-minute total scales with it)",
+        help="multiply every time limit (a loaded machine; the 19-minute total scales with it)",
     )
     args = parser.parse_args(argv)
     plan = {

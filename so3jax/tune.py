@@ -370,33 +370,57 @@ def _summary(metrics, refs, mode) -> Evaluation:
     )
 
 
-@functools.partial(jax.jit, static_argnames=("controller", "record_every"))
-def _batch_metrics(scenario, controller, gains, batch, record_every):
-    return batch_metrics(scenario, controller, gains, batch, record_every=record_every)
+BATCH = "batch"  # the mesh axis the scenario batch is split along
 
 
-@functools.partial(jax.jit, static_argnames=("controller", "mode", "gradient", "record_every"))
-def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every):
-    """(Evaluation, d cost / d params) of log-gains params over the batch."""
+def _metrics(scenario, controller, gains, batch, record_every, mesh):
+    """batch_metrics, split along the batch over the devices of mesh (None: one device).
+
+    Each device runs the single-device rollout on its shard (``jax.shard_map``): nothing
+    crosses devices inside the time loop. The batch is padded to a multiple of the mesh
+    size by repeating its last scenario, and the padding is dropped from the result.
+    """
+    run = lambda scenario, gains, batch: batch_metrics(scenario, controller, gains, batch, record_every=record_every)
+    if mesh is None:
+        return run(scenario, gains, batch)
+    n = batch.seed.shape[0]
+    index = jnp.minimum(jnp.arange(-(-n // mesh.size) * mesh.size), n - 1)
+    padded = jax.tree.map(lambda x: x[index], batch)
+    # check_vma=False: the rollout's loop carries start from the shared scenario and become
+    # per-device; without the check, the gradient of the shared gains sums over devices.
+    sharded = jax.shard_map(
+        run,
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(BATCH)),
+        out_specs=PartitionSpec(BATCH),
+        check_vma=False,
+    )
+    return jax.tree.map(lambda x: x[:n], sharded(scenario, gains, padded))
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "record_every", "mesh"))
+def _batch_metrics(scenario, controller, gains, batch, record_every, mesh=None):
+    return _metrics(scenario, controller, gains, batch, record_every, mesh)
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "mode", "gradient", "record_every", "mesh"))
+def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every, mesh=None):
+    """(Evaluation, d cost / d params) of log-gains params over the batch (split over mesh)."""
 
     def cost(p):
-        summary = _summary(
-            batch_metrics(scenario, controller, to_gains(p), batch, record_every=record_every), refs, mode
-        )
+        summary = _summary(_metrics(scenario, controller, to_gains(p), batch, record_every, mesh), refs, mode)
         return summary.cost, summary
 
     (_, summary), grad = value_and_grad(cost, gradient)(params)
     return summary, grad
 
 
-@functools.partial(jax.jit, static_argnames=("controller", "mode", "record_every"))
-def population_costs(population, scenario, controller, batch, refs, mode, record_every):
+@functools.partial(jax.jit, static_argnames=("controller", "mode", "record_every", "mesh"))
+def population_costs(population, scenario, controller, batch, refs, mode, record_every, mesh=None):
     """Evaluation of each member of a population of log-gains (leading axis P)."""
 
     def one(params):
-        return _summary(
-            batch_metrics(scenario, controller, to_gains(params), batch, record_every=record_every), refs, mode
-        )
+        return _summary(_metrics(scenario, controller, to_gains(params), batch, record_every, mesh), refs, mode)
 
     return jax.vmap(one)(population)
 
@@ -465,31 +489,43 @@ class Problem(NamedTuple):
     train: Batch
     validation: Batch
     record_every: int | None
-    mesh: Mesh | None  # all devices (one per core), or None on a single device
+    mesh: Mesh | None  # the devices the batch is split over (batch_devices), or None: one device
 
 
-def place(tree, mesh: Mesh | None, split: bool = False):
-    """Put tree on every device of the mesh: arrays split along their leading (batch)
-    axis when asked and it divides evenly, else replicated, so that jit sees the same
-    placement at every call."""
+def place(tree, mesh: Mesh | None):
+    """Put tree on every device of the mesh, replicated (the jitted functions split the
+    scenario batch over the mesh themselves), so that jit sees the same placement at
+    every call and compiles once per shape."""
     if mesh is None:
         return tree
+    return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
 
-    def put(leaf):
-        along = split and jnp.ndim(leaf) > 0 and jnp.shape(leaf)[0] % mesh.size == 0
-        return jax.device_put(leaf, NamedSharding(mesh, PartitionSpec("batch") if along else PartitionSpec()))
 
-    return jax.tree.map(put, tree)
+# Rollouts per device and evaluation, at least, for a batch to be split. One device runs a
+# batch natively vectorized (CPU time of a tuning step, PD, forward gradient, T = 20 s, an
+# AMD EPYC core: 1 scenario 6.7 ms, 2: 11.7, 4: 13.2, 32: ~60, 64: ~104), and the shards
+# of a split cost more CPU time together than the whole batch (2 x 32: 120-130 ms): a split
+# gains only where cores are free, and loses on a loaded machine. Small batches (the
+# shipped gradient campaigns' 2 scenarios) therefore stay on one device.
+MIN_SHARD = 4
+
+
+def batch_devices(config: TuneConfig, n_devices: int) -> int:
+    """How many devices the training batch is split over: each gets at least MIN_SHARD
+    rollouts per evaluation (scenarios x ES population members) and one scenario."""
+    scenarios = len(config.train.seeds) * len(config.train.inertia_scales)
+    rollouts = scenarios * (config.es.population if config.method == "es" else 1)
+    return max(1, min(n_devices, scenarios, rollouts // MIN_SHARD))
 
 
 def build_problem(config: TuneConfig) -> Problem:
     dtype = jnp.result_type(float)
     scenario = paper_scenario(**config.scenario, dtype=dtype)
     check_scenario(scenario)
-    devices = jax.devices()
-    mesh = Mesh(np.array(devices), ("batch",)) if len(devices) > 1 else None
+    devices = jax.devices()[: batch_devices(config, jax.device_count())]
+    mesh = Mesh(np.array(devices), (BATCH,)) if len(devices) > 1 else None
     train, validation = (
-        place(make_batch(s.inertia_scales, s.seeds, dtype), mesh, split=True) for s in (config.train, config.validation)
+        place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
     )
     return Problem(place(scenario, mesh), config.controller, train, validation, config.record_every, mesh)
 
@@ -497,7 +533,9 @@ def build_problem(config: TuneConfig) -> Problem:
 def evaluate(problem: Problem, gains, batch: Batch, controller=None):
     """Per-scenario metrics of fixed gains (forward only)."""
     controller = CONTROLLERS[controller or problem.controller]
-    return _batch_metrics(problem.scenario, controller, gains, batch, problem.record_every)
+    return _batch_metrics(
+        problem.scenario, controller, place(gains, problem.mesh), batch, problem.record_every, problem.mesh
+    )
 
 
 def cost_refs(config: TuneConfig, problem: Problem, initial_metrics, batch: Batch) -> CostRefs:
@@ -736,7 +774,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             first = _summary(initial_metrics, refs, mode)
             state = state._replace(cost=first.cost, rmse=first.rmse, effort=first.effort)
     rollouts = rows[-1]["rollouts"] if rows else n_train  # the initial evaluation
-    refs = place(refs, problem.mesh, split=True)
+    refs = place(refs, problem.mesh)
 
     bar = tqdm(total=config.iterations, initial=iteration, desc=f"tune {config.controller}", disable=not progress)
     try:
@@ -752,6 +790,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     mode,
                     config.gradient,
                     problem.record_every,
+                    problem.mesh,
                 )
                 new_state = _optax_step(tx, state, grad, evaluation.cost)
                 rollouts += n_train
@@ -769,7 +808,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 key = jax.random.fold_in(jax.random.key(config.es.seed), iteration)
                 candidates = place(es_candidates(state.params, state.sigma, key, config.es.population), problem.mesh)
                 evaluations = population_costs(
-                    candidates, problem.scenario, controller, problem.train, refs, mode, problem.record_every
+                    candidates, problem.scenario, controller, problem.train, refs, mode, problem.record_every,
+                    problem.mesh,
                 )
                 new_state = es_select(state, candidates, evaluations)
                 rollouts += config.es.population * n_train

@@ -128,3 +128,49 @@ def test_all_parses_indented_or_last_line_json():
     assert bench_all._parse('{\n "a": {\n  "b": 2\n }\n}\n') == {"a": {"b": 2}}
     assert bench_all._parse("no json here") is None
     assert bench_all._slug("AMD EPYC 7B13 64-Core") == "amd-epyc-7b13-64-core"
+
+
+def test_tune_benchmark_interleaves_and_compares_device_counts():
+    """benchmarks/tune.py's parent with stand-in children (no compilation): children are
+    asked in alternating order, round by round; ratios and value differences are reported."""
+    from benchmarks import tune as bench_tune
+
+    asked = []
+
+    class Child:
+        def __init__(self, devices, spec):
+            self.devices = devices
+
+        def ask(self, op, batch, **kwargs):
+            asked.append((op, self.devices))
+            if op == "compile":
+                return {"compile_s": 1.0, "size": batch or 2, "n_steps": 200, "devices_used": min(self.devices, 2)}
+            if op == "run":
+                return {"step_s": 0.2 / self.devices, "cpu_s": 0.2}
+            return {"cost": 1.0 + 1e-16 * self.devices, "grad": [0.5, -0.25 * self.devices]}
+
+        def close(self):
+            pass
+
+    out = bench_tune.measure("tuning/pd_equal_effort.toml", 0.1, [0, 64], [1, 2], rounds=3, calls=1, spawn=Child)
+    assert [d for op, d in asked if op == "run"][:6] == [1, 2, 2, 1, 1, 2]
+    assert set(out) == {"campaign (2)", "64"}
+    row = out["64"]
+    assert row["scenarios"] == 64 and row["devices_2"]["batch_split_over"] == 2
+    assert row["speedup_2_over_1_rounds"] == [2.0, 2.0, 2.0] and row["speedup_2_over_1_median"] == 2.0
+    assert row["max_relative_difference"]["grad"] == 0.5 and row["max_relative_difference"]["cost"] < 1e-15
+
+
+@pytest.mark.slow
+def test_tune_benchmark_smoke():
+    """benchmarks/tune.py end to end at a tiny horizon (two child processes; their
+    compilations take ~30-60 s here), hence slow."""
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "tune.py"), "--T", "0.05", "--batches", "0", "--rounds", "1",
+           "--calls", "1", "--devices", "1,2"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    report = json.loads(proc.stdout.strip().splitlines()[-1])
+    row = report["batches"]["campaign (2)"]
+    assert row["devices_1"]["step_s_median"] > 0 and row["devices_2"]["batch_split_over"] == 1
+    assert row["max_relative_difference"]["grad"] < 1e-12
+    assert "machine" in report and report["command"].startswith("python -m benchmarks.tune")

@@ -193,6 +193,69 @@ def test_gradient_free_baseline_never_gets_worse(tmp_path):
     assert report["training"]["method"] == "es" and "sigma" in rows[0]
 
 
+# --- several host devices ---------------------------------------------------------------
+
+
+def test_a_batch_is_split_only_where_every_device_gets_enough_rollouts():
+    seeds = lambda n: {"seeds": list(range(100, 100 + n))}  # held out: validation has 10, 11
+    assert tune.batch_devices(config(), 2) == 1  # 2 scenarios: one device, as the campaigns
+    assert tune.batch_devices(config(train=seeds(8)), 2) == 2
+    assert tune.batch_devices(config(train=seeds(8)), 16) == 8 // tune.MIN_SHARD
+    assert tune.batch_devices(config(train=seeds(64)), 16) == 16
+    assert tune.batch_devices(config(train=seeds(64)), 1) == 1
+    # ES: every population member runs the batch; never more devices than scenarios
+    assert tune.batch_devices(config(method="es", es={"population": 6}), 2) == 2
+    assert tune.batch_devices(config(method="es", es={"population": 6}), 16) == 2
+    assert tune.batch_devices(config(method="es", es={"population": 1}), 16) == 1
+
+
+def test_placement_is_replicated_with_one_sharding():
+    import jax
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    mesh = Mesh(np.array(jax.devices()[:1]), (tune.BATCH,))
+    placed = tune.place({"a": jnp.ones(3), "b": jnp.zeros(())}, mesh)
+    assert {x.sharding for x in jax.tree.leaves(placed)} == {NamedSharding(mesh, PartitionSpec())}
+    assert tune.place(placed, None) is placed
+
+
+TWO_DEVICE_RUN = """
+import json, sys, tempfile, warnings
+import jax
+jax.config.update("jax_enable_x64", True)
+from so3jax import tune
+warnings.simplefilter("ignore")
+config = tune.parse_config(json.loads(sys.argv[1]))
+problem = tune.build_problem(config)
+with tempfile.TemporaryDirectory() as out:
+    report = tune.tune(config, out, progress=False)
+print(json.dumps({"devices": problem.mesh.size, "tuned": report["tuned"], "compiles": tune.cost_and_grad._cache_size()}))
+"""
+
+
+@pytest.mark.slow
+def test_two_host_devices_tune_to_the_gains_of_one(tmp_path):
+    """A batch of 8 split over 2 host devices (a child process: the device count is fixed
+    when JAX starts) gives the one-device run's gains, at one compilation of the step."""
+    import os
+    import subprocess
+    import sys
+
+    t = table(iterations=3, train={"seeds": list(range(8))}, validation={"seeds": [10, 11, 12]})
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    child = subprocess.Popen(
+        [sys.executable, "-c", TWO_DEVICE_RUN, json.dumps(t)], env=env, stdout=subprocess.PIPE, text=True
+    )
+    one = tune.tune(tune.parse_config(t), tmp_path, progress=False)["tuned"]
+    stdout, _ = child.communicate(timeout=900)
+    assert child.returncode == 0
+    two = json.loads(stdout.strip().splitlines()[-1])
+    assert two["devices"] == 2 and two["compiles"] == 1
+    for name, value in one["gains"].items():
+        assert two["tuned"]["gains"][name] == pytest.approx(value, rel=1e-10), name
+    np.testing.assert_allclose(two["tuned"]["rmse"], one["rmse"], rtol=1e-10)
+
+
 # --- bad configurations: a ValueError naming the key, before any compilation -------------
 
 
