@@ -12,8 +12,10 @@ machine disturbs least. From the compiled rates it extrapolates the full default
 
     python benchmarks/sweep.py                             # 1, 2, 4 devices; T = 50 s
     python benchmarks/sweep.py --devices 2 --T 200 --samples 256 --chunk 256
+    python benchmarks/sweep.py --devices 1,2,2x1 --rounds 3    # one process against two on JAX's runtime
 
-Prints one JSON object: ``runs`` (one per device count and controller) and ``full_sweep``.
+Prints one JSON object: ``runs`` (one per round, layout and controller) and ``full_sweep``
+(per layout: the median rate over rounds and the extrapolation).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import time
@@ -36,6 +39,12 @@ def _child(spec: dict) -> list:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    if spec.get("processes", 1) > 1:  # one of several processes on JAX's runtime (global mesh)
+        from so3jax import distributed
+
+        distributed.initialize(argparse.Namespace(
+            distributed=True, coordinator=spec["coordinator"], num_processes=spec["processes"],
+            process_id=spec["process_id"], timeout=300))
     import numpy as np
 
     from so3jax import dispersions, sweep
@@ -67,6 +76,7 @@ def _child(spec: dict) -> list:
         runs.append(
             {
                 "devices": mesh.size,
+                "processes": jax.process_count(),
                 "controller": controller,
                 "T": config.T,
                 "n_steps": n_steps,
@@ -83,9 +93,43 @@ def _child(spec: dict) -> list:
     return runs
 
 
+def _layout(text: str) -> tuple[int, int]:
+    """'2' -> one process with 2 devices; '2x1' -> 2 processes with 1 device each."""
+    processes, _, devices = text.partition("x")
+    return (int(processes), int(devices)) if devices else (1, int(processes))
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _run_children(spec: dict, processes: int, devices: int) -> list:
+    """The measurements of process 0 of ``processes`` children with ``devices`` each."""
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    coordinator = f"127.0.0.1:{_free_port()}"
+    children = []
+    for i in range(processes):
+        child = {**spec, "processes": processes, "process_id": i, "coordinator": coordinator}
+        children.append(subprocess.Popen([sys.executable, __file__, "--child", json.dumps(child)], env=env,
+                                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    outputs = [child.communicate() for child in children]
+    for child, (_, stderr) in zip(children, outputs):
+        if child.returncode:
+            sys.exit(f"child of {processes} x {devices} device(s) failed:\n{stderr}")
+    lines = [line for line in outputs[0][0].splitlines() if line.startswith("[{")]
+    return json.loads(lines[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--devices", default="1,2,4", help="forced host device counts (default 1,2,4)")
+    parser.add_argument("--devices", default="1,2,4",
+                        help="layouts: N (one process, N host devices) or PxD (P processes of D devices, joined "
+                             "on JAX's runtime over 127.0.0.1); default 1,2,4")
+    parser.add_argument("--rounds", type=int, default=1, help="rounds alternating the layouts (default 1)")
     parser.add_argument("--controllers", default="pd,adaptive")
     parser.add_argument("--T", type=float, default=50.0, help="horizon [s] (default 50)")
     parser.add_argument("--samples", type=int, default=128, help="samples timed (default 128)")
@@ -96,20 +140,22 @@ def main() -> None:
         print(json.dumps(_child(json.loads(args.child))))
         return
     runs = []
-    for devices in map(int, args.devices.split(",")):
-        spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "controllers": args.controllers.split(",")}
-        env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
-        proc = subprocess.run(
-            [sys.executable, __file__, "--child", json.dumps(spec)], env=env, capture_output=True, text=True, check=False
-        )
-        if proc.returncode:
-            sys.exit(f"child with {devices} device(s) failed:\n{proc.stderr}")
-        runs += json.loads(proc.stdout.strip().splitlines()[-1])
+    layouts = [_layout(text) for text in args.devices.split(",")]
+    for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
+        for processes, devices in layouts:
+            spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "controllers": args.controllers.split(",")}
+            runs += _run_children(spec, processes, devices)
     full = {}
-    for devices in sorted({r["devices"] for r in runs}):
-        rates = {r["controller"]: r["trajectory_steps_per_s"] for r in runs if r["devices"] == devices}
+    for layout in dict.fromkeys((r["processes"], r["devices"]) for r in runs):
+        rates = {}
+        for r in runs:
+            if (r["processes"], r["devices"]) == layout:
+                rates.setdefault(r["controller"], []).append(r["trajectory_steps_per_s"])
+        rates = {c: statistics.median(v) for c, v in rates.items()}
         seconds = sum(FULL["samples"] * FULL["steps"] / rate for rate in rates.values())
-        full[str(devices)] = {"controllers": sorted(rates), "extrapolated_s": seconds, "extrapolated_min": seconds / 60}
+        name = f"{layout[0]}x{layout[1] // layout[0]}" if layout[0] > 1 else str(layout[1])
+        full[name] = {"controllers": sorted(rates), "median_trajectory_steps_per_s": rates,
+                      "extrapolated_s": seconds, "extrapolated_min": seconds / 60}
     report = {
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_avg_1min": os.getloadavg()[0]},
         "runs": runs,
