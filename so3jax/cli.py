@@ -73,7 +73,9 @@ def main(argv=None) -> int:
     with warnings.catch_warnings():
         warnings.showwarning = _warning_printer(args.command)
         try:
-            return args.func(args)
+            code = args.func(args)
+            distributed.finish()
+            return code
         except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
             print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
             return 2

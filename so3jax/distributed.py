@@ -163,3 +163,23 @@ def collective(what: str):
             ) from None
 
     return guard()
+
+
+# Process 0 hosts the runtime's coordination service: it leaves last, after this grace
+# period, so that the others' shutdown requests reach it (with recoverable tasks, which
+# let a peer's failure surface as an error rather than an abort, the runtime does not
+# hold process 0 back itself).
+SHUTDOWN_GRACE_S = 2.0
+
+
+def finish() -> None:
+    """End a multi-process run in order: every process meets, the others leave, process 0
+    last. No-op for a one-process run."""
+    import jax
+
+    if not jax.distributed.is_initialized():
+        return
+    barrier("so3jax: finished")
+    if writer():
+        time.sleep(SHUTDOWN_GRACE_S)
+    jax.distributed.shutdown()

@@ -40,7 +40,7 @@ from jax.flatten_util import ravel_pytree
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from so3jax import config as cfg
-from so3jax import io, runfolder
+from so3jax import distributed, io, runfolder
 from so3jax.controllers import registry
 from so3jax.gradients import MODES, Batch, batch_metrics, make_batch, value_and_grad
 from so3jax.metrics import cell, finite_values, reported
@@ -498,6 +498,8 @@ def place(tree, mesh: Mesh | None):
     every call and compiles once per shape."""
     if mesh is None:
         return tree
+    if jax.process_count() > 1:  # every process holds the same values: give them as host data
+        tree = jax.tree.map(np.asarray, tree)
     return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
 
 
@@ -522,7 +524,10 @@ def build_problem(config: TuneConfig) -> Problem:
     dtype = jnp.result_type(float)
     scenario = paper_scenario(**config.scenario, dtype=dtype)
     check_scenario(scenario)
-    devices = jax.devices()[: batch_devices(config, jax.device_count())]
+    if jax.process_count() > 1:  # several processes: the batch is split over all of their devices
+        devices = jax.devices()
+    else:
+        devices = jax.devices()[: batch_devices(config, jax.device_count())]
     mesh = Mesh(np.array(devices), (BATCH,)) if len(devices) > 1 else None
     train, validation = (
         place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
@@ -731,8 +736,8 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
     Raises NonFiniteGradientError, after saving, when a cost or gradient is not finite.
     """
     validate(config)
-    with runfolder.claim(out, "tune") as out:
-        return _tune(config, out, resume, progress)
+    with runfolder.claim(out, "tune", lock=distributed.writer()) as out:
+        return _tune(config, out, resume, progress and distributed.writer())
 
 
 def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
@@ -826,7 +831,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 )
                 finite = math.isfinite(row["cost"])
             if not finite:
-                write_history(out, rows + [row])
+                if distributed.writer():
+                    write_history(out, rows + [row])
                 kept = (
                     f"best and last good gains: {out / 'best_gains.json'}"
                     if rows
@@ -841,15 +847,17 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             rows.append(row)
             state = new_state
             iteration += 1
-            save_checkpoint(checkpoint, fingerprint, iteration, state, refs, rows)
-            write_history(out, rows)
-            _write_best(out, config, rows, initial)
+            if distributed.writer():  # process 0 of a multi-process run writes; every process holds the same state
+                save_checkpoint(checkpoint, fingerprint, iteration, state, refs, rows)
+                write_history(out, rows)
+                _write_best(out, config, rows, initial)
             bar.set_postfix(cost=f"{row['cost']:.4g}", rmse=f"{row['rmse']:.3e}", effort=f"{row['effort']:.4g}")
             bar.update(1)
     finally:
         bar.close()
 
-    plot_history(out, rows, list(gain_columns(initial)))
+    if distributed.writer():
+        plot_history(out, rows, list(gain_columns(initial)))
     best_row = _best_row(rows)
     report = validate_gains(config, problem, initial, _gains_from_row(best_row, initial), refs)
     report["training"] = {
@@ -872,7 +880,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         },
     }
     report = io.to_builtin(report)
-    io.write_json(out / "validation.json", report)
+    if distributed.writer():
+        io.write_json(out / "validation.json", report)
     return report
 
 
@@ -880,6 +889,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
 
 
 def _command(args) -> int:
+    distributed.initialize(args)  # before anything touches JAX's backend
     overrides = [cfg.parse_override(text) for text in args.set]
     if args.iterations is not None:
         overrides.append(("iterations", args.iterations))
@@ -892,8 +902,9 @@ def _command(args) -> int:
     except NonFiniteGradientError as err:
         print(f"so3jax tune: {err}", file=sys.stderr)
         return 1
-    print(markdown_table([report]))
-    print(f"results in {out}/")
+    if distributed.writer():
+        print(markdown_table([report]))
+        print(f"results in {out}/")
     return 0
 
 
@@ -951,5 +962,6 @@ def register(subparsers) -> None:
         metavar="KEY=VALUE",
         help="override a config key, e.g. optimizer.learning_rate=0.1",
     )
+    distributed.add_arguments(parser)
     add_precision_argument(parser)
     parser.set_defaults(func=_command)

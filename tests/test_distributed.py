@@ -1,7 +1,7 @@
 """Several processes on JAX's runtime, tried with two local processes on the CPU (gloo
-collectives, coordinator on 127.0.0.1): the same files as one process with the same
-device count, a stopped process reported and the sweep finished by --resume, a
-coordinator that cannot be reached reported within the timeout. Every process is bounded
+collectives, coordinator on 127.0.0.1): the same sweep files as one process with the same
+device count, a stopped process reported and the sweep finished by --resume, the tuned
+gains of one process, a coordinator that cannot be reached reported within the timeout. Every process is bounded
 in time and stopped by the test."""
 
 import argparse
@@ -137,3 +137,23 @@ def test_one_process_runs_need_no_setting(monkeypatch):
     assert not distributed.requested(args)
     monkeypatch.setenv("SLURM_NTASKS", "4")
     assert distributed.requested(args)
+
+
+CAMPAIGN = 'controller = "pd"\niterations = 2\n[scenario]\nT = 5.0\n[train]\nseeds = [0, 1]\n[validation]\nseeds = [10]\n[cost]\nmode = "weighted"\n'
+
+
+def test_two_processes_tune_to_the_gains_of_one_process(tmp_path):
+    campaign = tmp_path / "campaign.toml"
+    campaign.write_text(CAMPAIGN)
+    [(rc, _, stderr)] = _finish([_start(("tune", str(campaign), "--out", str(tmp_path / "one")), tmp_path, devices=2)])
+    assert rc == 0, stderr[-2000:]
+    port = _port()
+    common = ("tune", str(campaign), "--out", str(tmp_path / "two"), "--coordinator", f"127.0.0.1:{port}",
+              "--num-processes", "2", "--timeout", "60")
+    results = _finish([_start((*common, "--process-id", str(i)), tmp_path) for i in (0, 1)])
+    assert [r[0] for r in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    one, two = (json.loads((tmp_path / name / "best_gains.json").read_text()) for name in ("one", "two"))
+    assert one["iteration"] == two["iteration"]
+    for key, value in one["gains"].items():  # the batch mean is reduced across processes: round-off only
+        np.testing.assert_allclose(two["gains"][key], value, rtol=1e-12, err_msg=key)
+    assert "| pd (tuned) |" in results[0][1] and "| pd (tuned) |" not in results[1][1]  # process 0 reports
