@@ -90,6 +90,10 @@ def _child(spec: dict) -> list:
                 "trajectory_steps_per_cpu_s": n * n_steps / cpu,
             }
         )
+    if jax.process_count() > 1:
+        from so3jax import distributed
+
+        distributed.finish()  # every process meets; process 0 leaves last
     return runs
 
 
