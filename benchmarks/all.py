@@ -40,13 +40,8 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 
 # name: (script, arguments, time limit [s]); the limits add up to 19 minutes (quick: 8).
-# Measured on 2 cores at load 4-5 before the speed work: throughput 413 s, sweep 187 s,
-# gradients 113 s + 159 s; after it, at load ~2: throughput ~200 s, sweep 74 s, gradients
-# 97 s + more than 180 s (adaptive reverse mode: its compilations dominate); 2026-11-23,
-# load 1-2: throughput 232 s (before its all-cores runs got longer), sweep 76 s,
-# gradients 104 s + 258 s; with the call graph flattened after fusion (adaptive reverse-mode
-# compilations ~270 s, up from ~250): throughput 289 s, sweep 87-95 s, gradients 104-109 s + 296-314 s;
-# with throughput's batch sizes compiled one per core at a time: throughput 260 s.
+# Each limit leaves room over the benchmark's time on 2 cores at a load average of 1-2
+# (throughput ~260-290 s, sweep 76-95 s, gradients ~105 s + ~300 s; benchmarks/results/).
 GRADIENTS = ["--batch", "2", "--modes", "reverse", "--jobs", "2"]
 PLAN = {
     "throughput": ("throughput", [], 310),

@@ -11,6 +11,7 @@ processes exchange arrays with gloo, JAX's CPU collectives.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import socket
 import sys
@@ -140,29 +141,24 @@ def barrier(name: str) -> None:
             multihost_utils.sync_global_devices(name)
 
 
+@contextlib.contextmanager
 def collective(what: str):
     """Context: a JaxRuntimeError inside a multi-process step becomes a PeerFailure that
     names this process and ``what`` it was computing (one line, no traceback)."""
-    import contextlib
-
     import jax
 
-    @contextlib.contextmanager
-    def guard():
-        try:
-            yield
-        except Exception as err:  # the runtime's errors: JaxRuntimeError, or others naming the transport
-            text = str(err)
-            runtime = isinstance(err, jax.errors.JaxRuntimeError) or "Gloo" in text or "oordination" in text
-            if jax.process_count() == 1 or not runtime:
-                raise
-            first = str(err).strip().splitlines()[0][:200]
-            raise PeerFailure(
-                f"process {jax.process_index()} of {jax.process_count()} stopped at {what}: another process is gone "
-                f"({first}); what finished is saved: rerun every process with --resume"
-            ) from None
-
-    return guard()
+    try:
+        yield
+    except Exception as err:  # the runtime's errors: JaxRuntimeError, or others naming the transport
+        text = str(err)
+        runtime = isinstance(err, jax.errors.JaxRuntimeError) or "Gloo" in text or "oordination" in text
+        if jax.process_count() == 1 or not runtime:
+            raise
+        first = text.strip().splitlines()[0][:200]
+        raise PeerFailure(
+            f"process {jax.process_index()} of {jax.process_count()} stopped at {what}: another process is gone "
+            f"({first}); what finished is saved: rerun every process with --resume"
+        ) from None
 
 
 # Process 0 hosts the runtime's coordination service: it leaves last, after this grace

@@ -181,13 +181,12 @@ def _run(args) -> int:
 
     import so3jax as sj
     from so3jax import config as cfg
+    from so3jax import memory
     from so3jax.io import dumps, write_json
 
     cfg.number(args.record_every, "--record-every [steps]", low=1, integer=True)
     cfg.number(args.seed, "--seed", low=0, high=2**31 - 1, integer=True)
     scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
-    from so3jax import memory
-
     needed = sum(memory.simulate_bytes(scenario, c, g, args.seed, record_every=args.record_every)
                  for c, g in controller_setups(args.log_derivative).values())
     budget = memory.check(needed, memory.from_args(args), f"--T {args.T:g} at --record-every {args.record_every}",

@@ -539,8 +539,8 @@ def _row(cols: dict, i: int) -> dict:
 def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     """Statistics of RMSE [rad/s] and effort [N^2 m^2 s] per controller and phase over the
     samples that did not diverge (each with its number of samples; None where there is
-    none); counts and parameters of diverged and rejected samples; paired comparisons (each
-    later controller against each earlier one, on the samples where neither diverged)."""
+    none); counts and parameters of diverged and rejected samples; paired comparisons (every
+    pair of controllers in config order, on the samples where neither diverged)."""
     cols = columns(config, samples, results)
     phases = _phases(config)
     summary: dict[str, Any] = {
