@@ -15,7 +15,9 @@ import contextlib
 import os
 import socket
 import sys
+import threading
 import time
+from pathlib import Path
 
 DEFAULT_TIMEOUT_S = 120
 
@@ -25,7 +27,7 @@ class PeerFailure(RuntimeError):
 _ENV = {"coordinator": "SO3JAX_COORDINATOR", "num_processes": "SO3JAX_NUM_PROCESSES", "process_id": "SO3JAX_PROCESS_ID"}
 
 
-def add_arguments(parser) -> None:
+def add_arguments(parser):
     g = parser.add_argument_group("several processes (hosts)")
     g.add_argument("--distributed", action="store_true",
                    help="join the other processes of this run (automatic under SLURM or Open MPI with several tasks)")
@@ -34,6 +36,7 @@ def add_arguments(parser) -> None:
     g.add_argument("--process-id", type=int, metavar="I", help="this process's index, 0 to N-1 (implies --distributed)")
     g.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
                    help=f"seconds to wait for the other processes to join, or to answer once joined (default {DEFAULT_TIMEOUT_S})")
+    return g
 
 
 def _setting(args, name):
@@ -90,12 +93,17 @@ def initialize(args) -> None:
               file=sys.stderr, flush=True)
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.config.update("jax_enable_recoverability", True)
+    # The runtime aborts a process whose peers do not all register in time; the watchdog
+    # ends it first, with one line, and the runtime's own deadline is set past it.
+    watchdog = threading.Timer(timeout, _not_joined, (getattr(args, "command", None), i, n, coordinator, timeout))
+    watchdog.daemon = True
+    watchdog.start()
     try:
         jax.distributed.initialize(
             coordinator_address=coordinator,
             num_processes=n,
             process_id=i,
-            initialization_timeout=int(timeout),
+            initialization_timeout=int(timeout) + ABORT_MARGIN_S,
             heartbeat_timeout_seconds=int(timeout),
         )
     except Exception as err:  # the runtime's errors are XlaRuntimeError/RuntimeError with long texts
@@ -104,6 +112,24 @@ def initialize(args) -> None:
             f"process {i if i is not None else '?'} could not join the run at {coordinator or 'the cluster coordinator'} "
             f"within {timeout:g} s ({first}); start process 0 first and check --coordinator"
         ) from None
+    finally:
+        watchdog.cancel()
+
+
+# Seconds the runtime's registration deadline lies past --timeout (the watchdog's).
+ABORT_MARGIN_S = 10
+
+
+def _not_joined(command, i, n, coordinator, timeout) -> None:
+    """The watchdog: not every process joined within ``timeout``; exit 1 with one line."""
+    who = f"process {i} of {n}" if i is not None else "this process"
+    print(
+        f"so3jax {command or ''}: error: {who}: not every process joined the run at "
+        f"{coordinator or 'the cluster coordinator'} within {timeout:g} s; start all {n or ''} processes "
+        f"with the same --coordinator and --num-processes, each with its own --process-id (or raise --timeout)",
+        file=sys.stderr, flush=True,
+    )
+    os._exit(1)
 
 
 def _reach(coordinator: str, i: int, timeout: float) -> None:
@@ -139,6 +165,38 @@ def barrier(name: str) -> None:
 
         with collective(name):
             multihost_utils.sync_global_devices(name)
+
+
+def check_shared(folder) -> None:
+    """Every process must see the run folder as process 0 writes it (a shared filesystem):
+    process 0 writes a token there that every process reads back. A ValueError on every
+    process otherwise (no-op for one process)."""
+    import jax
+
+    if jax.process_count() == 1:
+        return
+    import secrets
+
+    import numpy as np
+    from jax.experimental import multihost_utils
+
+    path = Path(folder) / ".so3jax-shared"
+    with collective("checking the output folder"):
+        token = str(int(multihost_utils.broadcast_one_to_all(np.int32(secrets.randbits(31) if writer() else 0))))
+        if writer():
+            path.write_text(token)
+        barrier("output folder token written")
+        try:
+            seen = path.read_text() == token
+        except OSError:
+            seen = False
+        seen = np.asarray(multihost_utils.process_allgather(np.array(seen))).reshape(-1)
+    if writer():
+        path.unlink(missing_ok=True)
+    if not seen.all():
+        blind = ", ".join(str(i) for i in np.flatnonzero(~seen))
+        raise ValueError(f"process(es) {blind} of {len(seen)} do not see {folder} as process 0 writes it: "
+                         "every process must share the output folder (a shared filesystem)")
 
 
 @contextlib.contextmanager

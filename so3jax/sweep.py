@@ -1,11 +1,15 @@
 """``so3jax sweep``: Monte Carlo robustness sweeps of the paper's mission.
 
 Samples (:mod:`so3jax.dispersions`) run with every chosen controller, so results pair
-sample by sample. Rollouts run in chunks; each chunk is laid out over a Mesh of all the
-devices JAX sees (batch axis), and every device runs the same single-device executable
-(a natively batched rollout, :func:`so3jax.rollout.rollout_batch`) on its shard, rather
-than one SPMD-partitioned program. Results are reproducible bit for bit for a given chunk
-size and device count (so a resumed sweep equals an uninterrupted one); another chunking
+sample by sample. Rollouts run in chunks; each chunk is split into one shard per device
+JAX sees (every process's), and each shard runs the same single-device executable (a
+natively batched rollout, :func:`so3jax.rollout.rollout_batch`), rather than one
+SPMD-partitioned program. Over several processes, each takes whole chunks as it becomes
+free (a claim file per chunk in the shared output folder) and runs their shards on its
+own devices; with ``--layout mesh`` every chunk runs over all processes' devices at once.
+Results are reproducible bit for bit for a given chunk size and total device count,
+whatever the number of processes or the layout (so a resumed sweep equals an
+uninterrupted one); another chunking
 changes them at round-off only (~1e-15 relative, tested): the batched step is vectorized
 across the shard, and how XLA vectorizes depends on the shard's size. A shard holds at
 least 8 samples.
@@ -28,7 +32,9 @@ import functools
 import io
 import math
 import operator
+import os
 import re
+import shutil
 import sys
 import time
 import warnings
@@ -65,6 +71,7 @@ PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
 BATCH = "batch"
 MIN_SHARD = 8  # samples per device and batch, at least
+LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
 # The default sweep (sweeps/default.toml); a config file's missing entries take these values.
 DEFAULT_DISPERSIONS = disp.Dispersions(
@@ -276,7 +283,7 @@ def _executables(controller: str, T: float, dt: float, devices, args) -> list:
     the missing ones are lowered one by one and compiled in parallel."""
     signature = tuple((x.shape, x.dtype) for x in jax.tree.leaves(args))
     keys = [(controller, T, dt, device, signature) for device in devices]
-    missing = [key for key in keys if key not in _EXECUTABLES]
+    missing = list(dict.fromkeys(key for key in keys if key not in _EXECUTABLES))
     if missing:
 
         def lower(device):
@@ -289,23 +296,48 @@ def _executables(controller: str, T: float, dt: float, devices, args) -> list:
     return [_EXECUTABLES[key] for key in keys]
 
 
-def run_chunk(params: disp.RolloutParams, gains, controller: str, T: float, dt: float, mesh: Mesh) -> dict:
-    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size: each device runs
-    ``simulate_batch`` on its shard of the NamedSharding over the batch axis."""
+def _run_shards(shards: list, gains, controller: str, T: float, dt: float, devices) -> list:
+    """Metrics of each shard (equal sizes), shard j on devices[j]; dispatched before any is read."""
+    executables = _executables(controller, T, dt, devices, (shards[0], gains))
+    return [f(*jax.device_put((shard, gains), device)) for f, shard, device in zip(executables, shards, devices)]
+
+
+def run_chunk(params: disp.RolloutParams, gains, controller: str, T: float, dt: float, mesh: Mesh,
+              layout: str = "chunks") -> dict:
+    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size, in mesh.size
+    equal shards, each run by ``simulate_batch`` on one device: the same shard programs, so
+    the same bits, whichever devices run them. Layout "chunks": this process runs every
+    shard on its own devices in turn. Layout "mesh": each process runs the shards of its
+    devices in the mesh, and the processes exchange their results."""
     n = len(params.seed)
-    sharding = NamedSharding(mesh, PartitionSpec(BATCH))
-    layout = sharding.addressable_devices_indices_map((n,))
-    shards = [jax.tree.map(operator.itemgetter(index), params) for index in layout.values()]
-    executables = _executables(controller, T, dt, list(layout), (shards[0], gains))
-    outputs = [f(*jax.device_put((shard, gains), device)) for f, shard, device in zip(executables, shards, layout)]
-    out = jax.tree.map(
-        lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)), *outputs
-    )
-    if jax.process_count() > 1:
+    if layout == "mesh" and jax.process_count() > 1:
         from jax.experimental import multihost_utils
 
+        sharding = NamedSharding(mesh, PartitionSpec(BATCH))
+        index_map = sharding.addressable_devices_indices_map((n,))
+        shards = [jax.tree.map(operator.itemgetter(index), params) for index in index_map.values()]
+        outputs = _run_shards(shards, gains, controller, T, dt, list(index_map))
+        out = jax.tree.map(
+            lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)),
+            *outputs,
+        )
         out = multihost_utils.process_allgather(out, tiled=True)
-    return {k: np.asarray(v) for k, v in out._asdict().items()}
+        return {k: np.asarray(v) for k, v in out._asdict().items()}
+    size, local = n // mesh.size, jax.local_devices()
+    shards = [jax.tree.map(lambda x: x[j * size : (j + 1) * size], params) for j in range(mesh.size)]
+    outputs = _run_shards(shards, gains, controller, T, dt, [local[j % len(local)] for j in range(mesh.size)])
+    return {k: np.concatenate([np.asarray(getattr(o, k)) for o in outputs]) for k in Metrics._fields}
+
+
+def _take(claims: Path, controller: str, first: int) -> bool:
+    """Whether this process takes the chunk (controller, first): the first process to create
+    its claim file does (O_EXCL, atomic on a shared filesystem)."""
+    claims.mkdir(parents=True, exist_ok=True)
+    try:
+        os.close(os.open(claims / f"{controller}-{first:09d}", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    return True
 
 
 def _chunk_path(out: Path, controller: str, first: int) -> Path:
@@ -378,12 +410,18 @@ def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
 
 
 def run_sweep(
-    config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None, max_memory: int | None = None
+    config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None, max_memory: int | None = None,
+    layout: str = "chunks",
 ) -> dict:
     """Run (or finish, with resume) a sweep; write the output folder; return the summary.
-    ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate."""
+    ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate.
+    Over several processes, ``layout`` "chunks" gives each process whole chunks (chunk k
+    to process k mod P) and "mesh" runs every chunk over all processes' devices; both
+    write the same files (see :func:`run_chunk`)."""
+    if layout not in LAYOUTS:
+        raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     with runfolder.claim(out, "sweep", lock=distributed.writer()) as out:
-        return _run_sweep(config, out, resume, progress, max_memory)
+        return _run_sweep(config, out, resume, progress, max_memory, layout)
 
 
 def memory_needed(config: SweepConfig, params, chunk: int) -> int:
@@ -401,12 +439,16 @@ def memory_needed(config: SweepConfig, params, chunk: int) -> int:
     return chunk * per_sample + table
 
 
-def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory) -> dict:
+def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory, layout: str) -> dict:
     from tqdm import tqdm
 
     from so3jax import memory
 
+    distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     fingerprint = _prepare_out(out, config, resume)
+    claims = out / "chunks" / ".claims"  # with layout "chunks": a file per chunk a process has taken
+    if distributed.writer() and claims.exists():
+        shutil.rmtree(claims)  # an interrupted run's: its unfinished chunks are free again
     distributed.barrier("sweep: output folder checked")
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
@@ -418,39 +460,52 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     budget = memory.check(memory_needed(config, params, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
                           "lower --chunk or --samples")
     done = load_chunks(out, config.controllers, config.samples, fingerprint)
-    todo = {c: valid[~done[c]["done"][valid]] if c in done else valid for c in config.controllers}
+    jobs = []  # (controller, sample indices) of every chunk left, in one order for every process
+    for controller in config.controllers:
+        todo = valid[~done[controller]["done"][valid]] if controller in done else valid
+        jobs += [(controller, todo[first : first + chunk]) for first in range(0, len(todo), chunk)]
+    processes = jax.process_count()
+    share = processes > 1 and layout == "chunks"
     total = len(valid) * len(config.controllers)
-    writer = distributed.writer()
+    before = total - sum(len(index) for _, index in jobs)  # samples of chunks finished earlier
     bar = tqdm(
         total=total,
-        initial=total - sum(map(len, todo.values())),
+        initial=before,
         unit="sample",
-        desc="sweep",
-        disable=not writer or (None if progress is None else not progress),
+        desc=f"sweep, process 0 of {processes}" if share else "sweep",
+        disable=not distributed.writer() or (None if progress is None else not progress),
         dynamic_ncols=True,
     )
-    start, computed = time.perf_counter(), 0
+    start = time.perf_counter()
     with bar:
-        for controller in config.controllers:
+        for controller, index in jobs:
+            if share and not _take(claims, controller, int(index[0])):
+                continue  # another process computes it
             gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
-            for first in range(0, len(todo[controller]), chunk):
-                index = todo[controller][first : first + chunk]
-                padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-                chunk_params = jax.tree.map(operator.itemgetter(padded), params)
-                with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
-                    metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh)
-                if writer:
-                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
-                computed += len(index)
-                rate = computed / (time.perf_counter() - start)
-                bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
-                bar.update(len(index))
-    wall = time.perf_counter() - start
-    distributed.barrier("sweep: every chunk saved")
+            padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
+            chunk_params = jax.tree.map(operator.itemgetter(padded), params)
+            with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
+                metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh, layout)
+            if distributed.writer() or layout == "chunks":
+                save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
+            if share:  # count every process's saved chunks
+                saved = {path.name for path in (out / "chunks").glob("*.npz")}
+                bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)
+            else:
+                bar.n += len(index)
+            rate = (bar.n - before) / (time.perf_counter() - start)
+            bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
+            bar.refresh()
+    distributed.barrier("sweep: waiting for every process's chunks")
+    wall, computed = time.perf_counter() - start, sum(len(index) for _, index in jobs)
+    if share and distributed.writer():
+        shutil.rmtree(claims, ignore_errors=True)
     results = load_chunks(out, config.controllers, config.samples, fingerprint)
     summary = summarize(config, samples, results)
     summary["run"] = {
         "devices": mesh.size,
+        "processes": processes,
+        "layout": layout,
         "chunk": chunk,
         "memory": budget,
         "computed_samples": computed,
@@ -458,7 +513,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
         "samples_per_s": computed / wall if computed else None,
         "trajectory_steps_per_s": computed * n_steps / wall if computed else None,
     }
-    if writer:
+    if distributed.writer():
         write_outputs(out, config, samples, results, summary)
     return summary
 
@@ -743,7 +798,9 @@ def register(subparsers) -> None:
     )
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
-    distributed.add_arguments(p)
+    group = distributed.add_arguments(p)
+    group.add_argument("--layout", choices=LAYOUTS, default="chunks",
+                       help="how processes share the sweep: whole chunks per process (default), or each chunk over every process's devices")
     add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=main)
@@ -762,7 +819,7 @@ def main(args: argparse.Namespace) -> int:
         config = load_config(args.config, tuple(overrides))
     from so3jax import memory
 
-    summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args))
+    summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args), layout=args.layout)
     if distributed.writer():
         print(format_summary(summary))
         run = summary["run"]

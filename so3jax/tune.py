@@ -743,6 +743,7 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
 def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     from tqdm import tqdm
 
+    distributed.check_shared(out)  # every process reads the checkpoint to resume
     checkpoint = out / CHECKPOINT
     if checkpoint.exists() and not resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that run, or choose another --out")

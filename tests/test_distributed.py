@@ -71,8 +71,9 @@ def one_process(tmp_path_factory):
     return _files(out)
 
 
-def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_process, tmp_path):
-    results = _finish(_pair(tmp_path / "out", tmp_path))
+@pytest.mark.parametrize("layout", ["chunks", "mesh"])
+def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_process, tmp_path, layout):
+    results = _finish(_pair(tmp_path / "out", tmp_path, "--layout", layout))
     assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
     ours = [[line for line in stdout.splitlines() if not line.startswith("[Gloo]")] for _, stdout, _ in results]
     assert any("adaptive vs pd" in line for line in ours[0]) and ours[1] == []  # process 0 reports, once
