@@ -13,6 +13,12 @@ machine disturbs least. From the compiled rates it extrapolates the full default
     python benchmarks/sweep.py                             # 1, 2, 4 devices; T = 50 s
     python benchmarks/sweep.py --devices 2 --T 200 --samples 256 --chunk 256
     python benchmarks/sweep.py --devices 1,2,2x1 --rounds 3    # one process against two on JAX's runtime
+    python benchmarks/sweep.py --devices 2x1,2x1:mesh --hog    # the two layouts, one core shared with a busy loop
+
+Several processes (PxD) share the chunks as ``so3jax sweep`` does: whole chunks, each
+taken by the first free process through a claim file (layout "chunks", the default), or
+every chunk over all processes' devices (PxD:mesh). --hog pins process i to core i and
+runs a busy loop on the last core for the whole benchmark: a host slower than the others.
 
 Prints one JSON object: ``runs`` (one per round, layout and controller) and ``full_sweep``
 (per layout: the median rate over rounds and the extrapolation).
@@ -25,9 +31,12 @@ import json
 import os
 import platform
 import statistics
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 FULL = {"samples": 1024, "steps": 400_000}
 
@@ -38,6 +47,8 @@ def _child(spec: dict) -> list:
 
     import jax
 
+    if spec.get("pin") is not None:
+        os.sched_setaffinity(0, {spec["pin"]})
     jax.config.update("jax_enable_x64", True)
     if spec.get("processes", 1) > 1:  # one of several processes on JAX's runtime (global mesh)
         from so3jax import distributed
@@ -47,7 +58,7 @@ def _child(spec: dict) -> list:
             process_id=spec["process_id"], timeout=300))
     import numpy as np
 
-    from so3jax import dispersions, sweep
+    from so3jax import dispersions, distributed, sweep
     from so3jax.scenario import InertiaWarning, steps_for_horizon
 
     with warnings.catch_warnings():
@@ -62,21 +73,29 @@ def _child(spec: dict) -> list:
     for controller in spec["controllers"]:
         gains = jax.tree.map(np.asarray, config.gains[controller])
 
-        def run(first, last, controller=controller, gains=gains):
+        def run(first, last, controller=controller, gains=gains, claims=None):
             for start in range(first, last, chunk):
+                if claims is not None and not sweep._take(claims, controller, start):
+                    continue
                 part = jax.tree.map(lambda x, start=start: x[start : start + chunk], params)
-                sweep.run_chunk(part, gains, controller, config.T, config.dt, mesh)
+                sweep.run_chunk(part, gains, controller, config.T, config.dt, mesh, layout)
+            distributed.barrier(f"benchmark: {controller} {first}-{last}")
 
+        layout = spec.get("layout", "chunks")
         start = time.perf_counter()
-        run(0, chunk)
+        run(0, chunk)  # every process compiles (layout "chunks": on its own devices)
         first = time.perf_counter() - start
+        shared = layout == "chunks" and jax.process_count() > 1
+        claims = Path(spec["claims"]) / controller if shared else None
         start, cpu = time.perf_counter(), time.process_time()
-        run(0, n)
+        run(0, n, claims=claims)
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         runs.append(
             {
                 "devices": mesh.size,
                 "processes": jax.process_count(),
+                "layout": layout if jax.process_count() > 1 else None,
+                "hog": spec.get("pin") is not None,
                 "controller": controller,
                 "T": config.T,
                 "n_steps": n_steps,
@@ -90,17 +109,16 @@ def _child(spec: dict) -> list:
                 "trajectory_steps_per_cpu_s": n * n_steps / cpu,
             }
         )
-    if jax.process_count() > 1:
-        from so3jax import distributed
-
-        distributed.finish()  # every process meets; process 0 leaves last
+    distributed.finish()  # every process meets; process 0 leaves last
     return runs
 
 
-def _layout(text: str) -> tuple[int, int]:
-    """'2' -> one process with 2 devices; '2x1' -> 2 processes with 1 device each."""
+def _layout(text: str) -> tuple[int, int, str]:
+    """'2' -> one process with 2 devices; '2x1' -> 2 processes with 1 device each, whole
+    chunks per process; '2x1:mesh' -> the same, every chunk over both."""
+    text, _, layout = text.partition(":")
     processes, _, devices = text.partition("x")
-    return (int(processes), int(devices)) if devices else (1, int(processes))
+    return (int(processes), int(devices), layout or "chunks") if devices else (1, int(processes), "chunks")
 
 
 def _free_port() -> int:
@@ -111,16 +129,20 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def _run_children(spec: dict, processes: int, devices: int) -> list:
-    """The measurements of process 0 of ``processes`` children with ``devices`` each."""
+def _run_children(spec: dict, processes: int, devices: int, layout: str, pin: bool) -> list:
+    """The measurements of process 0 of ``processes`` children with ``devices`` each (pinned
+    to core i if ``pin`` and several)."""
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
     coordinator = f"127.0.0.1:{_free_port()}"
+    claims = tempfile.mkdtemp(prefix="so3jax-claims-")
     children = []
     for i in range(processes):
-        child = {**spec, "processes": processes, "process_id": i, "coordinator": coordinator}
+        child = {**spec, "processes": processes, "process_id": i, "coordinator": coordinator, "layout": layout,
+                 "claims": claims, "pin": i % os.cpu_count() if pin and processes > 1 else None}
         children.append(subprocess.Popen([sys.executable, __file__, "--child", json.dumps(child)], env=env,
                                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
     outputs = [child.communicate() for child in children]
+    shutil.rmtree(claims, ignore_errors=True)
     for child, (_, stderr) in zip(children, outputs):
         if child.returncode:
             sys.exit(f"child of {processes} x {devices} device(s) failed:\n{stderr}")
@@ -138,26 +160,35 @@ def main() -> None:
     parser.add_argument("--T", type=float, default=50.0, help="horizon [s] (default 50)")
     parser.add_argument("--samples", type=int, default=128, help="samples timed (default 128)")
     parser.add_argument("--chunk", type=int, default=64, help="samples per chunk (default 64)")
+    parser.add_argument("--hog", action="store_true",
+                        help="pin process i of several to core i and keep the last core half busy with a busy loop")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(_child(json.loads(args.child))))
         return
     runs = []
-    layouts = [_layout(text) for text in args.devices.split(",")]
-    for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
-        for processes, devices in layouts:
-            spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "controllers": args.controllers.split(",")}
-            runs += _run_children(spec, processes, devices)
+    layouts = dict(zip(args.devices.split(","), (_layout(text) for text in args.devices.split(","))))
+    hog = None
+    if args.hog:
+        last = os.cpu_count() - 1
+        hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{last}}})\nwhile True: pass"])
+    try:
+        for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
+            for name, (processes, devices, layout) in layouts.items():
+                spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "controllers": args.controllers.split(",")}
+                runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
+    finally:
+        if hog is not None:
+            hog.kill()
     full = {}
-    for layout in dict.fromkeys((r["processes"], r["devices"]) for r in runs):
+    for name in layouts:
         rates = {}
         for r in runs:
-            if (r["processes"], r["devices"]) == layout:
+            if r["name"] == name:
                 rates.setdefault(r["controller"], []).append(r["trajectory_steps_per_s"])
         rates = {c: statistics.median(v) for c, v in rates.items()}
         seconds = sum(FULL["samples"] * FULL["steps"] / rate for rate in rates.values())
-        name = f"{layout[0]}x{layout[1] // layout[0]}" if layout[0] > 1 else str(layout[1])
         full[name] = {"controllers": sorted(rates), "median_trajectory_steps_per_s": rates,
                       "extrapolated_s": seconds, "extrapolated_min": seconds / 60}
     report = {

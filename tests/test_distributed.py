@@ -1,8 +1,9 @@
 """Several processes on JAX's runtime, tried with two local processes on the CPU (gloo
 collectives, coordinator on 127.0.0.1): the same sweep files as one process with the same
-device count, a stopped process reported and the sweep finished by --resume, the tuned
-gains of one process, a coordinator that cannot be reached reported within the timeout. Every process is bounded
-in time and stopped by the test."""
+device count in either layout, a stopped process reported and the sweep finished by
+--resume, the tuned gains of one process, a coordinator that cannot be reached or peers
+that never join reported within the timeout, processes that do not share the output
+folder told so. Every process is bounded in time and stopped by the test."""
 
 import argparse
 import json
@@ -79,6 +80,9 @@ def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_pr
     assert any("adaptive vs pd" in line for line in ours[0]) and ours[1] == []  # process 0 reports, once
     csv, arrays, summary = _files(tmp_path / "out")
     assert csv == one_process[0] and summary == one_process[2]
+    run = json.loads((tmp_path / "out" / "summary.json").read_text())["run"]
+    assert (run["processes"], run["devices"], run["layout"]) == (2, 2, layout)
+    assert not (tmp_path / "out" / "chunks" / ".claims").exists()
     for key, value in one_process[1].items():
         np.testing.assert_array_equal(arrays[key], value, err_msg=key)
 
@@ -110,6 +114,27 @@ def test_a_coordinator_that_cannot_be_reached_is_reported_within_the_timeout(tmp
     assert "could not reach the coordinator" in stderr.strip().splitlines()[-1]
     assert time.monotonic() - start < 60
     assert not (tmp_path / "out").exists()  # nothing written
+
+
+def test_a_process_whose_peers_never_join_stops_at_the_timeout_with_one_line(tmp_path):
+    start = time.monotonic()
+    args = (*SWEEP, "--out", str(tmp_path / "out"), "--coordinator", f"127.0.0.1:{_port()}", "--num-processes", "2",
+            "--process-id", "0", "--timeout", "3")
+    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)
+    assert rc == 1 and "Traceback" not in stderr and "Check failure" not in stderr, stderr[-2000:]
+    assert "process 0 of 2: not every process joined the run" in stderr.strip().splitlines()[-1]
+    assert time.monotonic() - start < 60
+    assert not (tmp_path / "out").exists()
+
+
+def test_processes_that_do_not_share_the_output_folder_are_told(tmp_path):
+    port = _port()
+    procs = [_start((*SWEEP, "--out", str(tmp_path / f"out{i}"), "--coordinator", f"127.0.0.1:{port}",
+                     "--num-processes", "2", "--timeout", "60", "--process-id", str(i)), tmp_path) for i in (0, 1)]
+    for rc, _, stderr in _finish(procs, limit=200):
+        assert rc == 2 and "Traceback" not in stderr, stderr[-2000:]
+        assert "process(es) 1 of 2 do not see" in stderr and "shared filesystem" in stderr.strip().splitlines()[-1]
+    assert not list(tmp_path.glob("out*/chunks/*.npz"))
 
 
 @pytest.mark.parametrize(
