@@ -50,7 +50,7 @@ def _child(spec: dict) -> list:
     if spec.get("pin") is not None:
         os.sched_setaffinity(0, {spec["pin"]})
     jax.config.update("jax_enable_x64", True)
-    if spec.get("processes", 1) > 1:  # one of several processes on JAX's runtime (global mesh)
+    if spec.get("processes", 1) > 1:  # one of several processes on JAX's runtime
         from so3jax import distributed
 
         distributed.initialize(argparse.Namespace(
@@ -86,7 +86,7 @@ def _child(spec: dict) -> list:
         run(0, chunk)  # every process compiles (layout "chunks": on its own devices)
         first = time.perf_counter() - start
         shared = layout == "chunks" and jax.process_count() > 1
-        claims = Path(spec["claims"]) / controller if shared else None
+        claims = Path(spec["claims"]) if shared else None  # claim files are named by controller
         start, cpu = time.perf_counter(), time.process_time()
         run(0, n, claims=claims)
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu

@@ -331,8 +331,7 @@ def run_chunk(params: disp.RolloutParams, gains, controller: str, T: float, dt: 
 
 def _take(claims: Path, controller: str, first: int) -> bool:
     """Whether this process takes the chunk (controller, first): the first process to create
-    its claim file does (O_EXCL, atomic on a shared filesystem)."""
-    claims.mkdir(parents=True, exist_ok=True)
+    its claim file in the folder ``claims`` does (O_EXCL, atomic on a shared filesystem)."""
     try:
         os.close(os.open(claims / f"{controller}-{first:09d}", os.O_CREAT | os.O_EXCL | os.O_WRONLY))
     except FileExistsError:
@@ -415,9 +414,9 @@ def run_sweep(
 ) -> dict:
     """Run (or finish, with resume) a sweep; write the output folder; return the summary.
     ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate.
-    Over several processes, ``layout`` "chunks" gives each process whole chunks (chunk k
-    to process k mod P) and "mesh" runs every chunk over all processes' devices; both
-    write the same files (see :func:`run_chunk`)."""
+    Over several processes, ``layout`` "chunks" gives each process whole chunks (the next
+    unclaimed one whenever it is free) and "mesh" runs every chunk over all processes'
+    devices; both write the same files (see :func:`run_chunk`)."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     with runfolder.claim(out, "sweep", lock=distributed.writer()) as out:
@@ -446,9 +445,13 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
 
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     fingerprint = _prepare_out(out, config, resume)
-    claims = out / "chunks" / ".claims"  # with layout "chunks": a file per chunk a process has taken
-    if distributed.writer() and claims.exists():
-        shutil.rmtree(claims)  # an interrupted run's: its unfinished chunks are free again
+    processes = jax.process_count()
+    share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each
+    claims = out / "chunks" / ".claims"  # a file per chunk a process has taken
+    if distributed.writer():
+        shutil.rmtree(claims, ignore_errors=True)  # an interrupted run's claims: its unfinished chunks are free
+        if share:
+            claims.mkdir(parents=True)
     distributed.barrier("sweep: output folder checked")
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
@@ -464,13 +467,11 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     for controller in config.controllers:
         todo = valid[~done[controller]["done"][valid]] if controller in done else valid
         jobs += [(controller, todo[first : first + chunk]) for first in range(0, len(todo), chunk)]
-    processes = jax.process_count()
-    share = processes > 1 and layout == "chunks"
     total = len(valid) * len(config.controllers)
-    before = total - sum(len(index) for _, index in jobs)  # samples of chunks finished earlier
+    held = total - sum(len(index) for _, index in jobs)  # samples whose chunks OUT already holds
     bar = tqdm(
         total=total,
-        initial=before,
+        initial=held,
         unit="sample",
         desc=f"sweep, process 0 of {processes}" if share else "sweep",
         disable=not distributed.writer() or (None if progress is None else not progress),
@@ -486,14 +487,14 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
             chunk_params = jax.tree.map(operator.itemgetter(padded), params)
             with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
                 metrics = run_chunk(chunk_params, gains, controller, config.T, config.dt, mesh, layout)
-            if distributed.writer() or layout == "chunks":
+            if distributed.writer() or share:
                 save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
             if share:  # count every process's saved chunks
                 saved = {path.name for path in (out / "chunks").glob("*.npz")}
                 bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)
             else:
                 bar.n += len(index)
-            rate = (bar.n - before) / (time.perf_counter() - start)
+            rate = (bar.n - held) / (time.perf_counter() - start)
             bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
             bar.refresh()
     distributed.barrier("sweep: waiting for every process's chunks")
