@@ -136,9 +136,9 @@ def rates(batch: int, n_steps: int, rounds: int) -> dict:
 def _child(spec: str) -> None:
     """In a child process: the paper's mode rate of the so3jax found first on sys.path."""
     spec = json.loads(spec)
-    from so3jax._xla_flags import use_every_core
+    from so3jax import configure_xla
 
-    use_every_core()
+    configure_xla(every_core=True)
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -196,9 +196,9 @@ def main(argv=None) -> int:
         report["paper_mode_against"] = {"tree": str(args.against), **against(args.against, args.batch, args.steps,
                                                                              args.rounds)}
     else:
-        from so3jax._xla_flags import use_every_core
+        from so3jax import configure_xla
 
-        use_every_core()
+        configure_xla(every_core=True)
         import jax
 
         jax.config.update("jax_enable_x64", True)

@@ -41,6 +41,9 @@ FD_STEP = 1e-4
 
 def _child(spec: dict) -> dict:
     """One measurement, in this process (run as a subprocess by the parent)."""
+    from so3jax import configure_xla
+
+    configure_xla()  # before JAX starts its backend
     import jax
 
     jax.config.update("jax_enable_x64", True)

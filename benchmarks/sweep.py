@@ -45,6 +45,9 @@ def _child(spec: dict) -> list:
     """Measurements for one device count, in this process (a subprocess of the parent)."""
     import warnings
 
+    from so3jax import configure_xla
+
+    configure_xla()  # before JAX starts its backend (the parent sets the device count)
     import jax
 
     if spec.get("pin") is not None:

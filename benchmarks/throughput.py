@@ -1,6 +1,6 @@
 """Throughput of so3jax rollouts beside the NumPy and Numba baselines, FLOPs and the machine's peak.
 
-What it measures, in one process (one XLA device, as a plain ``import so3jax`` gets):
+What it measures, in one process (one XLA device, with ``so3jax.configure_xla()``'s XLA:CPU settings):
 
 * a correctness gate first: so3jax (float64) against the NumPy baseline on a short
   horizon, and against the Numba baseline across both phase switches (dt = 1 s) and
@@ -214,13 +214,11 @@ def so3jax_all_cores(controller, dtype, batch, n_steps, repeats, head_to_head=Fa
 
 
 def _all_cores_child(spec: str) -> None:
-    from so3jax._xla_flags import use_every_core
+    from so3jax import configure_xla
 
-    use_every_core()
+    configure_xla(every_core=True)
     import jax
     import jax.numpy as jnp
-
-    import so3jax  # noqa: F401
 
     jax.config.update("jax_enable_x64", True)
     spec = json.loads(spec)
@@ -740,8 +738,10 @@ def main(argv=None) -> int:
 
     import jax
 
-    import so3jax  # noqa: F401  (before JAX starts its backend: so3jax sets its XLA:CPU flags)
+    from so3jax import configure_xla
     from so3jax._xla_flags import usable_cores
+
+    configure_xla()  # before JAX starts its backend
 
     jax.config.update("jax_enable_x64", True)  # float64 available; float32 runs build float32 scenarios
     import numpy as np

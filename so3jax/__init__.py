@@ -1,10 +1,7 @@
 """so3jax: differentiable spacecraft attitude simulation on SO(3) in JAX."""
 
-from so3jax import _xla_flags
-
-_xla_flags.configure_cpu_codegen()  # before JAX starts its backend; see _xla_flags
-
 from so3jax import so3
+from so3jax._xla_flags import configure_xla
 from so3jax.controllers import (
     PAPER_ADAPTIVE_GAINS,
     PAPER_PD_GAINS,
@@ -48,6 +45,7 @@ __all__ = [
     "SinusoidPlusNoise",
     "State",
     "adaptive_backstepping",
+    "configure_xla",
     "geometric_pd",
     "no_disturbance",
     "paper_scenario",

@@ -1,6 +1,8 @@
-"""XLA:CPU settings so3jax relies on for speed, added to ``XLA_FLAGS`` before JAX
-starts its backend (they have no effect once it has). A setting the user already
-made in ``XLA_FLAGS`` always wins; ``SO3JAX_KEEP_XLA_FLAGS=1`` disables all of this.
+"""XLA:CPU settings so3jax relies on for speed, added to ``XLA_FLAGS`` by
+:func:`configure_xla` (the ``so3jax`` command calls it; importing the library never
+does). They take effect only when made before JAX starts its backend (before the
+first computation). A setting the user already made in ``XLA_FLAGS`` always wins;
+``SO3JAX_KEEP_XLA_FLAGS=1`` disables all of this.
 """
 
 from __future__ import annotations
@@ -59,3 +61,13 @@ def usable_cores() -> int:
 def use_every_core() -> None:
     """One XLA host device per core, so sharded batches use the whole CPU."""
     _add(f"--xla_force_host_platform_device_count={usable_cores()}", "xla_force_host_platform_device_count")
+
+
+def configure_xla(every_core: bool = False) -> None:
+    """The ``so3jax`` command's XLA:CPU settings for this process: whole while loops as
+    single CPU kernels (:func:`configure_cpu_codegen`) and, with ``every_core``, one host
+    device per core (:func:`use_every_core`). Call it before JAX's first computation;
+    the paper's pinned metrics (tests/data/paper_metrics_pinned.json) are these settings'."""
+    configure_cpu_codegen()
+    if every_core:
+        use_every_core()

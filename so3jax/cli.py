@@ -67,7 +67,7 @@ def configure_jax(precision: str) -> None:
 
 
 def main(argv=None) -> int:
-    _xla_flags.use_every_core()  # before JAX initializes its backend
+    _xla_flags.configure_xla(every_core=True)  # before JAX initializes its backend
     args = build_parser().parse_args(argv)
     configure_jax(args.precision)
     with warnings.catch_warnings():

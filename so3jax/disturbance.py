@@ -5,16 +5,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.extend.random import threefry2x32_p
 
 from so3jax._erfinv import erf_inv
 from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass
-
-try:  # JAX's Threefry-2x32 written out round by round (how JAX lowers it on GPU).
-    from jax._src.random.threefry2x32 import _threefry2x32_lowering as _threefry_unrolled
-except ImportError:  # other JAX versions: the primitive (same bits, slower on CPU)
-    _threefry_unrolled = None
+from so3jax._threefry import threefry2x32
 
 
 @pytree_dataclass
@@ -81,10 +76,7 @@ def noise_components(key, k, dtype):
 
 def _threefry(k1, k2, x1, x2):
     """Threefry-2x32 (Salmon et al. 2011) of counters (x1, x2) under key (k1, k2), uint32."""
-    args = jnp.broadcast_arrays(k1, k2, x1, x2)
-    if _threefry_unrolled is None:
-        return tuple(threefry2x32_p.bind(*args))
-    return tuple(_threefry_unrolled(*args, use_rolled_loops=False))
+    return threefry2x32(*jnp.broadcast_arrays(k1, k2, x1, x2))
 
 
 def _uniform_from_bits(words, dtype):

@@ -7,10 +7,11 @@ and the horizon T [s]; it returns a matplotlib figure.
 from __future__ import annotations
 
 import numpy as np
+from matplotlib.figure import Figure
 
 from so3jax import so3
 from so3jax.controllers import registry
-from so3jax.plots import AXES, plt, shade_phases
+from so3jax.plots import AXES, shade_phases
 
 
 def _frame(ax, phase_times, T, ylabel):
@@ -26,7 +27,8 @@ def _angle(R):
 def attitude_figure(histories, phase_times, T):
     """True vs estimated attitude error |log(R_d^T R)|, |log(R_d^T R_hat)|, and the
     estimation error |log(R_hat^T R)| [deg]."""
-    fig, (top, bottom) = plt.subplots(2, 1, figsize=(10, 6.5), sharex=True)
+    fig = Figure(figsize=(10, 6.5))
+    top, bottom = fig.subplots(2, 1, sharex=True)
     for name, h in histories.items():
         style = registry.style(name)
         top.plot(h.t, np.degrees(h.angle), lw=1.0, **style)
@@ -50,7 +52,8 @@ def bias_figure(histories, phase_times, T):
     the y range follows the values after the first 2 % of the horizon (the filter's
     initial sigma would dwarf them)."""
     to_deg_h = np.degrees(1.0) * 3600.0
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         shown = []
         for n, (name, h) in enumerate(histories.items()):
@@ -74,7 +77,8 @@ def bias_figure(histories, phase_times, T):
 
 def torque_figure(histories, phase_times, T):
     """Commanded (dotted) and applied (solid) body torque per axis [N m]."""
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             style = registry.style(name)
@@ -90,7 +94,8 @@ def torque_figure(histories, phase_times, T):
 def wheel_speed_figure(histories, phase_times, T, max_speed):
     """Wheel speeds [rad/s] with their limits +-Omega_max (dashed)."""
     names = list(histories)
-    fig, axes = plt.subplots(len(names), 1, figsize=(10, 3.2 * len(names)), sharex=True, squeeze=False)
+    fig = Figure(figsize=(10, 3.2 * len(names)))
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
     for ax, name in zip(axes[:, 0], names):
         h = histories[name]
         for i in range(h.wheel_speed.shape[1]):
@@ -109,7 +114,8 @@ def wheel_speed_figure(histories, phase_times, T, max_speed):
 def momentum_figure(histories, phase_times, T, capacity):
     """Wheel momentum h_w in the body frame per axis [N m s], and the wheels' capacity
     (the largest |h_w| along a body axis, dashed)."""
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             ax.plot(h.t, h.momentum[:, i], lw=1.0, **registry.style(name))

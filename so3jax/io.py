@@ -73,13 +73,10 @@ def save_figure(fig, path) -> None:
 
 
 def save_figures(out, figures: dict) -> list:
-    """Save {file name: matplotlib figure} into the folder ``out``, each atomically, and
-    close them. Returns the paths written."""
-    import matplotlib.pyplot as plt
-
+    """Save {file name: matplotlib figure} into the folder ``out``, each atomically.
+    Returns the paths written."""
     paths = []
     for name, fig in figures.items():
         save_figure(fig, Path(out) / name)
-        plt.close(fig)
         paths.append(Path(out) / name)
     return paths

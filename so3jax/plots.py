@@ -5,10 +5,7 @@ Each figure ends at the horizon T [s] when given (else at the last sample): x ax
 
 from __future__ import annotations
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
+from matplotlib.figure import Figure
 import numpy as np
 
 from so3jax.controllers.registry import style
@@ -34,7 +31,8 @@ def _end(histories, T):
 
 def inertia_figure(t, J, phase_times, T=None):
     """Fig. 1: entries of J(t) [kg m^2]; J: (M, 3, 3); up to the horizon T [s]."""
-    fig, (diag, off) = plt.subplots(1, 2, figsize=(11, 3.8), sharex=True)
+    fig = Figure(figsize=(11, 3.8))
+    diag, off = fig.subplots(1, 2, sharex=True)
     for i, a in enumerate(AXES):
         diag.plot(t, J[:, i, i], label=f"J{a}{a}")
     for i, j in ((0, 1), (0, 2), (1, 2)):
@@ -51,7 +49,8 @@ def inertia_figure(t, J, phase_times, T=None):
 def _per_axis(histories, phase_times, series, ylabel, title, t_max=None, reference=None, T=None):
     """One subplot per body axis; series(history) -> (M, 3); up to min(T, t_max) [s]."""
     t_end = _end(histories, T) if t_max is None else min(_end(histories, T), t_max)
-    fig, axes = plt.subplots(3, 1, figsize=(10, 7.5), sharex=True)
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             keep = slice(None) if t_max is None else h.t < t_end
@@ -89,7 +88,8 @@ def torque_figure(histories, phase_times, T=None):
 
 
 def _scalar_figure(histories, phase_times, series, ylabel, title, log=False, T=None):
-    fig, ax = plt.subplots(figsize=(10, 3.5))
+    fig = Figure(figsize=(10, 3.5))
+    ax = fig.subplots()
     for name, h in histories.items():
         ax.plot(h.t, series(h), lw=1.0, **style(name))
     shade_phases(ax, phase_times, _end(histories, T))
