@@ -144,10 +144,20 @@ def _concrete(x) -> np.ndarray | None:
     return np.asarray(x, dtype=np.float64)
 
 
-TRIANGLE_ADVICE = (
-    "the run goes on (the paper's J0 and J1 are such inertias); if it is meant to be a real body, "
-    "check the matrix's entries and units"
-)
+TRIANGLE_ADVICE = "the run goes on; if it is meant to be a real body, check the matrix's entries and units"
+
+
+def is_paper_inertia(J) -> bool:
+    """Whether J (3, 3), or every matrix of a stack (..., 3, 3), is one the paper gives
+    (SPEC 4: J0, J1 = 2 J0, J2), to 1e-12 relative. The paper's J0 and J1 break the
+    triangle inequality; runs of the paper's mission use them as the paper does, without
+    a warning."""
+    J = np.asarray(J, dtype=np.float64)
+    if J.ndim < 2 or J.shape[-2:] != (3, 3) or J.size == 0:
+        return False
+    paper = np.asarray((PAPER_J0, 2.0 * np.asarray(PAPER_J0), PAPER_J2))
+    close = np.abs(J.reshape(-1, 1, 3, 3) - paper) <= 1e-12 * np.abs(paper)
+    return bool(np.all(np.any(np.all(close, axis=(-2, -1)), axis=1)))
 
 
 def check_inertia(name: str, J, *, warn: bool = True) -> bool:
@@ -171,7 +181,7 @@ def check_inertia(name: str, J, *, warn: bool = True) -> bool:
         raise ValueError(f"inertia {name} is not positive definite (principal moments {moments.min():.6g} <= 0)")
     slack = moments[..., 0] + moments[..., 1] - moments[..., 2]
     physical = not np.any(slack < -1e-9 * moments[..., 2])
-    if not physical and warn:
+    if not physical and warn and not is_paper_inertia(J):
         i = np.unravel_index(np.argmin(slack), slack.shape)
         a, b, c = moments[i]
         warnings.warn(
@@ -226,7 +236,8 @@ def check_inertia_profile(scenario: Scenario, *, batch_last: bool = False) -> No
     check = getattr(profile, "check", None)
     if check is not None:
         check()
-    unphysical = [name for name, J in _inertia_checks(scenario, batch_last) if not check_inertia(name, J, warn=False)]
+    unphysical = [name for name, J in _inertia_checks(scenario, batch_last)
+                  if not check_inertia(name, J, warn=False) and not is_paper_inertia(J)]
     named = [name for name in unphysical if not name.startswith("J(t)")] or unphysical  # J(t) only beyond them
     if unphysical:
         warnings.warn(

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.scenario import check_inertia
+from so3jax.scenario import check_inertia, check_scenario, is_paper_inertia
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.scenario.InertiaWarning")
 rollout_module = importlib.import_module("so3jax.rollout")  # the package re-exports a function of that name
@@ -92,12 +92,22 @@ def test_bad_log_derivative_and_record_every():
         sj.simulate(GOOD, sj.geometric_pd(), sj.PAPER_PD_GAINS, record_every=0)
 
 
-def test_paper_inertia_warns_but_is_accepted():
-    with pytest.warns(sj.InertiaWarning, match="J0 breaks the triangle inequality"):
-        check_inertia("J0", np.asarray(GOOD.inertia.J0))
+def test_a_users_unphysical_inertia_warns_the_papers_do_not():
+    """The paper's J0 and J1 = 2 J0 break the triangle inequality as the paper gives them: no
+    warning for those; the same kind of matrix from a user warns, and is accepted."""
+    J0 = np.asarray(GOOD.inertia.J0)
+    assert not check_inertia("J0", J0, warn=False) and is_paper_inertia(J0) and is_paper_inertia(2.0 * J0)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        check_inertia("J0", J0)
+        check_inertia("J1", 2.0 * J0)
         check_inertia("J2", np.asarray(GOOD.inertia.J2))  # the docked body is physical
+        check_scenario(sj.paper_scenario(T=10.0))
+    mine = J0.copy()
+    mine[2, 2] += 1.0
+    assert not is_paper_inertia(mine)
+    with pytest.warns(sj.InertiaWarning, match="J0 breaks the triangle inequality"):
+        check_inertia("J0", mine)
 
 
 # --- every inertia the run will use ---------------------------------------------------
