@@ -190,7 +190,7 @@ def run(args) -> int:
     from so3jax import runfolder
 
     mission = missions.load(args.mission, overrides(args))
-    with runfolder.claim(args.out, "fly"):
+    with runfolder.claim(args.out, "fly", vars(args)):
         return _fly_into(args, mission)
 
 

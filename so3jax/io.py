@@ -1,5 +1,8 @@
 """Result files written atomically (write to a temporary file, then rename), so a
-crash or Ctrl-C never leaves a half-written result behind."""
+crash or Ctrl-C never leaves a half-written result behind. Every result file goes
+through :func:`atomic_path`, which first tells the run folder it lies in
+(:func:`so3jax.runfolder.writing`: the folder is created and the file listed in its
+manifest)."""
 
 from __future__ import annotations
 
@@ -12,14 +15,18 @@ from pathlib import Path
 
 import numpy as np
 
+from so3jax import runfolder
+
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
 
 @contextlib.contextmanager
 def atomic_path(path):
-    """Yield a temporary path next to ``path``; move it into place on success."""
+    """Yield a temporary path next to ``path``; move it into place on success. The run
+    folder holding ``path`` lists it before it is written."""
     path = Path(path)
+    runfolder.writing(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)

@@ -172,7 +172,7 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
 def run(args) -> int:
     from so3jax import runfolder
 
-    with runfolder.claim(args.out, "paper"):
+    with runfolder.claim(args.out, "paper", vars(args)):
         return _run(args)
 
 

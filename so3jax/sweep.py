@@ -419,8 +419,10 @@ def run_sweep(
     devices; both write the same files (see :func:`run_chunk`)."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
-    with runfolder.claim(out, "sweep", lock=distributed.writer()) as out:
-        return _run_sweep(config, out, resume, progress, max_memory, layout)
+    with runfolder.claim(out, "sweep", config_to_dict(config), resume=resume, lock=distributed.writer()) as run:
+        if jax.process_count() > 1:
+            run.start()  # the folder every process must see (distributed.check_shared)
+        return _run_sweep(config, run.out, resume, progress, max_memory, layout)
 
 
 def memory_needed(config: SweepConfig, params, chunk: int) -> int:
@@ -444,15 +446,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     from so3jax import memory
 
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
-    fingerprint = _prepare_out(out, config, resume)
-    processes = jax.process_count()
-    share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each
-    claims = out / "chunks" / ".claims"  # a file per chunk a process has taken
-    if distributed.writer():
-        shutil.rmtree(claims, ignore_errors=True)  # an interrupted run's claims: its unfinished chunks are free
-        if share:
-            claims.mkdir(parents=True)
-    distributed.barrier("sweep: output folder checked")
+    # every check before the first file (sweep.json): a refused sweep writes nothing
     dtype = jnp.result_type(float)
     samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
     params = jax.tree.map(lambda x: x.astype(dtype) if x.dtype.kind == "f" else x, samples.params)
@@ -462,6 +456,15 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     chunk = padded_chunk(config.chunk, mesh.size)
     budget = memory.check(memory_needed(config, params, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
                           "lower --chunk or --samples")
+    fingerprint = _prepare_out(out, config, resume)
+    processes = jax.process_count()
+    share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each
+    claims = out / "chunks" / ".claims"  # a file per chunk a process has taken
+    if distributed.writer():
+        shutil.rmtree(claims, ignore_errors=True)  # an interrupted run's claims: its unfinished chunks are free
+        if share:
+            claims.mkdir(parents=True)
+    distributed.barrier("sweep: output folder checked")
     done = load_chunks(out, config.controllers, config.samples, fingerprint)
     jobs = []  # (controller, sample indices) of every chunk left, in one order for every process
     for controller in config.controllers:

@@ -29,6 +29,7 @@ import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -284,6 +285,8 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False):
         table = PAPER_GAINS[controller]._asdict()
     elif isinstance(spec, str):
         saved = json.loads(Path(spec).read_text())
+        if runfolder.incomplete(Path(spec).parent):
+            warnings.warn(f"gains file {spec} is from a so3jax run that did not finish (its manifest says incomplete)")
         if saved.get("controller") != controller:
             raise ValueError(f"gains file {spec} holds {saved.get('controller')!r} gains, not {controller!r}")
         table = saved["gains"]
@@ -736,8 +739,10 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
     Raises NonFiniteGradientError, after saving, when a cost or gradient is not finite.
     """
     validate(config)
-    with runfolder.claim(out, "tune", lock=distributed.writer()) as out:
-        return _tune(config, out, resume, progress and distributed.writer())
+    with runfolder.claim(out, "tune", dataclasses.asdict(config), resume=resume, lock=distributed.writer()) as run:
+        if jax.process_count() > 1:
+            run.start()  # the folder every process must see (distributed.check_shared)
+        return _tune(config, run.out, resume, progress and distributed.writer())
 
 
 def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:

@@ -1,5 +1,6 @@
-"""Output folders: checked before the work, locked while a run writes, stale locks reported;
-a tuning checkpoint that cannot be read is a one-line error naming it."""
+"""Output folders: checked before the work without creating anything, locked while a run
+writes, stale locks reported, listed in a manifest; a tuning checkpoint that cannot be
+read is a one-line error naming it."""
 
 import json
 import os
@@ -13,7 +14,8 @@ import pytest
 from so3jax import runfolder, tune
 
 ROOT = Path(__file__).resolve().parents[1]
-HOLD = "import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep'):\n    print('locked', flush=True)\n    time.sleep(120)\n"
+HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep') as run:\n"
+        "    run.start()\n    print('locked', flush=True)\n    time.sleep(120)\n")
 
 
 def cli(*args, cwd):
@@ -65,6 +67,64 @@ def test_the_lock_is_held_during_the_block_and_released_after_it_even_on_error(t
     with pytest.raises(RuntimeError), runfolder.claim(tmp_path, "tune"):
         raise RuntimeError
     assert not (tmp_path / runfolder.LOCK).exists()
+
+
+def test_checking_a_new_folder_creates_nothing_and_a_block_that_writes_nothing_leaves_nothing(tmp_path):
+    out = tmp_path / "a" / "b"
+    assert runfolder.check_writable(out) == out and not (tmp_path / "a").exists()
+    with runfolder.claim(out, "paper", {"T": 1.0}) as run:
+        assert run.out == out and not (tmp_path / "a").exists()
+    assert not (tmp_path / "a").exists()
+
+
+def test_the_first_file_makes_the_folder_and_the_manifest_says_complete_only_at_the_end(tmp_path):
+    from so3jax.io import write_text
+
+    out = tmp_path / "out"
+    with runfolder.claim(out, "fly", {"T": 2.0, "out": out}):
+        write_text(out / "metrics.json", "{}")
+        manifest = runfolder.read_manifest(out)
+        assert manifest["complete"] is False and manifest["files"] == ["metrics.json"]
+        assert manifest["settings"] == {"T": 2.0, "out": str(out)} and (out / runfolder.LOCK).exists()
+        write_text(out / "sub" / "x.txt", "x")  # a file in a subfolder: the run owns the subfolder
+    manifest = runfolder.read_manifest(out)
+    assert manifest["complete"] is True and manifest["files"] == ["metrics.json", "sub/"] and manifest["finished"]
+    assert manifest["fingerprint"] == runfolder.fingerprint({"T": 2.0, "out": str(out)})
+    assert not (out / runfolder.LOCK).exists()
+
+
+def test_a_run_replaces_the_earlier_runs_files_and_a_resumed_run_keeps_them(tmp_path, capsys):
+    from so3jax.io import write_text
+
+    with runfolder.claim(tmp_path, "sweep"):
+        for name in ("a.txt", "chunks/c.npz"):
+            write_text(tmp_path / name, name)
+    (tmp_path / "mine.txt").write_text("the user's")
+    with runfolder.claim(tmp_path, "sweep", resume=True):
+        write_text(tmp_path / "b.txt", "b")
+    assert runfolder.read_manifest(tmp_path)["files"] == ["a.txt", "chunks/", "b.txt"]
+    assert (tmp_path / "chunks" / "c.npz").exists() and "left as they are" not in capsys.readouterr().err
+    with runfolder.claim(tmp_path, "sweep"):
+        write_text(tmp_path / "b.txt", "b")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.txt", "manifest.json", "mine.txt"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"so3jax sweep: warning: {tmp_path} holds files no so3jax run lists, left as they are: mine.txt"]
+
+
+def test_another_commands_run_or_an_unreadable_manifest_is_refused_before_anything_is_written(tmp_path):
+    from so3jax.io import write_text
+
+    with runfolder.claim(tmp_path, "tune"):
+        write_text(tmp_path / "history.csv", "x")
+    before = sorted(tmp_path.iterdir())
+    with pytest.raises(ValueError, match=f"{tmp_path} holds a complete so3jax tune run; choose another --out"):
+        with runfolder.claim(tmp_path, "sweep", resume=True):
+            pytest.fail("the block must not run")
+    (tmp_path / runfolder.MANIFEST).write_text('{"command": "tune"')
+    with pytest.raises(ValueError, match=r"manifest\.json cannot be read .*choose another --out"):
+        with runfolder.claim(tmp_path, "tune"):
+            pass
+    assert sorted(tmp_path.iterdir()) == before
 
 
 def test_a_second_run_into_a_locked_folder_is_refused(holder):
