@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from benchmarks import all as bench_all
@@ -174,3 +175,33 @@ def test_tune_benchmark_smoke():
     assert row["devices_1"]["step_s_median"] > 0 and row["devices_2"]["batch_split_over"] == 1
     assert row["max_relative_difference"]["grad"] < 1e-12
     assert "machine" in report and report["command"].startswith("python -m benchmarks.tune")
+
+
+def _run_benchmark(*args) -> dict:
+    """A benchmark module run as committed (``python -m benchmarks.NAME ...``); its JSON report."""
+    proc = subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True, cwd=ROOT, timeout=900,
+                          check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout[proc.stdout.index("{"):])
+
+
+def test_flight_benchmark_runs_as_committed():
+    """benchmarks/flight.py at a tiny size: both wirings compile and run under jax.jit."""
+    report = _run_benchmark("benchmarks.flight", "--batch", "2", "--steps", "20", "--rounds", "1")
+    for controller in ("pd", "adaptive"):
+        row = report["rates"][controller]
+        assert row["paper"]["M_steps_per_s"] > 0 and row["flight"]["M_steps_per_s"] > 0
+
+
+def test_sweep_benchmark_runs_as_committed():
+    report = _run_benchmark("benchmarks.sweep", "--devices", "1", "--controllers", "pd", "--T", "0.2", "--samples",
+                            "8", "--chunk", "8", "--rounds", "1")
+    assert report["runs"][0]["trajectory_steps_per_s"] > 0
+    assert report["full_sweep"]["by_devices"]["1"]["median_trajectory_steps_per_s"]["pd"] > 0
+
+
+def test_gradients_benchmark_runs_as_committed():
+    report = _run_benchmark("benchmarks.gradients", "--controllers", "pd", "--horizons", "20", "--batch", "2",
+                            "--modes", "forward", "--fd-horizon", "0")
+    rows = [r for r in report["runs"] if r.get("what") == "forward"]
+    assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows)
