@@ -1,8 +1,9 @@
 """Sensors: the true state in, measurements out, sampled at the control ticks (SPEC 8.2).
 
-Noise: eta_{s,j} = jax.random.normal(fold_in(fold_in(key(seed), s), j), (3,), dtype) with
-stream s = 1 (gyro white noise), 2 (gyro bias walk), 3 (star tracker), j the tick. The
-disturbance draws fold_in(key(seed), k), so turning sensors on changes no disturbance draw.
+Noise: eta_{s,j} = jax.random.normal(fold_in(fold_in(K_sens, s), j), (3,), dtype) with
+K_sens = fold_in(key(seed), 2^32 - 1), stream s = 1 (gyro white noise), 2 (gyro bias walk),
+3 (star tracker), j the tick. The disturbance draws fold_in(key(seed), k) at step k < 2^32 - 1,
+so turning sensors on changes no disturbance draw, and no key is both folded and drawn from.
 Arrays follow :mod:`so3jax.so3` (batch axes last); parameters have no batch axes.
 """
 
@@ -19,11 +20,13 @@ from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.disturbance import noise_components
 
 GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (SPEC 8.2)
+SENSOR_ROOT = np.uint32(2**32 - 1)  # K_sens = fold_in(key(seed), SENSOR_ROOT): a step never reached
 
 
 def sensor_noise(key, stream: int, j, dtype):
-    """eta_{s,j} (3, *key.shape): normal(fold_in(fold_in(key, s), j), (3,), dtype)."""
-    fold = lambda k: jax.random.fold_in(k, stream)
+    """eta_{s,j} (3, *key.shape): normal(fold_in(fold_in(K_sens, s), j), (3,), dtype),
+    K_sens = fold_in(key, 2^32 - 1) (SPEC 8.2)."""
+    fold = lambda k: jax.random.fold_in(jax.random.fold_in(k, SENSOR_ROOT), stream)
     folded = fold(key) if key.ndim == 0 else jax.vmap(fold)(key.reshape(-1)).reshape(key.shape)
     return jnp.stack(noise_components(folded, j, dtype))
 

@@ -38,8 +38,10 @@ def keys(n, offset=0):
 
 
 def reference_noise(key, stream, j, dtype=F64):
-    """SPEC 8.2's recipe as written: normal(fold_in(fold_in(key, s), j), (3,), dtype)."""
-    return jax.random.normal(jax.random.fold_in(jax.random.fold_in(key, stream), j), (3,), dtype)
+    """SPEC 8.2's recipe as written: normal(fold_in(fold_in(K_sens, s), j), (3,), dtype) with
+    K_sens = fold_in(key, 2^32 - 1)."""
+    k_sens = jax.random.fold_in(key, np.uint32(4294967295))
+    return jax.random.normal(jax.random.fold_in(jax.random.fold_in(k_sens, stream), j), (3,), dtype)
 
 
 def variance_bounds(n, sigma2, p=P_TWO_SIDED):
