@@ -17,39 +17,56 @@ from so3jax.disturbance import SinusoidPlusNoise, no_disturbance
 from so3jax.metrics import Metrics
 from so3jax.plant import ConstantInertia, InertiaFunction, PaperInertia
 from so3jax.reference import PiecewiseConstantRate, RateFunction, piecewise_constant_rate
+from so3jax.actuators import Ideal, Saturated, Wheels, pyramid_axes
+from so3jax.estimators import MEKF, Raw, Truth
 from so3jax.loop import PAPER_LOOP, Loop
+from so3jax.mission import Mission
+from so3jax.mission import load as load_mission
+from so3jax.sensors import Gyro, Sensors, StarTracker
 from so3jax.rollout import FlightHistory, History, Result, State, rollout, rollout_batch, simulate
 from so3jax.scenario import InertiaWarning, Scenario, paper_scenario, steps_for_horizon
 
 __all__ = [
+    "MEKF",
     "PAPER_ADAPTIVE_GAINS",
     "PAPER_LOOP",
     "PAPER_PD_GAINS",
     "AdaptiveGains",
     "ConstantInertia",
     "Controller",
-    "FlightHistory",
     "Desired",
+    "FlightHistory",
+    "Gyro",
     "History",
+    "Ideal",
     "InertiaFunction",
     "InertiaWarning",
     "Loop",
     "Measured",
     "Metrics",
+    "Mission",
     "PDGains",
     "PaperInertia",
     "PiecewiseConstantRate",
     "RateFunction",
+    "Raw",
     "Result",
+    "Saturated",
     "Scenario",
+    "Sensors",
     "SinusoidPlusNoise",
+    "StarTracker",
     "State",
+    "Truth",
+    "Wheels",
     "adaptive_backstepping",
     "configure_xla",
     "geometric_pd",
+    "load_mission",
     "no_disturbance",
     "paper_scenario",
     "piecewise_constant_rate",
+    "pyramid_axes",
     "rollout",
     "rollout_batch",
     "simulate",
