@@ -149,9 +149,9 @@ class Run:
     """One run's hold on its output folder (see the module docstring); ``out`` is the Path."""
 
     def __init__(self, out: Path, command: str, settings, resume: bool, writer: bool):
-        self.out, self.command, self.resume, self.writer = out, command, resume, writer
         from so3jax.io import to_builtin
 
+        self.out, self.command, self.resume, self.writer = out, command, resume, writer
         settings = {k: v for k, v in dict(settings or {}).items() if not callable(v)}
         self.settings = json.loads(json.dumps(to_builtin(settings), default=str))  # paths as text
         self.root = os.path.abspath(out)
@@ -182,7 +182,8 @@ class Run:
             try:
                 self.out.mkdir(parents=True, exist_ok=True)
             except OSError as err:
-                raise ValueError(f"output folder {self.out} cannot be made ({err.strerror or err}); choose another --out") from None
+                raise ValueError(f"output folder {self.out} cannot be made ({err.strerror or err}); "
+                                 "choose another --out") from None
             self.lock()
             self.check()
             previous = read_manifest(self.out)
@@ -191,8 +192,9 @@ class Run:
             else:
                 self._replace(previous)
                 files = []
-            self.manifest = {"command": self.command, "settings": self.settings, "fingerprint": fingerprint(self.settings),
-                             "started": _now(), "finished": None, "complete": False, "files": files}
+            self.manifest = {"command": self.command, "settings": self.settings,
+                             "fingerprint": fingerprint(self.settings), "started": _now(), "finished": None,
+                             "complete": False, "files": files}
             self._save()
             return self.out
 
