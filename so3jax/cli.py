@@ -12,6 +12,7 @@ import importlib
 import importlib.util
 import os
 import sys
+import traceback
 import warnings
 from pathlib import Path
 
@@ -72,19 +73,25 @@ def main(argv=None) -> int:
     configure_jax(args.precision)
     with warnings.catch_warnings():
         warnings.showwarning = _warning_printer(args.command)
+        # In a multi-process run every process meets the others with its outcome
+        # (distributed.agree) and leaves in order (distributed.leave exits the process).
         try:
-            code = args.func(args)
-            distributed.finish()
-            return code
+            code = distributed.agree(args.func(args))
         except ValueError as err:  # bad input (SPEC 6): a message, not a traceback
             print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
-            return 2
+            code = distributed.agree(2)
         except distributed.PeerFailure as err:  # another process of a multi-process run stopped
             print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
-            return 1
+            code = 1
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
-            return 130
+            code = distributed.agree(130)
+        except Exception:
+            if not distributed.active():
+                raise
+            traceback.print_exc()
+            code = distributed.agree(1)
+    return distributed.leave(code)
 
 
 def _warning_printer(command: str):

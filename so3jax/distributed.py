@@ -7,6 +7,14 @@ the process count and index from the environment itself; elsewhere they are give
 ``--coordinator HOST:PORT --num-processes N --process-id I`` (or the environment
 variables SO3JAX_COORDINATOR, SO3JAX_NUM_PROCESSES, SO3JAX_PROCESS_ID). On CPUs the
 processes exchange arrays with gloo, JAX's CPU collectives.
+
+How a multi-process run ends: process 0 hosts the runtime's coordination service, and
+the runtime aborts every process still attached when that service goes away. So every
+process first meets the others with its outcome (:func:`agree`: 0, or the exit code of
+its error), the other processes leave (:func:`leave`: the runtime's shutdown, then
+``os._exit``), and process 0 leaves once none of them is attached. Every process ends
+with its own one-line error and an exit code that does not depend on which left first:
+2 for an error in its input or setup, 1 when another process stopped or is gone.
 """
 
 from __future__ import annotations
@@ -24,6 +32,14 @@ DEFAULT_TIMEOUT_S = 120
 
 class PeerFailure(RuntimeError):
     """Another process of the run stopped: this one cannot go on (the CLI: exit code 1)."""
+
+
+# The run this process joined: its command (for messages) and --timeout, which also
+# bounds every wait for the other processes.
+_run = {"command": None, "timeout": DEFAULT_TIMEOUT_S}
+# Whether a collective found a peer's connection closed (that process has exited).
+_gone = {"peer": False}
+
 _ENV = {"coordinator": "SO3JAX_COORDINATOR", "num_processes": "SO3JAX_NUM_PROCESSES", "process_id": "SO3JAX_PROCESS_ID"}
 
 
@@ -91,6 +107,7 @@ def initialize(args) -> None:
     if i == 0:
         print(f"so3jax: process 0 of {n}: coordinating at {coordinator}, waiting up to {timeout:g} s for the others",
               file=sys.stderr, flush=True)
+    _run.update(command=getattr(args, "command", None), timeout=timeout)
     jax.config.update("jax_cpu_collectives_implementation", "gloo")
     jax.config.update("jax_enable_recoverability", True)
     # The runtime aborts a process whose peers do not all register in time; the watchdog
@@ -156,41 +173,66 @@ def writer() -> bool:
     return jax.process_index() == 0
 
 
-def barrier(name: str) -> None:
-    """Wait until every process reaches this point (no-op for one process)."""
+def active() -> bool:
+    """Whether this process is one of several joined processes."""
     import jax
 
-    if jax.process_count() > 1:
-        from jax.experimental import multihost_utils
+    return jax.distributed.is_initialized() and jax.process_count() > 1
 
+
+def _exchange(value: int, what: str):
+    """Every process's int32 ``value`` (>= 0), in process order: one all-gather, the
+    only collective the meeting points (barrier, check_shared, agree) use, so that a
+    process that stopped with an error (see :func:`agree`) meets the others at whichever
+    of them they are. A negative value is that process's error: PeerFailure here."""
+    import numpy as np
+    from jax.experimental import multihost_utils
+
+    values = np.asarray(multihost_utils.process_allgather(np.int32(value))).reshape(-1)
+    failed = [k for k, v in enumerate(values) if v < 0]
+    if failed and value >= 0:
+        who = ", ".join(str(k) for k in failed)
+        raise PeerFailure(f"process {_me()} stopped at {what}: process(es) {who} of {len(values)} stopped with an error "
+                          "(see its message)")
+    return values
+
+
+def _me() -> str:
+    import jax
+
+    return f"{jax.process_index()} of {jax.process_count()}"
+
+
+def barrier(name: str) -> None:
+    """Wait until every process reaches this point (no-op for one process); PeerFailure
+    where another process stopped with an error or is gone."""
+    if active():
         with collective(name):
-            multihost_utils.sync_global_devices(name)
+            _exchange(0, name)
 
 
 def check_shared(folder) -> None:
     """Every process must see the run folder as process 0 writes it (a shared filesystem):
     process 0 writes a token there that every process reads back. A ValueError on every
     process otherwise (no-op for one process)."""
-    import jax
-
-    if jax.process_count() == 1:
+    if not active():
         return
     import secrets
 
     import numpy as np
-    from jax.experimental import multihost_utils
 
+    what = "checking the output folder"
     path = Path(folder) / ".so3jax-shared"
-    with collective("checking the output folder"):
-        token = str(int(multihost_utils.broadcast_one_to_all(np.int32(secrets.randbits(31) if writer() else 0))))
+    with collective(what):
+        token = str(int(_exchange(secrets.randbits(31) if writer() else 0, what)[0]))
         if writer():
             path.write_text(token)
-        barrier("output folder token written")
+        _exchange(0, what)
         try:
             seen = path.read_text() == token
         except OSError:
             seen = False
-        seen = np.asarray(multihost_utils.process_allgather(np.array(seen))).reshape(-1)
+        seen = _exchange(int(seen), what).astype(bool)
     if writer():
         path.unlink(missing_ok=True)
     if not seen.all():
@@ -212,28 +254,100 @@ def collective(what: str):
         runtime = isinstance(err, jax.errors.JaxRuntimeError) or "Gloo" in text or "oordination" in text
         if jax.process_count() == 1 or not runtime:
             raise
+        if "by peer" in text:  # gloo: "Connection closed by peer", "Connection reset by peer"
+            _gone["peer"] = True
         first = text.strip().splitlines()[0][:200]
         raise PeerFailure(
-            f"process {jax.process_index()} of {jax.process_count()} stopped at {what}: another process is gone "
+            f"process {_me()} stopped at {what}: another process is gone "
             f"({first}); what finished is saved: rerun every process with --resume"
         ) from None
 
 
-# Process 0 hosts the runtime's coordination service: it leaves last, after this grace
-# period, so that the others' shutdown requests reach it (with recoverable tasks, which
-# let a peer's failure surface as an error rather than an abort, the runtime does not
-# hold process 0 back itself).
-SHUTDOWN_GRACE_S = 2.0
+def agree(code: int) -> int:
+    """The last meeting of a multi-process run: every process brings its outcome (0, or
+    the exit code of the error it has reported) and returns it. A process that succeeded
+    while another stopped with an error gets a PeerFailure instead; a process that stopped
+    with an error meets the others wherever they wait (a barrier, the folder check, this)
+    so that they stop too. A wait past --timeout ends the process with ``code`` (1 for 0).
+    No-op for one process."""
+    if not active():
+        return code
+    with _deadline(code or 1, "the other processes did not reach the end of the run"):
+        try:
+            with collective("the end of the run"):
+                _exchange(-code if code else 0, "the end of the run")
+        except PeerFailure:
+            if code == 0:
+                raise
+    return code
+
+
+def _shutdown(code: int) -> None:
+    """Detach from the runtime in order: the other processes shut their runtime down
+    (process 0's service, still up, records each), process 0 waits until none of them is
+    attached (at most --timeout; at once when its only peer's connection closed)."""
+    import jax
+
+    if jax.process_index() != 0:
+        jax.distributed.shutdown()
+        return
+    if _gone["peer"] and jax.process_count() == 2:
+        return
+    from jax.experimental import multihost_utils
+
+    devices = jax.devices()
+    with _deadline(code, "the other processes did not leave the run"):
+        while True:
+            try:  # returns once every attached process is here: none of the others is
+                with multihost_utils.live_devices(devices) as live:
+                    pass
+            except multihost_utils.ProcessFailureError:
+                continue
+            if {d.process_index for d in live} == {0}:
+                return
+            time.sleep(0.1)
+
+
+def leave(code: int) -> int:
+    """End this process with exit ``code``: in a multi-process run, after :func:`agree`,
+    stdout and stderr flushed, detached in order (see :func:`_shutdown`), ``os._exit`` —
+    the runtime's own shutdown at interpreter exit, which aborts a process whose
+    coordinator left first, never runs. Returns ``code`` for a one-process run."""
+    import jax
+
+    if not jax.distributed.is_initialized():
+        return code
+    sys.stdout.flush()
+    sys.stderr.flush()
+    _shutdown(code)
+    os._exit(code)
 
 
 def finish() -> None:
-    """End a multi-process run in order: every process meets, the others leave, process 0
-    last. No-op for a one-process run."""
+    """End a multi-process run that goes on in Python afterwards: every process meets
+    (:func:`agree`), then detaches in order, process 0 last. No-op for one process."""
     import jax
 
     if not jax.distributed.is_initialized():
         return
-    barrier("so3jax: finished")
-    if writer():
-        time.sleep(SHUTDOWN_GRACE_S)
-    jax.distributed.shutdown()
+    agree(0)
+    _shutdown(0)
+    if jax.process_index() == 0:
+        jax.distributed.shutdown()
+
+
+@contextlib.contextmanager
+def _deadline(code: int, what: str):
+    """Context: past --timeout, report ``what`` in one line and end the process with ``code``."""
+    def expire():
+        print(f"so3jax {_run['command'] or ''}: error: process {_me()}: {what} within {_run['timeout']:g} s",
+              file=sys.stderr, flush=True)
+        os._exit(code)
+
+    timer = threading.Timer(_run["timeout"], expire)
+    timer.daemon = True
+    timer.start()
+    try:
+        yield
+    finally:
+        timer.cancel()
