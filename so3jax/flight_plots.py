@@ -65,9 +65,12 @@ def bias_figure(histories, phase_times, T):
             ax.fill_between(h.t, estimate - bound, estimate + bound, color=style.get("color"), alpha=0.15, lw=0)
             late = h.t >= 0.02 * T
             shown += [bias[late], estimate[late] - bound[late], estimate[late] + bound[late]]
-        low, high = np.min(np.concatenate(shown)), np.max(np.concatenate(shown))
-        pad = 0.1 * max(high - low, 1e-12)
-        ax.set_ylim(low - pad, high + pad)
+        shown = np.concatenate(shown)
+        shown = shown[np.isfinite(shown)]
+        if shown.size:  # else (no sample past 2 % of T, or none finite) matplotlib's own range
+            low, high = np.min(shown), np.max(shown)
+            pad = 0.1 * max(high - low, 1e-12)
+            ax.set_ylim(low - pad, high + pad)
         _frame(ax, phase_times, T, f"b {AXES[i]} [deg/h]")
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("t [s]")
