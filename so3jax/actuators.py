@@ -192,6 +192,14 @@ class Wheels:
         """G_s J_s G_s^T (3, 3) [kg m^2]."""
         return _weighted_gram(jnp.asarray(self.axes).astype(dtype), jnp.asarray(self.spin_inertia).astype(dtype))
 
+    def spin_inertia_values(self):
+        """G_s J_s G_s^T (3, 3) [kg m^2] as a NumPy array, or None where a parameter is
+        traced (the checks' host-side copy of :meth:`_spin_inertia_matrix`)."""
+        G, J_s = _values(self.axes), _values(self.spin_inertia)
+        if G is None or J_s is None or G.ndim != 2 or J_s.shape != G.shape[1:]:
+            return None
+        return (G * J_s) @ G.T
+
     def locked_wheel_inertia(self, J):
         """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (SPEC 8.4): the body without
         the wheels' spin inertia."""
@@ -273,6 +281,11 @@ class Wheels:
         _check_values("wheel max_torque [N m]", self.max_torque, (n,), positive=True)
         _check_values("wheel max_speed [rad/s]", self.max_speed, (n,), positive=True)
         _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
+        speed, limit = _values(self.initial_speed), _values(self.max_speed)
+        if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
+            i = int(np.argmax(np.abs(speed) > limit))
+            raise ValueError(f"wheel initial_speed [rad/s] must not exceed max_speed in magnitude "
+                             f"(wheel {i + 1}: {speed[i]:g} against {limit[i]:g})")
         if not isinstance(self.momentum_compensation, bool):
             raise ValueError(f"wheel momentum_compensation must be True or False, got {self.momentum_compensation!r}")
         G = _values(self.axes)

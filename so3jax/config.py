@@ -45,8 +45,10 @@ def read_toml(path) -> dict:
         return tomllib.loads(path.read_text())
     except FileNotFoundError:
         raise ValueError(f"config file {path} does not exist") from None
-    except (IsADirectoryError, PermissionError, UnicodeDecodeError) as err:
+    except (IsADirectoryError, PermissionError) as err:
         raise ValueError(f"config file {path} cannot be read: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"config file {path} is not UTF-8 text (byte {err.start}: {err.reason})") from None
     except tomllib.TOMLDecodeError as err:
         raise ValueError(f"config file {path} is not valid TOML: {err}") from None
 
@@ -63,7 +65,7 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
     """d[key] (a table, {} when absent) after checking that it has only ``allowed`` keys."""
     t = d.get(key, {})
     if not isinstance(t, dict):
-        raise ValueError(f"{where}{key} must be a table")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
+        raise ValueError(f"{where}{key} must be a table, got {_short(t)}")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
     unknown = set(t) - set(allowed)
     if unknown:
         raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
@@ -73,32 +75,103 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
 def number(value, where: str, low=-math.inf, high=math.inf, integer=False):
     """A number in [low, high] (an int if ``integer``), else ValueError naming ``where``."""
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not math.isfinite(value) or not (low <= value <= high):
+    if isinstance(value, bool) or not ok or not _finite(value) or not (low <= value <= high):
         kind = "an integer" if integer else "a finite number"
-        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {value!r}")
+        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {_short(value)}")
     return value if integer else float(value)
+
+
+def _finite(x) -> bool:
+    """math.isfinite, False for an integer too large for a float."""
+    try:
+        return math.isfinite(x)
+    except OverflowError:
+        return False
+
+
+def _numeric(value) -> bool:
+    """Whether value is a number (not a bool), a NumPy real array, or nested lists of numbers."""
+    if isinstance(value, (list, tuple)):
+        return all(_numeric(x) for x in value)
+    if isinstance(value, np.ndarray):
+        return value.dtype.kind in "fiu"
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+
+
+def _short(value, limit: int = 80) -> str:
+    """repr(value) on one line, cut to ``limit`` characters."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def array(value, where: str, shape: tuple, low=-math.inf) -> np.ndarray:
     """A numeric array of ``shape`` (None: any length on that axis), every entry finite and >= low."""
+    if not _numeric(value):
+        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {_short(value)}")
     try:
         a = np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {value!r}") from None
+    except (TypeError, ValueError):  # ragged nested lists
+        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {_short(value)}") from None
     if a.ndim != len(shape) or any(s is not None and n != s for n, s in zip(a.shape, shape)):
         raise ValueError(f"{where} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a)) or np.any(a < low):
-        raise ValueError(f"{where} must be finite{f' and >= {low}' if low > -math.inf else ''}, got {a.tolist()}")
+        raise ValueError(f"{where} must be finite{f' and >= {low}' if low > -math.inf else ''}, got {_short(a.tolist())}")
     return a
+
+
+def boolean(value, where: str) -> bool:
+    """true or false, else ValueError naming ``where``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{where} must be true or false, got {_short(value)}")
+    return value
+
+
+def choice(value, where: str, choices) -> str:
+    """One of the names ``choices``, else ValueError naming ``where``."""
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"{where} must be one of {', '.join(choices)}, got {_short(value)}")
+    return value
+
+
+def gains(given, defaults, shapes: dict, where: str):
+    """``defaults`` (a NamedTuple of gains) with the entries of the table ``given``
+    replaced, each checked against its default before use: a number where the default is
+    a number (and that shape is allowed), else a numeric array of one of the shapes
+    ``shapes[field]`` (the default's shape for a field not listed). Numbers stay as
+    given; arrays become float arrays."""
+    if not isinstance(given, dict):
+        raise ValueError(f"[{where}] must be a table, got {_short(given)}")  # noqa: TRY004 (bad input)
+    fields = type(defaults)._fields
+    unknown = set(given) - set(fields)
+    if unknown:
+        raise ValueError(f"unknown key(s) in [{where}]: {', '.join(sorted(map(str, unknown)))}; "
+                         f"allowed: {', '.join(fields) or 'none (a law without gains)'}")
+    values = {}
+    for name, value in given.items():
+        allowed = tuple(tuple(s) for s in shapes.get(name, (np.shape(getattr(defaults, name)),)))
+        key = f"{where}.{name}"
+        kinds = " or ".join("a number" if s == () else f"a numeric array of shape {s}" for s in allowed)
+        if not _numeric(value):
+            raise ValueError(f"{key} must be {kinds}, got {_short(value)}")
+        try:
+            a = np.asarray(value, dtype=float)
+        except ValueError:  # ragged nested lists
+            raise ValueError(f"{key} must be {kinds}, got {_short(value)}") from None
+        if a.shape not in allowed:
+            raise ValueError(f"{key} must be {kinds}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{key} must be finite, got {_short(a.tolist())}")
+        values[name] = value if a.ndim == 0 and not isinstance(value, (list, tuple, np.ndarray)) else a
+    return defaults._replace(**values)
 
 
 def names(value, where: str, known) -> tuple[str, ...]:
     """A list of distinct names among ``known``; a single string is a one-element list."""
     items = (value,) if isinstance(value, str) else value
     if not isinstance(items, (list, tuple)) or not items or not all(isinstance(x, str) for x in items):
-        raise ValueError(f"{where} must be a name or a list of names among {', '.join(known)}, got {value!r}")
+        raise ValueError(f"{where} must be a name or a list of names among {', '.join(known)}, got {_short(value)}")
     items = tuple(x.strip() for x in items)
     bad = [x for x in items if x not in known]
     if bad or len(set(items)) != len(items):
-        raise ValueError(f"{where} must be distinct names among {', '.join(known)}, got {list(items)}")
+        raise ValueError(f"{where} must be distinct names among {', '.join(known)}, got {_short(list(items))}")
     return items

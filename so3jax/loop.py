@@ -32,7 +32,7 @@ from so3jax.controllers.base import Controller, Desired, Measured, tracking_erro
 from so3jax.estimators import Truth
 from so3jax.integrate import OnSO3, rk4_step
 from so3jax.plant import inertia_rate
-from so3jax.scenario import Scenario
+from so3jax.scenario import Scenario, _concrete
 from so3jax.sensors import Sensors
 
 
@@ -250,7 +250,9 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
 
 def check_loop(loop: Loop, inertias: dict) -> None:
     """One-line ValueErrors, before compilation: the control period, each component's
-    own checks, and the wiring (SPEC 8). inertias: name -> J (3, 3) the plant will use."""
+    own checks, and the wiring (SPEC 8). inertias: name -> J (3, 3) the plant will use.
+    Values are read only where concrete (NumPy on the host), so a rollout under jit,
+    vmap or grad is checked by shape and static data alone."""
     m = loop.period_steps
     if m is None:
         if loop.sensors.gyro is not None or loop.sensors.star_tracker is not None or not isinstance(loop.estimator, Truth):
@@ -259,8 +261,10 @@ def check_loop(loop: Loop, inertias: dict) -> None:
         raise ValueError(f"the control period must be a whole number (>= 1) of steps, got {m!r}")
     for part in (loop.sensors, loop.estimator, loop.actuator):
         part.check()
-    body_inertia = getattr(loop.actuator, "locked_wheel_inertia", None)
-    if body_inertia is not None:
+    spin = getattr(loop.actuator, "spin_inertia_values", None)
+    spin = None if spin is None else spin()  # NumPy, None where traced: nothing is added to a trace
+    if spin is not None:
         for name, J in inertias.items():
-            if not isinstance(J, jax.core.Tracer) and np.any(np.linalg.eigvalsh(np.asarray(body_inertia(J))) <= 0):
+            J = _concrete(J)
+            if J is not None and np.any(np.linalg.eigvalsh(J - spin) <= 0):
                 raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) is not positive definite")

@@ -17,6 +17,7 @@ import numpy as np
 from so3jax import config as cfg
 from so3jax.actuators import Ideal, Saturated, Wheels
 from so3jax.controllers import registry
+from so3jax.controllers.adaptive import LOG_DERIVATIVES
 from so3jax.estimators import MEKF, Raw, Truth
 from so3jax.io import to_builtin
 from so3jax.loop import Loop, check_loop
@@ -160,6 +161,8 @@ def _merge(base: dict, over: dict) -> dict:
 
 def from_dict(d: dict) -> Mission:
     """A Mission from the TOML tables (missing entries: the flight mission's); ValueError on bad input."""
+    if not isinstance(d, dict):
+        raise ValueError(f"a mission must be a table, got {cfg._short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP) - set(_TABLES)
     if unknown:
         raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")
@@ -180,9 +183,7 @@ def from_dict(d: dict) -> Mission:
     controllers = cfg.names(full["controllers"], "controllers", registry.names())
 
     control = cfg.table(full, "control", ("mode", "period"))
-    mode = control.get("mode", "sampled")
-    if mode not in CONTROL_MODES:
-        raise ValueError(f"control.mode must be one of {', '.join(CONTROL_MODES)}, got {mode!r}")
+    mode = cfg.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
     period_steps = None
     if mode == "sampled":
         period = cfg.number(control.get("period"), "control.period [s]", low=0.0)
@@ -190,6 +191,11 @@ def from_dict(d: dict) -> Mission:
         if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
             raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
         period_steps = int(round(ratio))
+        n_steps = steps_for_horizon(T, dt)
+        if period_steps > n_steps:
+            raise ValueError(f"control.period = {period} s is longer than the horizon T = {T} s")
+        if n_steps % period_steps:
+            raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods control.period = {period} s")
 
     inertia = cfg.table(full, "inertia", ("J0", "J1", "J2"))
     J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
@@ -221,9 +227,7 @@ def from_dict(d: dict) -> Mission:
                 "every": cfg.number(s.get("every", 1), "sensors.star_tracker.every [ticks]", low=1, integer=True)}
 
     e = cfg.table(full, "estimator", ("kind", "sigma_theta0", "sigma_b0", "theta0"))
-    if e["kind"] not in ESTIMATORS:
-        raise ValueError(f"estimator.kind must be one of {', '.join(ESTIMATORS)}, got {e['kind']!r}")
-    estimator = {"kind": e["kind"],
+    estimator = {"kind": cfg.choice(e["kind"], "estimator.kind", ESTIMATORS),
                  "sigma_theta0": cfg.number(e["sigma_theta0"], "estimator.sigma_theta0 [rad]", low=0.0),
                  "sigma_b0": cfg.number(e["sigma_b0"], "estimator.sigma_b0 [rad/s]", low=0.0),
                  "theta0": cfg.array(e["theta0"], "estimator.theta0 [rad]", (3,))}
@@ -231,9 +235,7 @@ def from_dict(d: dict) -> Mission:
         raise ValueError("estimator 'raw' needs [sensors.star_tracker]")
 
     a = cfg.table(full, "actuator", ("kind", "max_torque", "wheels"))
-    if a["kind"] not in ACTUATORS:
-        raise ValueError(f"actuator.kind must be one of {', '.join(ACTUATORS)}, got {a['kind']!r}")
-    actuator = {"kind": a["kind"],
+    actuator = {"kind": cfg.choice(a["kind"], "actuator.kind", ACTUATORS),
                 "max_torque": np.broadcast_to(cfg.array(a["max_torque"], "actuator.max_torque [N m]",
                                                         (3,) if np.ndim(a["max_torque"]) else (), low=0.0), (3,))}
     w = cfg.table(a, "wheels", _WHEEL_KEYS, "actuator.")
@@ -241,12 +243,16 @@ def from_dict(d: dict) -> Mission:
     count = axes.shape[0]
     per_wheel = lambda key, low: np.broadcast_to(
         cfg.array(w[key], f"actuator.wheels.{key}", (count,) if np.ndim(w[key]) else (), low=low), (count,)).copy()
-    if not isinstance(w["momentum_compensation"], bool):
-        raise ValueError(f"actuator.wheels.momentum_compensation must be true or false, got {w['momentum_compensation']!r}")
+    cfg.boolean(w["momentum_compensation"], "actuator.wheels.momentum_compensation")
     actuator["wheels"] = {"axes": axes, "spin_inertia": per_wheel("spin_inertia", 0.0),
                           "max_torque": per_wheel("max_torque", 0.0), "max_speed": per_wheel("max_speed", 0.0),
                           "initial_speed": per_wheel("initial_speed", -math.inf),
                           "momentum_compensation": w["momentum_compensation"]}
+    over = np.abs(actuator["wheels"]["initial_speed"]) > actuator["wheels"]["max_speed"]
+    if np.any(over):
+        raise ValueError(f"actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
+                         f"(wheel {int(np.argmax(over)) + 1}: {actuator['wheels']['initial_speed'][over][0]:g} against "
+                         f"{actuator['wheels']['max_speed'][over][0]:g})")
 
     options_table = cfg.table(full, "controller", registry.names())
     options = {}
@@ -256,17 +262,22 @@ def from_dict(d: dict) -> Mission:
             options[name] = {"torque": tuple(cfg.array(t["torque"], "controller.open_loop.torque [N m]", (3,)).tolist())}
         elif name == "adaptive":
             t = cfg.table(options_table, name, ("log_derivative",), "controller.")
+            if "log_derivative" in t:
+                cfg.choice(t["log_derivative"], "controller.adaptive.log_derivative", LOG_DERIVATIVES)
             options[name] = dict(t)
         else:
             options[name] = dict(cfg.table(options_table, name, (), "controller."))
     gains_table = cfg.table(full, "gains", registry.names())
     gains = {}
-    for name in controllers:
+    for name in registry.names():  # every table given is checked, also of a controller not flown
         spec = registry.get(name)
-        given = cfg.table(gains_table, name, spec.gains_type._fields, "gains.") if name in gains_table else {}
-        g = spec.defaults._replace(**{k: np.asarray(v, float) if isinstance(v, list) else v for k, v in given.items()})
-        spec.check(g)
-        gains[name] = g
+        g = cfg.gains(gains_table.get(name, {}), spec.defaults, spec.gain_shapes(), f"gains.{name}")
+        try:
+            spec.check(g)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"[gains.{name}]: {err}") from None
+        if name in controllers:
+            gains[name] = g
 
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, tau_J, n, disturbance, gyro,
                       star, estimator, actuator, options, gains)

@@ -134,20 +134,27 @@ def _inertia(t: dict, where: str, default: disp.InertiaDispersion) -> disp.Inert
     if "nominal" in t:
         if default.nominal is None:
             raise ValueError(f"[{where}] takes no nominal: J1's nominal is the sample's J0 (scale is the growth J1/J0)")
-        nominal = np.asarray(t["nominal"], dtype=float)
-        if nominal.shape != (3, 3):
-            raise ValueError(f"[{where}] nominal must be a 3x3 matrix, got shape {nominal.shape}")
+        nominal = cfg.array(t["nominal"], f"{where}.nominal (a 3x3 matrix)", (3, 3))
         fields["nominal"] = tuple(map(tuple, nominal.tolist()))
     for name in ("scale", "axis_scale", "products"):
         if name in t:
-            fields[name] = disp.parse_distribution(t[name], f"{where}.{name}")
+            fields[name] = _distribution(t[name], f"{where}.{name}")
     if "rotation_deg" in t:
         fields["rotation_deg"] = cfg.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
     return dataclasses.replace(default, **fields)
 
 
+def _distribution(value, where: str) -> disp.Distribution:
+    """disp.parse_distribution, after checking that a table's ``dist`` names a distribution."""
+    if isinstance(value, dict) and "dist" in value:
+        cfg.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
+    return disp.parse_distribution(value, where)
+
+
 def config_from_dict(d: dict) -> SweepConfig:
     """A SweepConfig from the TOML structure (see sweeps/default.toml); ValueError on bad input."""
+    if not isinstance(d, dict):
+        raise ValueError(f"a sweep config must be a table, got {cfg._short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP_KEYS) - set(_TABLES)
     if unknown:
         raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}")
@@ -177,7 +184,7 @@ def config_from_dict(d: dict) -> SweepConfig:
     }
     for table, keys in (("deployment", ("tau_J",)), ("orbit", ("n",)), ("disturbance", ("amplitude", "frequency", "noise_std"))):
         t = cfg.table(d, table, keys + (("seed",) if table == "disturbance" else ()), "")
-        fields.update({k: disp.parse_distribution(t[k], f"{table}.{k}") for k in keys if k in t})
+        fields.update({k: _distribution(t[k], f"{table}.{k}") for k in keys if k in t})
     seed = cfg.table(d, "disturbance", ("seed", "amplitude", "frequency", "noise_std"), "").get("seed", "random")
     if seed != "random":
         fields["disturbance_seed"] = cfg.number(seed, "disturbance.seed ('random' or a seed)", 0, 2**31 - 1, integer=True)
@@ -185,7 +192,7 @@ def config_from_dict(d: dict) -> SweepConfig:
     if "max_angle_deg" in initial:
         fields["initial_angle_deg"] = cfg.number(initial["max_angle_deg"], "initial.max_angle_deg", 0.0, 180.0)
     if "rate" in initial:
-        fields["initial_rate"] = disp.parse_distribution(initial["rate"], "initial.rate")
+        fields["initial_rate"] = _distribution(initial["rate"], "initial.rate")
     dispersions = dataclasses.replace(base_d, **fields)
     if not dispersions.initial_angle_deg < config.divergence_angle_deg:
         raise ValueError(
@@ -196,11 +203,13 @@ def config_from_dict(d: dict) -> SweepConfig:
     gains = dict(base.gains)
     gain_tables = cfg.table(d, "gains", tuple(CONTROLLERS), "")
     for name, t in gain_tables.items():
-        kind = CONTROLLERS[name][1]
-        t = cfg.table(gain_tables, name, kind._fields, "gains.")
-        gains[name] = gains[name]._replace(**{k: np.asarray(v, dtype=float) if isinstance(v, list) else v for k, v in t.items()})
-    for g in gains.values():
-        check_gains(g)
+        spec = registry.get(name)
+        gains[name] = cfg.gains(t, gains[name], spec.gain_shapes(), f"gains.{name}")
+    for name, g in gains.items():
+        try:
+            check_gains(g)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"[gains.{name}]: {err}") from None
     disp.check(dispersions)
     return dataclasses.replace(config, gains=gains, dispersions=dispersions)
 
@@ -402,7 +411,9 @@ def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
     elif resume and has_chunks:
         raise ValueError(f"--resume: {stamp} is missing, so the chunks in {out} cannot be matched to this sweep; use another --out")
     elif not resume and has_chunks:
-        raise ValueError(f"{out} already holds a sweep: pass --resume to finish it, or choose another --out")
+        if runfolder.incomplete(out) is None and (out / "summary.json").exists():
+            raise ValueError(f"{out} holds a finished sweep; choose another --out, or delete {out} to run it again")
+        raise ValueError(f"{out} holds an unfinished sweep: pass --resume to finish it, or choose another --out")
     if distributed.writer():
         write_json(stamp, description)
     return description["fingerprint"]

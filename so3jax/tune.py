@@ -149,20 +149,59 @@ def _build(cls, table: dict, prefix: str):
             value = _build(_SECTIONS[key], value, f"{key}.")
         elif isinstance(value, list) and key in ("seeds", "inertia_scales"):
             value = tuple(value)
+        elif key in ("seeds", "inertia_scales"):
+            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg._short(value)}")
         values[key] = value
     return cls(**values)
 
 
 def _positive(name, value, integer=False):
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not math.isfinite(value) or value <= 0:
+    if isinstance(value, bool) or not ok or not cfg._finite(value) or value <= 0:
         kind = "a positive integer" if integer else "a positive finite number"
-        raise ValueError(f"config key {name!r} must be {kind}, got {value!r}")
+        raise ValueError(f"config key {name!r} must be {kind}, got {cfg._short(value)}")
 
 
 def _choice(name, value, choices):
-    if value not in choices:
-        raise ValueError(f"config key {name!r} must be one of {choices}, got {value!r}")
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"config key {name!r} must be one of {choices}, got {cfg._short(value)}")
+
+
+def _check_kwargs(fn, options, where: str) -> None:
+    """The keyword options of an optax function, each of the type of its default (a
+    number, true or false) where it has one, a number where it is annotated int or float.
+    A table is required; options without a typed default are left to the call."""
+    if not isinstance(options, dict):
+        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {cfg._short(options)}")  # noqa: TRY004
+    parameters = inspect.signature(fn).parameters
+    for key, value in options.items():
+        p = parameters.get(key)
+        if p is None:
+            continue  # the call names it
+        default = p.default
+        if isinstance(default, bool) or p.annotation in (bool, "bool"):
+            cfg.boolean(value, f"config key '{where}.{key}'")
+        elif (isinstance(default, (int, float)) or p.annotation in (int, float, "int", "float")) and (
+            isinstance(value, bool) or not isinstance(value, (int, float))
+        ):
+            raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg._short(value)}")
+
+
+# The types of paper_scenario's arguments in a config's [scenario] table (by their defaults;
+# None defaults: a number for n, a (3, 3) matrix for J1).
+_SCENARIO_ARRAYS = {"J0": (3, 3), "J1": (3, 3), "J2": (3, 3)}
+
+
+def _check_scenario_types(table: dict) -> None:
+    """Each [scenario] entry of its type: a number, a (3, 3) matrix of numbers, or true/false."""
+    for key, value in table.items():
+        where = f"config key 'scenario.{key}'"
+        if key in _SCENARIO_ARRAYS:
+            cfg.array(value, where, _SCENARIO_ARRAYS[key])
+        elif isinstance(inspect.signature(paper_scenario).parameters[key].default, bool):
+            cfg.boolean(value, where)
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{where} must be a number, got {cfg._short(value)}")
 
 
 def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
@@ -171,12 +210,14 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     _positive("optimizer.clip_norm", config.clip_norm)
     factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
     if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
-        raise ValueError(f"config key 'optimizer.name': {config.name!r} is not an optax optimizer (e.g. adam, sgd)")
+        raise ValueError(f"config key 'optimizer.name': {cfg._short(config.name)} is not an optax optimizer (e.g. adam, sgd)")
+    _check_kwargs(factory, config.options, "optimizer.options")
     learning_rate = config.learning_rate
     if config.schedule is not None:
         schedule = getattr(optax, config.schedule, None) if isinstance(config.schedule, str) else None
         if not callable(schedule):
-            raise ValueError(f"config key 'optimizer.schedule': {config.schedule!r} is not an optax schedule")
+            raise ValueError(f"config key 'optimizer.schedule': {cfg._short(config.schedule)} is not an optax schedule")
+        _check_kwargs(schedule, config.schedule_options, "optimizer.schedule_options")
         try:
             learning_rate = schedule(config.learning_rate, **config.schedule_options)
             learning_rate(0)
@@ -232,6 +273,7 @@ def validate(config: TuneConfig) -> None:
     for key in config.scenario:
         if key not in signature or key == "dtype":
             raise ValueError(f"unknown config key 'scenario.{key}' (paper_scenario arguments: {', '.join(signature)})")
+    _check_scenario_types(config.scenario)
     try:
         paper_scenario(**config.scenario)  # its values: horizon, step, tau_J, inertias
     except (TypeError, ValueError) as err:
@@ -250,6 +292,8 @@ def validate(config: TuneConfig) -> None:
     make_optimizer(config.optimizer)
     _positive("es.population", config.es.population, integer=True)
     _positive("es.sigma", config.es.sigma)
+    cfg.number(config.es.seed, "config key 'es.seed'", low=0, high=2**32 - 1, integer=True)
+    cfg.boolean(config.diagonal_gamma, "config key 'diagonal_gamma'")
     if config.diagonal_gamma and config.controller != "adaptive":
         raise ValueError("config key 'diagonal_gamma' applies to the adaptive controller only")
 
@@ -287,19 +331,24 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False):
         saved = json.loads(Path(spec).read_text())
         if runfolder.incomplete(Path(spec).parent):
             warnings.warn(f"gains file {spec} is from a so3jax run that did not finish (its manifest says incomplete)")
-        if saved.get("controller") != controller:
-            raise ValueError(f"gains file {spec} holds {saved.get('controller')!r} gains, not {controller!r}")
+        held = saved.get("controller") if isinstance(saved, dict) else None
+        if held != controller or not isinstance(saved.get("gains"), dict):
+            raise ValueError(f"gains file {spec} holds no table of {controller!r} gains ({held!r} gains)")
         table = saved["gains"]
     elif isinstance(spec, dict):
         table = spec
     else:
-        raise ValueError(f"gains must be 'paper', a table or a .json path, got {spec!r}")
+        raise ValueError(f"gains must be 'paper', a table or a .json path, got {cfg._short(spec)}")
     for name in table:
         if name not in cls._fields:
             raise ValueError(f"unknown gain {name!r} for the {controller} controller ({', '.join(cls._fields)})")
     missing = [name for name in cls._fields if name not in table]
     if missing:
         raise ValueError(f"missing gain {missing[0]!r} for the {controller} controller")
+    registered = registry.get(controller)
+    shapes = {name: tuple(s for s in allowed if len(s) < 2)  # tuning: a scalar or a (9,) diagonal Gamma
+              for name, allowed in registered.gain_shapes().items()}
+    table = cfg.gains(table, registered.defaults, shapes, "gains")._asdict()
     gains = cls(**{name: jnp.asarray(table[name], dtype) for name in cls._fields})
     if controller == "adaptive":
         if gains.Gamma.ndim > 1:

@@ -23,6 +23,7 @@ class AdaptiveGains(NamedTuple):
 PAPER_ADAPTIVE_GAINS = AdaptiveGains(K_r=0.005, K_w=75.0, Gamma=1e8)
 
 LOG_DERIVATIVES = ("exact", "paper")
+GAMMA_SHAPES = ((), (9,), (9, 9))  # scalar, diagonal, full
 
 
 def regressor_parameters(J):
@@ -53,6 +54,9 @@ def _apply_gamma(Gamma, Phi):
     """Gamma Phi for a scalar, diagonal (9,) or full (9, 9) Gamma (each with Phi's batch axes)."""
     Gamma = jnp.asarray(Gamma)
     kind = Gamma.ndim - (Phi.ndim - 1)  # 0: scalar, 1: diagonal, 2: full
+    if kind not in (0, 1, 2) or Gamma.shape[:kind] != (9,) * kind:  # shapes are static: checked while tracing
+        raise ValueError(f"gain Gamma must be a scalar, a (9,) diagonal or a (9, 9) matrix (each with the batch "
+                         f"axes of the regressor, shape {Phi.shape}), got shape {Gamma.shape}")
     if kind == 2:
         return jnp.stack([so3.sum_leading(Gamma[i] * Phi) for i in range(Gamma.shape[0])])
     return Gamma * Phi
@@ -113,5 +117,6 @@ register(
         defaults=PAPER_ADAPTIVE_GAINS,
         style=dict(ls="-", color="tab:blue", label="adaptive"),
         check=check_gains,
+        shapes={"Gamma": GAMMA_SHAPES},
     )
 )

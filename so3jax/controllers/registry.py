@@ -11,6 +11,8 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from so3jax.controllers.base import Controller
 
 
@@ -23,6 +25,9 @@ class ControllerSpec:
     gains_type: the NamedTuple of its gains; defaults: the paper's values (or a
     neutral set). check(gains) raises ValueError on gains the law cannot use.
     tunable: whether ``tune`` may optimize its gains (a law without gains cannot).
+    shapes: the shapes a gain may take, {field: ((), (9,), ...)}, for the fields that
+    take more than their default's shape; every other gain has its default's shape
+    (:meth:`gain_shapes`). The config parser checks gains read from files against them.
     """
 
     name: str
@@ -33,6 +38,11 @@ class ControllerSpec:
     style: dict
     check: Callable[[Any], None]
     tunable: bool = True
+    shapes: dict = dataclasses.field(default_factory=dict)
+
+    def gain_shapes(self) -> dict:
+        """{field: allowed shapes} of every gain: ``shapes``' entry, else the default's shape."""
+        return {f: tuple(self.shapes.get(f, (np.shape(getattr(self.defaults, f)),))) for f in self.gains_type._fields}
 
 
 _REGISTRY: dict[str, ControllerSpec] = {}
