@@ -301,11 +301,13 @@ def _shutdown(code: int) -> None:
             try:  # returns once every attached process is here: none of the others is
                 with multihost_utils.live_devices(devices) as live:
                     pass
+                if {d.process_index for d in live} == {0}:
+                    return
             except multihost_utils.ProcessFailureError:
-                continue
-            if {d.process_index for d in live} == {0}:
-                return
-            time.sleep(0.1)
+                continue  # processes left during the call: ask again
+            except Exception:  # the runtime's errors: ask again until the deadline
+                pass
+            time.sleep(0.2)
 
 
 def leave(code: int) -> int:

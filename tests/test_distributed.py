@@ -3,11 +3,15 @@ collectives, coordinator on 127.0.0.1): the same sweep files as one process with
 device count in either layout, a stopped process reported and the sweep finished by
 --resume, the tuned gains of one process, a coordinator that cannot be reached or peers
 that never join reported within the timeout, processes that do not share the output
-folder told so. Every process is bounded in time and stopped by the test."""
+folder told so, an error in one process alone (process 0's or another's) told to the
+others. Every process's exit code and stderr are checked: one error line, its last, and no
+abort of JAX's runtime, whichever process leaves first. Every process is bounded in time
+and stopped by the test."""
 
 import argparse
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -49,6 +53,22 @@ def _finish(procs, limit=LIMIT_S):
     return out
 
 
+# A traceback, or JAX's runtime aborting the process (a C++ check failure or fatal log line).
+ABORT = re.compile(r"Traceback|Check fail|Terminating process|Fatal|^F\d{4} ", re.MULTILINE)
+
+
+def _clean(stderr):
+    assert not ABORT.search(stderr), stderr[-3000:]
+
+
+def _error(stderr, command="sweep"):
+    """The process's one error line, which is the last line of its stderr."""
+    _clean(stderr)
+    errors = [line for line in stderr.splitlines() if line.startswith(f"so3jax {command}: error: ")]
+    assert len(errors) == 1 and stderr.strip().splitlines()[-1] == errors[0], stderr[-3000:]
+    return errors[0]
+
+
 def _pair(out, cwd, *extra):
     port = _port()
     common = (*SWEEP, *extra, "--out", str(out), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--timeout", "60")
@@ -76,6 +96,8 @@ def one_process(tmp_path_factory):
 def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_process, tmp_path, layout):
     results = _finish(_pair(tmp_path / "out", tmp_path, "--layout", layout))
     assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    for _, _, stderr in results:
+        _clean(stderr)
     ours = [[line for line in stdout.splitlines() if not line.startswith("[Gloo]")] for _, stdout, _ in results]
     assert any("adaptive vs pd" in line for line in ours[0]) and ours[1] == []  # process 0 reports, once
     csv, arrays, summary = _files(tmp_path / "out")
@@ -94,36 +116,35 @@ def test_a_stopped_process_is_reported_and_resume_finishes_the_sweep(one_process
     while not list((out / "chunks").glob("*.npz")) and time.monotonic() < deadline and procs[0].poll() is None:
         time.sleep(0.2)
     procs[1].kill()  # mid-sweep: the adaptive controller still has to compile and run
-    (rc, _, stderr), _ = _finish(procs)
-    assert rc == 1 and "Traceback" not in stderr, stderr[-3000:]
-    assert "so3jax sweep: error: process 0 of 2 stopped at " in stderr and "rerun every process with --resume" in stderr
+    (rc, _, stderr), (killed, _, _) = _finish(procs)
+    assert (rc, killed) == (1, -9), stderr[-3000:]
+    line = _error(stderr)
+    assert "so3jax sweep: error: process 0 of 2 stopped at " in line and "rerun every process with --resume" in line
     assert not (out / "summary.json").exists()
 
     results = _finish(_pair(out, tmp_path, "--resume"))
     assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    for _, _, stderr in results:
+        _clean(stderr)
     csv, arrays, summary = _files(out)
     assert csv == one_process[0] and summary == one_process[2]
 
 
 def test_a_coordinator_that_cannot_be_reached_is_reported_within_the_timeout(tmp_path):
-    start = time.monotonic()
     args = (*SWEEP, "--out", str(tmp_path / "out"), "--coordinator", f"127.0.0.1:{_port()}", "--num-processes", "2",
             "--process-id", "1", "--timeout", "3")
-    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)
-    assert rc == 2 and "Traceback" not in stderr
-    assert "could not reach the coordinator" in stderr.strip().splitlines()[-1]
-    assert time.monotonic() - start < 60
+    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)  # killed (-9) past the limit
+    assert rc == 2, stderr[-2000:]
+    assert "process 1 could not reach the coordinator" in _error(stderr)
     assert not (tmp_path / "out").exists()  # nothing written
 
 
 def test_a_process_whose_peers_never_join_stops_at_the_timeout_with_one_line(tmp_path):
-    start = time.monotonic()
     args = (*SWEEP, "--out", str(tmp_path / "out"), "--coordinator", f"127.0.0.1:{_port()}", "--num-processes", "2",
             "--process-id", "0", "--timeout", "3")
-    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)
-    assert rc == 1 and "Traceback" not in stderr and "Check failure" not in stderr, stderr[-2000:]
-    assert "process 0 of 2: not every process joined the run" in stderr.strip().splitlines()[-1]
-    assert time.monotonic() - start < 60
+    [(rc, _, stderr)] = _finish([_start(args, tmp_path)], limit=120)  # killed (-9) past the limit
+    assert rc == 1, stderr[-2000:]
+    assert "process 0 of 2: not every process joined the run" in _error(stderr)
     assert not (tmp_path / "out").exists()
 
 
@@ -131,10 +152,36 @@ def test_processes_that_do_not_share_the_output_folder_are_told(tmp_path):
     port = _port()
     procs = [_start((*SWEEP, "--out", str(tmp_path / f"out{i}"), "--coordinator", f"127.0.0.1:{port}",
                      "--num-processes", "2", "--timeout", "60", "--process-id", str(i)), tmp_path) for i in (0, 1)]
-    for rc, _, stderr in _finish(procs, limit=200):
-        assert rc == 2 and "Traceback" not in stderr, stderr[-2000:]
-        assert "process(es) 1 of 2 do not see" in stderr and "shared filesystem" in stderr.strip().splitlines()[-1]
+    for i, (rc, _, stderr) in enumerate(_finish(procs, limit=200)):
+        assert rc == 2, stderr[-2000:]
+        line = _error(stderr)
+        assert f"process(es) 1 of 2 do not see {tmp_path / f'out{i}'} as process 0 writes it" in line
+        assert line.endswith("every process must share the output folder (a shared filesystem)")
     assert not list(tmp_path.glob("out*/chunks/*.npz"))
+
+
+def test_an_error_in_process_0_alone_stops_the_others(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    owner = {"pid": os.getpid(), "host": socket.gethostname(), "command": "sweep", "since": time.time()}
+    (out / ".so3jax.lock").write_text(json.dumps(owner))  # process 0 alone takes the lock: it fails there
+    (rc0, _, err0), (rc1, _, err1) = _finish(_pair(out, tmp_path), limit=200)
+    assert (rc0, rc1) == (2, 1), err0[-2000:] + err1[-2000:]
+    assert f"{out} is in use by so3jax sweep (process {os.getpid()} on" in _error(err0)
+    assert _error(err1) == ("so3jax sweep: error: process 1 of 2 stopped at checking the output folder: "
+                            "process(es) 0 of 2 stopped with an error (see its message)")
+
+
+def test_an_error_in_another_process_alone_stops_process_0(tmp_path):
+    port = _port()
+    common = (*SWEEP, "--out", str(tmp_path / "out"), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+              "--timeout", "60", "--process-id")
+    procs = [_start((*common, "0"), tmp_path), _start((*common, "1", "--set", "bogus=1"), tmp_path)]
+    (rc0, _, err0), (rc1, _, err1) = _finish(procs, limit=200)
+    assert (rc0, rc1) == (1, 2), err0[-2000:] + err1[-2000:]
+    assert _error(err1) == "so3jax sweep: error: unknown config key(s): bogus"
+    assert _error(err0) == ("so3jax sweep: error: process 0 of 2 stopped at checking the output folder: "
+                            "process(es) 1 of 2 stopped with an error (see its message)")
 
 
 @pytest.mark.parametrize(
@@ -178,6 +225,8 @@ def test_two_processes_tune_to_the_gains_of_one_process(tmp_path):
               "--num-processes", "2", "--timeout", "60")
     results = _finish([_start((*common, "--process-id", str(i)), tmp_path) for i in (0, 1)])
     assert [r[0] for r in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
+    for _, _, stderr in results:
+        _clean(stderr)
     one, two = (json.loads((tmp_path / name / "best_gains.json").read_text()) for name in ("one", "two"))
     assert one["iteration"] == two["iteration"]
     for key, value in one["gains"].items():  # the batch mean is reduced across processes: round-off only
