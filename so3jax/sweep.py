@@ -145,8 +145,8 @@ def _inertia(t: dict, where: str, default: disp.InertiaDispersion) -> disp.Inert
 
 
 def _distribution(value, where: str) -> disp.Distribution:
-    """disp.parse_distribution, after checking that a table's ``dist`` names a distribution."""
-    if isinstance(value, dict) and "dist" in value:
+    """disp.parse_distribution, after checking that a table's ``dist`` is a name (a string)."""
+    if isinstance(value, dict) and "dist" in value and not isinstance(value["dist"], str):
         cfg.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
     return disp.parse_distribution(value, where)
 
