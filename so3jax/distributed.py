@@ -11,10 +11,12 @@ processes exchange arrays with gloo, JAX's CPU collectives.
 How a multi-process run ends: process 0 hosts the runtime's coordination service, and
 the runtime aborts every process still attached when that service goes away. So every
 process first meets the others with its outcome (:func:`agree`: 0, or the exit code of
-its error), the other processes leave (:func:`leave`: the runtime's shutdown, then
-``os._exit``), and process 0 leaves once none of them is attached. Every process ends
-with its own one-line error and an exit code that does not depend on which left first:
-2 for an error in its input or setup, 1 when another process stopped or is gone.
+its error); then (:func:`leave`) the other processes shut their runtime down, all meet
+once more, so that process 0 knows none of the others is still attached, and each exits
+with ``os._exit``, so that the runtime's shutdown at interpreter exit never runs. Every
+process ends with its own one-line error and an exit code that does not depend on which
+left first: 2 for an error in its input or setup, 1 when another process stopped or is
+gone.
 """
 
 from __future__ import annotations
@@ -185,16 +187,22 @@ def _exchange(value: int, what: str):
     only collective the meeting points (barrier, check_shared, agree) use, so that a
     process that stopped with an error (see :func:`agree`) meets the others at whichever
     of them they are. A negative value is that process's error: PeerFailure here."""
-    import numpy as np
-    from jax.experimental import multihost_utils
-
-    values = np.asarray(multihost_utils.process_allgather(np.int32(value))).reshape(-1)
+    values = _allgather(value)
     failed = [k for k, v in enumerate(values) if v < 0]
     if failed and value >= 0:
         who = ", ".join(str(k) for k in failed)
+        theirs = "its message" if len(failed) == 1 else "their messages"
         raise PeerFailure(f"process {_me()} stopped at {what}: process(es) {who} of {len(values)} stopped with an error "
-                          "(see its message)")
+                          f"(see {theirs})")
     return values
+
+
+def _allgather(value: int):
+    """Every process's int32 ``value``, in process order."""
+    import numpy as np
+    from jax.experimental import multihost_utils
+
+    return np.asarray(multihost_utils.process_allgather(np.int32(value))).reshape(-1)
 
 
 def _me() -> str:
@@ -283,31 +291,51 @@ def agree(code: int) -> int:
 
 
 def _shutdown(code: int) -> None:
-    """Detach from the runtime in order: the other processes shut their runtime down
-    (process 0's service, still up, records each), process 0 waits until none of them is
-    attached (at most --timeout; at once when its only peer's connection closed)."""
+    """Detach from the runtime in order. The other processes shut their runtime down
+    while process 0's coordination service is up (the runtime aborts a process whose
+    shutdown cannot reach it), then every process meets once more over gloo, which needs
+    no service: past that meeting none of the others is attached, and process 0 may go.
+    Process 0 skips it when its only peer's connection has closed (that process exited);
+    a peer gone during it leaves process 0 waiting until the service sees none of the
+    others attached. Every wait ends at --timeout."""
     import jax
 
     if jax.process_index() != 0:
         jax.distributed.shutdown()
+    elif _gone["peer"] and jax.process_count() == 2:
         return
-    if _gone["peer"] and jax.process_count() == 2:
-        return
+    with _deadline(code, "the other processes did not leave the run"):
+        try:
+            _allgather(0)
+        except Exception:  # a process gone: gloo's error
+            if jax.process_index() == 0:
+                _wait_detached()
+
+
+def _wait_detached() -> None:
+    """Process 0: wait until the coordination service sees none of the others attached
+    (a process that shut down at once, one that exited after its heartbeat timeout)."""
+    import jax
     from jax.experimental import multihost_utils
 
     devices = jax.devices()
-    with _deadline(code, "the other processes did not leave the run"):
-        while True:
-            try:  # returns once every attached process is here: none of the others is
-                with multihost_utils.live_devices(devices) as live:
-                    pass
-                if {d.process_index for d in live} == {0}:
-                    return
-            except multihost_utils.ProcessFailureError:
-                continue  # processes left during the call: ask again
-            except Exception:  # the runtime's errors: ask again until the deadline
+    while True:
+        try:  # returns once every attached process is here: none of the others is
+            with multihost_utils.live_devices(devices) as live:
                 pass
-            time.sleep(0.2)
+            if {d.process_index for d in live} == {0}:
+                time.sleep(SHUTDOWN_GRACE_S)  # the last shutdown's answer on its way
+                return
+        except multihost_utils.ProcessFailureError:
+            continue  # processes left during the call: ask again
+        except Exception:  # the runtime's errors: ask again until the deadline
+            pass
+        time.sleep(0.2)
+
+
+# Seconds process 0 stays up once its service sees none of the others attached (only
+# where a process is gone; otherwise the last meeting orders the exit).
+SHUTDOWN_GRACE_S = 1.0
 
 
 def leave(code: int) -> int:
