@@ -1,0 +1,180 @@
+"""The library's entry points under JAX's transformations, with every registered component.
+
+``rollout``, ``rollout_batch`` and ``simulate`` on a tiny sampled-data mission (T = 0.3 s,
+dt = 0.05 s, control period 0.1 s: three ticks) under ``jax.jit``, ``jax.vmap`` and
+``jax.grad``; every estimator (truth, raw, mekf), actuator (ideal, saturated, wheels) and
+registered controller appears in one of a few loops, so that few programs compile: per
+loop, the un-jitted ``rollout`` (the reference), one jitted program holding the
+single rollout, its vmap over seeds, its gradient and ``rollout_batch``, and ``simulate``.
+The results are finite and equal to the un-jitted call (to round-off: XLA fuses the two
+programs differently); the gradient equals central differences of the jitted rollout.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import so3jax as sj
+from so3jax import mission as missions
+from so3jax.actuators import ACTUATORS
+from so3jax.controllers import registry
+from so3jax.estimators import ESTIMATORS
+
+rollout_module = importlib.import_module("so3jax.rollout")
+
+TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
+# Each registered component in one loop (estimator, actuator, controller), the heavy
+# parts (MEKF, wheels, the adaptive law) spread over the loops.
+LOOPS = [("mekf", "ideal", "pd"), ("truth", "wheels", "adaptive"), ("raw", "saturated", "open_loop")]
+SEEDS = jnp.arange(2)
+OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
+RTOL, ATOL = 1e-9, 1e-13
+FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
+
+
+def test_every_registered_component_is_flown():
+    estimators, actuators, controllers = (set(parts) for parts in zip(*LOOPS))
+    assert estimators == set(ESTIMATORS) and actuators == set(ACTUATORS) and controllers == set(registry.names())
+
+
+class Setup:
+    """A tiny mission's scenario, loop, controller and gains, and its rmse as a function
+    of (gains, Omega0) for one seed."""
+
+    def __init__(self, estimator, actuator, controller):
+        overrides = [*TINY, f'estimator.kind="{estimator}"', f'actuator.kind="{actuator}"',
+                     f'controllers=["{controller}"]']
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", sj.InertiaWarning)
+            m = missions.load(None, overrides)
+            self.scenario = dataclasses.replace(m.scenario(), Omega0=OMEGA0)
+        self.loop = m.loop()
+        self.controller, self.gains = m.controller(controller)
+        self.gains = jax.tree.map(lambda g: jnp.asarray(g, jnp.float64), self.gains)
+
+    def with_omega0(self, omega0):
+        return dataclasses.replace(self.scenario, Omega0=omega0)
+
+    def rollout(self, gains, omega0, seed):
+        return sj.rollout(self.with_omega0(omega0), self.controller, gains, seed, loop=self.loop, record_every=6)
+
+    def rmse(self, gains, omega0, seed):
+        return self.rollout(gains, omega0, seed).metrics.rmse
+
+    def transformed(self, gains, omega0, seed, seeds):
+        """What the jitted program computes: one rollout, its vmap over seeds, the gradient
+        of its rmse in (gains, Omega0), and rollout_batch over the same seeds."""
+        one = self.rollout(gains, omega0, seed)
+        mapped = jax.vmap(lambda s: self.rollout(gains, omega0, s))(seeds)
+        grad = jax.grad(self.rmse, argnums=(0, 1))(gains, omega0, seed)
+        batch = sj.rollout_batch(self.with_omega0(omega0), self.controller, gains, seeds, scenario_axes=None,
+                                 loop=self.loop, record_every=6)
+        return one, mapped, grad, batch
+
+
+@pytest.fixture(scope="module", params=LOOPS, ids=["-".join(parts) for parts in LOOPS])
+def flown(request):
+    """(setup, un-jitted rollout at seed 0, the jitted program, its outputs at seed 0)."""
+    setup = Setup(*request.param)
+    reference = jax.tree.map(np.asarray, setup.rollout(setup.gains, OMEGA0, 0))
+    # XLA's backend optimizations off: half the compile time of this large program, the
+    # same values to round-off (what the comparisons allow between differently fused programs)
+    program = jax.jit(setup.transformed).lower(setup.gains, OMEGA0, 0, SEEDS).compile(FAST_COMPILE)
+    outputs = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, 0, SEEDS))
+    return setup, reference, program, outputs
+
+
+def assert_trees_close(a, b, rtol=RTOL, atol=ATOL):
+    leaves_a, tree_a = jax.tree.flatten(a)
+    leaves_b, tree_b = jax.tree.flatten(b)
+    assert tree_a == tree_b
+    for x, y in zip(leaves_a, leaves_b):
+        np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=rtol, atol=atol, equal_nan=True)
+
+
+def assert_finite(result):
+    for leaf in jax.tree.leaves((result.metrics.rmse, result.metrics.effort, result.final, result.flight.command_effort)):
+        assert np.all(np.isfinite(leaf))
+
+
+def test_the_reference_flies_the_whole_loop(flown):
+    setup, reference, _, _ = flown
+    assert_finite(reference)
+    assert not bool(reference.metrics.diverged)
+    assert reference.history.t.shape == (1,)  # one block of 6 steps: 3 ticks of 2 steps
+    if setup.loop.period_steps is not None:
+        assert setup.loop.period_steps == 2 and setup.scenario.n_steps == 6
+
+
+def test_jit_equals_the_unjitted_rollout(flown):
+    _, reference, _, (one, _, _, _) = flown
+    assert_finite(one)
+    assert_trees_close(one, reference)
+
+
+def test_vmap_over_seeds_equals_one_rollout_per_seed(flown):
+    setup, reference, program, (_, mapped, _, _) = flown
+    first = jax.tree.map(lambda x: x[0], mapped)
+    assert_trees_close(first, reference)
+    second = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, 1, SEEDS)[0])  # the same program at seed 1
+    assert_trees_close(jax.tree.map(lambda x: x[1], mapped), second)
+    assert not np.array_equal(mapped.metrics.rmse[0], mapped.metrics.rmse[1])  # the seeds draw different noise
+
+
+def test_rollout_batch_equals_vmap(flown):
+    _, _, _, (_, mapped, _, batch) = flown
+    assert_finite(jax.tree.map(lambda x: x[0], batch))
+    assert_trees_close(batch.metrics, mapped.metrics, rtol=1e-12, atol=1e-15)
+    assert_trees_close(batch.final, mapped.final, rtol=1e-12, atol=1e-15)
+    assert_trees_close(batch.flight, mapped.flight, rtol=1e-12, atol=1e-15)
+
+
+def test_grad_is_finite_and_matches_central_differences(flown):
+    """The gradient in (gains, Omega0) against central differences of the jitted rollout
+    (the same program, other inputs: nothing compiles again)."""
+    setup, _, program, (_, _, grad, _) = flown
+    assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grad))
+    rmse = lambda gains, omega0: float(program(gains, omega0, 0, SEEDS)[0].metrics.rmse)
+    gains_grad, omega_grad = grad
+    for i in range(3):
+        h = 1e-4 * abs(float(OMEGA0[i]))
+        e = jnp.zeros(3).at[i].set(h)
+        fd = (rmse(setup.gains, OMEGA0 + e) - rmse(setup.gains, OMEGA0 - e)) / (2 * h)
+        np.testing.assert_allclose(omega_grad[i], fd, rtol=1e-6)
+    for name, value in setup.gains._asdict().items():
+        h = 1e-4 * float(value)
+        bump = lambda s: setup.gains._replace(**{name: value + s * h})
+        fd = (rmse(bump(1.0), OMEGA0) - rmse(bump(-1.0), OMEGA0)) / (2 * h)
+        np.testing.assert_allclose(getattr(gains_grad, name), fd, rtol=1e-4)  # Gamma's is ~1e-18: FD noise
+    assert np.any(np.abs(omega_grad) > 0)
+
+
+def test_simulate_equals_the_unjitted_rollout(flown):
+    setup, reference, _, _ = flown
+    result = sj.simulate(setup.scenario, setup.controller, setup.gains, 0, loop=setup.loop, record_every=6)
+    result = jax.tree.map(np.asarray, result)
+    assert_trees_close(result, reference)
+
+
+def test_checks_under_tracing_read_no_traced_value():
+    """Every component's check and the loop's check run under jit (shapes and static
+    data only): building the programs above traced them; here the wheel inertia check,
+    which reads the scenario's inertias, with the wheels' parameters traced."""
+    setup = Setup("truth", "wheels", "adaptive")
+    wheels = setup.loop.actuator
+
+    def rmse_of_spin(spin):
+        loop = dataclasses.replace(setup.loop, actuator=dataclasses.replace(wheels, spin_inertia=spin))
+        return rollout_module.rollout(setup.scenario, setup.controller, setup.gains, 0, loop=loop).metrics.rmse
+
+    assert jax.eval_shape(jax.jit(rmse_of_spin), jnp.asarray(wheels.spin_inertia)).shape == ()
+    bad = dataclasses.replace(wheels, spin_inertia=jnp.full(4, 1e4))
+    with pytest.raises(ValueError, match="minus the wheels' spin inertia"):
+        sj.rollout(setup.scenario, setup.controller, setup.gains, 0, loop=dataclasses.replace(setup.loop, actuator=bad))
