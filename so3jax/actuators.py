@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import config as cfg
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass, static_field
@@ -51,10 +52,10 @@ def _values(x):
 
 
 def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool = False) -> None:
-    """One-line ValueError unless x has ``shape`` and finite (positive / non-negative) values."""
+    """One-line ValueError unless x is real numbers of ``shape``, finite (positive / non-negative)."""
+    v = cfg.concrete(x, name)
     if np.shape(x) != shape:
         raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
-    v = _values(x)
     if v is None:
         return
     if not np.all(np.isfinite(v)):

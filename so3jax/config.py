@@ -119,6 +119,25 @@ def array(value, where: str, shape: tuple, low=-math.inf) -> np.ndarray:
     return a
 
 
+def concrete(value, where: str) -> np.ndarray | None:
+    """A library parameter's values as a float NumPy array, or None where it is traced
+    (under jit, vmap or grad: its values are checked where they are concrete). ValueError
+    naming ``where`` for a value that is not real numbers: a string, a bool, a table."""
+    import jax  # here: the commands import this module before JAX is configured
+
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(value)):
+        return None
+    dtype = getattr(value, "dtype", None)
+    ok = dtype.kind in "fiu" if dtype is not None else _numeric(value)
+    try:
+        a = np.asarray(value, dtype=float) if ok else None
+    except (TypeError, ValueError):  # ragged
+        a = None
+    if a is None:
+        raise ValueError(f"{where} must be real numbers, got {_short(value)}")
+    return a
+
+
 def boolean(value, where: str) -> bool:
     """true or false, else ValueError naming ``where``."""
     if not isinstance(value, bool):

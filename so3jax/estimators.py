@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import config as cfg
 from so3jax import so3
 from so3jax._pytree import pytree_dataclass
 
@@ -159,17 +160,16 @@ class MEKF:
 
     def check(self) -> None:
         for name in ("sigma_theta0", "sigma_b0", "arw", "rrw", "sigma_st"):
-            value = getattr(self, name)
-            if isinstance(value, jax.core.Tracer):
+            v = cfg.concrete(getattr(self, name), f"estimator {name}")
+            if v is None:
                 continue
-            v = np.asarray(value, dtype=float)
             if v.shape != () or not np.isfinite(v) or v < 0:
-                raise ValueError(f"estimator {name} must be a finite non-negative number, got {v.tolist()}")
-        if not isinstance(self.theta0, jax.core.Tracer):
-            t = np.asarray(self.theta0, dtype=float)
-            if t.shape != (3,) or not np.all(np.isfinite(t)):
-                raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {t.tolist()}")
-        if not isinstance(self.sigma_st, jax.core.Tracer) and float(np.asarray(self.sigma_st)) == 0.0:
+                raise ValueError(f"estimator {name} must be a finite non-negative number, got {cfg._short(v.tolist())}")
+        t = cfg.concrete(self.theta0, "estimator theta0 [rad]")
+        if t is not None and (t.shape != (3,) or not np.all(np.isfinite(t))):
+            raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {cfg._short(t.tolist())}")
+        sigma_st = cfg.concrete(self.sigma_st, "estimator sigma_st")
+        if sigma_st is not None and float(sigma_st) == 0.0:
             raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")
 
 

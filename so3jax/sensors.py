@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import config as cfg
 from so3jax import so3
 from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.disturbance import noise_components
@@ -38,9 +39,9 @@ def _like(x, like):
 
 
 def _check(name: str, x, shape=()) -> None:
-    if isinstance(x, jax.core.Tracer):
+    v = cfg.concrete(x, name)
+    if v is None:
         return
-    v = np.asarray(x, dtype=float)
     if v.shape != shape:
         raise ValueError(f"{name} must have shape {shape}, got {v.shape}")
     if not np.all(np.isfinite(v)) or (shape == () and v < 0):

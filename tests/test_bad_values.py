@@ -19,6 +19,7 @@ import pytest
 from so3jax import cli, mission, sweep, tune
 from so3jax import config as cfg
 from so3jax.controllers import registry
+from so3jax.loop import check_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 TUNE_FILE = ROOT / "tuning" / "pd_equal_effort.toml"
@@ -220,6 +221,50 @@ def test_gains_of_every_registered_shape_are_accepted():
     full = mission.from_dict({"gains": {"adaptive": {"Gamma": (1e8 * np.eye(9)).tolist()}}})
     assert full.gains["adaptive"].Gamma.shape == (9, 9)
     assert mission.load().gains == {n: registry.get(n).defaults for n in ("pd", "adaptive")}
+
+
+# --- generated: the library's components ----------------------------------------------------
+
+
+def _component_cases():
+    """(loop, component path, field, what, bad value) for every parameter of every
+    component of the flight loop (gyro, star tracker, MEKF, wheels) and the saturated
+    actuator, from their dataclass fields."""
+    flight = mission.load()
+    loops = [mission._build_loop(flight, np.asarray),
+             mission._build_loop(mission.load(None, ['actuator.kind="saturated"']), np.asarray)]
+    out = []
+    for loop in loops:
+        for path in (("sensors", "gyro"), ("sensors", "star_tracker"), ("estimator",), ("actuator",)):
+            part = loop
+            for name in path:
+                part = getattr(part, name)
+            for field in dataclasses.fields(part):
+                value = getattr(part, field.name)
+                value = value.tolist() if isinstance(value, np.ndarray) else value
+                for what, bad in bad_values(value, "..." if field.name == "axes" else ""):  # any number of wheels
+                    out.append((loop, path, field.name, what, bad))
+    return out
+
+
+COMPONENT_CASES = _component_cases()
+
+
+def _replace(loop, path, field, value):
+    if len(path) == 1:
+        return dataclasses.replace(loop, **{path[0]: dataclasses.replace(getattr(loop, path[0]), **{field: value})})
+    return dataclasses.replace(loop, sensors=_replace(loop.sensors, path[1:], field, value))
+
+
+@pytest.mark.parametrize("loop,path,field,what,bad", COMPONENT_CASES,
+                         ids=[f"{type(c[0].actuator).__name__}-{'.'.join(c[1])}.{c[2]}: {c[3]}" for c in COMPONENT_CASES])
+def test_component_bad_parameter(loop, path, field, what, bad):
+    """A library component with a parameter of the wrong type or shape: the loop's check
+    (what rollout and simulate run first) raises one line naming the parameter."""
+    bad_loop = _replace(loop, path, field, bad)
+    with pytest.raises(ValueError) as err:
+        check_loop(bad_loop, {"J0": np.diag([600.0, 400.0, 900.0])})
+    assert_one_line_naming(err, field)
 
 
 # --- cross-field checks -------------------------------------------------------------------
