@@ -1,4 +1,16 @@
-"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing)."""
+"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing).
+
+Compiled programs are shared through a persistent JAX compilation cache in a temporary
+folder made fresh for each test session (so a run never reads executables from an
+earlier one): in this process, and in every ``so3jax`` child process the tests start
+(through SO3JAX_CACHE_DIR, which the command line reads). Two children that compile
+the same program (``so3jax paper`` with two seeds, say) compile it once.
+"""
+
+import atexit
+import os
+import shutil
+import tempfile
 
 import jax
 
@@ -7,3 +19,11 @@ from so3jax import configure_xla
 configure_xla()  # the so3jax command's XLA:CPU settings, before JAX's first computation
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+
+SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
+atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
+jax.config.update("jax_compilation_cache_dir", SESSION_CACHE)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cache
+os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"

@@ -1,6 +1,7 @@
 """The rollout: disturbance recipe, in-scan metrics, phases, vmap/grad, divergence."""
 
 import dataclasses
+import functools
 import importlib
 import warnings
 
@@ -10,7 +11,8 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import so3
+from so3jax import metrics, so3
+from so3jax.loop import initial_state
 from so3jax.rollout import disturbance_at, disturbances, observe, rollout, step
 from tests.helpers import custom_scenario, sinusoidal_rate
 
@@ -199,18 +201,33 @@ def test_gradient_wrt_log_gains_matches_finite_differences(name):
 
 
 def test_gradient_is_finite_at_zero_rotation():
-    """R = R_d and Omega = Omega_d exactly at t = 0: the log, norms and max must not NaN."""
+    """R = R_d and Omega = Omega_d exactly at t = 0: the log, norms and max must not NaN.
+    One step of the rollout (the adaptive law's log inside RK4, the sample's angle, the
+    metrics' norms, square roots and maxima) differentiated at the reference itself, with
+    respect to the gains and to offsets of R and Omega (zero: R = R_d exactly); the
+    rollout's scan repeats this step."""
     scenario = custom_scenario(1.0, 0.01, rate_fn=lambda t: 0.0 * sinusoidal_rate(t))
     gains = sj.AdaptiveGains(*map(jnp.asarray, (0.5, 10.0, 100.0)))
-    g = jax.grad(lambda g: rollout(scenario, sj.adaptive_backstepping(), g, 0).metrics.rmse_phase[0])(gains)
-    assert all(np.isfinite(x) for x in jax.tree.leaves(g))
+    controller = sj.adaptive_backstepping()
+
+    def one_step_metrics(g, dR, dOmega):
+        state = initial_state(scenario, controller, g)
+        state = state._replace(R=state.R + so3.hat(dR), Omega=state.Omega + dOmega)
+        new, phase, sample = step(scenario, controller, g, jnp.zeros(3), state, jnp.asarray(0, jnp.int32))
+        acc = metrics.update(metrics.init(1, jnp.float64), phase, sample, jnp.asarray(True))
+        m = metrics.finalize(acc, (1,), scenario.dt, new.R)
+        return m.rmse_phase[0] + m.rmse_unrotated + m.rms_angle_phase[0] + m.max_angle_phase[0] + m.max_torque + m.effort
+
+    zero = jnp.zeros(3)
+    g = jax.jit(jax.grad(one_step_metrics, argnums=(0, 1, 2)))(gains, zero, zero)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(g))
 
 
 def test_divergence_is_reported_not_raised():
     scenario = dataclasses.replace(sj.paper_scenario(T=50.0), dt=1.0, n_steps=50)
     r = sj.simulate(scenario, sj.geometric_pd(), sj.PDGains(5000.0, 1e5), 0)
     assert bool(r.metrics.diverged)
-    ok = sj.simulate(sj.paper_scenario(T=50.0), sj.geometric_pd(), sj.PAPER_PD_GAINS, 0)
+    ok = sj.simulate(scenario, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0)  # the same compiled rollout
     assert not bool(ok.metrics.diverged)
     gains = sj.PDGains(jnp.array([0.5714, 5000.0]), jnp.array([25.0, 1e5]))
     batched = jax.vmap(lambda g: rollout(scenario, sj.geometric_pd(), g, 0).metrics.diverged)(gains)
@@ -237,16 +254,38 @@ def test_float32_follows_the_scenario_dtype():
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
 
 
-@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 500), (2, 1, 500), (None, 2, 333)])
+TINY = sj.paper_scenario(T=0.2)  # 20 steps: blocks of 5 (four), or of 3 (seven, the last one masked)
+LAWS = ((sj.geometric_pd(), sj.PAPER_PD_GAINS), (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS))
+
+
+@functools.lru_cache(maxsize=None)
+def _vmapped_rollout(controller, record_every):
+    """jit(vmap(rollout)) over scenarios and seeds, one compilation per controller and block size."""
+    return jax.jit(jax.vmap(lambda s, seed, gains: rollout(s, controller, gains, seed, record_every=record_every),
+                            in_axes=(_tiny_axes(), 0, None)))
+
+
+def _tiny_axes():
+    return dataclasses.replace(
+        TINY,
+        inertia=dataclasses.replace(TINY.inertia, J0=0, J1=0, J2=0, t_deploy=None, tau_J=None),
+        reference=None,
+        disturbance=None,
+        R0=None,
+        Omega0=None,
+    )
+
+
+@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 5), (2, 1, 5), (None, 2, 3)])
 def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, monkeypatch):
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
     also with an unrolled scan over blocks of an odd number of steps."""
     from so3jax.rollout import rollout_batch
 
     scales = jnp.array([1.0, 1.3, 0.8])
-    inertia = SHORT.inertia
+    inertia = TINY.inertia
     batched = dataclasses.replace(
-        SHORT,
+        TINY,
         inertia=dataclasses.replace(
             inertia,
             J0=scales[:, None, None] * inertia.J0,
@@ -254,28 +293,17 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
             J2=scales[:, None, None] * inertia.J2,
         ),
     )
-    axes = dataclasses.replace(
-        SHORT,
-        inertia=dataclasses.replace(inertia, J0=0, J1=0, J2=0, t_deploy=None, tau_J=None),
-        reference=None,
-        disturbance=None,
-        R0=None,
-        Omega0=None,
-    )
+    axes = _tiny_axes()
     seeds = jnp.array([0, 5, 9])
     if sub_batch:  # on CPU: sub-batches of 2, the last one padded
         monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "CPU_SUB_BATCH", sub_batch)
-    for controller, gains in (
-        (sj.geometric_pd(), sj.PAPER_PD_GAINS),
-        (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS),
-    ):
+    for controller, gains in LAWS:
         gains = jax.tree.map(jnp.asarray, gains)
-        native = rollout_batch(
-            batched, controller, gains, seeds, scenario_axes=axes, record_every=record_every, unroll=unroll
-        )
-        vmapped = jax.vmap(
-            lambda s, seed: rollout(s, controller, gains, seed, record_every=record_every), in_axes=(axes, 0)
-        )(batched, seeds)
+        native = jax.jit(  # traced here, so under this test's CPU_SUB_BATCH
+            lambda b, s, g: rollout_batch(b, controller, g, s, scenario_axes=axes, record_every=record_every,
+                                          unroll=unroll)
+        )(batched, seeds, gains)
+        vmapped = _vmapped_rollout(controller, record_every)(batched, seeds, gains)
         for a, b in zip(jax.tree.leaves(native), jax.tree.leaves(vmapped)):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)

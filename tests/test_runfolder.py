@@ -19,8 +19,8 @@ HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sy
 
 
 def cli(*args, cwd):
-    env = {**os.environ, "SO3JAX_CACHE_DIR": ""}
-    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+    """``so3jax ARGS`` in a child process (the session's compilation cache: tests/conftest.py)."""
+    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture
