@@ -3,10 +3,10 @@
 ``rollout``, ``rollout_batch`` and ``simulate`` on a tiny sampled-data mission (T = 0.3 s,
 dt = 0.05 s, control period 0.1 s: three ticks) under ``jax.jit``, ``jax.vmap`` and
 ``jax.grad``; every estimator (truth, raw, mekf), actuator (ideal, saturated, wheels) and
-registered controller appears in one of a few loops, so that few programs compile: per
-loop, the un-jitted ``rollout`` (the reference), one jitted program holding the
-single rollout, its vmap over seeds, its gradient and ``rollout_batch``, and ``simulate``.
-The results are finite and equal to the un-jitted call (to round-off: XLA fuses the two
+registered controller appears in one of three loops, so that few programs compile: per
+loop, the un-jitted ``rollout`` (the reference), one jitted program holding the rollout
+under ``vmap`` (over seeds) of ``value_and_grad`` and ``rollout_batch``, and ``simulate``.
+The results are finite and equal to the un-jitted call (to round-off: XLA fuses the
 programs differently); the gradient equals central differences of the jitted rollout.
 """
 
@@ -68,27 +68,36 @@ class Setup:
     def rmse(self, gains, omega0, seed):
         return self.rollout(gains, omega0, seed).metrics.rmse
 
-    def transformed(self, gains, omega0, seed, seeds):
-        """What the jitted program computes: one rollout, its vmap over seeds, the gradient
-        of its rmse in (gains, Omega0), and rollout_batch over the same seeds."""
-        one = self.rollout(gains, omega0, seed)
-        mapped = jax.vmap(lambda s: self.rollout(gains, omega0, s))(seeds)
-        grad = jax.grad(self.rmse, argnums=(0, 1))(gains, omega0, seed)
+    def transformed(self, gains, omega0, seeds):
+        """The jitted program: the rollout under vmap over seeds of value_and_grad (its rmse
+        differentiated in gains and Omega0, the whole Result alongside), and rollout_batch
+        over the same seeds."""
+
+        def rmse(gains, omega0, seed):
+            result = self.rollout(gains, omega0, seed)
+            return result.metrics.rmse, result
+
+        value_and_grad = jax.value_and_grad(rmse, argnums=(0, 1), has_aux=True)
+        (_, mapped), grad = jax.vmap(value_and_grad, in_axes=(None, None, 0))(gains, omega0, seeds)
         batch = sj.rollout_batch(self.with_omega0(omega0), self.controller, gains, seeds, scenario_axes=None,
                                  loop=self.loop, record_every=6)
-        return one, mapped, grad, batch
+        return mapped, grad, batch
 
 
 @pytest.fixture(scope="module", params=LOOPS, ids=["-".join(parts) for parts in LOOPS])
 def flown(request):
-    """(setup, un-jitted rollout at seed 0, the jitted program, its outputs at seed 0)."""
+    """(setup, un-jitted rollout at seed 0, the compiled program, its outputs)."""
     setup = Setup(*request.param)
     reference = jax.tree.map(np.asarray, setup.rollout(setup.gains, OMEGA0, 0))
-    # XLA's backend optimizations off: half the compile time of this large program, the
-    # same values to round-off (what the comparisons allow between differently fused programs)
-    program = jax.jit(setup.transformed).lower(setup.gains, OMEGA0, 0, SEEDS).compile(FAST_COMPILE)
-    outputs = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, 0, SEEDS))
+    # XLA's backend optimizations off: a third less compile time for this large program,
+    # the same values to round-off (what the comparisons allow between differently fused programs)
+    program = jax.jit(setup.transformed).lower(setup.gains, OMEGA0, SEEDS).compile(FAST_COMPILE)
+    outputs = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, SEEDS))
     return setup, reference, program, outputs
+
+
+def first(tree, i=0):
+    return jax.tree.map(lambda x: x[i], tree)
 
 
 def assert_trees_close(a, b, rtol=RTOL, atol=ATOL):
@@ -113,54 +122,48 @@ def test_the_reference_flies_the_whole_loop(flown):
         assert setup.loop.period_steps == 2 and setup.scenario.n_steps == 6
 
 
-def test_jit_equals_the_unjitted_rollout(flown):
-    _, reference, _, (one, _, _, _) = flown
-    assert_finite(one)
-    assert_trees_close(one, reference)
-
-
-def test_vmap_over_seeds_equals_one_rollout_per_seed(flown):
-    setup, reference, program, (_, mapped, _, _) = flown
-    first = jax.tree.map(lambda x: x[0], mapped)
-    assert_trees_close(first, reference)
-    second = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, 1, SEEDS)[0])  # the same program at seed 1
-    assert_trees_close(jax.tree.map(lambda x: x[1], mapped), second)
+def test_jit_and_vmap_equal_the_unjitted_rollout(flown):
+    _, reference, _, (mapped, _, _) = flown
+    assert_finite(first(mapped))
+    assert_trees_close(first(mapped), reference)
     assert not np.array_equal(mapped.metrics.rmse[0], mapped.metrics.rmse[1])  # the seeds draw different noise
 
 
+def test_simulate_equals_the_unjitted_rollout_and_vmap(flown):
+    """simulate (jitted inside) at seed 0 against the un-jitted rollout, at seed 1 (the
+    same compiled program) against the vmapped rollout's second trajectory."""
+    setup, reference, _, (mapped, _, _) = flown
+    simulate = lambda seed: jax.tree.map(np.asarray, sj.simulate(setup.scenario, setup.controller, setup.gains, seed,
+                                                                 loop=setup.loop, record_every=6))
+    assert_trees_close(simulate(0), reference)
+    assert_trees_close(simulate(1), first(mapped, 1))
+
+
 def test_rollout_batch_equals_vmap(flown):
-    _, _, _, (_, mapped, _, batch) = flown
-    assert_finite(jax.tree.map(lambda x: x[0], batch))
-    assert_trees_close(batch.metrics, mapped.metrics, rtol=1e-12, atol=1e-15)
-    assert_trees_close(batch.final, mapped.final, rtol=1e-12, atol=1e-15)
-    assert_trees_close(batch.flight, mapped.flight, rtol=1e-12, atol=1e-15)
+    _, _, _, (mapped, _, batch) = flown
+    assert_finite(first(batch))
+    for part in ("metrics", "final", "flight", "history"):
+        assert_trees_close(getattr(batch, part), getattr(mapped, part), rtol=1e-12, atol=1e-15)
 
 
 def test_grad_is_finite_and_matches_central_differences(flown):
-    """The gradient in (gains, Omega0) against central differences of the jitted rollout
-    (the same program, other inputs: nothing compiles again)."""
-    setup, _, program, (_, _, grad, _) = flown
+    """The gradient in (gains, Omega0), seed by seed, against central differences of the
+    jitted rollout (the same program at other inputs: nothing compiles again)."""
+    setup, _, program, (_, grad, _) = flown
     assert all(np.all(np.isfinite(g)) for g in jax.tree.leaves(grad))
-    rmse = lambda gains, omega0: float(program(gains, omega0, 0, SEEDS)[0].metrics.rmse)
+    rmse = lambda gains, omega0: program(gains, omega0, SEEDS)[0].metrics.rmse  # (seeds,)
     gains_grad, omega_grad = grad
     for i in range(3):
         h = 1e-4 * abs(float(OMEGA0[i]))
         e = jnp.zeros(3).at[i].set(h)
         fd = (rmse(setup.gains, OMEGA0 + e) - rmse(setup.gains, OMEGA0 - e)) / (2 * h)
-        np.testing.assert_allclose(omega_grad[i], fd, rtol=1e-6)
+        np.testing.assert_allclose(omega_grad[:, i], fd, rtol=1e-6)
     for name, value in setup.gains._asdict().items():
         h = 1e-4 * float(value)
         bump = lambda s: setup.gains._replace(**{name: value + s * h})
         fd = (rmse(bump(1.0), OMEGA0) - rmse(bump(-1.0), OMEGA0)) / (2 * h)
         np.testing.assert_allclose(getattr(gains_grad, name), fd, rtol=1e-4)  # Gamma's is ~1e-18: FD noise
-    assert np.any(np.abs(omega_grad) > 0)
-
-
-def test_simulate_equals_the_unjitted_rollout(flown):
-    setup, reference, _, _ = flown
-    result = sj.simulate(setup.scenario, setup.controller, setup.gains, 0, loop=setup.loop, record_every=6)
-    result = jax.tree.map(np.asarray, result)
-    assert_trees_close(result, reference)
+    assert np.all(np.abs(omega_grad) > 0)
 
 
 def test_checks_under_tracing_read_no_traced_value():
