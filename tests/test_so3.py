@@ -1,5 +1,7 @@
 """SO(3) math against scipy's Rotation, finite differences and closed forms."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -139,10 +141,18 @@ def test_jr_inv_coefficient_continuous_across_branch():
     assert abs(float(so3.jr_inv_coefficient(np.pi**2)) - 1 / np.pi**2) < 1e-15
 
 
-def _check_derivatives(f, x, h=1e-6, rtol=1e-6, atol=1e-7):
-    """jacfwd == jacrev, finite, and both match central differences."""
-    fwd = np.asarray(jax.jacfwd(f)(x))
-    rev = np.asarray(jax.jacrev(f)(x))
+@functools.lru_cache(maxsize=None)
+def _compiled(f):
+    """f, jacfwd(f) and jacrev(f) in its first argument, jitted once: every point and
+    every angle's case runs the same three compiled programs."""
+    return jax.jit(f), jax.jit(jax.jacfwd(f)), jax.jit(jax.jacrev(f))
+
+
+def _check_derivatives(f, x, *args, h=1e-6, rtol=1e-6, atol=1e-7):
+    """jacfwd == jacrev, finite, and both match central differences (in x; args held)."""
+    value, jacfwd, jacrev = _compiled(f)
+    fwd = np.asarray(jacfwd(x, *args))
+    rev = np.asarray(jacrev(x, *args))
     assert np.all(np.isfinite(fwd)) and np.all(np.isfinite(rev))
     np.testing.assert_allclose(fwd, rev, rtol=1e-10, atol=1e-12)
     x = np.asarray(x)
@@ -150,7 +160,7 @@ def _check_derivatives(f, x, h=1e-6, rtol=1e-6, atol=1e-7):
     for i in range(x.size):
         d = np.zeros_like(x)
         d.flat[i] = h
-        fd.append((np.asarray(f(x + d)) - np.asarray(f(x - d))) / (2 * h))
+        fd.append((np.asarray(value(x + d, *args)) - np.asarray(value(x - d, *args))) / (2 * h))
     fd = np.moveaxis(np.stack(fd, -1), -1, -1).reshape(fwd.shape)
     np.testing.assert_allclose(fwd, fd, rtol=rtol, atol=atol)
 
@@ -161,24 +171,37 @@ def test_exp_gradients(angle):
     _check_derivatives(so3.exp, jnp.asarray(v))
 
 
+def _jr_inv_apply(x, w):
+    return so3.jr_inv_apply(x, w)
+
+
 @pytest.mark.parametrize("angle", [0.0, 1e-3, 1.0, np.pi - 0.05])
 def test_jr_inv_gradients(angle):
     e = rotvecs_at([angle])[0]
     w = RNG.normal(size=3)
-    _check_derivatives(lambda x: so3.jr_inv_apply(x, w), jnp.asarray(e))
+    _check_derivatives(_jr_inv_apply, jnp.asarray(e), jnp.asarray(w))
+
+
+def _log_local(x, R):
+    """log(R exp(hat(x)))."""
+    return so3.log(so3.matmul(R, so3.exp(x)))
+
+
+_exp = jax.jit(so3.exp)
+_jr_inv = jax.jit(so3.jr_inv)
+_log_sq_grad = jax.jit(jax.grad(lambda m: jnp.sum(so3.log(m) ** 2)))
 
 
 @pytest.mark.parametrize("angle", [0.0, 1e-9, 1e-3, 0.1, 1.0, 3.0, np.pi - 1e-2])
 def test_log_gradients(angle):
     """d log(exp(v) exp(hat(x))) / dx at x = 0 equals J_r^{-1}(v); FD on R's entries near it."""
     v = jnp.asarray(rotvecs_at([angle])[0])
-    R = so3.exp(v)
-    local = lambda x: so3.log(so3.matmul(R, so3.exp(x)))
-    jac = np.asarray(jax.jacfwd(local)(jnp.zeros(3)))
-    np.testing.assert_allclose(jac, so3.jr_inv(v), atol=1e-7)
-    _check_derivatives(local, jnp.zeros(3))
+    R = _exp(v)
+    jac = np.asarray(_compiled(_log_local)[1](jnp.zeros(3), R))
+    np.testing.assert_allclose(jac, _jr_inv(v), atol=1e-7)
+    _check_derivatives(_log_local, jnp.zeros(3), R)
     # through the raw matrix entries, as an optimizer sees them
-    grad = jax.grad(lambda m: jnp.sum(so3.log(m) ** 2))(R)
+    grad = _log_sq_grad(R)
     assert np.all(np.isfinite(np.asarray(grad)))
 
 
