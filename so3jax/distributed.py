@@ -192,8 +192,8 @@ def _exchange(value: int, what: str):
     if failed and value >= 0:
         who = ", ".join(str(k) for k in failed)
         theirs = "its message" if len(failed) == 1 else "their messages"
-        raise PeerFailure(f"process {_me()} stopped at {what}: process(es) {who} of {len(values)} stopped with an error "
-                          f"(see {theirs})")
+        raise PeerFailure(f"process {_me()} stopped at {what}: process(es) {who} of {len(values)} "
+                          f"stopped with an error (see {theirs})")
     return values
 
 
