@@ -65,7 +65,7 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
     """d[key] (a table, {} when absent) after checking that it has only ``allowed`` keys."""
     t = d.get(key, {})
     if not isinstance(t, dict):
-        raise ValueError(f"{where}{key} must be a table, got {_short(t)}")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
+        raise ValueError(f"{where}{key} must be a table, got {short(t)}")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
     unknown = set(t) - set(allowed)
     if unknown:
         raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
@@ -75,13 +75,13 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
 def number(value, where: str, low=-math.inf, high=math.inf, integer=False):
     """A number in [low, high] (an int if ``integer``), else ValueError naming ``where``."""
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not _finite(value) or not (low <= value <= high):
+    if isinstance(value, bool) or not ok or not finite(value) or not (low <= value <= high):
         kind = "an integer" if integer else "a finite number"
-        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {_short(value)}")
+        raise ValueError(f"{where} must be {kind} in [{low}, {high}], got {short(value)}")
     return value if integer else float(value)
 
 
-def _finite(x) -> bool:
+def finite(x) -> bool:
     """math.isfinite, False for an integer too large for a float."""
     try:
         return math.isfinite(x)
@@ -98,7 +98,7 @@ def _numeric(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
 
 
-def _short(value, limit: int = 80) -> str:
+def short(value, limit: int = 80) -> str:
     """repr(value) on one line, cut to ``limit`` characters."""
     text = " ".join(repr(value).split())
     return text if len(text) <= limit else text[: limit - 3] + "..."
@@ -107,15 +107,15 @@ def _short(value, limit: int = 80) -> str:
 def array(value, where: str, shape: tuple, low=-math.inf) -> np.ndarray:
     """A numeric array of ``shape`` (None: any length on that axis), every entry finite and >= low."""
     if not _numeric(value):
-        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {_short(value)}")
+        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {short(value)}")
     try:
         a = np.asarray(value, dtype=float)
     except (TypeError, ValueError):  # ragged nested lists
-        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {_short(value)}") from None
+        raise ValueError(f"{where} must be a numeric array of shape {shape}, got {short(value)}") from None
     if a.ndim != len(shape) or any(s is not None and n != s for n, s in zip(a.shape, shape)):
         raise ValueError(f"{where} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a)) or np.any(a < low):
-        raise ValueError(f"{where} must be finite{f' and >= {low}' if low > -math.inf else ''}, got {_short(a.tolist())}")
+        raise ValueError(f"{where} must be finite{f' and >= {low}' if low > -math.inf else ''}, got {short(a.tolist())}")
     return a
 
 
@@ -134,21 +134,21 @@ def concrete(value, where: str) -> np.ndarray | None:
     except (TypeError, ValueError):  # ragged
         a = None
     if a is None:
-        raise ValueError(f"{where} must be real numbers, got {_short(value)}")
+        raise ValueError(f"{where} must be real numbers, got {short(value)}")
     return a
 
 
 def boolean(value, where: str) -> bool:
     """true or false, else ValueError naming ``where``."""
     if not isinstance(value, bool):
-        raise ValueError(f"{where} must be true or false, got {_short(value)}")
+        raise ValueError(f"{where} must be true or false, got {short(value)}")
     return value
 
 
 def choice(value, where: str, choices) -> str:
     """One of the names ``choices``, else ValueError naming ``where``."""
     if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"{where} must be one of {', '.join(choices)}, got {_short(value)}")
+        raise ValueError(f"{where} must be one of {', '.join(choices)}, got {short(value)}")
     return value
 
 
@@ -159,7 +159,7 @@ def gains(given, defaults, shapes: dict, where: str):
     ``shapes[field]`` (the default's shape for a field not listed). Numbers stay as
     given; arrays become float arrays."""
     if not isinstance(given, dict):
-        raise ValueError(f"[{where}] must be a table, got {_short(given)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"[{where}] must be a table, got {short(given)}")  # noqa: TRY004 (bad input)
     fields = type(defaults)._fields
     unknown = set(given) - set(fields)
     if unknown:
@@ -171,15 +171,15 @@ def gains(given, defaults, shapes: dict, where: str):
         key = f"{where}.{name}"
         kinds = " or ".join("a number" if s == () else f"a numeric array of shape {s}" for s in allowed)
         if not _numeric(value):
-            raise ValueError(f"{key} must be {kinds}, got {_short(value)}")
+            raise ValueError(f"{key} must be {kinds}, got {short(value)}")
         try:
             a = np.asarray(value, dtype=float)
         except ValueError:  # ragged nested lists
-            raise ValueError(f"{key} must be {kinds}, got {_short(value)}") from None
+            raise ValueError(f"{key} must be {kinds}, got {short(value)}") from None
         if a.shape not in allowed:
             raise ValueError(f"{key} must be {kinds}, got shape {a.shape}")
         if not np.all(np.isfinite(a)):
-            raise ValueError(f"{key} must be finite, got {_short(a.tolist())}")
+            raise ValueError(f"{key} must be finite, got {short(a.tolist())}")
         values[name] = value if a.ndim == 0 and not isinstance(value, (list, tuple, np.ndarray)) else a
     return defaults._replace(**values)
 
@@ -188,9 +188,9 @@ def names(value, where: str, known) -> tuple[str, ...]:
     """A list of distinct names among ``known``; a single string is a one-element list."""
     items = (value,) if isinstance(value, str) else value
     if not isinstance(items, (list, tuple)) or not items or not all(isinstance(x, str) for x in items):
-        raise ValueError(f"{where} must be a name or a list of names among {', '.join(known)}, got {_short(value)}")
+        raise ValueError(f"{where} must be a name or a list of names among {', '.join(known)}, got {short(value)}")
     items = tuple(x.strip() for x in items)
     bad = [x for x in items if x not in known]
     if bad or len(set(items)) != len(items):
-        raise ValueError(f"{where} must be distinct names among {', '.join(known)}, got {_short(list(items))}")
+        raise ValueError(f"{where} must be distinct names among {', '.join(known)}, got {short(list(items))}")
     return items

@@ -164,10 +164,10 @@ class MEKF:
             if v is None:
                 continue
             if v.shape != () or not np.isfinite(v) or v < 0:
-                raise ValueError(f"estimator {name} must be a finite non-negative number, got {cfg._short(v.tolist())}")
+                raise ValueError(f"estimator {name} must be a finite non-negative number, got {cfg.short(v.tolist())}")
         t = cfg.concrete(self.theta0, "estimator theta0 [rad]")
         if t is not None and (t.shape != (3,) or not np.all(np.isfinite(t))):
-            raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {cfg._short(t.tolist())}")
+            raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {cfg.short(t.tolist())}")
         sigma_st = cfg.concrete(self.sigma_st, "estimator sigma_st")
         if sigma_st is not None and float(sigma_st) == 0.0:
             raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")

@@ -162,7 +162,7 @@ def _merge(base: dict, over: dict) -> dict:
 def from_dict(d: dict) -> Mission:
     """A Mission from the TOML tables (missing entries: the flight mission's); ValueError on bad input."""
     if not isinstance(d, dict):
-        raise ValueError(f"a mission must be a table, got {cfg._short(d)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a mission must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP) - set(_TABLES)
     if unknown:
         raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")

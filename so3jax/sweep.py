@@ -154,7 +154,7 @@ def _distribution(value, where: str) -> disp.Distribution:
 def config_from_dict(d: dict) -> SweepConfig:
     """A SweepConfig from the TOML structure (see sweeps/default.toml); ValueError on bad input."""
     if not isinstance(d, dict):
-        raise ValueError(f"a sweep config must be a table, got {cfg._short(d)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a sweep config must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP_KEYS) - set(_TABLES)
     if unknown:
         raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}")

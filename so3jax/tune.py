@@ -150,21 +150,21 @@ def _build(cls, table: dict, prefix: str):
         elif isinstance(value, list) and key in ("seeds", "inertia_scales"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
-            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg._short(value)}")
+            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg.short(value)}")
         values[key] = value
     return cls(**values)
 
 
 def _positive(name, value, integer=False):
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not cfg._finite(value) or value <= 0:
+    if isinstance(value, bool) or not ok or not cfg.finite(value) or value <= 0:
         kind = "a positive integer" if integer else "a positive finite number"
-        raise ValueError(f"config key {name!r} must be {kind}, got {cfg._short(value)}")
+        raise ValueError(f"config key {name!r} must be {kind}, got {cfg.short(value)}")
 
 
 def _choice(name, value, choices):
     if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"config key {name!r} must be one of {choices}, got {cfg._short(value)}")
+        raise ValueError(f"config key {name!r} must be one of {choices}, got {cfg.short(value)}")
 
 
 def _check_kwargs(fn, options, where: str) -> None:
@@ -172,7 +172,7 @@ def _check_kwargs(fn, options, where: str) -> None:
     number, true or false) where it has one, a number where it is annotated int or float.
     A table is required; options without a typed default are left to the call."""
     if not isinstance(options, dict):
-        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {cfg._short(options)}")  # noqa: TRY004
+        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {cfg.short(options)}")  # noqa: TRY004
     parameters = inspect.signature(fn).parameters
     for key, value in options.items():
         p = parameters.get(key)
@@ -184,7 +184,7 @@ def _check_kwargs(fn, options, where: str) -> None:
         elif (isinstance(default, (int, float)) or p.annotation in (int, float, "int", "float")) and (
             isinstance(value, bool) or not isinstance(value, (int, float))
         ):
-            raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg._short(value)}")
+            raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg.short(value)}")
 
 
 # The types of paper_scenario's arguments in a config's [scenario] table (by their defaults;
@@ -201,7 +201,7 @@ def _check_scenario_types(table: dict) -> None:
         elif isinstance(inspect.signature(paper_scenario).parameters[key].default, bool):
             cfg.boolean(value, where)
         elif isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{where} must be a number, got {cfg._short(value)}")
+            raise ValueError(f"{where} must be a number, got {cfg.short(value)}")
 
 
 def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
@@ -210,13 +210,13 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     _positive("optimizer.clip_norm", config.clip_norm)
     factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
     if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
-        raise ValueError(f"config key 'optimizer.name': {cfg._short(config.name)} is not an optax optimizer (e.g. adam, sgd)")
+        raise ValueError(f"config key 'optimizer.name': {cfg.short(config.name)} is not an optax optimizer (e.g. adam, sgd)")
     _check_kwargs(factory, config.options, "optimizer.options")
     learning_rate = config.learning_rate
     if config.schedule is not None:
         schedule = getattr(optax, config.schedule, None) if isinstance(config.schedule, str) else None
         if not callable(schedule):
-            raise ValueError(f"config key 'optimizer.schedule': {cfg._short(config.schedule)} is not an optax schedule")
+            raise ValueError(f"config key 'optimizer.schedule': {cfg.short(config.schedule)} is not an optax schedule")
         _check_kwargs(schedule, config.schedule_options, "optimizer.schedule_options")
         try:
             learning_rate = schedule(config.learning_rate, **config.schedule_options)
@@ -338,7 +338,7 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False):
     elif isinstance(spec, dict):
         table = spec
     else:
-        raise ValueError(f"gains must be 'paper', a table or a .json path, got {cfg._short(spec)}")
+        raise ValueError(f"gains must be 'paper', a table or a .json path, got {cfg.short(spec)}")
     for name in table:
         if name not in cls._fields:
             raise ValueError(f"unknown gain {name!r} for the {controller} controller ({', '.join(cls._fields)})")
