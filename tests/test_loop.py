@@ -174,7 +174,12 @@ def test_batched_flight_equals_one_trajectory_at_a_time():
                                        atol=1e-14, err_msg=name)
 
 
-def test_gradients_through_the_flight_loop_match_central_differences():
+@pytest.mark.parametrize(
+    # forward: tune's default mode; reverse mode through the MEKF compiles for minutes with
+    # so3jax's XLA:CPU flags
+    "mode", ["forward", pytest.param("reverse", marks=pytest.mark.slow)]
+)
+def test_gradients_through_the_flight_loop_match_central_differences(mode):
     """d cost / d log gains through sensors, MEKF and zero-order hold (no limit binds)."""
     scenario = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))
     loop = _flight_loop(5)
@@ -185,7 +190,7 @@ def test_gradients_through_the_flight_loop_match_central_differences():
         return m.rmse / 1e-3 + m.effort / 1.0
 
     x = jnp.log(jnp.asarray([0.5714, 25.0]))
-    grad = jax.jit(jax.grad(cost))(x)
+    grad = jax.jit(jax.jacfwd(cost) if mode == "forward" else jax.grad(cost))(x)
     assert np.all(np.isfinite(grad))
     f = jax.jit(cost)
     h = 1e-5
