@@ -65,7 +65,7 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
     """d[key] (a table, {} when absent) after checking that it has only ``allowed`` keys."""
     t = d.get(key, {})
     if not isinstance(t, dict):
-        raise ValueError(f"{where}{key} must be a table, got {short(t)}")  # noqa: TRY004 (bad input: ValueError, as the CLI expects)
+        raise ValueError(f"{where}{key} must be a table, got {short(t)}")  # noqa: TRY004 (bad input)
     unknown = set(t) - set(allowed)
     if unknown:
         raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
@@ -115,7 +115,8 @@ def array(value, where: str, shape: tuple, low=-math.inf) -> np.ndarray:
     if a.ndim != len(shape) or any(s is not None and n != s for n, s in zip(a.shape, shape)):
         raise ValueError(f"{where} must have shape {shape}, got {a.shape}")
     if not np.all(np.isfinite(a)) or np.any(a < low):
-        raise ValueError(f"{where} must be finite{f' and >= {low}' if low > -math.inf else ''}, got {short(a.tolist())}")
+        bound = f" and >= {low}" if low > -math.inf else ""
+        raise ValueError(f"{where} must be finite{bound}, got {short(a.tolist())}")
     return a
 
 

@@ -195,7 +195,8 @@ def from_dict(d: dict) -> Mission:
         if period_steps > n_steps:
             raise ValueError(f"control.period = {period} s is longer than the horizon T = {T} s")
         if n_steps % period_steps:
-            raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods control.period = {period} s")
+            raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods "
+                             f"control.period = {period} s")
 
     inertia = cfg.table(full, "inertia", ("J0", "J1", "J2"))
     J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
@@ -250,7 +251,7 @@ def from_dict(d: dict) -> Mission:
                           "momentum_compensation": w["momentum_compensation"]}
     over = np.abs(actuator["wheels"]["initial_speed"]) > actuator["wheels"]["max_speed"]
     if np.any(over):
-        raise ValueError(f"actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
+        raise ValueError("actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
                          f"(wheel {int(np.argmax(over)) + 1}: {actuator['wheels']['initial_speed'][over][0]:g} against "
                          f"{actuator['wheels']['max_speed'][over][0]:g})")
 

@@ -172,7 +172,8 @@ def _check_kwargs(fn, options, where: str) -> None:
     number, true or false) where it has one, a number where it is annotated int or float.
     A table is required; options without a typed default are left to the call."""
     if not isinstance(options, dict):
-        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {cfg.short(options)}")  # noqa: TRY004
+        got = cfg.short(options)
+        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {got}")  # noqa: TRY004
     parameters = inspect.signature(fn).parameters
     for key, value in options.items():
         p = parameters.get(key)
@@ -210,7 +211,8 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     _positive("optimizer.clip_norm", config.clip_norm)
     factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
     if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
-        raise ValueError(f"config key 'optimizer.name': {cfg.short(config.name)} is not an optax optimizer (e.g. adam, sgd)")
+        name = cfg.short(config.name)
+        raise ValueError(f"config key 'optimizer.name': {name} is not an optax optimizer (e.g. adam, sgd)")
     _check_kwargs(factory, config.options, "optimizer.options")
     learning_rate = config.learning_rate
     if config.schedule is not None:

@@ -132,7 +132,8 @@ def toml(value) -> str:
 
 
 def cases(tree, annotate=lambda path: ""):
-    return [(".".join(path), what, bad) for path, value in leaves(tree) for what, bad in bad_values(value, annotate(path))]
+    return [(".".join(path), what, bad)
+            for path, value in leaves(tree) for what, bad in bad_values(value, annotate(path))]
 
 
 MISSION_CASES = cases(mission_tree())
@@ -257,7 +258,8 @@ def _replace(loop, path, field, value):
 
 
 @pytest.mark.parametrize("loop,path,field,what,bad", COMPONENT_CASES,
-                         ids=[f"{type(c[0].actuator).__name__}-{'.'.join(c[1])}.{c[2]}: {c[3]}" for c in COMPONENT_CASES])
+                         ids=[f"{type(c[0].actuator).__name__}-{'.'.join(c[1])}.{c[2]}: {c[3]}"
+                              for c in COMPONENT_CASES])
 def test_component_bad_parameter(loop, path, field, what, bad):
     """A library component with a parameter of the wrong type or shape: the loop's check
     (what rollout and simulate run first) raises one line naming the parameter."""
@@ -298,7 +300,8 @@ def test_library_wheels_refuse_an_initial_speed_over_the_limit():
     from so3jax.actuators import Wheels, pyramid_axes
 
     wheels = Wheels(pyramid_axes(), np.full(4, 0.16), np.full(4, 0.25), np.full(4, 100.0), np.r_[0.0, 150.0, 0.0, 0.0])
-    with pytest.raises(ValueError, match=r"wheel initial_speed .* must not exceed max_speed .*\(wheel 2: 150 against 100\)"):
+    message = r"wheel initial_speed .* must not exceed max_speed .*\(wheel 2: 150 against 100\)"
+    with pytest.raises(ValueError, match=message):
         wheels.check()
 
 

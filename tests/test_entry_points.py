@@ -13,7 +13,6 @@ programs differently); the gradient equals central differences of the jitted rol
 from __future__ import annotations
 
 import dataclasses
-import importlib
 import warnings
 
 import jax
@@ -26,8 +25,6 @@ from so3jax import mission as missions
 from so3jax.actuators import ACTUATORS
 from so3jax.controllers import registry
 from so3jax.estimators import ESTIMATORS
-
-rollout_module = importlib.import_module("so3jax.rollout")
 
 TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
 # Each registered component in one loop (estimator, actuator, controller), the heavy
@@ -45,8 +42,8 @@ def test_every_registered_component_is_flown():
 
 
 class Setup:
-    """A tiny mission's scenario, loop, controller and gains, and its rmse as a function
-    of (gains, Omega0) for one seed."""
+    """A tiny mission's scenario, loop, controller and gains; the loop is closed over by
+    the traced functions (as benchmarks/flight.py does), its checks run under the trace."""
 
     def __init__(self, estimator, actuator, controller):
         overrides = [*TINY, f'estimator.kind="{estimator}"', f'actuator.kind="{actuator}"',
@@ -64,9 +61,6 @@ class Setup:
 
     def rollout(self, gains, omega0, seed):
         return sj.rollout(self.with_omega0(omega0), self.controller, gains, seed, loop=self.loop, record_every=6)
-
-    def rmse(self, gains, omega0, seed):
-        return self.rollout(gains, omega0, seed).metrics.rmse
 
     def transformed(self, gains, omega0, seeds):
         """The jitted program: the rollout under vmap over seeds of value_and_grad (its rmse
@@ -89,7 +83,7 @@ def flown(request):
     """(setup, un-jitted rollout at seed 0, the compiled program, its outputs)."""
     setup = Setup(*request.param)
     reference = jax.tree.map(np.asarray, setup.rollout(setup.gains, OMEGA0, 0))
-    # XLA's backend optimizations off: a third less compile time for this large program,
+    # XLA's backend optimizations off: about half the compile time of this large program,
     # the same values to round-off (what the comparisons allow between differently fused programs)
     program = jax.jit(setup.transformed).lower(setup.gains, OMEGA0, SEEDS).compile(FAST_COMPILE)
     outputs = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, SEEDS))
@@ -109,7 +103,8 @@ def assert_trees_close(a, b, rtol=RTOL, atol=ATOL):
 
 
 def assert_finite(result):
-    for leaf in jax.tree.leaves((result.metrics.rmse, result.metrics.effort, result.final, result.flight.command_effort)):
+    m = result.metrics
+    for leaf in jax.tree.leaves((m.rmse, m.effort, result.final, result.flight.command_effort)):
         assert np.all(np.isfinite(leaf))
 
 
@@ -175,7 +170,7 @@ def test_checks_under_tracing_read_no_traced_value():
 
     def rmse_of_spin(spin):
         loop = dataclasses.replace(setup.loop, actuator=dataclasses.replace(wheels, spin_inertia=spin))
-        return rollout_module.rollout(setup.scenario, setup.controller, setup.gains, 0, loop=loop).metrics.rmse
+        return sj.rollout(setup.scenario, setup.controller, setup.gains, 0, loop=loop).metrics.rmse
 
     assert jax.eval_shape(jax.jit(rmse_of_spin), jnp.asarray(wheels.spin_inertia)).shape == ()
     bad = dataclasses.replace(wheels, spin_inertia=jnp.full(4, 1e4))
