@@ -98,12 +98,11 @@ def test_disturbance_reaches_the_plant():
     """One step with and without noise differs by dt/J-scaled noise, as the plant says."""
     controller = sj.geometric_pd()
     gains = jax.tree.map(jnp.asarray, sj.PAPER_PD_GAINS)
-    state = sj.rollout(SHORT, controller, gains, 0, record_every=1).history
-    s0 = sj.State(state.R[0], state.Omega[0], (), ())
+    s0 = sj.State(SHORT.R0, SHORT.Omega0, (), ())  # the rollout's state at k = 0
     quiet = dataclasses.replace(SHORT, disturbance=sj.no_disturbance())
     k = jnp.asarray(0, jnp.int32)
-    noisy_next, _, _ = step(SHORT, controller, gains, disturbance_at(SHORT, jax.random.key(5), k), s0, k)
-    quiet_next, _, _ = step(quiet, controller, gains, disturbance_at(quiet, jax.random.key(5), k), s0, k)
+    one_step = jax.jit(lambda sc: step(sc, controller, gains, disturbance_at(sc, jax.random.key(5), k), s0, k)[0])
+    noisy_next, quiet_next = one_step(SHORT), one_step(quiet)
     eta = np.asarray(jax.random.normal(jax.random.fold_in(jax.random.key(5), 0), (3,), jnp.float64))
     J0 = np.asarray(SHORT.inertia.J0)
     # at rest, Omega' = J^-1 (tau + d) to first order; the torque is the same in both runs
@@ -240,10 +239,16 @@ def test_divergence_is_reported_not_raised():
 
 def test_observe_matches_the_step_sample():
     controller, gains = sj.adaptive_backstepping(), jax.tree.map(jnp.asarray, sj.PAPER_ADAPTIVE_GAINS)
-    state = sj.rollout(SHORT, controller, gains, 0).final
+    state = sj.simulate(SHORT, controller, gains, 0).final
     k = jnp.asarray(SHORT.n_steps, jnp.int32)
-    _, _, sample = step(SHORT, controller, gains, disturbance_at(SHORT, jax.random.key(0), k), state, k)
-    _, tau, _, observed, _ = observe(SHORT, controller, gains, state, k)
+
+    @jax.jit
+    def both(state):
+        _, _, sample = step(SHORT, controller, gains, disturbance_at(SHORT, jax.random.key(0), k), state, k)
+        _, tau, _, observed, _ = observe(SHORT, controller, gains, state, k)
+        return sample, tau, observed
+
+    sample, tau, observed = both(state)
     np.testing.assert_allclose(tau, sample.tau, rtol=1e-14)
     np.testing.assert_allclose(observed.Omega_e, sample.Omega_e, rtol=1e-14)
 
