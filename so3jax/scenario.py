@@ -218,11 +218,11 @@ def _inertia_checks(scenario: Scenario, batch_last: bool):
             ts = np.asarray([a * scenario.dt])
         else:
             ts = np.linspace(a * scenario.dt, b * scenario.dt, INERTIA_SAMPLES + 1)
-        with jax.ensure_compile_time_eval():  # concrete values also inside a jit: checked, not traced
-            Js = jax.vmap(lambda t, p=p: profile(t, p))(jnp.asarray(ts, dtype))
-            if batch_last and jnp.ndim(Js) > 3:
-                Js = jnp.moveaxis(Js, -1, 1)
-        yield f"J(t) of phase {p + 1} of {n_phases} (from t = {a * scenario.dt:g} s)", Js
+        Js = jax.vmap(lambda t, p=p: profile(t, p))(jnp.asarray(ts, dtype))
+        where = f"J(t) of phase {p + 1} of {n_phases} (from t = {a * scenario.dt:g} s)"
+        if batch_last and jnp.ndim(Js) > 3:
+            Js = jnp.moveaxis(Js, -1, 1)
+        yield where, Js
 
 
 def check_inertia_profile(scenario: Scenario, *, batch_last: bool = False) -> None:
