@@ -251,7 +251,9 @@ def validate(config: TuneConfig) -> None:
         _positive("record_every", config.record_every, integer=True)
     for section in ("train", "validation"):
         scenarios = getattr(config, section)
-        if not scenarios.seeds or not all(isinstance(s, int) and 0 <= s < 2**31 for s in scenarios.seeds):
+        if not scenarios.seeds or not all(
+            isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**31 for s in scenarios.seeds
+        ):
             raise ValueError(f"config key '{section}.seeds' must be a non-empty list of integers in [0, 2^31)")
         if not scenarios.inertia_scales:
             raise ValueError(f"config key '{section}.inertia_scales' must be a non-empty list")

@@ -85,6 +85,11 @@ def _first_to_string(value):
     return [_first_to_string(value[0]) if isinstance(value[0], list) else str(value[0]), *value[1:]]
 
 
+def _first_to_bool(value):
+    """value with its first number replaced by true."""
+    return [_first_to_bool(value[0]) if isinstance(value[0], list) else True, *value[1:]]
+
+
 def bad_values(value, annotation: str = ""):
     """(what, bad value) pairs for a leaf of default ``value`` (``annotation``: the
     schema's type where the default is None)."""
@@ -104,6 +109,7 @@ def bad_values(value, annotation: str = ""):
            ("extra axis", [value])]
     if _numeric(value):
         out.append(("a string in an array", _first_to_string(value)))
+        out.append(("a bool in an array", _first_to_bool(value)))
         if "..." not in annotation:  # a fixed shape (not a tuple[float, ...] of any length)
             out.append(("an element short", _drop_last(value)))
     else:
