@@ -22,8 +22,8 @@ class Accumulator(NamedTuple):
     max_bias_error: jax.Array  # rad/s
     sq_command: jax.Array  # sum |tau_c|^2, N^2 m^2
     sq_actuator: jax.Array  # sum |held input|^2 (wheel motor torques u, or body torques), N^2 m^2
-    torque_limit_ticks: jax.Array  # ticks with a torque limit binding
-    speed_limit_ticks: jax.Array  # ticks with a wheel at its speed limit
+    torque_limit_ticks: jax.Array  # periods (within the horizon) with a torque limit binding
+    speed_limit_ticks: jax.Array  # periods (within the horizon) with a wheel at its speed limit
     max_wheel_speed_ratio: jax.Array  # max_i |Omega_w,i| / Omega_max,i (0 without wheels)
 
 
@@ -56,9 +56,12 @@ class TickSample(NamedTuple):
     wheel_speed_ratio: jax.Array  # (...) max_i |Omega_w,i| / Omega_max,i
 
 
-def update(acc: Accumulator, s: TickSample, live=True) -> Accumulator:
-    """Add a tick (``live`` False: a tick past the horizon, counted nowhere)."""
+def update(acc: Accumulator, s: TickSample, live=True, share=None) -> Accumulator:
+    """Add a tick (``live`` False: a tick past the horizon, counted nowhere). ``share``:
+    the part of its period [0, 1] inside the horizon (default: all of it where live),
+    which weighs what the tick holds over its period (efforts, time at a limit)."""
     one = jnp.asarray(live, acc.ticks.dtype)
+    held = one if share is None else one * jnp.asarray(share, acc.ticks.dtype)
     bias = so3.safe_norm(s.bias_error)
     return Accumulator(
         acc.ticks + one,
@@ -66,10 +69,10 @@ def update(acc: Accumulator, s: TickSample, live=True) -> Accumulator:
         jnp.maximum(acc.max_attitude_error, one * s.attitude_error),
         acc.sq_bias_error + one * bias**2,
         jnp.maximum(acc.max_bias_error, one * bias),
-        acc.sq_command + one * so3.dot(s.tau_cmd, s.tau_cmd),
-        acc.sq_actuator + one * so3.sum_leading(s.held * s.held),
-        acc.torque_limit_ticks + one * s.at_torque_limit.astype(one.dtype),
-        acc.speed_limit_ticks + one * s.at_speed_limit.astype(one.dtype),
+        acc.sq_command + held * so3.dot(s.tau_cmd, s.tau_cmd),
+        acc.sq_actuator + held * so3.sum_leading(s.held * s.held),
+        acc.torque_limit_ticks + held * s.at_torque_limit.astype(one.dtype),
+        acc.speed_limit_ticks + held * s.at_speed_limit.astype(one.dtype),
         jnp.maximum(acc.max_wheel_speed_ratio, one * s.wheel_speed_ratio),
     )
 

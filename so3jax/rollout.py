@@ -238,7 +238,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
         sample, record = _tick_sample(loop, state, new, out), _flight_record(loop, controller, state, out)
-        flight = flight_metrics.update(flight, sample, k < n)
+        share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
+        flight = flight_metrics.update(flight, sample, k < n, share)
         if masked:
             new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
         take_step = lambda d, state, k: held_step(scenario, loop, d, state, k, out.tau_applied)
