@@ -21,8 +21,15 @@ from so3jax import _xla_flags, distributed
 COMMAND_MODULES = ("so3jax.paper", "so3jax.fly", "so3jax.tune", "so3jax.sweep")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the usage."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="so3jax", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="so3jax", description=__doc__.splitlines()[0])
     subparsers = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(subparsers)

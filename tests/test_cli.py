@@ -162,3 +162,14 @@ def test_help_shows_no_markup(command, capsys):
     assert "usage: so3jax" in text
     for mark in ("`", "\u00a7", "``"):
         assert mark not in text, (command, mark)
+
+
+@pytest.mark.parametrize("argv", [["fly", "--T", "abc"], ["paper", "--seed", "1.5"], ["bogus"], [],
+                                  ["sweep", "--no-such-flag"], ["paper", "--precision", "float16"]])
+def test_argument_errors_are_one_line(argv, capsys):
+    """argparse's own errors (type, choice, unknown flag): one line, exit 2, no usage block."""
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("so3jax") and ": error: " in err[0] and "--help" in err[0]
