@@ -170,10 +170,16 @@ def from_dict(d: dict) -> Mission:
         if t in d and not isinstance(d[t], dict):
             raise ValueError(f"[{t}] must be a table")
     full = _merge(FLIGHT, d)
-    # an explicitly given table replaces the default one where presence matters
-    sensors_given = cfg.table(d, "sensors", ("gyro", "star_tracker"))
-    if "sensors" in d:
-        full["sensors"] = {k: _merge(FLIGHT["sensors"][k], v) if isinstance(v, dict) else v for k, v in sensors_given.items()}
+    # each sensor is its own entry: a table merged with its defaults, or false for none
+    sensors_given = cfg.table(d, "sensors", tuple(FLIGHT["sensors"]))
+    full["sensors"] = {}
+    for name, default in FLIGHT["sensors"].items():
+        given = sensors_given.get(name, {})
+        if given is False:
+            continue
+        if not isinstance(given, dict):
+            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {cfg.short(given)}")
+        full["sensors"][name] = _merge(default, given)
 
     T = cfg.number(full["T"], "T", low=0.0)
     dt = cfg.number(full["dt"], "dt", low=0.0)

@@ -26,6 +26,18 @@ def test_the_paper_mission_is_the_continuous_wiring():
     assert m.estimator["kind"] == "truth" and m.actuator["kind"] == "ideal"
 
 
+def test_each_sensor_is_its_own_entry():
+    """Overriding one sensor's key keeps the other sensor; false leaves a sensor out."""
+    m = missions.load(None, ["sensors.gyro.arw=2e-6"])
+    assert m.gyro["arw"] == 2e-6 and m.gyro["rrw"] == 1e-9 and m.star_tracker == {"sigma": 3e-5, "every": 1}
+    m = missions.load(None, ["sensors.star_tracker=false", "estimator.kind=truth"])
+    assert m.star_tracker is None and m.gyro["arw"] == 1e-6
+    with pytest.raises(ValueError, match="sensors.gyro must be a table, or false for no gyro"):
+        missions.load(None, ["sensors.gyro=true"])
+    with pytest.raises(ValueError, match="estimator 'mekf' needs"):
+        missions.load(None, ["sensors.gyro=false"])
+
+
 @pytest.mark.parametrize(
     ("override", "message"),
     [
