@@ -1,4 +1,6 @@
-"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing).
+"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing),
+in-process with JAX's own XLA settings, as a library user gets them (``so3jax`` child
+processes, the pinned paper metrics among them, run with the command's, configure_xla).
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
 folder made fresh for each test session (so a run never reads executables from an
@@ -14,9 +16,6 @@ import tempfile
 
 import jax
 
-from so3jax import configure_xla
-
-configure_xla()  # the so3jax command's XLA:CPU settings, before JAX's first computation
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 

@@ -2,8 +2,8 @@
 differences in float64, in both differentiation modes.
 
 Short horizons (T = 20 s) keep the default run fast; the shapes match tests/test_tune.py
-so the compiled functions are shared. The full-mission checks and reverse mode (minutes
-of compilation each) are marked slow.
+so the compiled functions are shared. The full-mission checks (minutes of compilation
+each) are marked slow.
 """
 
 import dataclasses
@@ -61,11 +61,7 @@ def pd_case():
     return params, sc, b, r, fd_gradient("pd", params, sc, b, r)
 
 
-@pytest.mark.parametrize(
-    # reverse mode compiles for minutes with so3jax's XLA:CPU flags; tests/test_rollout.py
-    # checks reverse-mode rollout gradients against central differences in the default run
-    "mode", [pytest.param(m, marks=pytest.mark.slow) if m == "reverse" else m for m in gradients.MODES]
-)
+@pytest.mark.parametrize("mode", gradients.MODES)
 def test_pd_gradient_matches_central_differences(pd_case, mode):
     params, sc, b, r, fd = pd_case
     evaluation, grad = tune.cost_and_grad(params, sc, tune.CONTROLLERS["pd"], b, r, "weighted", mode, None)

@@ -174,11 +174,7 @@ def test_batched_flight_equals_one_trajectory_at_a_time():
                                        atol=1e-14, err_msg=name)
 
 
-@pytest.mark.parametrize(
-    # forward: tune's default mode; reverse mode through the MEKF compiles for minutes with
-    # so3jax's XLA:CPU flags
-    "mode", ["forward", pytest.param("reverse", marks=pytest.mark.slow)]
-)
+@pytest.mark.parametrize("mode", ["forward", "reverse"])  # forward: tune's default mode
 def test_gradients_through_the_flight_loop_match_central_differences(mode):
     """d cost / d log gains through sensors, MEKF and zero-order hold (no limit binds)."""
     scenario = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))

@@ -178,7 +178,8 @@ def test_vmap_over_seeds_and_inertias_matches_single_runs():
 
 
 @pytest.mark.parametrize(
-    # reverse mode of the adaptive law compiles for minutes with so3jax's XLA:CPU flags
+    # the adaptive law in reverse mode is slow (compilation); PD here and the flight loop
+    # (tests/test_loop.py) check reverse mode in the default run
     ("name", "mode"),
     [("pd", "reverse"), ("adaptive", "forward"), pytest.param("adaptive", "reverse", marks=pytest.mark.slow)],
 )
