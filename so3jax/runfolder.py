@@ -14,10 +14,11 @@ lock left by a process that died on this host is reported and taken over), and
 ``out/manifest.json`` records the run: command, settings and their fingerprint, start
 and finish times, the files it wrote (a name ending in "/" is a folder it owns), and
 ``complete``, false from its first file until the block ends without an error. A run
-that starts writing into a folder holding an earlier run removes that run's files as a
-set (saying so when that run is incomplete, an interrupted or stopped run) and names,
-in one warning line, the files no manifest lists, which it leaves alone. A resumed run
-(``resume=True``, same command) keeps the earlier files and goes on with their manifest.
+that starts writing into a folder holding another run's manifest removes the files it
+lists, as a set (saying so when that manifest is incomplete: an interrupted or stopped
+run) and names, in one warning line, the files no manifest lists, which it leaves alone.
+A resumed run (``resume=True``, same command) keeps the listed files and goes on with
+their manifest.
 """
 
 from __future__ import annotations
@@ -174,7 +175,7 @@ class Run:
 
     def start(self) -> Path:
         """Create the folder, lock it and open this run's manifest (complete: false),
-        replacing an earlier run's files; once, on the run's first file. Other processes
+        replacing the files of the manifest the folder holds; once, on the run's first file. Other processes
         of a multi-process run (not the writer) do nothing here."""
         with _GUARD:
             if self.manifest is not None or not self.writer:
