@@ -2,8 +2,9 @@
 (SPEC 8.3): ``truth``, ``raw`` and a multiplicative EKF on attitude and gyro bias.
 
 Each is a pytree with ``init(R0, batch_shape, dtype)`` -> state, ``update(state,
-measured, R, Omega, period)`` -> (state for the next tick, :class:`Estimate`) and
-``check()``. Arrays follow :mod:`so3jax.so3` (batch axes last); parameters have no batch axes.
+measured, period, truth)`` -> (state for the next tick, :class:`Estimate`), ``check()``
+and a class attribute ``reads_truth``: only an estimator that declares it gets the true
+state, ``truth`` = (R, Omega) at the tick (None for every other estimator). Arrays follow :mod:`so3jax.so3` (batch axes last); parameters have no batch axes.
 """
 
 from __future__ import annotations
@@ -14,9 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import components, so3
 from so3jax import config as cfg
-from so3jax import so3
 from so3jax._pytree import pytree_dataclass
+from so3jax.components import Param
 
 
 class Estimate(NamedTuple):
@@ -40,10 +42,13 @@ def _zero_std(Omega):
 class Truth:
     """R_hat = R(t_j), omega_hat = Omega(t_j)."""
 
+    reads_truth = True
+
     def init(self, R0, batch_shape, dtype):
         return ()
 
-    def update(self, state, measured, R, Omega, period):
+    def update(self, state, measured, period, truth):
+        R, Omega = truth
         return state, Estimate(R, Omega, jnp.zeros_like(Omega), _zero_std(Omega))
 
     def check(self) -> None:
@@ -55,12 +60,15 @@ class Raw:
     """R_hat = the latest star-tracker sample (held between samples), omega_hat = omega_m.
     State: that sample (3, 3, *b), R0 before the first."""
 
+    reads_truth = False
+
     def init(self, R0, batch_shape, dtype):
         return _batch(R0, 2, batch_shape, dtype)
 
-    def update(self, state, measured, R, Omega, period):
+    def update(self, state, measured, period, truth=None):
         R_hat = jnp.where(measured.star_valid, measured.R_m, state)
-        return R_hat, Estimate(R_hat, measured.omega_m, jnp.zeros_like(Omega), _zero_std(Omega))
+        omega = measured.omega_m
+        return R_hat, Estimate(R_hat, omega, jnp.zeros_like(omega), _zero_std(omega))
 
     def check(self) -> None:
         pass
@@ -114,6 +122,8 @@ class MEKF:
     rrw: jax.Array  # the filter's gyro rate random walk sigma_u [rad/s^(3/2)]
     sigma_st: jax.Array  # the filter's star-tracker sigma [rad]
 
+    reads_truth = False
+
     def init(self, R0, batch_shape, dtype):
         R0 = _batch(R0, 2, batch_shape, dtype)
         theta0 = _batch(self.theta0, 1, batch_shape, dtype)
@@ -123,7 +133,8 @@ class MEKF:
         P = Covariance(var(self.sigma_theta0) * eye, zero, var(self.sigma_b0) * eye)
         return MEKFState(so3.matmul(R0, so3.exp(theta0)), jnp.zeros_like(theta0), P)
 
-    def update(self, state: MEKFState, measured, R, Omega, period):
+    def update(self, state: MEKFState, measured, period, truth=None):
+        Omega = measured.omega_m  # shape and dtype only: the filter never reads the true state
         dtype = Omega.dtype
         param = lambda x: jnp.asarray(x).astype(dtype)
         dc = jnp.asarray(period, dtype)
@@ -173,4 +184,34 @@ class MEKF:
             raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")
 
 
-ESTIMATORS = {"truth": Truth, "raw": Raw, "mekf": MEKF}
+def _believed(v: dict, ctx, name: str, sensor_key: str):
+    """The filter's assumed noise level: its own value, else the sensors' (SPEC 8.3)."""
+    value = v[name] if v[name] is not None else ctx.sensor_noise.get(sensor_key)
+    if value is None:
+        raise ValueError(f"estimator 'mekf': estimator.mekf.{name} is not given and no sensor reports it")
+    return ctx.as_array(value)
+
+
+components.register(components.ComponentSpec(
+    kind="estimator", name="truth", params=(), build=lambda v, ctx: Truth(), truth=True,
+    doc="the true state (perfect knowledge)",
+))
+components.register(components.ComponentSpec(
+    kind="estimator", name="raw", params=(), build=lambda v, ctx: Raw(), needs=("attitude",),
+    doc="the latest star-tracker sample and the gyro reading, unfiltered",
+))
+components.register(components.ComponentSpec(
+    kind="estimator", name="mekf", needs=("rate", "attitude"),
+    params=(
+        Param("sigma_theta0", 1e-3, "rad", low=0.0, doc="initial attitude sigma"),
+        Param("sigma_b0", 1e-3, "rad/s", low=0.0, doc="initial bias sigma"),
+        Param("theta0", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="initial error: R_hat(0) = R0 exp(hat(theta0))"),
+        Param("arw", None, "rad/sqrt(s)", low=0.0, doc="assumed gyro sigma_v (default: the gyro's)"),
+        Param("rrw", None, "rad/s^(3/2)", low=0.0, doc="assumed gyro sigma_u (default: the gyro's)"),
+        Param("sigma_st", None, "rad", low=0.0, doc="assumed star-tracker sigma (default: the star tracker's)"),
+    ),
+    build=lambda v, ctx: MEKF(ctx.as_array(v["sigma_theta0"]), ctx.as_array(v["sigma_b0"]), ctx.as_array(v["theta0"]),
+                              _believed(v, ctx, "arw", "arw"), _believed(v, ctx, "rrw", "rrw"),
+                              _believed(v, ctx, "sigma_st", "sigma_st")),
+    doc="multiplicative EKF on attitude and gyro bias (SPEC 8.3)",
+))

@@ -1,26 +1,29 @@
-"""A mission file (TOML): the paper's quantities (SPEC 4, under the names of ``so3jax
-sweep``'s config) plus the flight loop's control period, sensors, estimator, actuator
-and controllers (SPEC 8). Parsed into validated plain data, then built into a
-:class:`~so3jax.scenario.Scenario`, a :class:`~so3jax.loop.Loop` and controllers.
+"""A mission: the scenario (inertia profile, reference, disturbance, horizon, initial
+state), the loop (sensors, estimator, actuator, control period) and the controllers with
+their gains and options (SPEC 4, 8). Parsed once from TOML tables plus ``--set``
+overrides into validated plain data, then built into a :class:`~so3jax.scenario.Scenario`,
+a :class:`~so3jax.loop.Loop` and controllers.
 
-Without a file, the flight mission of SPEC 8.5 (``missions/flight.toml`` spells it out).
+The loop's components are read through their registrations (:mod:`so3jax.components`,
+:mod:`so3jax.controllers.registry`): ``[sensors.NAME]`` (a table, or false to leave a
+sensor out), ``[estimator] kind`` with ``[estimator.NAME]``, ``[actuator] kind`` with
+``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]``. Without a
+file, the flight mission of SPEC 8.5 (``missions/flight.toml`` spells it out).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import components
 from so3jax import config as cfg
-from so3jax.actuators import Ideal, Saturated, Wheels
 from so3jax.controllers import registry
-from so3jax.controllers.adaptive import LOG_DERIVATIVES
-from so3jax.estimators import MEKF, Raw, Truth
 from so3jax.io import to_builtin
 from so3jax.loop import Loop, check_loop
+from so3jax.plant import ConstantInertia
 from so3jax.scenario import (
     PAPER_J0,
     PAPER_J2,
@@ -30,13 +33,12 @@ from so3jax.scenario import (
     paper_scenario,
     steps_for_horizon,
 )
-from so3jax.sensors import Gyro, Sensors, StarTracker
+from so3jax.sensors import Sensors
 
-ESTIMATORS = ("truth", "raw", "mekf")
-ACTUATORS = ("ideal", "saturated", "wheels")
 CONTROL_MODES = ("sampled", "continuous")
 
 # SPEC 8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
+# The components' own values are their registrations' defaults.
 FLIGHT = {
     "T": 4000.0,
     "dt": 0.01,
@@ -49,37 +51,28 @@ FLIGHT = {
     "deployment": {"tau_J": 300.0},
     "orbit": {"n": 0.0011067834463349404},  # orbital_rate(): 500 km circular
     "disturbance": {"amplitude": 0.1, "frequency": 1e-3, "noise_std": 0.025},
-    "sensors": {
-        "gyro": {"arw": 1e-6, "rrw": 1e-9, "bias0": [1e-4, 1e-4, 1e-4]},
-        "star_tracker": {"sigma": 3e-5, "every": 1},
-    },
-    "estimator": {"kind": "mekf", "sigma_theta0": 1e-3, "sigma_b0": 1e-3, "theta0": [0.0, 0.0, 0.0]},
-    "actuator": {
-        "kind": "wheels",
-        "max_torque": [0.25, 0.25, 0.25],
-        "wheels": {
-            "axes": [[0.8165408118857462, 0.0, 0.5772877120855479], [0.0, 0.8165408118857462, 0.5772877120855479],
-                     [-0.8165408118857462, 0.0, 0.5772877120855479], [0.0, -0.8165408118857462, 0.5772877120855479]],
-            "spin_inertia": 0.16,
-            "max_torque": 0.25,
-            "max_speed": 628.0,
-            "initial_speed": 0.0,
-            "momentum_compensation": True,
-        },
-    },
-    "controller": {"open_loop": {"torque": [0.0, 0.0, 0.0]}, "adaptive": {"log_derivative": "exact"}},
+    "initial": {"attitude": [0.0, 0.0, 0.0], "rate": [0.0, 0.0, 0.0]},
+    "sensors": {"gyro": {}, "star_tracker": {}},
+    "estimator": {"kind": "mekf"},
+    "actuator": {"kind": "wheels"},
+    "controller": {},
     "gains": {},
 }
 
 _TOP = ("T", "dt", "seed", "controllers", "record_every")
-_TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "sensors", "estimator", "actuator",
+_TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "initial", "sensors", "estimator", "actuator",
            "controller", "gains")
-_WHEEL_KEYS = ("axes", "spin_inertia", "max_torque", "max_speed", "initial_speed", "momentum_compensation")
 
 
 @dataclasses.dataclass(frozen=True)
 class Mission:
-    """A validated mission: plain numbers and NumPy arrays (nothing compiled)."""
+    """A validated mission: plain numbers, strings and NumPy arrays (nothing compiled).
+
+    sensors: {name: values} of the sensors flown; estimator, actuator: {"kind": name,
+    name: values}; options: {controller: factory keywords}; gains: {controller: gains}.
+    constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile.
+    initial: {"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}.
+    """
 
     T: float
     dt: float
@@ -90,25 +83,34 @@ class Mission:
     J0: np.ndarray
     J1: np.ndarray
     J2: np.ndarray
+    constant_inertia: bool
     tau_J: float
     n: float
     disturbance: dict  # amplitude, frequency, noise_std
-    gyro: dict | None
-    star_tracker: dict | None
+    initial: dict
+    sensors: dict
     estimator: dict
     actuator: dict
-    options: dict  # controller name -> factory keyword options
-    gains: dict  # controller name -> gains NamedTuple
+    options: dict
+    gains: dict
 
     @property
     def period(self) -> float | None:
         return None if self.period_steps is None else self.period_steps * self.dt
 
     def scenario(self, dtype=None) -> Scenario:
-        return paper_scenario(self.T, self.dt, tau_J=self.tau_J, n=self.n, J0=self.J0, J1=self.J1, J2=self.J2,
-                              disturbance_amplitude=self.disturbance["amplitude"],
-                              disturbance_frequency=self.disturbance["frequency"],
-                              noise_std=self.disturbance["noise_std"], dtype=dtype)
+        s = paper_scenario(self.T, self.dt, tau_J=self.tau_J, n=self.n, J0=self.J0, J1=self.J1, J2=self.J2,
+                           disturbance_amplitude=self.disturbance["amplitude"],
+                           disturbance_frequency=self.disturbance["frequency"],
+                           noise_std=self.disturbance["noise_std"], dtype=dtype)
+        changes = {}
+        if self.constant_inertia:
+            changes["inertia"] = ConstantInertia(jnp.asarray(self.J0, s.R0.dtype))
+        if np.any(self.initial["attitude"]):
+            changes["R0"] = jnp.asarray(_rotation(self.initial["attitude"]), s.R0.dtype)
+        if np.any(self.initial["rate"]):
+            changes["Omega0"] = jnp.asarray(self.initial["rate"], s.R0.dtype)
+        return dataclasses.replace(s, **changes) if changes else s
 
     def loop(self, dtype=None) -> Loop:
         dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
@@ -116,8 +118,7 @@ class Mission:
 
     def controller(self, name: str):
         """(Controller, gains) of a controller named in the mission."""
-        spec = registry.get(name)
-        return spec.factory(**self.options.get(name, {})), self.gains[name]
+        return registry.get(name).factory(**self.options.get(name, {})), self.gains[name]
 
     def describe(self) -> dict:
         """The mission as JSON-ready plain data (the ``config`` of results)."""
@@ -126,29 +127,42 @@ class Mission:
         return to_builtin(d)
 
 
+def default_tree() -> dict:
+    """The flight mission as TOML tables with every registered component's and
+    controller's parameters at their defaults (None defaults left out): the whole schema."""
+    def values(params):
+        return {p.name: p.default for p in params if p.default is not None}
+
+    tree = {k: v for k, v in FLIGHT.items()}
+    tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
+    for kind in ("estimator", "actuator"):
+        tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
+    tree["controller"] = {n: values(registry.get(n).options) for n in registry.names()}
+    tree["gains"] = {n: {f: np.asarray(v).tolist() for f, v in registry.get(n).defaults._asdict().items()}
+                     for n in registry.names()}
+    return tree
+
+
+def _rotation(rotvec) -> np.ndarray:
+    """exp(hat(rotvec)) (3, 3), Rodrigues' formula in float64."""
+    v = np.asarray(rotvec, float)
+    angle = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
 def _build_loop(m: Mission, as_array) -> Loop:
-    sensors = Sensors(
-        Gyro(as_array(m.gyro["arw"]), as_array(m.gyro["rrw"]), as_array(m.gyro["bias0"])) if m.gyro else None,
-        StarTracker(as_array(m.star_tracker["sigma"]), m.star_tracker["every"]) if m.star_tracker else None,
-    )
-    e = m.estimator
-    if e["kind"] == "mekf":
-        if not (m.gyro and m.star_tracker):
-            raise ValueError("estimator 'mekf' needs [sensors.gyro] and [sensors.star_tracker]")
-        estimator = MEKF(as_array(e["sigma_theta0"]), as_array(e["sigma_b0"]), as_array(e["theta0"]),
-                         as_array(m.gyro["arw"]), as_array(m.gyro["rrw"]), as_array(m.star_tracker["sigma"]))
-    else:
-        estimator = Truth() if e["kind"] == "truth" else Raw()
-    a = m.actuator
-    if a["kind"] == "ideal":
-        actuator = Ideal()
-    elif a["kind"] == "saturated":
-        actuator = Saturated(as_array(a["max_torque"]))
-    else:
-        w = a["wheels"]
-        actuator = Wheels(as_array(np.asarray(w["axes"]).T), as_array(w["spin_inertia"]), as_array(w["max_torque"]),
-                          as_array(w["max_speed"]), as_array(w["initial_speed"]), bool(w["momentum_compensation"]))
-    return Loop(sensors, estimator, actuator, m.period_steps)
+    noise = {}
+    for name, values in m.sensors.items():
+        spec = components.get("sensor", name)
+        noise.update(spec.noise(values) if spec.noise else {})
+    ctx = components.BuildContext(as_array, noise)
+    slots = {}
+    for name, values in m.sensors.items():
+        slots[components.get("sensor", name).provides] = components.get("sensor", name).build(values, ctx)
+    estimator = components.get("estimator", m.estimator["kind"]).build(m.estimator[m.estimator["kind"]], ctx)
+    actuator = components.get("actuator", m.actuator["kind"]).build(m.actuator[m.actuator["kind"]], ctx)
+    return Loop(Sensors(**slots), estimator, actuator, m.period_steps)
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -156,6 +170,42 @@ def _merge(base: dict, over: dict) -> dict:
     out = dict(base)
     for k, v in over.items():
         out[k] = _merge(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
+    return out
+
+
+def _sensors(given: dict) -> dict:
+    """{name: values} of the sensors flown: the flight mission's, each merged with its
+    given table (false: left out), plus any other registered sensor given a table."""
+    given = cfg.table({"sensors": given}, "sensors", components.names("sensor"))
+    out = {}
+    for name in components.names("sensor"):
+        table = given.get(name, {} if name in FLIGHT["sensors"] else False)
+        if table is False:
+            continue
+        if not isinstance(table, dict):
+            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {cfg.short(table)}")
+        out[name] = components.get("sensor", name).parse(table, f"sensors.{name}")
+    providers = {}
+    for name in out:
+        quantity = components.get("sensor", name).provides
+        if quantity in providers:
+            raise ValueError(f"sensors.{providers[quantity]} and sensors.{name} both measure the {quantity}: "
+                             f"leave one out (sensors.{providers[quantity]}=false)")
+        providers[quantity] = name
+    return out
+
+
+def _chosen(d: dict, kind: str, table: str) -> dict:
+    """{"kind": name, name: values} of ``[table] kind`` and its ``[table.NAME]`` subtable
+    (every other registered name's subtable is checked too, so a typo is never ignored)."""
+    t = cfg.table(d, table, ("kind",) + components.names(kind))
+    name = cfg.choice(t.get("kind", FLIGHT[table]["kind"]), f"{table}.kind", components.names(kind))
+    out = {"kind": name}
+    for other in components.names(kind):
+        if other in t or other == name:
+            values = components.get(kind, other).parse(t.get(other, {}), f"{table}.{other}")
+            if other == name:
+                out[name] = values
     return out
 
 
@@ -169,47 +219,17 @@ def from_dict(d: dict) -> Mission:
     for t in _TABLES:
         if t in d and not isinstance(d[t], dict):
             raise ValueError(f"[{t}] must be a table")
-    full = _merge(FLIGHT, d)
-    # each sensor is its own entry: a table merged with its defaults, or false for none
-    sensors_given = cfg.table(d, "sensors", tuple(FLIGHT["sensors"]))
-    full["sensors"] = {}
-    for name, default in FLIGHT["sensors"].items():
-        given = sensors_given.get(name, {})
-        if given is False:
-            continue
-        if not isinstance(given, dict):
-            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {cfg.short(given)}")
-        full["sensors"][name] = _merge(default, given)
+    full = _merge({k: v for k, v in FLIGHT.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
     T = cfg.number(full["T"], "T", low=0.0)
     dt = cfg.number(full["dt"], "dt", low=0.0)
-    steps_for_horizon(T, dt)
+    n_steps = steps_for_horizon(T, dt)
     seed = cfg.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
     record_every = cfg.number(full["record_every"], "record_every", low=1, integer=True)
     controllers = cfg.names(full["controllers"], "controllers", registry.names())
+    period_steps = _period_steps(cfg.table(full, "control", ("mode", "period")), T, dt, n_steps)
 
-    control = cfg.table(full, "control", ("mode", "period"))
-    mode = cfg.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
-    period_steps = None
-    if mode == "sampled":
-        period = cfg.number(control.get("period"), "control.period [s]", low=0.0)
-        ratio = period / dt
-        if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
-            raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
-        period_steps = int(round(ratio))
-        n_steps = steps_for_horizon(T, dt)
-        if period_steps > n_steps:
-            raise ValueError(f"control.period = {period} s is longer than the horizon T = {T} s")
-        if n_steps % period_steps:
-            raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods "
-                             f"control.period = {period} s")
-
-    inertia = cfg.table(full, "inertia", ("J0", "J1", "J2"))
-    J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
-    J1_table = cfg.table(inertia, "J1", ("scale", "nominal"), "inertia.")
-    J1 = (cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if "nominal" in J1_table
-          else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0) * J0)
-    J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
+    J0, J1, J2, constant = _inertias(d.get("inertia", {}), full["inertia"])
     tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]", low=0.0)
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
@@ -220,60 +240,17 @@ def from_dict(d: dict) -> Mission:
         "frequency": cfg.number(dist["frequency"], "disturbance.frequency [rad/s]"),
         "noise_std": cfg.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
     }
+    init = cfg.table(full, "initial", ("attitude", "rate"))
+    initial = {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
+               "rate": cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))}
 
-    sensors = full["sensors"]
-    gyro = star = None
-    if "gyro" in sensors:
-        g = cfg.table(sensors, "gyro", ("arw", "rrw", "bias0"), "sensors.")
-        gyro = {"arw": cfg.number(g["arw"], "sensors.gyro.arw [rad/sqrt(s)]", low=0.0),
-                "rrw": cfg.number(g["rrw"], "sensors.gyro.rrw [rad/s^(3/2)]", low=0.0),
-                "bias0": cfg.array(g["bias0"], "sensors.gyro.bias0 [rad/s]", (3,))}
-    if "star_tracker" in sensors:
-        s = cfg.table(sensors, "star_tracker", ("sigma", "every"), "sensors.")
-        star = {"sigma": cfg.number(s["sigma"], "sensors.star_tracker.sigma [rad]", low=0.0),
-                "every": cfg.number(s.get("every", 1), "sensors.star_tracker.every [ticks]", low=1, integer=True)}
-
-    e = cfg.table(full, "estimator", ("kind", "sigma_theta0", "sigma_b0", "theta0"))
-    estimator = {"kind": cfg.choice(e["kind"], "estimator.kind", ESTIMATORS),
-                 "sigma_theta0": cfg.number(e["sigma_theta0"], "estimator.sigma_theta0 [rad]", low=0.0),
-                 "sigma_b0": cfg.number(e["sigma_b0"], "estimator.sigma_b0 [rad/s]", low=0.0),
-                 "theta0": cfg.array(e["theta0"], "estimator.theta0 [rad]", (3,))}
-    if e["kind"] == "raw" and star is None:
-        raise ValueError("estimator 'raw' needs [sensors.star_tracker]")
-
-    a = cfg.table(full, "actuator", ("kind", "max_torque", "wheels"))
-    actuator = {"kind": cfg.choice(a["kind"], "actuator.kind", ACTUATORS),
-                "max_torque": np.broadcast_to(cfg.array(a["max_torque"], "actuator.max_torque [N m]",
-                                                        (3,) if np.ndim(a["max_torque"]) else (), low=0.0), (3,))}
-    w = cfg.table(a, "wheels", _WHEEL_KEYS, "actuator.")
-    axes = cfg.array(w["axes"], "actuator.wheels.axes (one unit spin axis per wheel)", (None, 3))
-    count = axes.shape[0]
-    per_wheel = lambda key, low: np.broadcast_to(
-        cfg.array(w[key], f"actuator.wheels.{key}", (count,) if np.ndim(w[key]) else (), low=low), (count,)).copy()
-    cfg.boolean(w["momentum_compensation"], "actuator.wheels.momentum_compensation")
-    actuator["wheels"] = {"axes": axes, "spin_inertia": per_wheel("spin_inertia", 0.0),
-                          "max_torque": per_wheel("max_torque", 0.0), "max_speed": per_wheel("max_speed", 0.0),
-                          "initial_speed": per_wheel("initial_speed", -math.inf),
-                          "momentum_compensation": w["momentum_compensation"]}
-    over = np.abs(actuator["wheels"]["initial_speed"]) > actuator["wheels"]["max_speed"]
-    if np.any(over):
-        raise ValueError("actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
-                         f"(wheel {int(np.argmax(over)) + 1}: {actuator['wheels']['initial_speed'][over][0]:g} against "
-                         f"{actuator['wheels']['max_speed'][over][0]:g})")
+    sensors = _sensors(d.get("sensors", {}))
+    estimator = _chosen(full, "estimator", "estimator")
+    actuator = _chosen(full, "actuator", "actuator")
+    _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = cfg.table(full, "controller", registry.names())
-    options = {}
-    for name, t in options_table.items():
-        if name == "open_loop":
-            t = cfg.table(options_table, name, ("torque",), "controller.")
-            options[name] = {"torque": tuple(cfg.array(t["torque"], "controller.open_loop.torque [N m]", (3,)).tolist())}
-        elif name == "adaptive":
-            t = cfg.table(options_table, name, ("log_derivative",), "controller.")
-            if "log_derivative" in t:
-                cfg.choice(t["log_derivative"], "controller.adaptive.log_derivative", LOG_DERIVATIVES)
-            options[name] = dict(t)
-        else:
-            options[name] = dict(cfg.table(options_table, name, (), "controller."))
+    options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
     gains_table = cfg.table(full, "gains", registry.names())
     gains = {}
     for name in registry.names():  # every table given is checked, also of a controller not flown
@@ -286,19 +263,70 @@ def from_dict(d: dict) -> Mission:
         if name in controllers:
             gains[name] = g
 
-    mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, tau_J, n, disturbance, gyro,
-                      star, estimator, actuator, options, gains)
+    mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, constant, tau_J, n,
+                      disturbance, initial, sensors, estimator, actuator, options, gains)
     for name in controllers:
         try:
             mission.controller(name)
-        except TypeError as err:
+        except (TypeError, ValueError) as err:
             raise ValueError(f"[controller.{name}]: {err}") from None
-    inertias = {"J0": J0, "J1": J1, "J2": J2}
+    inertias = {"J0": J0} if constant else {"J0": J0, "J1": J1, "J2": J2}
     for name, J in inertias.items():
-        check_inertia(f"{name} (inertia.{name})", J, warn=False)
+        check_inertia(f"{name} (inertia.{name})" if not constant else "inertia.J", J, warn=False)
     check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
     return mission
+
+
+def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:
+    """m = control.period / dt, a whole number >= 1 dividing the horizon; None: continuous."""
+    mode = cfg.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
+    if mode == "continuous":
+        return None
+    period = cfg.number(control.get("period"), "control.period [s]", low=0.0)
+    ratio = period / dt
+    if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
+        raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
+    m = int(round(ratio))
+    if m > n_steps:
+        raise ValueError(f"control.period = {period} s is longer than the horizon T = {T} s")
+    if n_steps % m:
+        raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods control.period = {period} s")
+    return m
+
+
+def _inertias(given: dict, full: dict):
+    """(J0, J1, J2, constant): ``[inertia] J`` for a constant inertia, else the paper's
+    J0 (capture), J1 = scale J0 or a nominal (deployed), J2 (docked) [kg m^2]."""
+    if isinstance(given, dict) and "J" in given:
+        extra = sorted(set(given) - {"J"})
+        if extra:
+            raise ValueError(f"[inertia] J (a constant inertia) excludes {', '.join(extra)}")
+        J = cfg.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
+        return J, J, J, True
+    inertia = cfg.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
+    J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
+    J1_table = cfg.table(inertia, "J1", ("scale", "nominal"), "inertia.")
+    J1 = (cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if "nominal" in J1_table
+          else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0) * J0)
+    J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
+    return J0, J1, J2, False
+
+
+def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
+    """The estimator's measurements exist; the continuous wiring reads the true state."""
+    spec = components.get("estimator", estimator)
+    if period_steps is None:
+        if sensors or not spec.truth:
+            raise ValueError("control.mode = 'continuous' reads the true state: it takes no sensors "
+                             "(sensors.NAME=false) and an estimator that reads the truth (estimator.kind='truth')")
+        return
+    measured = {components.get("sensor", name).provides: name for name in sensors}
+    missing = [q for q in spec.needs if q not in measured]
+    if missing:
+        offered = [n for n in components.names("sensor") if components.get("sensor", n).provides == missing[0]]
+        raise ValueError(f"estimator '{estimator}' needs a sensor of the {' and the '.join(missing)} "
+                         f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")
 
 
 def load(path=None, overrides=()) -> Mission:

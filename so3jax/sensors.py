@@ -15,9 +15,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import components, so3
 from so3jax import config as cfg
-from so3jax import so3
 from so3jax._pytree import pytree_dataclass, static_field
+from so3jax.components import Param
 from so3jax.disturbance import noise_components
 
 GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (SPEC 8.2)
@@ -62,14 +63,18 @@ class Gyro:
         b = jnp.asarray(self.bias0).astype(dtype)
         return jnp.broadcast_to(b.reshape((3,) + (1,) * len(batch_shape)), (3, *batch_shape))
 
-    def measure(self, bias, Omega, key, j, period):
-        """(omega_m, b_{j+1}) from the true rate Omega (3, *b) at tick j [rad/s]."""
+    def measure(self, bias, R, Omega, key, j, period):
+        """(b_{j+1}, omega_m) from the true rate Omega (3, *b) at tick j [rad/s]."""
         dtype = Omega.dtype
         period = jnp.asarray(period, dtype)
         white = sensor_noise(key, GYRO_WHITE, j, dtype)
         walk = sensor_noise(key, GYRO_BIAS_WALK, j, dtype)
         omega_m = Omega + bias + _like(self.arw, Omega) / jnp.sqrt(period) * white
-        return omega_m, bias + _like(self.rrw, Omega) * jnp.sqrt(period) * walk
+        return bias + _like(self.rrw, Omega) * jnp.sqrt(period) * walk, omega_m
+
+    def bias(self, state, Omega):
+        """The true bias b_j (3, *b) [rad/s]."""
+        return state
 
     def check(self) -> None:
         _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
@@ -84,11 +89,14 @@ class StarTracker:
     sigma: jax.Array  # per axis [rad]
     every: int = static_field(default=1)
 
-    def measure(self, R, key, j):
-        """(R_m (3, 3, *b), whether tick j has a sample)."""
+    def init(self, batch_shape, dtype):
+        return ()
+
+    def measure(self, state, R, Omega, key, j, period):
+        """((), (R_m (3, 3, *b), whether tick j has a sample))."""
         eta = sensor_noise(key, STAR_TRACKER, j, R.dtype)
         error = _like(self.sigma, eta) * eta
-        return so3.matmul(R, so3.exp(error)), (j % self.every) == 0
+        return state, (so3.matmul(R, so3.exp(error)), (j % self.every) == 0)
 
     def check(self) -> None:
         _check("sensors.star_tracker.sigma [rad]", self.sigma)
@@ -104,29 +112,63 @@ class Measurements(NamedTuple):
 
 @pytree_dataclass
 class Sensors:
-    """The sensor suite; a part that is None is perfect (reads the true state)."""
+    """The sensor suite by measured quantity; a slot that is None is perfect (reads the
+    true state). A sensor is a pytree with ``init(batch_shape, dtype)`` -> its state,
+    ``measure(state, R, Omega, key, j, period)`` -> (its state at tick j + 1, reading at
+    tick j), and ``check()``. A rate sensor reads omega_m (3, *b) [rad/s] and gives its
+    true bias, ``bias(state, Omega)``; an attitude sensor reads (R_m, whether tick j has a
+    sample). Noise keys: :func:`sensor_noise`, one stream per noise source."""
 
-    gyro: Any = None
-    star_tracker: Any = None
+    rate: Any = None
+    attitude: Any = None
 
     def init(self, batch_shape, dtype):
-        """The gyro bias (3, *batch_shape), or () without a gyro."""
-        return () if self.gyro is None else self.gyro.init(batch_shape, dtype)
+        """(the rate sensor's state, the attitude sensor's state); () for a perfect slot."""
+        return tuple(() if s is None else s.init(batch_shape, dtype) for s in (self.rate, self.attitude))
 
     def measure(self, state, R, Omega, key, j, period):
         """(state at tick j + 1, Measurements at tick j) from the true R, Omega at t_j."""
-        omega_m, state = (Omega, state) if self.gyro is None else self.gyro.measure(state, Omega, key, j, period)
-        if self.star_tracker is None:
+        rate_state, attitude_state = state
+        if self.rate is None:
+            omega_m = Omega
+        else:
+            rate_state, omega_m = self.rate.measure(rate_state, R, Omega, key, j, period)
+        if self.attitude is None:
             R_m, valid = R, jnp.asarray(True)
         else:
-            R_m, valid = self.star_tracker.measure(R, key, j)
-        return state, Measurements(omega_m, R_m, valid)
+            attitude_state, (R_m, valid) = self.attitude.measure(attitude_state, R, Omega, key, j, period)
+        return (rate_state, attitude_state), Measurements(omega_m, R_m, valid)
 
     def true_bias(self, state, like):
-        """The gyro bias b_j (3, *b) [rad/s], zeros without a gyro (``like``: a (3, *b) array)."""
-        return jnp.zeros_like(like) if self.gyro is None else state
+        """The rate sensor's true bias b_j (3, *b) [rad/s], zeros for a perfect rate
+        (``like``: a (3, *b) array)."""
+        return jnp.zeros_like(like) if self.rate is None else self.rate.bias(state[0], like)
 
     def check(self) -> None:
-        for part in (self.gyro, self.star_tracker):
+        for part in (self.rate, self.attitude):
             if part is not None:
                 part.check()
+
+
+components.register(components.ComponentSpec(
+    kind="sensor", name="gyro", provides="rate",
+    params=(
+        Param("arw", 1e-6, "rad/sqrt(s)", low=0.0, doc="angle random walk sigma_v"),
+        Param("rrw", 1e-9, "rad/s^(3/2)", low=0.0, doc="rate random walk sigma_u"),
+        Param("bias0", [1e-4, 1e-4, 1e-4], "rad/s", shapes=((3,),), doc="initial bias b_0"),
+    ),
+    build=lambda v, ctx: Gyro(ctx.as_array(v["arw"]), ctx.as_array(v["rrw"]), ctx.as_array(v["bias0"])),
+    noise=lambda v: {"arw": v["arw"], "rrw": v["rrw"]},
+    doc="rate gyro, Farrenkopf model (SPEC 8.2)",
+))
+
+components.register(components.ComponentSpec(
+    kind="sensor", name="star_tracker", provides="attitude",
+    params=(
+        Param("sigma", 3e-5, "rad", low=0.0, doc="per-axis attitude noise"),
+        Param("every", 1, "ticks", low=1, integer=True, doc="a sample every `every` ticks"),
+    ),
+    build=lambda v, ctx: StarTracker(ctx.as_array(v["sigma"]), int(v["every"])),
+    noise=lambda v: {"sigma_st": v["sigma"]},
+    doc="star tracker: R_m = R exp(hat(sigma eta)) (SPEC 8.2)",
+))

@@ -1,5 +1,5 @@
 """Bad values of every config entry, generated from the schemas: the default mission's
-tree (so3jax.mission.FLIGHT with every registered controller's default gains), the sweep
+tree (so3jax.mission.default_tree(): the flight mission with every registered component, option and gain), the sweep
 defaults (sweep.config_to_dict(SweepConfig())) and a shipped tune campaign with its
 dataclass defaults. For every leaf: a wrong-type value (a string for a number, a bool for
 a number, a number for a string, a table for a leaf, ...), and for every array a
@@ -30,11 +30,9 @@ TABLE = {"x": 1.0}  # a table where a value belongs
 
 
 def mission_tree() -> dict:
-    """The flight mission's tree, with each registered controller's default gains."""
-    tree = json.loads(json.dumps(mission.FLIGHT))
-    tree["gains"] = {name: {f: np.asarray(v).tolist() for f, v in registry.get(name).defaults._asdict().items()}
-                     for name in registry.names()}
-    return tree
+    """The mission schema's tree: the flight mission with every registered component's
+    parameters, controller options and default gains."""
+    return json.loads(json.dumps(mission.default_tree()))
 
 
 def sweep_tree() -> dict:
@@ -242,7 +240,7 @@ def _component_cases():
              mission._build_loop(mission.load(None, ['actuator.kind="saturated"']), np.asarray)]
     out = []
     for loop in loops:
-        for path in (("sensors", "gyro"), ("sensors", "star_tracker"), ("estimator",), ("actuator",)):
+        for path in (("sensors", "rate"), ("sensors", "attitude"), ("estimator",), ("actuator",)):
             part = loop
             for name in path:
                 part = getattr(part, name)

@@ -17,21 +17,24 @@ def test_the_flight_mission_file_equals_the_defaults():
     assert shipped.describe() == default.describe()
     assert default.period_steps == 10 and default.estimator["kind"] == "mekf" and default.actuator["kind"] == "wheels"
     G = np.asarray(default.actuator["wheels"]["axes"])
+    assert set(default.sensors) == {"gyro", "star_tracker"} and default.initial["attitude"].tolist() == [0.0] * 3
     np.testing.assert_allclose(np.degrees(np.arccos(G[:, 2])), 54.74, atol=1e-9)
 
 
 def test_the_paper_mission_is_the_continuous_wiring():
     m = missions.load(ROOT / "missions" / "paper.toml")
-    assert m.period_steps is None and m.gyro is None and m.star_tracker is None
+    assert m.period_steps is None and m.sensors == {}
     assert m.estimator["kind"] == "truth" and m.actuator["kind"] == "ideal"
 
 
 def test_each_sensor_is_its_own_entry():
     """Overriding one sensor's key keeps the other sensor; false leaves a sensor out."""
     m = missions.load(None, ["sensors.gyro.arw=2e-6"])
-    assert m.gyro["arw"] == 2e-6 and m.gyro["rrw"] == 1e-9 and m.star_tracker == {"sigma": 3e-5, "every": 1}
+    assert m.sensors["gyro"]["arw"] == 2e-6 and m.sensors["gyro"]["rrw"] == 1e-9
+    assert m.sensors["star_tracker"] == {"sigma": 3e-5, "every": 1}
+    assert m.loop().estimator.arw == 2e-6 and m.loop().estimator.sigma_st == 3e-5  # the filter assumes the sensors'
     m = missions.load(None, ["sensors.star_tracker=false", "estimator.kind=truth"])
-    assert m.star_tracker is None and m.gyro["arw"] == 1e-6
+    assert "star_tracker" not in m.sensors and m.sensors["gyro"]["arw"] == 1e-6
     with pytest.raises(ValueError, match="sensors.gyro must be a table, or false for no gyro"):
         missions.load(None, ["sensors.gyro=true"])
     with pytest.raises(ValueError, match="estimator 'mekf' needs"):
@@ -52,6 +55,16 @@ def test_each_sensor_is_its_own_entry():
         ("actuator.wheels.axes=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 2.0]]", "unit"),
         ("actuator.wheels.max_speed=-1.0", "max_speed"),
         ("estimator.kind='kalman'", "estimator.kind"),
+        ("estimator.mekf.sigma_b0=-1.0", "estimator.mekf.sigma_b0"),
+        ("estimator.raw.sigma_b0=1.0", "unknown key"),
+        ("estimator.kind=raw", None),
+        ("actuator.saturated.max_torque=[1.0, 2.0]", "actuator.saturated.max_torque"),
+        ("actuator.wheels.spin_inertia=[0.1, 0.1]", "one per wheel"),
+        ("controller.pd.J_hat=[1.0, 2.0, 3.0]", "controller.pd.J_hat"),
+        ("controller.adaptive.log_derivative=approx", "log_derivative"),
+        ("controller.pd.gain=1.0", "unknown key"),
+        ("initial.attitude=[0.1, 0.2]", "initial.attitude"),
+        ("inertia.J=[[1.0, 0.0], [0.0, 1.0]]", "inertia.J"),
         ("actuator.kind='thrusters'", "actuator.kind"),
         ("controllers='pid'", "controllers"),
         ("deployment.tau_J=-50.0", "tau_J"),
@@ -61,6 +74,9 @@ def test_each_sensor_is_its_own_entry():
     ],
 )
 def test_bad_entries_get_one_clear_error(override, message):
+    if message is None:  # a good entry among the bad ones: the parser is not refusing everything
+        missions.load(None, [override])
+        return
     with pytest.raises(ValueError, match=message):
         missions.load(None, [override])
 
@@ -107,3 +123,56 @@ def test_a_diverged_flight_is_reported_as_diverged_never_as_a_number(tmp_path):
     assert r["diverged"] is True and r["rmse"] is None and r["effort"] is None
     table = run_cli(*args, cwd=tmp_path)
     assert "diverged" in table.stdout.splitlines()[1] and "warning: diverged: pd" in table.stderr
+
+
+def test_estimator_and_actuator_settings_are_per_kind():
+    """Each kind reads its own table; the filter's assumed noise may differ from the sensors'."""
+    m = missions.load(None, ["estimator.mekf.arw=5e-6", "actuator.kind=saturated", "actuator.saturated.max_torque=0.1"])
+    loop = m.loop()
+    assert float(loop.estimator.arw) == 5e-6 and float(loop.sensors.rate.arw) == 1e-6
+    np.testing.assert_array_equal(np.asarray(loop.actuator.max_torque), [0.1, 0.1, 0.1])
+    assert m.actuator == {"kind": "saturated", "saturated": {"max_torque": 0.1}}
+
+
+def test_initial_state_and_constant_inertia():
+    J = [[100.0, 0.0, 0.0], [0.0, 120.0, 0.0], [0.0, 0.0, 90.0]]
+    m = missions.load(None, ["initial.attitude=[0.0, 0.0, 0.5]", "initial.rate=[0.01, 0.0, 0.0]",
+                             f"inertia.J={J}"])
+    s = m.scenario()
+    R0 = np.asarray(s.R0)
+    np.testing.assert_allclose(R0, [[np.cos(0.5), -np.sin(0.5), 0], [np.sin(0.5), np.cos(0.5), 0], [0, 0, 1]],
+                               atol=1e-15)
+    np.testing.assert_array_equal(np.asarray(s.Omega0), [0.01, 0.0, 0.0])
+    for t in (0.0, 1000.0, 3000.0):
+        np.testing.assert_array_equal(np.asarray(s.inertia(t, 1)), J)
+    with pytest.raises(ValueError, match="excludes J0"):
+        missions.load(None, [f"inertia.J={J}", "inertia.J0.nominal=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"])
+
+
+def test_controller_options_reach_the_law():
+    """[controller.pd] J_hat is the PD's nominal inertia: its torque's feedforward changes."""
+    import jax.numpy as jnp
+
+    from so3jax.controllers.base import Desired, Measured
+
+    J = [[100.0, 0.0, 0.0], [0.0, 120.0, 0.0], [0.0, 0.0, 90.0]]
+    plain, with_J = (missions.load(None, o).controller("pd") for o in ([], [f"controller.pd.J_hat={J}"]))
+    Omega = jnp.array([0.1, -0.2, 0.05])
+    measured, desired = Measured(jnp.eye(3), Omega), Desired(jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
+    (law0, g0), (law1, g1) = plain, with_J
+    tau0, tau1 = law0.torque(g0, (), measured, desired, 0.0)[0], law1.torque(g1, (), measured, desired, 0.0)[0]
+    gyroscopic = lambda M: np.cross(np.asarray(Omega), np.asarray(M) @ np.asarray(Omega))
+    np.testing.assert_allclose(np.asarray(tau1 - tau0), gyroscopic(J) - gyroscopic(np.eye(3)), rtol=1e-12)
+
+
+def test_two_sensors_of_one_quantity_are_refused():
+    from so3jax import components
+
+    spec = components.get("sensor", "gyro")
+    import dataclasses
+    components.register(dataclasses.replace(spec, name="second_gyro"))
+    try:
+        with pytest.raises(ValueError, match="both measure the rate"):
+            missions.load(None, ["sensors.second_gyro={}"])
+    finally:
+        components._REGISTRY["sensor"].pop("second_gyro")

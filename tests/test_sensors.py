@@ -138,16 +138,16 @@ GYRO_TICKS = 6
 @jax.jit
 def _gyro_scan(gyro, ks, period):
     n = ks.shape[0]
-    sensors = Sensors(gyro=gyro)
+    sensors = Sensors(rate=gyro)
     Omega = jnp.broadcast_to(jnp.asarray(OMEGA, F64)[:, None], (3, n))
     R = so3.eye_like(Omega)
 
-    def step(bias, j):
-        new, m = sensors.measure(bias, R, Omega, ks, j, period)
-        return new, (m.omega_m - Omega, bias, m.R_m - R)
+    def step(state, j):
+        new, m = sensors.measure(state, R, Omega, ks, j, period)
+        return new, (m.omega_m - Omega, sensors.true_bias(state, Omega), m.R_m - R)
 
     last, (err, biases, R_m_error) = jax.lax.scan(step, sensors.init((n,), F64), jnp.arange(GYRO_TICKS))
-    return err, jnp.concatenate([biases, last[None]]), R_m_error
+    return err, jnp.concatenate([biases, sensors.true_bias(last, Omega)[None]]), R_m_error
 
 
 def run_gyro(gyro, period=PERIOD):
@@ -226,7 +226,7 @@ def test_star_tracker_error_statistics_in_the_body_frame():
     axis ~ N(0, sigma^2) for true attitudes anywhere on SO(3)."""
     sigma, n_ticks = 1e-3, 3
     st = StarTracker(jnp.asarray(sigma, F64), every=1)
-    sensors = Sensors(star_tracker=st)
+    sensors = Sensors(attitude=st)
     ks = keys(N_KEYS, offset=11)
     R = random_rotations(N_KEYS)
     Omega = jnp.zeros((3, N_KEYS), F64)
@@ -259,11 +259,11 @@ def test_star_tracker_valid_exactly_at_multiples_of_every(every):
     R = jnp.eye(3, dtype=F64)
     key = jax.random.key(0)
     ticks = jnp.arange(30)
-    traced = jax.jit(lambda: jax.lax.scan(lambda c, j: (c, st.measure(R, key, j)[1]), 0, ticks)[1])()
+    traced = jax.jit(lambda: jax.lax.scan(lambda c, j: (c, st.measure((), R, R[0], key, j, 0.1)[1][1]), 0, ticks)[1])()
     want = np.arange(30) % every == 0
     np.testing.assert_array_equal(np.asarray(traced), want)
     for j in (0, 1, every, every + 1, 2 * every):  # concrete ticks
-        R_m, valid = st.measure(R, key, j)
+        R_m, valid = st.measure((), R, R[0], key, j, 0.1)[1]
         assert bool(valid) == (j % every == 0)
         assert float(so3.orthogonality_error(R_m)) < 1e-14  # a rotation, sampled or not
 
@@ -280,26 +280,27 @@ def test_sensors_without_parts_read_the_truth():
     measure = jax.jit(lambda sensors, state: sensors.measure(state, R, Omega, ks, 3, dc))
 
     none = Sensors()
-    assert none.init((n,), F64) == ()
-    state, m = measure(none, ())
-    assert isinstance(m, Measurements) and state == ()
+    assert none.init((n,), F64) == ((), ())
+    state, m = measure(none, ((), ()))
+    assert isinstance(m, Measurements) and state == ((), ())
     np.testing.assert_array_equal(np.asarray(m.omega_m), np.asarray(Omega))
     np.testing.assert_array_equal(np.asarray(m.R_m), np.asarray(R))
     assert bool(m.star_valid)
-    np.testing.assert_array_equal(np.asarray(none.true_bias((), Omega)), 0.0)
+    np.testing.assert_array_equal(np.asarray(none.true_bias(((), ()), Omega)), 0.0)
 
-    gyro_only = Sensors(gyro=gyro(1e-3, 1e-4))
-    b0 = gyro_only.init((n,), F64)
-    assert b0.shape == (3, n) and b0.dtype == F64
-    state, m = measure(gyro_only, b0)
+    gyro_only = Sensors(rate=gyro(1e-3, 1e-4))
+    s0 = gyro_only.init((n,), F64)
+    b0 = s0[0]
+    assert b0.shape == (3, n) and b0.dtype == F64 and s0[1] == ()
+    state, m = measure(gyro_only, s0)
     np.testing.assert_array_equal(np.asarray(m.R_m), np.asarray(R))
     assert bool(m.star_valid)
     assert not np.allclose(np.asarray(m.omega_m), np.asarray(Omega))
-    np.testing.assert_array_equal(np.asarray(gyro_only.true_bias(b0, Omega)), np.asarray(b0))
+    np.testing.assert_array_equal(np.asarray(gyro_only.true_bias(s0, Omega)), np.asarray(b0))
 
-    st_only = Sensors(star_tracker=StarTracker(jnp.asarray(1e-3, F64), every=2))
-    state, m = measure(st_only, ())
-    assert state == ()
+    st_only = Sensors(attitude=StarTracker(jnp.asarray(1e-3, F64), every=2))
+    state, m = measure(st_only, ((), ()))
+    assert state == ((), ())
     np.testing.assert_array_equal(np.asarray(m.omega_m), np.asarray(Omega))
     assert not bool(m.star_valid)
     assert not np.allclose(np.asarray(m.R_m), np.asarray(R))
@@ -330,7 +331,7 @@ def test_gyro_check_rejects(kw):
     with pytest.raises(ValueError):
         good_gyro(**kw).check()
     with pytest.raises(ValueError):
-        Sensors(gyro=good_gyro(**kw)).check()
+        Sensors(rate=good_gyro(**kw)).check()
 
 
 @pytest.mark.parametrize("kw", [
@@ -343,4 +344,4 @@ def test_star_tracker_check_rejects(kw):
     with pytest.raises(ValueError):
         StarTracker(**args).check()
     with pytest.raises(ValueError):
-        Sensors(star_tracker=StarTracker(**args)).check()
+        Sensors(attitude=StarTracker(**args)).check()

@@ -9,7 +9,9 @@ import jax.numpy as jnp
 
 from so3jax import so3
 from so3jax._fusion import materialize
+from so3jax.components import Param
 from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import check_gains
 
@@ -118,5 +120,7 @@ register(
         style=dict(ls="-", color="tab:blue", label="adaptive"),
         check=check_gains,
         shapes={"Gamma": GAMMA_SHAPES},
+        options=(J_HAT, Param("log_derivative", "exact", choices=LOG_DERIVATIVES,
+                              doc="exact: e' = J_r^-1(e) Omega_e; paper: e' = Omega_e")),
     )
 )

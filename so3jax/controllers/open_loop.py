@@ -8,6 +8,7 @@ import jax.numpy as jnp
 
 from so3jax import so3
 from so3jax.controllers.base import Controller
+from so3jax.components import Param
 from so3jax.controllers.registry import ControllerSpec, register
 
 
@@ -43,5 +44,6 @@ register(
         style=dict(ls=":", color="tab:gray", label="open loop"),
         check=_check,
         tunable=False,
+        options=(Param("torque", [0.0, 0.0, 0.0], "N m", shapes=((3,),), doc="constant body torque"),),
     )
 )

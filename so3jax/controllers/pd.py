@@ -9,8 +9,11 @@ import jax
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.controllers.base import Controller, tracking_error
+from so3jax.components import Param
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import check_gains
+
+J_HAT = Param("J_hat", None, "kg m^2", shapes=((3, 3),), doc="nominal inertia (default: the identity)")
 
 
 class PDGains(NamedTuple):
@@ -52,5 +55,6 @@ register(
         defaults=PAPER_PD_GAINS,
         style=dict(ls="--", color="tab:red", label="PD"),
         check=check_gains,
+        options=(J_HAT,),
     )
 )

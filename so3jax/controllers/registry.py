@@ -28,6 +28,8 @@ class ControllerSpec:
     shapes: the shapes a gain may take, {field: ((), (9,), ...)}, for the fields that
     take more than their default's shape; every other gain has its default's shape
     (:meth:`gain_shapes`). The config parser checks gains read from files against them.
+    options: the factory's keywords as :class:`so3jax.components.Param` (a mission's
+    ``[controller.NAME]`` table); a None default is left to the factory.
     """
 
     name: str
@@ -39,6 +41,7 @@ class ControllerSpec:
     check: Callable[[Any], None]
     tunable: bool = True
     shapes: dict = dataclasses.field(default_factory=dict)
+    options: tuple = ()  # components.Param of each factory keyword (J_hat, log_derivative, ...)
 
     def gain_shapes(self) -> dict:
         """{field: allowed shapes} of every gain: ``shapes``' entry, else the default's shape."""
@@ -71,3 +74,12 @@ def get(name: str) -> ControllerSpec:
 def style(name: str) -> dict:
     """Matplotlib keyword arguments (line style, color, label) of a controller."""
     return dict(_REGISTRY[name].style) if name in _REGISTRY else {"label": name}
+
+
+def parse_options(name: str, given: dict) -> dict:
+    """The factory keywords of a mission's ``[controller.NAME]`` table, checked against
+    the registration's options (a None default is left out)."""
+    from so3jax.components import parse_params
+
+    values = parse_params(get(name).options, given, f"controller.{name}")
+    return {k: v for k, v in values.items() if v is not None}
