@@ -26,17 +26,18 @@ def _per_wheel(values: dict) -> dict:
     return out
 
 
-def _check_wheels(values: dict) -> None:
+def _complete_wheels(values: dict) -> dict:
+    """One value per wheel for each per-wheel parameter; Omega_w(0) within the speed limit."""
     w = _per_wheel(values)
     over = np.abs(w["initial_speed"]) > w["max_speed"]
     if np.any(over):
         i = int(np.argmax(over))
         raise ValueError("actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
                          f"(wheel {i + 1}: {w['initial_speed'][i]:g} against {w['max_speed'][i]:g})")
+    return w
 
 
-def _wheels(values: dict, ctx) -> Wheels:
-    w = _per_wheel(values)
+def _wheels(w: dict, ctx) -> Wheels:
     a = ctx.as_array
     return Wheels(a(w["axes"].T), a(w["spin_inertia"]), a(w["max_torque"]), a(w["max_speed"]), a(w["initial_speed"]),
                   bool(w["momentum_compensation"]))
@@ -62,7 +63,7 @@ components.register(components.ComponentSpec(
         Param("initial_speed", 0.0, "rad/s", shapes=_PER_WHEEL, doc="Omega_w(0), relative to the body"),
         Param("momentum_compensation", True, boolean=True, doc="command tau_c + omega_hat x h_w_hat"),
     ),
-    check=_check_wheels,
+    complete=_complete_wheels,
     build=_wheels,
     doc="N reaction wheels (SPEC 8.4)",
 ))

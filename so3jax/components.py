@@ -98,8 +98,8 @@ class ComponentSpec:
     """A registered loop component.
 
     build(values, context) -> the component (a pytree), values: {param: parsed value},
-    context: :class:`BuildContext`. check(values): cross-parameter checks (one-line
-    ValueErrors), run at parse time. provides (sensors): the measurement it makes, one of
+    context: :class:`BuildContext`. complete(values) -> values: cross-parameter checks
+    (one-line ValueErrors) and derived values (e.g. one value per wheel), at parse time. provides (sensors): the measurement it makes, one of
     ``MEASUREMENTS``; noise(values) (sensors): the noise levels an estimator may assume,
     {name: value}. needs (estimators): the measurements it reads; truth (estimators):
     whether it reads the true state (an explicit input only such estimators get; the
@@ -111,7 +111,7 @@ class ComponentSpec:
     params: tuple
     build: Callable[..., Any]
     doc: str = ""
-    check: Callable[[dict], None] | None = None
+    complete: Callable[[dict], dict] | None = None
     provides: str = ""
     noise: Callable[[dict], dict] | None = None
     needs: tuple = ()
@@ -119,9 +119,7 @@ class ComponentSpec:
 
     def parse(self, given: dict, where: str) -> dict:
         values = parse_params(self.params, given, where)
-        if self.check is not None:
-            self.check(values)
-        return values
+        return values if self.complete is None else self.complete(values)
 
 
 @dataclasses.dataclass(frozen=True)

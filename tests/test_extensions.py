@@ -1,0 +1,184 @@
+"""A new component of each kind is one definition plus its registration: a sensor, an
+estimator, an actuator and a controller defined here, in the test file, flown from a
+mission file with no edit of the library."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from so3jax import components, fly, mission, so3
+from so3jax._pytree import pytree_dataclass
+from so3jax.components import ComponentSpec, Param
+from so3jax.controllers import registry
+from so3jax.controllers.base import Controller, tracking_error
+from so3jax.estimators import Estimate
+from so3jax.plant import angular_acceleration
+from so3jax.sensors import sensor_noise
+
+# --- a sensor: a rate gyro with a scale-factor error ---------------------------------------
+
+
+@pytree_dataclass
+class ScaledGyro:
+    """omega_m = (1 + scale_factor) Omega + (arw / sqrt(Delta_c)) eta, no bias."""
+
+    scale_factor: jnp.ndarray
+    arw: jnp.ndarray
+
+    def init(self, batch_shape, dtype):
+        return ()
+
+    def measure(self, state, R, Omega, key, j, period):
+        eta = sensor_noise(key, 7, j, Omega.dtype)  # its own noise stream
+        scale = jnp.asarray(self.scale_factor, Omega.dtype)
+        return state, (1.0 + scale) * Omega + jnp.asarray(self.arw, Omega.dtype) / jnp.sqrt(period) * eta
+
+    def bias(self, state, Omega):
+        return jnp.zeros_like(Omega)
+
+    def check(self):
+        pass
+
+
+# --- an estimator: the star tracker's sample and a low-pass filtered rate -------------------
+
+
+@pytree_dataclass
+class LowPass:
+    """R_hat = R_m; omega_hat_j = omega_hat_{j-1} + gain (omega_m - omega_hat_{j-1})."""
+
+    gain: jnp.ndarray
+    reads_truth = False
+
+    def init(self, R0, batch_shape, dtype):
+        return jnp.zeros((3, *batch_shape), dtype)
+
+    def update(self, state, measured, period, truth=None):
+        omega = state + jnp.asarray(self.gain, state.dtype) * (measured.omega_m - state)
+        zeros = jnp.zeros_like(omega)
+        return omega, Estimate(measured.R_m, omega, zeros, jnp.zeros((6, *omega.shape[1:]), omega.dtype))
+
+    def check(self):
+        pass
+
+
+# --- an actuator: a first-order lag between command and torque -----------------------------
+
+
+@pytree_dataclass
+class Lag:
+    """tau' = (tau_c - tau) / time_constant; the body receives tau (its own state)."""
+
+    time_constant: jnp.ndarray
+
+    def init(self, batch_shape, dtype):
+        return jnp.zeros((3, *batch_shape), dtype)
+
+    def command(self, state, tau_c, omega_hat):
+        return tau_c
+
+    def check(self):
+        pass
+
+
+# --- a controller: a rate damper ---------------------------------------------------------------
+
+
+class DamperGains(NamedTuple):
+    c: float  # N m s / rad
+
+
+def damper(sign: float = 1.0) -> Controller:
+    """tau = -sign c Omega_e."""
+
+    def torque(gains, state, measured, desired, t):
+        return -sign * gains.c * tracking_error(measured, desired).Omega_e, ()
+
+    return Controller(lambda gains: (), torque, DamperGains)
+
+
+def _no_check(gains):
+    pass
+
+
+SPECS = [
+    ComponentSpec(kind="sensor", name="scaled_gyro", provides="rate",
+                  params=(Param("scale_factor", 0.0, low=-0.5, high=0.5), Param("arw", 0.0, "rad/sqrt(s)", low=0.0)),
+                  build=lambda v, ctx: ScaledGyro(ctx.as_array(v["scale_factor"]), ctx.as_array(v["arw"]))),
+    ComponentSpec(kind="estimator", name="lowpass", needs=("rate", "attitude"),
+                  params=(Param("gain", 1.0, low=0.0, high=1.0),),
+                  build=lambda v, ctx: LowPass(ctx.as_array(v["gain"]))),
+]
+CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=damper, gains_type=DamperGains,
+                                     defaults=DamperGains(c=50.0), style={"label": "damper"}, check=_no_check,
+                                     options=(Param("sign", 1.0, low=-1.0, high=1.0),))
+
+
+@pytest.fixture(scope="module")
+def registered():
+    for spec in SPECS:
+        components.register(spec)
+    registry.register(CONTROLLER)
+    yield
+    for spec in SPECS:
+        components._REGISTRY[spec.kind].pop(spec.name)
+    registry._REGISTRY.pop(CONTROLLER.name)
+
+
+MISSION = """
+T = 2.0
+dt = 0.01
+controllers = ["damper"]
+record_every = 10
+[control]
+period = 0.1
+[initial]
+rate = [0.02, -0.01, 0.03]
+[sensors]
+gyro = false
+[sensors.scaled_gyro]
+scale_factor = 0.05
+[sensors.star_tracker]
+sigma = 1e-5
+[estimator]
+kind = "lowpass"
+[actuator]
+kind = "ideal"
+[gains.damper]
+c = 1000.0
+"""
+
+
+def test_extra_sensor_estimator_and_controller_fly_from_a_mission_file(registered, tmp_path):
+    path = tmp_path / "mission.toml"
+    path.write_text(MISSION)
+    m = mission.load(path)
+    assert m.sensors["scaled_gyro"]["scale_factor"] == 0.05 and m.estimator == {"kind": "lowpass", "lowpass": {"gain": 1.0}}
+    results, _ = fly.fly(m)
+    h = results["damper"].history
+    # the sensor's reading reached the estimate, and the estimate the law: omega_hat = 1.05 Omega at the ticks
+    np.testing.assert_allclose(np.asarray(h.Omega_hat), 1.05 * np.asarray(h.Omega), rtol=1e-12, atol=1e-15)
+    error = np.linalg.norm(np.asarray(h.Omega_e), axis=1)
+    assert error[-1] < 0.2 * error[0]  # the damper damps (J / c ~ 0.6 s)
+    # the option reaches the factory: a negative sign drives the rate error away
+    pumped, _ = fly.fly(mission.load(path, ["controller.damper.sign=-1.0"]))
+    assert np.linalg.norm(np.asarray(pumped["damper"].history.Omega_e)[-1]) > 2.0 * error[0]
+
+
+def test_extra_components_are_checked_like_the_built_in_ones(registered, tmp_path):
+    path = tmp_path / "mission.toml"
+    path.write_text(MISSION)
+    with pytest.raises(ValueError, match=r"sensors.scaled_gyro.scale_factor"):
+        mission.load(path, ["sensors.scaled_gyro.scale_factor=2.0"])
+    with pytest.raises(ValueError, match="both measure the rate"):
+        mission.load(path, ["sensors.gyro={}"])
+    with pytest.raises(ValueError, match="estimator 'lowpass' needs a sensor of the rate"):
+        mission.load(path, ["sensors.scaled_gyro=false"])
+    with pytest.raises(ValueError, match=r"gains.damper.c"):
+        mission.load(path, ["gains.damper.c='big'"])
+    with pytest.raises(ValueError, match="controller.damper"):
+        mission.load(path, ["controller.damper.sign=true"])
