@@ -83,6 +83,7 @@ class Mission:
     J0: np.ndarray
     J1: np.ndarray
     J2: np.ndarray
+    J1_scale: float | None  # J1 = J1_scale J0 when the mission gives the deployment's growth, else None
     constant_inertia: bool
     tau_J: float
     n: float
@@ -151,9 +152,11 @@ def _rotation(rotvec) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
-def _build_loop(m: Mission, as_array) -> Loop:
+def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
+    """The loop's components built from their registrations; an estimator assumes the
+    noise levels of the sensors of ``noise_of`` (default: m's own)."""
     noise = {}
-    for name, values in m.sensors.items():
+    for name, values in (m if noise_of is None else noise_of).sensors.items():
         spec = components.get("sensor", name)
         noise.update(spec.noise(values) if spec.noise else {})
     ctx = components.BuildContext(as_array, noise)
@@ -229,7 +232,7 @@ def from_dict(d: dict) -> Mission:
     controllers = cfg.names(full["controllers"], "controllers", registry.names())
     period_steps = _period_steps(cfg.table(full, "control", ("mode", "period")), T, dt, n_steps)
 
-    J0, J1, J2, constant = _inertias(d.get("inertia", {}), full["inertia"])
+    J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
     tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]", low=0.0)
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
@@ -263,7 +266,7 @@ def from_dict(d: dict) -> Mission:
         if name in controllers:
             gains[name] = g
 
-    mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, constant, tau_J, n,
+    mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains)
     for name in controllers:
         try:
@@ -296,21 +299,21 @@ def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | Non
 
 
 def _inertias(given: dict, full: dict):
-    """(J0, J1, J2, constant): ``[inertia] J`` for a constant inertia, else the paper's
-    J0 (capture), J1 = scale J0 or a nominal (deployed), J2 (docked) [kg m^2]."""
+    """(J0, J1, J2, J1's scale or None, constant): ``[inertia] J`` for a constant inertia,
+    else the paper's J0 (capture), J1 = scale J0 or a nominal (deployed), J2 (docked) [kg m^2]."""
     if isinstance(given, dict) and "J" in given:
         extra = sorted(set(given) - {"J"})
         if extra:
             raise ValueError(f"[inertia] J (a constant inertia) excludes {', '.join(extra)}")
         J = cfg.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
-        return J, J, J, True
+        return J, J, J, None, True
     inertia = cfg.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
     J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
     J1_table = cfg.table(inertia, "J1", ("scale", "nominal"), "inertia.")
-    J1 = (cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if "nominal" in J1_table
-          else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0) * J0)
+    scale = None if "nominal" in J1_table else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0)
+    J1 = cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
     J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
-    return J0, J1, J2, False
+    return J0, J1, J2, scale, False
 
 
 def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:

@@ -1,0 +1,224 @@
+"""A mission's ``[dispersions]`` table: which of the mission's own leaves vary from
+sample to sample, and each sample's scenario and loop.
+
+Keys are the mission's leaves (``deployment.tau_J``, ``sensors.gyro.arw``,
+``actuator.wheels.max_torque``, ...), values a number (fixed) or a distribution
+(:func:`so3jax.dispersions.parse_distribution`). A few leaves take structured
+distributions and keep :mod:`so3jax.dispersions`' variate layout:
+
+* ``inertia.J0``, ``inertia.J1``, ``inertia.J2``: ``{scale, axis_scale, rotation_deg,
+  products}`` (:class:`~so3jax.dispersions.InertiaDispersion`; J1's is applied to the
+  sample's J0 when the mission gives J1 as a scale of J0);
+* ``initial.attitude``: ``{max_angle_deg}``, R(0) = R_mission(0) exp(hat(v)), v uniform
+  on SO(3) up to that angle; ``initial.rate``: ``{norm}``, |Omega(0)| drawn from the
+  distribution ``norm`` [rad/s], its direction uniform on the sphere;
+* ``seed = "random"``: a disturbance and sensor-noise seed per sample.
+
+Every other leaf is a parameter of a flown sensor, estimator or actuator: each element
+of its value is drawn independently from its own variates, ``fold_in(fold_in(key(seed),
+k), crc32(leaf))``, so adding or removing a dispersion moves no other. A sample with a
+value outside the parameter's declared domain is rejected (never simulated). The
+estimator keeps the noise levels the mission's nominal sensors report: the hardware is
+dispersed, not what the filter assumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import zlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import components
+from so3jax import config as cfg
+from so3jax import dispersions as disp
+from so3jax.mission import Mission, _build_loop, _rotation
+from so3jax.plant import ConstantInertia
+from so3jax.scenario import Scenario, paper_scenario
+
+STRUCTURED = {
+    ("deployment", "tau_J"): "tau_J",
+    ("orbit", "n"): "n",
+    ("disturbance", "amplitude"): "amplitude",
+    ("disturbance", "frequency"): "frequency",
+    ("disturbance", "noise_std"): "noise_std",
+}
+_INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products")
+_LOOP_TABLES = ("sensors", "estimator", "actuator")
+
+
+@dataclasses.dataclass(frozen=True)
+class Leaf:
+    """A dispersed component parameter: its dotted key, distribution, the shape of the
+    mission's value, and the parameter's domain [low, high]."""
+
+    key: str
+    dist: disp.Distribution
+    shape: tuple
+    low: float
+    high: float
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    """{dotted key: value} down to numbers, strings and distribution tables (with 'dist',
+    or an inertia / initial-state table)."""
+    out = {}
+    for key, value in table.items():
+        path = f"{prefix}{key}"
+        structured = path in ("inertia.J0", "inertia.J1", "inertia.J2", "initial.attitude", "initial.rate")
+        if isinstance(value, dict) and "dist" not in value and not structured:
+            out.update(_flatten(value, path + "."))
+        else:
+            out[path] = value
+    return out
+
+
+def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, ...]]:
+    """(structured dispersions, component leaves) of a ``[dispersions]`` table on ``mission``;
+    one-line ValueErrors naming the key."""
+    if not isinstance(table, dict):
+        raise ValueError(f"[dispersions] must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+    fields = {
+        "J0": disp.InertiaDispersion(nominal=_matrix(mission.J0)),
+        "J1": disp.InertiaDispersion(nominal=None if mission.J1_scale is not None else _matrix(mission.J1),
+                                     scale=disp.Fixed(1.0 if mission.J1_scale is None else mission.J1_scale)),
+        "J2": disp.InertiaDispersion(nominal=_matrix(mission.J2)),
+        "tau_J": disp.Fixed(mission.tau_J),
+        "n": disp.Fixed(mission.n),
+        **{name: disp.Fixed(mission.disturbance[name]) for name in ("amplitude", "frequency", "noise_std")},
+        "disturbance_seed": mission.seed,
+    }
+    leaves = []
+    for key, value in _flatten(table).items():
+        path = tuple(key.split("."))
+        where = f"dispersions.{key}"
+        if key == "seed":
+            if value != "random":
+                raise ValueError(f"{where} must be \"random\" (a seed per sample), got {cfg.short(value)}; "
+                                 "one seed for every sample is the mission's seed")
+            fields["disturbance_seed"] = None
+        elif path[0] == "inertia" and len(path) == 2 and path[1] in ("J0", "J1", "J2"):
+            if mission.constant_inertia and path[1] != "J0":
+                raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")
+            fields[path[1]] = _inertia(value, where, fields[path[1]])
+        elif key == "initial.attitude":
+            t = cfg.table({"t": value}, "t", ("max_angle_deg",), where)
+            fields["initial_angle_deg"] = cfg.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg", 0.0, 180.0)
+        elif key == "initial.rate":
+            t = cfg.table({"t": value}, "t", ("norm",), where)
+            fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
+        elif path in STRUCTURED:
+            fields[STRUCTURED[path]] = _distribution(value, where)
+        elif path[0] in _LOOP_TABLES:
+            leaves.append(_leaf(path, value, where, mission))
+        else:
+            raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, orbit.n, "
+                             "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
+                             "parameters of the mission's sensors, estimator and actuator")
+    if mission.constant_inertia:
+        fields["J1"] = fields["J2"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
+    dispersions = disp.Dispersions(**fields)
+    disp.check(dispersions, warn=False)
+    return dispersions, tuple(leaves)
+
+
+def _matrix(J) -> tuple:
+    return tuple(map(tuple, np.asarray(J, float).tolist()))
+
+
+def _distribution(value, where: str) -> disp.Distribution:
+    if isinstance(value, dict) and "dist" in value and not isinstance(value["dist"], str):
+        cfg.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
+    return disp.parse_distribution(value, where)
+
+
+def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
+    t = cfg.table({"t": value}, "t", _INERTIA_KEYS, where)
+    changes = {name: _distribution(t[name], f"{where}.{name}") for name in ("scale", "axis_scale", "products") if name in t}
+    if "rotation_deg" in t:
+        changes["rotation_deg"] = cfg.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
+    return dataclasses.replace(default, **changes)
+
+
+def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A component parameter of the mission: flown, numeric, not an integer."""
+    table, name, param = path[0], path[1] if len(path) > 1 else "", path[2] if len(path) > 2 else ""
+    if len(path) != 3:
+        raise ValueError(f"{where} must name a component parameter, e.g. dispersions.{table}.NAME.PARAMETER")
+    flown = mission.sensors if table == "sensors" else {getattr(mission, table)["kind"]: getattr(mission, table)[
+        getattr(mission, table)["kind"]]}
+    if name not in flown:
+        raise ValueError(f"{where}: the mission flies no {table} {name!r} (flown: {', '.join(flown) or 'none'})")
+    kind = "sensor" if table == "sensors" else table
+    spec = next((p for p in components.get(kind, name).params if p.name == param), None)
+    if spec is None:
+        raise ValueError(f"{where}: {table} {name!r} has no parameter {param!r}")
+    current = flown[name][param]
+    if spec.integer or spec.boolean or spec.choices or current is None:
+        raise ValueError(f"{where}: only real-valued parameters are dispersed ({param} is "
+                         f"{'not set in the mission' if current is None else 'not a real number'})")
+    dist = _distribution(value, where)
+    disp.check_domain(dist, where, spec.low, strict=False)
+    return Leaf(".".join(path), dist, np.shape(current), spec.low, spec.high)
+
+
+# --- drawing ---------------------------------------------------------------------------------
+
+
+@functools.partial(jax.jit, static_argnames="n_words")
+def _leaf_words(seed, indices, salt, n_words: int):
+    base = jax.random.key(seed)
+    draw = lambda k: jax.random.bits(jax.random.fold_in(jax.random.fold_in(base, k), salt), (n_words,), jnp.uint32)
+    return jax.vmap(draw)(indices)
+
+
+def draw_leaves(leaves: tuple, seed: int, n_samples: int) -> tuple[dict, np.ndarray]:
+    """({key: values (N, *shape)}, valid (N,)): each leaf's values for samples 0 .. N-1, in
+    float64, and whether every value lies in its parameter's domain."""
+    values, valid = {}, np.ones(n_samples, bool)
+    for leaf in leaves:
+        size = int(np.prod(leaf.shape))
+        words = np.asarray(_leaf_words(np.uint32(seed), np.arange(n_samples, dtype=np.uint32),
+                                       np.uint32(zlib.crc32(leaf.key.encode())), 2 * max(size, 1)))
+        v = disp._variates(words)
+        u, z = v.take(max(size, 1))
+        x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))
+        values[leaf.key] = x
+        valid &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
+    return values, valid
+
+
+# --- a sample's scenario and loop ------------------------------------------------------------
+
+
+def scenario(mission: Mission, p: disp.RolloutParams) -> Scenario:
+    """The mission's scenario with one sample's parameters (traceable: vmap over samples)."""
+    s = paper_scenario(mission.T, mission.dt, tau_J=p.tau_J, n=p.n, J0=p.J0, J1=p.J1, J2=p.J2,
+                       disturbance_amplitude=p.amplitude, disturbance_frequency=p.frequency, noise_std=p.noise_std,
+                       dtype=p.J0.dtype)
+    R0 = p.R0
+    if np.any(mission.initial["attitude"]):
+        R0 = jnp.asarray(_rotation(mission.initial["attitude"]), p.R0.dtype) @ R0
+    Omega0 = p.Omega0
+    if np.any(mission.initial["rate"]):
+        Omega0 = Omega0 + jnp.asarray(mission.initial["rate"], p.Omega0.dtype)
+    changes = {"R0": R0, "Omega0": Omega0}
+    if mission.constant_inertia:
+        changes["inertia"] = ConstantInertia(p.J0)
+    return dataclasses.replace(s, **changes)
+
+
+def loop(mission: Mission, values: dict, dtype):
+    """The mission's loop with component leaves {key: value} replaced (traceable); the
+    estimator assumes the nominal sensors' noise levels."""
+    tables = {"sensors": {k: dict(v) for k, v in mission.sensors.items()},
+              "estimator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.estimator.items()},
+              "actuator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.actuator.items()}}
+    for key, value in values.items():
+        table, name, param = key.split(".")
+        tables[table][name][param] = value
+    changed = dataclasses.replace(mission, **tables)
+    return _build_loop(changed, lambda x: jnp.asarray(x, dtype), noise_of=mission)
