@@ -23,7 +23,7 @@ from so3jax.loop import PAPER_LOOP, Loop
 from so3jax.mission import Mission
 from so3jax.mission import load as load_mission
 from so3jax.sensors import Gyro, Sensors, StarTracker
-from so3jax.rollout import FlightHistory, History, Result, State, rollout, rollout_batch, simulate
+from so3jax.rollout import History, Result, State, rollout, rollout_batch, simulate
 from so3jax.scenario import InertiaWarning, Scenario, paper_scenario, steps_for_horizon
 
 __all__ = [
@@ -35,7 +35,6 @@ __all__ = [
     "ConstantInertia",
     "Controller",
     "Desired",
-    "FlightHistory",
     "Gyro",
     "History",
     "Ideal",

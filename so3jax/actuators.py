@@ -1,28 +1,36 @@
 """Actuators: the controller's command tau_c in, the torque on the body out (SPEC 8.4).
 
-Each actuator is a pytree with
+The plant (:func:`so3jax.plant.derivative`) owns the rigid body; an actuator is a pytree
+that reports what it does to it, from its own state and the input held over a period:
 
-* ``init(batch_shape, dtype)``: its state, () or the wheel speeds Omega_w (N, *batch) [rad/s];
+* ``init(batch_shape, dtype)``: its state, () or e.g. the wheel speeds Omega_w (N, *batch) [rad/s];
 * ``command(state, tau_c, omega_hat)``: the input held over a control period, computed
-  at the tick from the command tau_c (3, *b) [N m] and the estimated rate omega_hat [rad/s];
-* ``body_torque(held)``: the torque the actuator puts on the body (3, *b) [N m];
-* ``delivered(state, held, omega_hat)``: the control torque the command became (3, *b)
-  [N m]: the body torque, less the momentum compensation the wheels add; tau_c where no
-  limit binds (what the metrics' effort and the torque figures count);
-* ``derivative(J, Omega, state, held, d, t, J_dot=None)``: (Omega', state'), the plant of
-  SPEC 1 (ideal, saturated) or SPEC 8.4 (wheels);
-* ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of shape b;
+  from the command tau_c (3, *b) [N m] and the estimated rate omega_hat (3, *b) [rad/s]
+  (at a tick; in every RK4 stage in the continuous wiring);
+* ``body_torque(state, held, Omega)``: the torque it puts on the body, tau_body (3, *b) [N m];
+* ``stored_momentum(state)``: None, or (J_locked (3, 3) [kg m^2], h_rel (3, *b) [N m s]):
+  it stores J_locked Omega + h_rel of angular momentum, body frame (wheels: G_s J_s G_s^T
+  and G_s J_s Omega_w); the plant then solves (J - J_locked) Omega' = -Omega x (J Omega
+  + h_rel) + tau_body + d [- J' Omega] (SPEC 8.4);
+* ``derivative(state, held, Omega, Omega_dot)``: its state's rate given the body's (() without state);
+* ``delivered(state, held, Omega)``: the control torque the command became (3, *b) [N m]:
+  tau_c where no limit binds; the metrics' torque sample at every step start in both
+  wirings, and the torque the figures show;
+* ``effort(held)``: |held input|^2 (wheels: sum_i u_i^2) [N^2 m^2], of the batch shape
+  (the flight metrics' actuator effort);
+* ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of the batch shape;
 * ``speed_ratio(state)``: max_i |Omega_w,i| / Omega_max,i (0 without wheels);
-* ``momentum(state, Omega)``: the wheels' angular momentum h_w in the body frame (3, *b) [N m s];
 * ``check()``: one-line ValueErrors on bad parameters, before compilation.
 
-Arrays follow :mod:`so3jax.so3`: components first, batch axes last; wheel arrays are
-(N, *b). Parameters are cast to the dtype of the arrays they meet.
+:class:`Actuator` gives the defaults of a stateless actuator without stored momentum or
+limits. Arrays follow :mod:`so3jax.so3`: components first, batch axes last; wheel arrays
+are (N, *b). Parameters are cast to the dtype of the arrays they meet.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -30,9 +38,7 @@ import numpy as np
 
 from so3jax import config as cfg
 from so3jax import so3
-from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass, static_field
-from so3jax.plant import angular_acceleration
 
 _UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
@@ -66,48 +72,67 @@ def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool
         raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
 
 
-# --- ideal and saturated body torques --------------------------------------------------
+# --- the defaults, ideal and saturated body torques ---------------------------------------
 
 
-class _BodyTorque:
-    """An actuator whose held input is the body torque itself: no state, the plant of SPEC 1."""
+class StoredMomentum(NamedTuple):
+    """Angular momentum an actuator stores, J_locked Omega + h_rel, body frame (SPEC 8.4)."""
+
+    locked_inertia: jax.Array  # J_locked (3, 3) kg m^2: the part of J that spins with the body's rate
+    relative: jax.Array  # h_rel (3, *b) N m s: the momentum of its motion relative to the body
+
+
+class Actuator:
+    """Defaults of the actuator interface: no state, no stored momentum, no limits; the
+    held input is the body torque and the control torque delivered."""
 
     def init(self, batch_shape, dtype):
         return ()
 
-    def body_torque(self, held):
+    def body_torque(self, state, held, Omega):
         return held
 
-    def delivered(self, state, held, omega_hat):
-        return held
+    def stored_momentum(self, state):
+        return None
 
-    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
-        """SPEC 1 with the body torque held: J Omega' = -Omega x J Omega + held + d [- J' Omega]."""
-        return angular_acceleration(J, Omega, materialize(held + d, t), J_dot), ()
+    def derivative(self, state, held, Omega, Omega_dot):
+        return ()
 
-    def speed_ratio(self, state):
-        return 0.0
+    def delivered(self, state, held, Omega):
+        return self.body_torque(state, held, Omega)
 
-    def momentum(self, state, Omega):
-        return jnp.zeros_like(Omega)
-
-
-@pytree_dataclass
-class Ideal(_BodyTorque):
-    """tau = tau_c (SPEC 8.4 ``ideal``)."""
-
-    def command(self, state, tau_c, omega_hat):
-        return tau_c
+    def effort(self, held):
+        return so3.sum_leading(held * held)
 
     def limits(self, state, held, tau_c):
         return _no_limit(held), _no_limit(held)
+
+    def speed_ratio(self, state):
+        return 0.0
 
     def check(self) -> None:
         pass
 
 
+def momentum(actuator, state, Omega):
+    """J_locked Omega + h_rel (3, *b) [N m s]: the angular momentum the actuator stores,
+    body frame; zeros where it stores none."""
+    stored = actuator.stored_momentum(state)
+    if stored is None:
+        return jnp.zeros_like(Omega)
+    return so3.matvec(so3.batch_like(stored.locked_inertia, 2, Omega), Omega) + stored.relative
+
+
 @pytree_dataclass
-class Saturated(_BodyTorque):
+class Ideal(Actuator):
+    """tau = tau_c (SPEC 8.4 ``ideal``)."""
+
+    def command(self, state, tau_c, omega_hat):
+        return tau_c
+
+
+@pytree_dataclass
+class Saturated(Actuator):
     """tau_i = clip(tau_c,i, -max_torque_i, max_torque_i) per body axis (SPEC 8.4 ``saturated``).
 
     max_torque: (3,) or a scalar for every axis, N m.
@@ -157,14 +182,21 @@ def _weighted_gram(G, w):
     return total
 
 
+class WheelCommand(NamedTuple):
+    """What the wheels hold over a control period (SPEC 8.4), computed at the tick."""
+
+    u: jax.Array  # (N, *b) motor torques, N m (the body receives -G_s u)
+    compensation: jax.Array  # (3, *b) omega_hat x h_w_hat included in u, N m (zeros without)
+
+
 @pytree_dataclass
-class Wheels:
+class Wheels(Actuator):
     """N reaction wheels (SPEC 8.4 ``wheels``).
 
     axes: G_s (3, N), unit spin axes g_i as columns; spin_inertia: J_s (N,) kg m^2;
     max_torque: u_max (N,) N m; max_speed: Omega_max (N,) rad/s; initial_speed:
-    Omega_w(0) (N,) rad/s, relative to the body. The held input is the motor torques
-    u (N, *b) [N m]; the body receives -G_s u. momentum_compensation: the command becomes
+    Omega_w(0) (N,) rad/s, relative to the body. The state is Omega_w (N, *b); the held
+    input a :class:`WheelCommand`. momentum_compensation: the command becomes
     tau_c + omega_hat x h_w_hat before it is distributed.
     """
 
@@ -212,6 +244,11 @@ class Wheels:
         G = self._axes(Omega)
         return _spin_sum(G, _per_wheel(self.spin_inertia, Omega) * (so3.rmatvec(G, Omega) + state))
 
+    def stored_momentum(self, state):
+        """(G_s J_s G_s^T, G_s J_s Omega_w): h_w = G_s J_s G_s^T Omega + G_s J_s Omega_w (SPEC 8.4)."""
+        relative = _spin_sum(self._axes(state), _per_wheel(self.spin_inertia, state) * state)
+        return StoredMomentum(self._spin_inertia_matrix(state.dtype), relative)
+
     def distribute(self, tau):
         """Minimum-norm motor torques u = -G_s^T (G_s G_s^T)^{-1} tau (N, *b) [N m], so that
         -G_s u = tau (SPEC 8.4), before any limit."""
@@ -220,42 +257,37 @@ class Wheels:
         return -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
 
     def command(self, state, tau_c, omega_hat):
-        """Motor torques u (N, *b) [N m] held over the period (SPEC 8.4): the command
+        """The motor torques u (N, *b) [N m] held over the period (SPEC 8.4): the command
         (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
         tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
-        wheel at its speed limit that it would spin faster."""
-        tau = tau_c + self._compensation(state, omega_hat)
+        wheel at its speed limit that it would spin faster; with the compensation they include."""
+        compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
+        tau = tau_c + compensation
         u_max = _per_wheel(self.max_torque, tau)
         u = jnp.clip(self.distribute(tau), -u_max, u_max)
         faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
-        return jnp.where(faster, jnp.zeros_like(u), u)
+        return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
 
-    def body_torque(self, held):
+    def body_torque(self, state, held, Omega):
         """-G_s u (3, *b) [N m]."""
-        return -_spin_sum(self._axes(held), held)
+        return -_spin_sum(self._axes(held.u), held.u)
 
     def _compensation(self, state, omega_hat):
-        """omega_hat x h_w_hat (3, *b) [N m], or 0 without momentum compensation."""
-        return so3.cross(omega_hat, self.momentum(state, omega_hat)) if self.momentum_compensation else 0.0
+        """omega_hat x h_w_hat (3, *b) [N m]."""
+        return so3.cross(omega_hat, self.momentum(state, omega_hat))
 
-    def delivered(self, state, held, omega_hat):
-        """-G_s u less the momentum compensation omega_hat x h_w_hat: the command tau_c
-        itself where no limit binds [N m]."""
-        return self.body_torque(held) - self._compensation(state, omega_hat)
+    def delivered(self, state, held, Omega):
+        """-G_s u less the momentum compensation it includes (omega_hat x h_w_hat of the
+        tick): the command tau_c itself where no limit binds [N m]."""
+        return self.body_torque(state, held, Omega) - held.compensation
 
-    def derivative(self, J, Omega, state, held, d, t, J_dot=None):
-        """(Omega', Omega_w') of SPEC 8.4 [rad/s^2]:
-        (J - G_s J_s G_s^T) Omega' = -Omega x (J Omega + G_s J_s Omega_w) - G_s u + d [- J' Omega],
-        Omega_w' = J_s^{-1} u - G_s^T Omega'."""
-        G = self._axes(Omega)
-        spin = _per_wheel(self.spin_inertia, Omega)
-        wheel_momentum = _spin_sum(G, spin * state)
-        rhs = d - _spin_sum(G, held) - so3.cross(Omega, so3.matvec(J, Omega) + wheel_momentum)
-        if J_dot is not None:
-            rhs = rhs - so3.matvec(J_dot, Omega)
-        J_B = J - so3.batch_like(self._spin_inertia_matrix(Omega.dtype), 2, Omega)
-        Omega_dot = so3.solve_spd(J_B, materialize(rhs, t))
-        return Omega_dot, held / spin - so3.rmatvec(G, Omega_dot)
+    def derivative(self, state, held, Omega, Omega_dot):
+        """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (SPEC 8.4)."""
+        return held.u / _per_wheel(self.spin_inertia, Omega) - so3.rmatvec(self._axes(Omega), Omega_dot)
+
+    def effort(self, held):
+        """sum_i u_i^2 [N^2 m^2]."""
+        return so3.sum_leading(held.u * held.u)
 
     def limits(self, state, held, tau_c):
         """(a motor torque clipped at u_max, a wheel at |Omega_w,i| >= Omega_max,i), of
@@ -263,7 +295,7 @@ class Wheels:
         the clip binds: the distributed command includes the momentum compensation,
         which tau_c does not show. A clipped torque then zeroed by the speed limit counts
         at the speed limit only."""
-        at_torque = jnp.any(jnp.abs(held) >= _per_wheel(self.max_torque, held), axis=0)
+        at_torque = jnp.any(jnp.abs(held.u) >= _per_wheel(self.max_torque, held.u), axis=0)
         return at_torque, jnp.any(jnp.abs(state) >= _per_wheel(self.max_speed, state), axis=0)
 
     def speed_ratio(self, state):

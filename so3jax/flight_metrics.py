@@ -21,7 +21,7 @@ class Accumulator(NamedTuple):
     sq_bias_error: jax.Array  # sum |b_hat - b|^2, (rad/s)^2
     max_bias_error: jax.Array  # rad/s
     sq_command: jax.Array  # sum |tau_c|^2, N^2 m^2
-    sq_actuator: jax.Array  # sum |held input|^2 (wheel motor torques u, or body torques), N^2 m^2
+    sq_actuator: jax.Array  # sum of actuator.effort, |held input|^2 (wheel motor torques u or body torques), N^2 m^2
     torque_limit_ticks: jax.Array  # periods (within the horizon) with a torque limit binding
     speed_limit_ticks: jax.Array  # periods (within the horizon) with a wheel at its speed limit
     max_wheel_speed_ratio: jax.Array  # max_i |Omega_w,i| / Omega_max,i (0 without wheels)
@@ -50,7 +50,7 @@ class TickSample(NamedTuple):
     attitude_error: jax.Array  # (...) rad
     bias_error: jax.Array  # (3, ...) rad/s
     tau_cmd: jax.Array  # (3, ...) N m
-    held: jax.Array  # (3 or N, ...) N m
+    actuator_effort: jax.Array  # (...) |held input|^2 (the actuator's `effort`), N^2 m^2
     at_torque_limit: jax.Array  # (...) bool
     at_speed_limit: jax.Array  # (...) bool
     wheel_speed_ratio: jax.Array  # (...) max_i |Omega_w,i| / Omega_max,i
@@ -70,7 +70,7 @@ def update(acc: Accumulator, s: TickSample, live=True, share=None) -> Accumulato
         acc.sq_bias_error + one * bias**2,
         jnp.maximum(acc.max_bias_error, one * bias),
         acc.sq_command + held * so3.dot(s.tau_cmd, s.tau_cmd),
-        acc.sq_actuator + held * so3.sum_leading(s.held * s.held),
+        acc.sq_actuator + held * s.actuator_effort,
         acc.torque_limit_ticks + held * s.at_torque_limit.astype(one.dtype),
         acc.speed_limit_ticks + held * s.at_speed_limit.astype(one.dtype),
         jnp.maximum(acc.max_wheel_speed_ratio, one * s.wheel_speed_ratio),

@@ -1,6 +1,6 @@
 """Figures of the flight loop (SPEC 8): estimation, torques, wheels, momentum.
 
-Each takes {controller name: FlightHistory with NumPy leaves}, the phase start times [s]
+Each takes {controller name: History of the sampled wiring with NumPy leaves}, the phase start times [s]
 and the horizon T [s]; it returns a matplotlib figure.
 """
 
@@ -79,14 +79,14 @@ def bias_figure(histories, phase_times, T):
 
 
 def torque_figure(histories, phase_times, T):
-    """Commanded (dotted) and applied (solid) body torque per axis [N m]."""
+    """Commanded (dotted) and delivered (solid) control torque per axis [N m]."""
     fig = Figure(figsize=(10, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             style = registry.style(name)
             ax.plot(h.t, h.tau_cmd[:, i], lw=0.8, ls=":", color=style.get("color"), label=f"{style['label']} commanded")
-            ax.plot(h.t, h.tau_applied[:, i], lw=1.0, color=style.get("color"), label=f"{style['label']} applied")
+            ax.plot(h.t, h.tau[:, i], lw=1.0, color=style.get("color"), label=f"{style['label']} applied")
         _frame(ax, phase_times, T, f"τ {AXES[i]} [N m]")
     axes[0].legend(fontsize=8, loc="upper right")
     axes[-1].set_xlabel("t [s]")
@@ -95,14 +95,14 @@ def torque_figure(histories, phase_times, T):
 
 
 def wheel_speed_figure(histories, phase_times, T, max_speed):
-    """Wheel speeds [rad/s] with their limits +-Omega_max (dashed)."""
+    """Wheel speeds [rad/s] (the actuator's state) with their limits +-Omega_max (dashed)."""
     names = list(histories)
     fig = Figure(figsize=(10, 3.2 * len(names)))
     axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
     for ax, name in zip(axes[:, 0], names):
         h = histories[name]
-        for i in range(h.wheel_speed.shape[1]):
-            ax.plot(h.t, h.wheel_speed[:, i], lw=1.0, label=f"wheel {i + 1}")
+        for i in range(h.actuator.shape[1]):
+            ax.plot(h.t, h.actuator[:, i], lw=1.0, label=f"wheel {i + 1}")
         for limit in np.unique(max_speed):
             ax.axhline(limit, color="k", ls="--", lw=0.8)
             ax.axhline(-limit, color="k", ls="--", lw=0.8)

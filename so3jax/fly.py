@@ -144,19 +144,22 @@ def _deg_h(x):
     return None if x is None else math.degrees(x) * 3600.0
 
 
+def recorded(x, otherwise):
+    """A History field, or ``otherwise`` where the wiring does not record it (``()``)."""
+    return otherwise if isinstance(x, tuple) and x == () else x
+
+
 def trajectory_arrays(results: dict) -> dict:
-    """{controller/quantity: array} of the recorded histories (t shared)."""
+    """{controller/quantity: array} of the recorded histories (t shared). A wiring without
+    an estimate (continuous: the law reads the true state) stores the truth as R_hat,
+    Omega_hat and zero biases; wheel_speed is (M, 0) without wheels."""
     arrays = {}
     for name, r in results.items():
         h = r.history
-        values = {"t": h.t, "R": h.R, "Omega": h.Omega}
-        if hasattr(h, "R_hat"):
-            values.update(R_hat=h.R_hat, Omega_hat=h.Omega_hat, bias=h.bias, bias_hat=h.bias_hat,
-                          tau_cmd=h.tau_cmd, tau_applied=h.tau_applied,
-                          wheel_speed=h.wheel_speed if np.ndim(h.wheel_speed) == 2 else np.zeros((len(h.t), 0)))
-        else:
-            values.update(R_hat=h.R, Omega_hat=h.Omega, bias=np.zeros_like(h.Omega), bias_hat=np.zeros_like(h.Omega),
-                          tau_cmd=h.tau, tau_applied=h.tau, wheel_speed=np.zeros((len(h.t), 0)))
+        values = {"t": h.t, "R": h.R, "Omega": h.Omega, "R_hat": recorded(h.R_hat, h.R),
+                  "Omega_hat": recorded(h.Omega_hat, h.Omega), "bias": recorded(h.bias, np.zeros_like(h.Omega)),
+                  "bias_hat": recorded(h.bias_hat, np.zeros_like(h.Omega)), "tau_cmd": h.tau_cmd, "tau_applied": h.tau,
+                  "wheel_speed": h.actuator if np.ndim(h.actuator) == 2 else np.zeros((len(h.t), 0))}
         arrays.update({f"{name}/{k}": np.asarray(v) for k, v in values.items()})
     return arrays
 

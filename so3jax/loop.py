@@ -7,14 +7,19 @@
 A :class:`Loop` holds the sensors, the estimator, the actuator and the control period;
 the plant (inertia), reference and disturbance come from the :class:`~so3jax.scenario.Scenario`,
 the law from a :class:`~so3jax.controllers.Controller`. Each component owns a field of
-:class:`State`. Two wirings of the same parts:
+:class:`State`. The plant (:func:`so3jax.plant.derivative`) integrates the rigid body
+and the actuator's state under the actuator's input; one :func:`step` serves two wirings:
 
-* continuous (``period_steps=None``, the paper's mode, SPEC 5): the controller reads
-  the true state in every RK4 stage, its internal state is integrated with the plant,
-  and the actuator acts in every stage (``truth`` and no sensors);
-* sampled (``period_steps=m``, SPEC 8.1): at every m-th step sensors -> estimator ->
-  controller -> actuator run once (the controller's state by forward Euler over the
-  period), and the plant's RK4 steps see the actuator's input held over the period.
+* sampled (``period_steps=m``, SPEC 8.1): at every m-th step a :func:`tick` runs
+  sensors -> estimator -> controller -> actuator once (the controller's state by its
+  ``update``, else forward Euler over the period), and the plant's RK4 steps see the
+  actuator's input held over the period;
+* continuous (``period_steps=None``, the paper's mode, SPEC 5): the same step with the
+  law and the actuator's command evaluated in every RK4 stage on the true state, the
+  controller's state integrated with the plant (``truth`` and no sensors).
+
+Both take the metrics' torque sample of a step from the actuator's ``delivered`` at the
+step start, from its own state.
 """
 
 from __future__ import annotations
@@ -25,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import metrics, so3
+from so3jax import metrics, plant, so3
 from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.actuators import Ideal
 from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
@@ -65,10 +70,10 @@ class State(NamedTuple):
     Omega: jax.Array  # (3,) plant body rate, rad/s
     controller: Any  # the law's internal state (SPEC 3)
     R_d: Any  # (3, 3) reference attitude when it is integrated, else ()
-    actuator: Any = ()  # wheel speeds (N,) rad/s, or ()
+    actuator: Any = ()  # the actuator's state (wheels: speeds (N,) rad/s), or ()
     sensors: Any = ()  # gyro bias (3,) rad/s, or ()
     estimator: Any = ()  # the estimator's state (the prior for the next tick)
-    held: Any = ()  # the actuator's input held over the current period
+    held: Any = ()  # the actuator's input held over the current period (sampled wiring), or ()
 
 
 class Tick(NamedTuple):
@@ -79,7 +84,7 @@ class Tick(NamedTuple):
     estimate: Any  # estimators.Estimate
     bias: jax.Array  # (3,) true gyro bias b_j, rad/s
     tau_cmd: jax.Array  # (3,) the controller's command, N m
-    tau_applied: jax.Array  # (3,) the control torque delivered (actuators.delivered), N m
+    tau_applied: jax.Array  # (3,) the control torque delivered at t_j (actuator.delivered), N m
 
 
 def time(scenario: Scenario, k):
@@ -153,7 +158,7 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law):
             if scenario.variable_inertia_term
             else None
         )
-        Omega_dot, actuator_dot = loop.actuator.derivative(J, Omega, x.actuator, held, d, t, J_dot)
+        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, d, t, J_dot)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
         return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
 
@@ -161,59 +166,62 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law):
 
 
 def sample(state: State, tau, wanted: Desired) -> metrics.Sample:
-    """The SPEC 6 metrics' sample of a step start (true state; tau: torque on the body)."""
+    """The SPEC 6 metrics' sample of a step start (true state; tau: the control torque delivered)."""
     err = tracking_error(Measured(state.R, state.Omega), wanted)
     return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e))
 
 
-def _advance(scenario: Scenario, loop: Loop, law, with_controller, d, state: State, k, tau=None):
+def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP):
+    """Advance over step k with disturbance d_k held (SPEC 5, 8.1): RK4 of the plant and the
+    actuator under the actuator's input, the input held since the last tick (sampled
+    wiring), or the law and the actuator's command evaluated in every stage on the true
+    state, the controller's state integrated too (continuous wiring).
+    Returns (state, phase, metrics sample at t_k), the sample's torque the actuator's
+    ``delivered`` at the step start."""
     dtype = scenario.R0.dtype
     t, p = time(scenario, k), phase(scenario, k)
+    continuous = loop.continuous
+
+    def law(t, x, wanted):
+        if not continuous:
+            return state.held, ()
+        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
+        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
+
     field = _field(scenario, loop, p, d, law)
-    x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, with_controller))
+    x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
     new = state._replace(
         R=x.R.R,
         Omega=x.Omega,
-        controller=x.controller if with_controller else state.controller,
+        controller=x.controller if continuous else state.controller,
         R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
         actuator=x.actuator,
     )
-    return new, p, sample(state, loop.actuator.body_torque(held) if tau is None else tau, wanted)
+    return new, p, sample(state, loop.actuator.delivered(state.actuator, held, state.Omega), wanted)
 
 
-def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP):
-    """Advance the continuous wiring over step k with disturbance d_k held (SPEC 5).
-    Returns (state, phase, metrics sample at t_k)."""
+class Observation(NamedTuple):
+    """What the continuous wiring records at a step start (no step taken)."""
 
-    def law(t, x, wanted):
-        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
-        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
-
-    return _advance(scenario, loop, law, True, d, state, k)
-
-
-def held_step(scenario: Scenario, loop: Loop, d, state: State, k, tau_applied):
-    """Advance the sampled wiring's plant over step k with the actuator input held (SPEC 8.1);
-    the metrics sample counts tau_applied, the control torque delivered over the period."""
-    return _advance(scenario, loop, lambda t, x, wanted: (state.held, ()), False, d, state, k, tau_applied)
+    t: jax.Array  # s
+    tau: jax.Array  # (3, *b) the control torque delivered, N m
+    desired: Desired  # broadcast to the batch
+    sample: metrics.Sample
+    J: jax.Array  # (3, 3, *b) true inertia, kg m^2
+    tau_cmd: jax.Array  # (3, *b) the controller's command, N m
 
 
 def observe(scenario: Scenario, controller: Controller, gains, state: State, k, loop: Loop = PAPER_LOOP):
-    """Time, torque, desired signals, metrics sample and J at step start k of the
-    continuous wiring (no step taken)."""
+    """The :class:`Observation` at step start k of the continuous wiring."""
     t, p = time(scenario, k), phase(scenario, k)
-
-    def law(t, x, wanted):
-        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
-        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
-
-    field = _field(scenario, loop, p, jnp.zeros_like(state.Omega), law)
-    _, (held, wanted) = field(t, _integrated(state, True))
-    tau = loop.actuator.body_torque(held)
+    wanted = desired(scenario, t, p, state.R_d, state.Omega)
+    tau_cmd, _ = controller.torque(gains, state.controller, Measured(state.R, state.Omega), wanted, t)
+    tau = loop.actuator.delivered(state.actuator, loop.actuator.command(state.actuator, tau_cmd, state.Omega),
+                                  state.Omega)
     batch = state.Omega.shape[1:]
     wanted = Desired(*(broadcast(x, x.ndim - len(batch), batch) for x in wanted))
     J = broadcast(so3.batch_like(scenario.inertia(t, p), 2, state.Omega), 2, batch)
-    return t, tau, wanted, sample(state, tau, wanted), J
+    return Observation(t, tau, wanted, sample(state, tau, wanted), J, tau_cmd)
 
 
 # --- the sampled wiring's control tick ----------------------------------------------------
@@ -227,24 +235,29 @@ def period(scenario: Scenario, loop: Loop):
 def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j):
     """Control tick j at step k = j m (SPEC 8.1): sensors sample the true state, the
     estimator updates, the controller commands from the estimate (its state advanced by
-    forward Euler over the period), the actuator turns the command into the held input."""
+    its ``update``, else by forward Euler over the period), the actuator turns the
+    command into the held input."""
     k = j * loop.period_steps
     t, p, dc = time(scenario, k), phase(scenario, k), period(scenario, loop)
     sensors, measured = loop.sensors.measure(state.sensors, state.R, state.Omega, key, j, dc)
-    estimator, estimate = loop.estimator.update(state.estimator, measured, state.R, state.Omega, dc)
+    truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
+    estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
-    tau_cmd, controller_dot = controller.torque(
-        gains, state.controller, Measured(estimate.R_hat, estimate.omega_hat), wanted, t
-    )
+    measured_state = Measured(estimate.R_hat, estimate.omega_hat)
+    tau_cmd, controller_dot = controller.torque(gains, state.controller, measured_state, wanted, t)
     held = loop.actuator.command(state.actuator, tau_cmd, estimate.omega_hat)
+    if controller.update is None:
+        controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
+    else:
+        controller_state = controller.update(gains, state.controller, measured_state, wanted, t, dc)
     new = state._replace(
-        controller=jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot),
+        controller=controller_state,
         sensors=sensors,
         estimator=estimator,
         held=held,
     )
     bias = loop.sensors.true_bias(state.sensors, state.Omega)
-    tau_applied = loop.actuator.delivered(state.actuator, held, estimate.omega_hat)
+    tau_applied = loop.actuator.delivered(state.actuator, held, state.Omega)  # the first step's sample
     return new, Tick(t, wanted, estimate, bias, tau_cmd, tau_applied)
 
 
@@ -255,7 +268,7 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     vmap or grad is checked by shape and static data alone."""
     m = loop.period_steps
     if m is None:
-        if loop.sensors.gyro is not None or loop.sensors.star_tracker is not None or not isinstance(loop.estimator, Truth):
+        if loop.sensors.rate is not None or loop.sensors.attitude is not None or not loop.estimator.reads_truth:
             raise ValueError("a continuous-time controller reads the true state: sensors and an estimator need a control period")
     elif isinstance(m, bool) or not isinstance(m, int) or m < 1:
         raise ValueError(f"the control period must be a whole number (>= 1) of steps, got {m!r}")

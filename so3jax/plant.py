@@ -1,4 +1,8 @@
-"""Rigid-body attitude dynamics (SPEC 1) and inertia profiles J(t).
+"""Rigid-body attitude dynamics (SPEC 1, 8.4) and inertia profiles J(t).
+
+The plant owns the rigid body: :func:`derivative` gives Omega' from J(t), the torque the
+actuator puts on the body, the disturbance and the momentum the actuator stores
+(:mod:`so3jax.actuators`), and the actuator's state rate given Omega'.
 
 An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
 ``phase`` is the index of the mission phase that holds at the start of the current
@@ -14,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax import so3
+from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass, static_field
 
 
@@ -101,3 +106,24 @@ def angular_acceleration(J, omega, torque, J_dot=None):
     if J_dot is not None:
         rhs = rhs - so3.matvec(J_dot, omega)
     return so3.solve_spd(J, rhs)
+
+
+def derivative(actuator, J, Omega, state, held, d, t, J_dot=None):
+    """(Omega' [rad/s^2], the actuator state's rate) with the actuator's input ``held``:
+
+        (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
+
+    (SPEC 8.4; SPEC 1 where the actuator stores no momentum, then computed as the
+    paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
+    t: the stage time [s] (a fusion boundary, :func:`so3jax._fusion.materialize`)."""
+    torque = actuator.body_torque(state, held, Omega)
+    stored = actuator.stored_momentum(state)
+    if stored is None:
+        Omega_dot = angular_acceleration(J, Omega, materialize(torque + d, t), J_dot)
+    else:
+        rhs = torque + d - so3.cross(Omega, so3.matvec(J, Omega) + stored.relative)
+        if J_dot is not None:
+            rhs = rhs - so3.matvec(J_dot, Omega)
+        J_body = J - so3.batch_like(stored.locked_inertia, 2, Omega)
+        Omega_dot = so3.solve_spd(J_body, materialize(rhs, t))
+    return Omega_dot, actuator.derivative(state, held, Omega, Omega_dot)

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import flight_metrics, metrics, so3
+from so3jax import actuators, flight_metrics, metrics, so3
 from so3jax.controllers.base import Controller, Measured, tracking_error
 from so3jax.loop import (
     PAPER_LOOP,
@@ -27,9 +27,9 @@ from so3jax.loop import (
     State,
     broadcast,
     check_loop,
-    held_step,
     initial_state,
     observe,
+    phase,
     step,
     tick,
     time,
@@ -38,44 +38,35 @@ from so3jax.scenario import Scenario, check_gains, check_scenario
 
 
 class History(NamedTuple):
-    """The continuous wiring's samples at the start of every block of ``record_every`` steps."""
+    """Samples of the true state and what the loop computed from it, at the start of every
+    block of ``record_every`` steps (in the sampled wiring, the control tick there), each
+    with a leading axis M. One record for both wirings: a field a wiring does not have is
+    () (the estimate's fields in the continuous wiring, whose law reads the true state;
+    ``actuator`` for an actuator without state)."""
 
     t: jax.Array  # (M,) s
-    R: jax.Array  # (M, 3, 3)
-    Omega: jax.Array  # (M, 3) rad/s, body
+    R: jax.Array  # (M, 3, 3) true attitude, body -> inertial
+    Omega: jax.Array  # (M, 3) rad/s, true body rate
     R_d: jax.Array  # (M, 3, 3) desired attitude
     Omega_d: jax.Array  # (M, 3) rad/s, desired frame
-    Omega_e: jax.Array  # (M, 3) rad/s, body
-    tau: jax.Array  # (M, 3) N m
+    Omega_e: jax.Array  # (M, 3) rad/s, true tracking error (body)
+    tau: jax.Array  # (M, 3) N m, the control torque delivered (the actuator's `delivered`)
     angle: jax.Array  # (M,) attitude error |log(R_e)^vee|, rad
     J: jax.Array  # (M, 3, 3) true inertia, kg m^2
     controller: Any  # controller state, leading axis M
-
-
-class FlightHistory(NamedTuple):
-    """The sampled wiring's samples at the control tick that starts every block."""
-
-    t: jax.Array  # (M,) s
-    R: jax.Array  # (M, 3, 3) true attitude
-    Omega: jax.Array  # (M, 3) rad/s, true body rate
-    R_d: jax.Array  # (M, 3, 3)
-    Omega_e: jax.Array  # (M, 3) rad/s, true tracking error (body)
-    angle: jax.Array  # (M,) attitude error |log(R_e)^vee|, rad
-    R_hat: jax.Array  # (M, 3, 3) estimate
-    Omega_hat: jax.Array  # (M, 3) rad/s
-    bias: jax.Array  # (M, 3) true gyro bias, rad/s
-    bias_hat: jax.Array  # (M, 3) rad/s
-    std: jax.Array  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s)
-    tau_cmd: jax.Array  # (M, 3) N m
-    tau_applied: jax.Array  # (M, 3) N m, the control torque delivered (actuators: `delivered`)
-    wheel_speed: Any  # (M, N) rad/s, or ()
-    momentum: jax.Array  # (M, 3) wheel momentum h_w, body frame, N m s
-    controller: Any  # controller state, leading axis M
+    tau_cmd: Any = ()  # (M, 3) N m, the controller's command
+    actuator: Any = ()  # the actuator's state (wheels: speeds (M, N) rad/s), or ()
+    momentum: Any = ()  # (M, 3) N m s, the momentum the actuator stores, body frame (zeros without)
+    R_hat: Any = ()  # (M, 3, 3) estimate (sampled wiring), or ()
+    Omega_hat: Any = ()  # (M, 3) rad/s (sampled wiring), or ()
+    bias: Any = ()  # (M, 3) true gyro bias, rad/s (sampled wiring), or ()
+    bias_hat: Any = ()  # (M, 3) rad/s (sampled wiring), or ()
+    std: Any = ()  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s) (sampled wiring), or ()
 
 
 class Result(NamedTuple):
     metrics: metrics.Metrics
-    history: Any  # History (continuous wiring) or FlightHistory (sampled)
+    history: History
     final: State
     flight: Any = ()  # flight_metrics.FlightMetrics of the sampled wiring
 
@@ -206,8 +197,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def draw(k0):
         return disturbances(scenario, key, k0, block) if draw_ahead else None
 
+    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop)
     if loop.continuous:
-        take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop)
 
         def one_step(carry, d):
             return advance(*carry, d, take_step), None
@@ -218,9 +209,10 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
         def record(carry):
             state, k = carry[0], carry[1]
-            t, tau, desired, sample, J = observe(scenario, controller, gains, state, k, loop)
-            return History(t, state.R, state.Omega, desired.R_d, desired.Omega_d, sample.Omega_e, tau, sample.angle,
-                           J, state.controller)
+            seen = observe(scenario, controller, gains, state, k, loop)
+            return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
+                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, state.actuator,
+                           actuators.momentum(loop.actuator, state.actuator, state.Omega))
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
@@ -237,12 +229,11 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def one_tick(carry, ds):
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
-        sample, record = _tick_sample(loop, state, new, out), _flight_record(loop, controller, state, out)
+        sample, record = _tick_sample(loop, state, new, out), _flight_record(scenario, loop, state, out, k)
         share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
         flight = flight_metrics.update(flight, sample, k < n, share)
         if masked:
             new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
-        take_step = lambda d, state, k: held_step(scenario, loop, d, state, k, out.tau_applied)
         one_step = lambda carry, d: (advance(*carry, d, take_step), None)
         new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
         return (new, k, acc, flight), record
@@ -273,21 +264,24 @@ def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics
         so3.angle(so3.rmatmul(est.R_hat, before.R)),
         est.bias_hat - out.bias,
         out.tau_cmd,
-        after.held,
+        loop.actuator.effort(after.held),
         at_torque,
         at_speed,
         loop.actuator.speed_ratio(before.actuator),
     )
 
 
-def _flight_record(loop: Loop, controller, state: State, out) -> FlightHistory:
+def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k) -> History:
+    """The sampled wiring's history sample at tick step k (state: before the tick)."""
     err = tracking_error(Measured(state.R, state.Omega), out.desired)
     est = out.estimate
-    R_d = broadcast(out.desired.R_d, 2, state.Omega.shape[1:])  # a shared reference: once per batch
-    return FlightHistory(
-        out.t, state.R, state.Omega, R_d, err.Omega_e, so3.angle(err.R_e), est.R_hat, est.omega_hat,
-        out.bias, est.bias_hat, est.std, out.tau_cmd, out.tau_applied, state.actuator,
-        loop.actuator.momentum(state.actuator, state.Omega), state.controller,
+    batch = state.Omega.shape[1:]
+    R_d, Omega_d = (broadcast(x, n, batch) for x, n in ((out.desired.R_d, 2), (out.desired.Omega_d, 1)))
+    J = broadcast(so3.batch_like(scenario.inertia(out.t, phase(scenario, k)), 2, state.Omega), 2, batch)
+    return History(
+        out.t, state.R, state.Omega, R_d, Omega_d, err.Omega_e, out.tau_applied, so3.angle(err.R_e), J,
+        state.controller, out.tau_cmd, state.actuator, actuators.momentum(loop.actuator, state.actuator, state.Omega),
+        est.R_hat, est.omega_hat, out.bias, est.bias_hat, est.std,
     )
 
 

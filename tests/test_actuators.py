@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from so3jax import so3
+from so3jax import plant, so3
 from so3jax._fusion import materialize
-from so3jax.actuators import ACTUATORS, Ideal, Saturated, Wheels, pyramid_axes
+from so3jax.actuators import ACTUATORS, Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
 from so3jax.integrate import lie_rk4_step
 from so3jax.plant import angular_acceleration
 
@@ -52,13 +52,16 @@ def reference_rhs(J, G, spin, u):
 
 @partial(jax.jit, static_argnums=(6,))
 def integrate_held(actuator, J, u, R0, Omega0, speed0, n_steps, dt):
-    """n_steps of lie_rk4_step with the motor torques u held and d = 0. Returns the final
+    """n_steps of lie_rk4_step of the plant (so3jax.plant.derivative) with the motor torques
+    u (N,) or the wheels' command held and d = 0. Returns the final
     (R, Omega, Omega_w) and, at every step start and the end, the total angular momentum
     in the inertial frame R (J Omega + G_s J_s Omega_w) and the rotational kinetic energy."""
 
+    held = u if isinstance(u, WheelCommand) else WheelCommand(u, jnp.zeros_like(Omega0))
+
     def field(t, rotations, vectors):
         Omega, speed = vectors
-        Omega_dot, speed_dot = actuator.derivative(J, Omega, speed, u, jnp.zeros_like(Omega), t)
+        Omega_dot, speed_dot = plant.derivative(actuator, J, Omega, speed, held, jnp.zeros_like(Omega), t)
         return (Omega,), (Omega_dot, speed_dot), ()
 
     def invariants(R, Omega, speed):
@@ -128,12 +131,15 @@ def test_minimum_norm_distribution_reproduces_the_command():
     actuator = wheels(compensation=False)
     tau = 0.1 * jax.random.normal(jax.random.key(0), (3, 2, 3), jnp.float64)
     state = actuator.init((2, 3), jnp.float64)
-    u = actuator.command(state, tau, jnp.zeros_like(tau))
+    held = actuator.command(state, tau, jnp.zeros_like(tau))
+    u = held.u
     assert u.shape == (4, 2, 3) and u.dtype == jnp.float64
     expected = -np.einsum("ij,j...->i...", np.linalg.pinv(pyramid_axes(4)), np.asarray(tau))
     np.testing.assert_allclose(np.asarray(u), expected, rtol=1e-13, atol=1e-16)
-    np.testing.assert_allclose(np.asarray(actuator.body_torque(u)), np.asarray(tau), rtol=1e-13, atol=1e-16)
-    at_torque, at_speed = actuator.limits(state, u, tau)
+    for torque in (actuator.body_torque(state, held, tau), actuator.delivered(state, held, tau)):
+        np.testing.assert_allclose(np.asarray(torque), np.asarray(tau), rtol=1e-13, atol=1e-16)
+    np.testing.assert_allclose(np.asarray(actuator.effort(held)), np.sum(expected**2, axis=0), rtol=1e-13)
+    at_torque, at_speed = actuator.limits(state, held, tau)
     assert at_torque.shape == at_speed.shape == (2, 3) and not at_torque.any() and not at_speed.any()
     assert np.asarray(actuator.speed_ratio(state)).shape == (2, 3)
 
@@ -142,12 +148,13 @@ def test_motor_torque_is_clipped_at_u_max():
     actuator = wheels(u_max=[0.25, 0.3, 0.25, 0.2], compensation=False)
     tau = jnp.asarray([0.8, -0.1, 0.3])
     state = actuator.init((), jnp.float64)
-    u = np.asarray(actuator.command(state, tau, jnp.zeros(3)))
+    held = actuator.command(state, tau, jnp.zeros(3))
+    u = np.asarray(held.u)
     unclipped = -np.linalg.pinv(pyramid_axes(4)) @ np.asarray(tau)
     u_max = np.array([0.25, 0.3, 0.25, 0.2])
     assert np.any(np.abs(unclipped) > u_max) and np.any(np.abs(unclipped) < u_max)
     np.testing.assert_allclose(u, np.clip(unclipped, -u_max, u_max), rtol=1e-14)
-    at_torque, at_speed = actuator.limits(state, jnp.asarray(u), tau)
+    at_torque, at_speed = actuator.limits(state, held, tau)
     assert bool(at_torque) and not bool(at_speed)
 
 
@@ -156,15 +163,15 @@ def test_speed_limit_stops_a_wheel_spinning_faster_but_not_slower():
     limit = 600.0
     actuator = wheels(speed=limit, compensation=False)
     tau = jnp.asarray([0.05, -0.08, 0.03])
-    free = np.asarray(actuator.command(actuator.init((), jnp.float64), tau, jnp.zeros(3)))
+    free = np.asarray(actuator.command(actuator.init((), jnp.float64), tau, jnp.zeros(3)).u)
     assert np.all(np.abs(free) > 1e-3)
     sign = np.sign(free)
     # wheel 0: at the limit, spinning up -> stopped; 1: at the limit, slowing -> kept;
     # 2: just below the limit, spinning up -> kept; 3: past the limit, spinning up -> stopped
     speed = jnp.asarray([limit * sign[0], -limit * sign[1], 0.999 * limit * sign[2], 1.2 * limit * sign[3]])
-    u = np.asarray(actuator.command(speed, tau, jnp.zeros(3)))
-    np.testing.assert_array_equal(u, [0.0, free[1], free[2], 0.0])
-    at_torque, at_speed = actuator.limits(speed, jnp.asarray(u), tau)
+    held = actuator.command(speed, tau, jnp.zeros(3))
+    np.testing.assert_array_equal(np.asarray(held.u), [0.0, free[1], free[2], 0.0])
+    at_torque, at_speed = actuator.limits(speed, held, tau)
     assert bool(at_speed) and not bool(at_torque)
     assert float(actuator.speed_ratio(speed)) == pytest.approx(1.2)
 
@@ -177,13 +184,17 @@ def test_momentum_compensation_adds_omega_hat_cross_wheel_momentum():
     G = pyramid_axes(4)
     h = G @ (SPIN * (G.T @ omega_hat + speed))
     tau = tau_c + np.cross(omega_hat, h)
-    u = actuator.command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(omega_hat))
-    np.testing.assert_allclose(np.asarray(u), -np.linalg.pinv(G) @ tau, rtol=1e-13)
-    np.testing.assert_allclose(np.asarray(actuator.body_torque(u)), tau, rtol=1e-13)
-    np.testing.assert_allclose(np.asarray(actuator.momentum(jnp.asarray(speed), jnp.asarray(omega_hat))), h, rtol=1e-14)
+    held = actuator.command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(omega_hat))
+    np.testing.assert_allclose(np.asarray(held.u), -np.linalg.pinv(G) @ tau, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(actuator.body_torque(jnp.asarray(speed), held, omega_hat)), tau, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(actuator.delivered(jnp.asarray(speed), held, omega_hat)), tau_c, rtol=1e-12)
+    for stored in (actuator.momentum(jnp.asarray(speed), jnp.asarray(omega_hat)),
+                   momentum(actuator, jnp.asarray(speed), jnp.asarray(omega_hat))):  # J_locked omega + h_rel
+        np.testing.assert_allclose(np.asarray(stored), h, rtol=1e-14)
     assert np.abs(np.cross(omega_hat, h)).max() > 0.1 * np.abs(tau_c).max()  # the term matters here
     off = wheels(compensation=False).command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(omega_hat))
-    np.testing.assert_allclose(np.asarray(off), -np.linalg.pinv(G) @ tau_c, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(off.u), -np.linalg.pinv(G) @ tau_c, rtol=1e-13)
+    np.testing.assert_array_equal(np.asarray(off.compensation), np.zeros(3))
 
 
 def test_saturated_clips_per_axis_and_ideal_is_the_identity():
@@ -191,22 +202,24 @@ def test_saturated_clips_per_axis_and_ideal_is_the_identity():
     sat = Saturated(jnp.asarray([0.2, 0.5, 0.05]))
     held = sat.command((), tau, jnp.zeros_like(tau))
     np.testing.assert_array_equal(np.asarray(held), [[0.2, -0.01], [-0.5, 0.02], [0.05, 0.04]])
-    np.testing.assert_array_equal(np.asarray(sat.body_torque(held)), np.asarray(held))
+    np.testing.assert_array_equal(np.asarray(sat.body_torque((), held, tau)), np.asarray(held))
+    np.testing.assert_array_equal(np.asarray(sat.delivered((), held, tau)), np.asarray(held))
     at_torque, at_speed = sat.limits((), held, tau)
     np.testing.assert_array_equal(np.asarray(at_torque), [True, False])
     assert at_speed.shape == (2,) and not at_speed.any()
     ideal = Ideal()
     assert ideal.init((2,), jnp.float64) == () and sat.init((2,), jnp.float64) == ()
-    assert ideal.command((), tau, tau) is tau and ideal.body_torque(tau) is tau
+    assert ideal.command((), tau, tau) is tau and ideal.body_torque((), tau, tau) is tau
     assert not np.any(np.asarray(ideal.limits((), tau, tau)))
-    np.testing.assert_array_equal(np.asarray(ideal.momentum((), tau)), np.zeros((3, 2)))
+    assert ideal.stored_momentum(()) is None and sat.stored_momentum(()) is None
+    np.testing.assert_array_equal(np.asarray(momentum(ideal, (), tau)), np.zeros((3, 2)))
     assert set(ACTUATORS) == {"ideal", "saturated", "wheels"} and ACTUATORS["wheels"] is Wheels
 
 
 def test_rigid_body_derivatives_are_bit_for_bit_the_paper_plant():
-    """Ideal and Saturated: angular_acceleration(J, Omega, materialize(held + d, t), J_dot),
-    the paper's mode's expression, to the bit eagerly (where it equals the plain held + d)
-    and under jit, with a shared J (3, 3, 1) against a batch."""
+    """The plant with Ideal and Saturated (no stored momentum): angular_acceleration(J, Omega,
+    materialize(held + d, t), J_dot), the paper's mode's expression, to the bit eagerly (where
+    it equals the plain held + d) and under jit, with a shared J (3, 3, 1) against a batch."""
     key = jax.random.split(jax.random.key(1), 4)
     Omega, held, d = (jax.random.normal(k, (3, 5), jnp.float64) for k in key[:3])
     J_dot = 0.1 * jax.random.normal(key[3], (3, 3, 1), jnp.float64)
@@ -216,8 +229,9 @@ def test_rigid_body_derivatives_are_bit_for_bit_the_paper_plant():
         eager = np.asarray(angular_acceleration(J, Omega, held + d, J_rate))
         paper = jax.jit(lambda h, J_rate=J_rate: angular_acceleration(J, Omega, materialize(h + d, t), J_rate))
         for actuator in (Ideal(), Saturated(jnp.full(3, 10.0))):
-            Omega_dot, state_dot = actuator.derivative(J, Omega, (), held, d, t, J_rate)
-            jitted, _ = jax.jit(lambda a, h, J_rate=J_rate: a.derivative(J, Omega, (), h, d, t, J_rate))(actuator, held)
+            Omega_dot, state_dot = plant.derivative(actuator, J, Omega, (), held, d, t, J_rate)
+            jitted, _ = jax.jit(lambda a, h, J_rate=J_rate: plant.derivative(a, J, Omega, (), h, d, t, J_rate))(
+                actuator, held)
             assert state_dot == ()
             np.testing.assert_array_equal(np.asarray(Omega_dot), eager)
             np.testing.assert_array_equal(np.asarray(jitted), np.asarray(paper(held)))
@@ -309,14 +323,16 @@ def test_vmap_matches_batch_axes_and_float32_stays_float32():
     J, t = jnp.asarray(J_SC), jnp.asarray(0.0)
 
     def one(Omega, speed, tau, d):
-        u = actuator.command(speed, tau, Omega)
-        derivative = actuator.derivative(so3.batch_like(J.astype(Omega.dtype), 2, Omega), Omega, speed, u, d, t)
-        return (u, actuator.body_torque(u), actuator.momentum(speed, Omega), actuator.speed_ratio(speed),
-                *actuator.limits(speed, u, tau), *derivative)
+        held = actuator.command(speed, tau, Omega)
+        derivative = plant.derivative(actuator, so3.batch_like(J.astype(Omega.dtype), 2, Omega), Omega, speed, held, d,
+                                      t)
+        return (held.u, actuator.body_torque(speed, held, Omega), actuator.momentum(speed, Omega),
+                actuator.speed_ratio(speed), *actuator.limits(speed, held, tau), *derivative)
 
     batched = jax.jit(one)(Omega, speed, tau, d)
     J_batch = jnp.broadcast_to(J[..., None], (3, 3, 6))
-    assert np.allclose(actuator.derivative(J_batch, Omega, speed, batched[0], d, t)[0], batched[6], rtol=1e-14, atol=0)
+    held = WheelCommand(batched[0], actuator.command(speed, tau, Omega).compensation)
+    assert np.allclose(plant.derivative(actuator, J_batch, Omega, speed, held, d, t)[0], batched[6], rtol=1e-14, atol=0)
     mapped = jax.vmap(one, in_axes=-1, out_axes=-1)(Omega, speed, tau, d)
     for a, b in zip(batched, mapped):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=1e-15)

@@ -21,10 +21,9 @@ import numpy as np
 import pytest
 
 import so3jax as sj
+from so3jax import components
 from so3jax import mission as missions
-from so3jax.actuators import ACTUATORS
 from so3jax.controllers import registry
-from so3jax.estimators import ESTIMATORS
 
 TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
 # Each registered component in one loop (estimator, actuator, controller), the heavy
@@ -38,7 +37,7 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive
 
 def test_every_registered_component_is_flown():
     estimators, actuators, controllers = (set(parts) for parts in zip(*LOOPS))
-    assert estimators == set(ESTIMATORS) and actuators == set(ACTUATORS) and controllers == set(registry.names())
+    assert estimators == set(components.names("estimator")) and actuators == set(components.names("actuator")) and controllers == set(registry.names())
 
 
 class Setup:

@@ -124,17 +124,17 @@ def test_wheels_conserve_total_momentum_in_closed_loop():
     r = sj.simulate(scenario, sj.geometric_pd(), PD, loop=_sampled(10, actuator=wheels), record_every=10)
     h = r.history
     J = np.asarray(J_BODY)
-    total = [np.asarray(h.R[i]) @ (J @ np.asarray(h.Omega[i]) + np.asarray(G) @ (0.16 * np.asarray(h.wheel_speed[i])))
+    total = [np.asarray(h.R[i]) @ (J @ np.asarray(h.Omega[i]) + np.asarray(G) @ (0.16 * np.asarray(h.actuator[i])))
              for i in range(len(h.t))]
     np.testing.assert_allclose(total, np.broadcast_to(total[0], np.shape(total)), rtol=0, atol=1e-10 * np.abs(total[0]).max())
-    assert np.ptp(np.asarray(h.wheel_speed), axis=0).max() > 1.0  # the wheels did the work
+    assert np.ptp(np.asarray(h.actuator), axis=0).max() > 1.0  # the wheels did the work
 
 
 def test_saturation_binds_and_is_reported():
     scenario = custom_scenario(10.0, 0.01, Omega0=(0.2, -0.1, 0.1))
     r = sj.simulate(scenario, sj.geometric_pd(), PD, loop=_sampled(10, actuator=Saturated(jnp.full(3, 0.05))))
     assert float(r.metrics.max_torque) <= 0.05 * np.sqrt(3) + 1e-12
-    assert np.abs(r.history.tau_applied).max() <= 0.05 + 1e-15
+    assert np.abs(r.history.tau).max() <= 0.05 + 1e-15
     assert np.abs(r.history.tau_cmd).max() > 0.05
     assert float(r.flight.time_at_torque_limit) > 0.5
 
@@ -169,7 +169,7 @@ def test_batched_flight_equals_one_trajectory_at_a_time():
         np.testing.assert_allclose(batch.flight.attitude_estimation_rms[i], one.flight.attitude_estimation_rms,
                                    rtol=1e-9)
         np.testing.assert_allclose(batch.metrics.rmse[i], one.metrics.rmse, rtol=1e-12)
-        for name in ("R", "R_d", "R_hat", "bias_hat", "std", "tau_applied"):
+        for name in ("R", "R_d", "R_hat", "bias_hat", "std", "tau"):
             np.testing.assert_allclose(getattr(batch.history, name)[i], getattr(one.history, name), rtol=1e-9,
                                        atol=1e-14, err_msg=name)
 

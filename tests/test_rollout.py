@@ -246,8 +246,8 @@ def test_observe_matches_the_step_sample():
     @jax.jit
     def both(state):
         _, _, sample = step(SHORT, controller, gains, disturbance_at(SHORT, jax.random.key(0), k), state, k)
-        _, tau, _, observed, _ = observe(SHORT, controller, gains, state, k)
-        return sample, tau, observed
+        seen = observe(SHORT, controller, gains, state, k)
+        return sample, seen.tau, seen.sample
 
     sample, tau, observed = both(state)
     np.testing.assert_allclose(tau, sample.tau, rtol=1e-14)

@@ -5,9 +5,13 @@ A controller is ``Controller(init, torque)``:
 * ``init(gains) -> state``: the controller's initial internal state (a pytree,
   ``()`` for a static law);
 * ``torque(gains, state, measured, desired, t) -> (tau, state_dot)``: the control
-  torque [N m] and the time derivative of the internal state, which the rollout
-  integrates with the plant. The true inertia is never passed in;
-* ``gains_type`` (optional): the NamedTuple of gains it takes, checked before a run.
+  torque [N m] and the time derivative of the internal state, which the continuous
+  wiring integrates with the plant (SPEC 5). The true inertia is never passed in;
+* ``gains_type`` (optional): the NamedTuple of gains it takes, checked before a run;
+* ``update`` (optional): ``update(gains, state, measured, desired, t, period) -> state``,
+  the state's discrete update at a control tick of the sampled wiring (t: the tick's
+  time [s], period: Delta_c [s]), as flight software computes it. Without it the tick
+  applies forward Euler, ``state + period * state_dot`` (SPEC 8.1).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ class Controller(NamedTuple):
     init: Callable[[Any], Any]
     torque: Callable[[Any, Any, Measured, Desired, jax.Array], tuple[jax.Array, Any]]
     gains_type: type | None = None  # the NamedTuple of gains the law reads (checked by the rollout); None: any
+    update: Callable[[Any, Any, Measured, Desired, jax.Array, jax.Array], Any] | None = None  # at ticks; None: Euler
 
 
 class TrackingError(NamedTuple):
