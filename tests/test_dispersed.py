@@ -1,0 +1,104 @@
+"""A mission's [dispersions] table: its leaves, their draws, each sample's scenario and loop."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from so3jax import dispersed, mission
+from so3jax import dispersions as disp
+
+ROOT = Path(__file__).resolve().parents[1]
+LEAVES = {
+    "sensors": {"gyro": {"arw": {"dist": "lognormal", "median": 1e-6, "sigma": 0.3}}},
+    "actuator": {"wheels": {"max_torque": {"dist": "uniform", "low": 0.2, "high": 0.3}}},
+}
+
+
+@pytest.fixture(scope="module")
+def flight():
+    return mission.load(None, ["T=1.0"])
+
+
+def test_component_leaves_draw_each_element_from_its_distribution(flight):
+    _, leaves = dispersed.parse(LEAVES, flight)
+    values, valid = dispersed.draw_leaves(leaves, 3, 4000)
+    torque, arw = values["actuator.wheels.max_torque"], values["sensors.gyro.arw"]
+    assert torque.shape == (4000, 4) and arw.shape == (4000,) and valid.all()
+    # uniform on [0.2, 0.3]: mean 0.25 +- 4 standard errors, every wheel its own draw
+    se = 0.1 / np.sqrt(12 * 4000)
+    assert np.all(np.abs(torque.mean(axis=0) - 0.25) < 4 * se) and torque.min() >= 0.2 and torque.max() <= 0.3
+    assert np.max(np.abs(np.corrcoef(torque.T) - np.eye(4))) < 4 / np.sqrt(4000)
+    # lognormal: log values normal with sigma 0.3 around log(1e-6)
+    logs = np.log(arw / 1e-6)
+    assert abs(logs.mean()) < 4 * 0.3 / np.sqrt(4000) and abs(logs.std() - 0.3) < 0.03
+
+
+def test_a_leaf_s_draws_do_not_move_when_another_is_added(flight):
+    one = dispersed.draw_leaves(dispersed.parse({"sensors": LEAVES["sensors"]}, flight)[1], 0, 16)[0]
+    both = dispersed.draw_leaves(dispersed.parse(LEAVES, flight)[1], 0, 16)[0]
+    np.testing.assert_array_equal(one["sensors.gyro.arw"], both["sensors.gyro.arw"])
+    other_seed = dispersed.draw_leaves(dispersed.parse(LEAVES, flight)[1], 1, 16)[0]
+    assert not np.any(other_seed["sensors.gyro.arw"] == both["sensors.gyro.arw"])
+
+
+def test_values_outside_the_parameter_domain_reject_the_sample(flight):
+    _, leaves = dispersed.parse({"actuator": {"wheels": {"initial_speed": {"dist": "normal", "mean": 0.0, "std": 1.0}}},
+                                 "sensors": {"gyro": {"rrw": {"dist": "normal", "mean": 1e-9, "std": 1e-9}}}}, flight)
+    values, valid = dispersed.draw_leaves(leaves, 0, 2000)
+    negative = values["sensors.gyro.rrw"] < 0
+    assert 0.05 < negative.mean() < 0.3  # P(N(1, 1) < 0) = 0.16
+    np.testing.assert_array_equal(valid, ~negative)
+
+
+def test_the_sampled_loop_carries_the_drawn_values_and_the_filter_keeps_the_nominal(flight):
+    _, leaves = dispersed.parse(LEAVES, flight)
+    values, _ = dispersed.draw_leaves(leaves, 0, 2)
+    loop = dispersed.loop(flight, {k: v[1] for k, v in values.items()}, np.float64)
+    np.testing.assert_allclose(np.asarray(loop.sensors.rate.arw), values["sensors.gyro.arw"][1], rtol=1e-15)
+    np.testing.assert_allclose(np.asarray(loop.actuator.max_torque), values["actuator.wheels.max_torque"][1], rtol=1e-15)
+    assert float(loop.estimator.arw) == 1e-6  # the filter assumes the datasheet's value
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ({"sensors": {"gyro": {"nope": 1.0}}}, "has no parameter 'nope'"),
+    ({"sensors": {"star_tracker": {"every": 2}}}, "only real-valued"),
+    ({"actuator": {"saturated": {"max_torque": 1.0}}}, "flies no actuator 'saturated'"),
+    ({"gains": {"pd": {"k_R": 1.0}}}, "cannot be dispersed"),
+    ({"sensors": {"gyro": {"arw": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, "outside that domain"),
+    ({"seed": 3}, "random"),
+    ({"inertia": {"J0": {"size": 1.0}}}, "unknown key"),
+    ({"initial": {"attitude": {"max_angle_deg": 200.0}}}, "max_angle_deg"),
+    ({"deployment": {"tau_J": {"dist": "uniform", "low": -1.0, "high": 1.0}}}, "tau_J"),
+])
+def test_bad_dispersions_are_one_line_errors(flight, table, message):
+    with pytest.raises(ValueError, match=message) as err:
+        dispersed.parse(table, flight)
+    assert "\n" not in str(err.value)
+
+
+def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
+    """sweeps/default.toml's dispersions on missions/paper.toml draw the samples that
+    sweeps/default/samples.csv records, within 1e-12 relative."""
+    from so3jax import config as cfg
+
+    table = cfg.read_toml(ROOT / "sweeps" / "default.toml")["dispersions"]
+    d, leaves = dispersed.parse(table, mission.load(ROOT / "missions" / "paper.toml"))
+    assert leaves == ()
+    rows = list(csv.DictReader(open(ROOT / "sweeps" / "default" / "samples.csv")))
+    s = disp.draw_samples(d, 0, len(rows), 20)
+    p = s.params
+    got = {"tau_J": p.tau_J, "n": p.n, "amplitude": p.amplitude, "frequency": p.frequency, "noise_std": p.noise_std,
+           "disturbance_seed": p.seed, "draws": s.draws}
+    for J in ("J0", "J1", "J2"):
+        M = getattr(p, J)
+        for name, (i, j) in {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}.items():
+            got[f"{J}_{name}"] = M[:, i, j]
+    for axis, name in enumerate("xyz"):
+        got[f"Omega0_{name}"], got[f"attitude_error_{name}"] = p.Omega0[:, axis], s.attitude_error[:, axis]
+    for key, values in got.items():
+        recorded = np.array([float(r[key]) for r in rows])
+        np.testing.assert_allclose(values, recorded, rtol=1e-12, atol=1e-300, err_msg=key)
