@@ -10,13 +10,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax import components, fly, mission, so3
+from so3jax import components, fly, mission
+from so3jax.actuators import Actuator
 from so3jax._pytree import pytree_dataclass
 from so3jax.components import ComponentSpec, Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
 from so3jax.estimators import Estimate
-from so3jax.plant import angular_acceleration
 from so3jax.sensors import sensor_noise
 
 # --- a sensor: a rate gyro with a scale-factor error ---------------------------------------
@@ -70,8 +70,8 @@ class LowPass:
 
 
 @pytree_dataclass
-class Lag:
-    """tau' = (tau_c - tau) / time_constant; the body receives tau (its own state)."""
+class Lag(Actuator):
+    """tau' = (tau_c - tau) / time_constant; the body receives tau, the actuator's own state."""
 
     time_constant: jnp.ndarray
 
@@ -81,8 +81,11 @@ class Lag:
     def command(self, state, tau_c, omega_hat):
         return tau_c
 
-    def check(self):
-        pass
+    def body_torque(self, state, held, Omega):
+        return state
+
+    def derivative(self, state, held, Omega, Omega_dot):
+        return (held - state) / jnp.asarray(self.time_constant, state.dtype)
 
 
 # --- a controller: a rate damper ---------------------------------------------------------------
@@ -112,6 +115,8 @@ SPECS = [
     ComponentSpec(kind="estimator", name="lowpass", needs=("rate", "attitude"),
                   params=(Param("gain", 1.0, low=0.0, high=1.0),),
                   build=lambda v, ctx: LowPass(ctx.as_array(v["gain"]))),
+    ComponentSpec(kind="actuator", name="lag", params=(Param("time_constant", 0.5, "s", low=1e-6),),
+                  build=lambda v, ctx: Lag(ctx.as_array(v["time_constant"]))),
 ]
 CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=damper, gains_type=DamperGains,
                                      defaults=DamperGains(c=50.0), style={"label": "damper"}, check=_no_check,
@@ -182,3 +187,21 @@ def test_extra_components_are_checked_like_the_built_in_ones(registered, tmp_pat
         mission.load(path, ["gains.damper.c='big'"])
     with pytest.raises(ValueError, match="controller.damper"):
         mission.load(path, ["controller.damper.sign=true"])
+
+
+def test_extra_actuator_flies_from_a_mission_file_in_both_wirings(registered, tmp_path):
+    """The lag's body torque follows the command with its time constant: after a step in
+    the command (the open-loop law), tau(t) = tau_c (1 - exp(-t / time_constant)); the
+    continuous and the sampled wiring report it alike."""
+    path = tmp_path / "lag.toml"
+    path.write_text(MISSION.replace('kind = "ideal"', 'kind = "lag"\n[actuator.lag]\ntime_constant = 0.5')
+                    .replace('controllers = ["damper"]', 'controllers = ["open_loop"]')
+                    .replace("[gains.damper]\nc = 1000.0", "[controller.open_loop]\ntorque = [0.1, -0.2, 0.05]"))
+    sampled = mission.load(path)
+    continuous = mission.load(path, ["control.mode=continuous", "sensors.scaled_gyro=false",
+                                     "sensors.star_tracker=false", "estimator.kind=truth"])
+    tau_c = np.array([0.1, -0.2, 0.05])
+    for m in (sampled, continuous):
+        h = fly.fly(m)[0]["open_loop"].history
+        t = np.asarray(h.t)
+        np.testing.assert_allclose(np.asarray(h.tau), tau_c * (1 - np.exp(-t / 0.5))[:, None], rtol=0, atol=1e-9)
