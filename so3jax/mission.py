@@ -59,6 +59,10 @@ FLIGHT = {
     "gains": {},
 }
 
+# SPEC 4-5: the paper's experiment in the same schema: the controller reads the true state
+# in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
+PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"}, actuator={"kind": "ideal"})
+
 _TOP = ("T", "dt", "seed", "controllers", "record_every")
 _TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "initial", "sensors", "estimator", "actuator",
            "controller", "gains")
@@ -176,13 +180,13 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _sensors(given: dict) -> dict:
-    """{name: values} of the sensors flown: the flight mission's, each merged with its
-    given table (false: left out), plus any other registered sensor given a table."""
+def _sensors(given: dict, default: dict) -> dict:
+    """{name: values} of the sensors flown: the base mission's (``default``), each merged
+    with its given table (false: left out), plus any other registered sensor given a table."""
     given = cfg.table({"sensors": given}, "sensors", components.names("sensor"))
     out = {}
     for name in components.names("sensor"):
-        table = given.get(name, {} if name in FLIGHT["sensors"] else False)
+        table = given.get(name, {} if name in default else False)
         if table is False:
             continue
         if not isinstance(table, dict):
@@ -198,11 +202,11 @@ def _sensors(given: dict) -> dict:
     return out
 
 
-def _chosen(d: dict, kind: str, table: str) -> dict:
+def _chosen(d: dict, kind: str, table: str, base: dict) -> dict:
     """{"kind": name, name: values} of ``[table] kind`` and its ``[table.NAME]`` subtable
     (every other registered name's subtable is checked too, so a typo is never ignored)."""
     t = cfg.table(d, table, ("kind",) + components.names(kind))
-    name = cfg.choice(t.get("kind", FLIGHT[table]["kind"]), f"{table}.kind", components.names(kind))
+    name = cfg.choice(t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
     out = {"kind": name}
     for other in components.names(kind):
         if other in t or other == name:
@@ -212,8 +216,9 @@ def _chosen(d: dict, kind: str, table: str) -> dict:
     return out
 
 
-def from_dict(d: dict) -> Mission:
-    """A Mission from the TOML tables (missing entries: the flight mission's); ValueError on bad input."""
+def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
+    """A Mission from the TOML tables (missing entries: ``base``'s, the flight mission or
+    :data:`PAPER`); ValueError on bad input."""
     if not isinstance(d, dict):
         raise ValueError(f"a mission must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP) - set(_TABLES)
@@ -222,7 +227,7 @@ def from_dict(d: dict) -> Mission:
     for t in _TABLES:
         if t in d and not isinstance(d[t], dict):
             raise ValueError(f"[{t}] must be a table")
-    full = _merge({k: v for k, v in FLIGHT.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
+    full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
     T = cfg.number(full["T"], "T", low=0.0)
     dt = cfg.number(full["dt"], "dt", low=0.0)
@@ -247,9 +252,9 @@ def from_dict(d: dict) -> Mission:
     initial = {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
                "rate": cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))}
 
-    sensors = _sensors(d.get("sensors", {}))
-    estimator = _chosen(full, "estimator", "estimator")
-    actuator = _chosen(full, "actuator", "actuator")
+    sensors = _sensors(d.get("sensors", {}), base["sensors"])
+    estimator = _chosen(full, "estimator", "estimator", base)
+    actuator = _chosen(full, "actuator", "actuator", base)
     _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = cfg.table(full, "controller", registry.names())
@@ -332,6 +337,6 @@ def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
                          f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")
 
 
-def load(path=None, overrides=()) -> Mission:
-    """The mission of a TOML file (or the flight mission of SPEC 8.5), with KEY=VALUE overrides."""
-    return from_dict(cfg.load(path, overrides))
+def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
+    """The mission of a TOML file (or ``base``: the flight mission of SPEC 8.5), with KEY=VALUE overrides."""
+    return from_dict(cfg.load(path, overrides), base)

@@ -3,10 +3,7 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import sys
-import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -34,12 +31,14 @@ def register(subparsers) -> None:
     from so3jax.cli import add_memory_argument, add_precision_argument
 
     p = subparsers.add_parser("paper", help="reproduce the paper's mission with both controllers (table + figures)")
-    p.add_argument("--T", type=float, default=4000.0, help="horizon [s] (default 4000)")
-    p.add_argument("--dt", type=float, default=0.01, help="step [s] (default 0.01)")
-    p.add_argument("--seed", type=int, default=0, help="disturbance seed (default 0)")
-    p.add_argument("--tau-J", type=float, default=300.0, help="deployment time constant [s] (default 300)")
-    p.add_argument("--log-derivative", choices=("exact", "paper"), default="exact", help="adaptive law's d/dt log(R_e)")
-    p.add_argument("--record-every", type=int, default=100, help="history sampling [steps] (default 100)")
+    p.add_argument("--T", type=float, help="horizon [s] (default 4000)")
+    p.add_argument("--dt", type=float, help="step [s] (default 0.01)")
+    p.add_argument("--seed", type=int, help="disturbance seed (default 0)")
+    p.add_argument("--tau-J", type=float, help="deployment time constant [s] (default 300)")
+    p.add_argument("--log-derivative", choices=("exact", "paper"), help="adaptive law's d/dt log(R_e) (default exact)")
+    p.add_argument("--record-every", type=int, help="history sampling [steps] (default 100)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override an entry of the paper's mission (missions/paper.toml), e.g. --set orbit.n=1e-3")
     p.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default results/paper)")
     p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
@@ -48,44 +47,28 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def run_both(scenario, seed=0, log_derivative="exact", record_every=100):
-    """Run PD and adaptive at the paper's gains, one CPU device each when there are two.
-
-    On the CPU also where JAX sees a GPU: one trajectory is a chain of tiny steps, which a
-    GPU runs launch-bound (H100: 63 / 84 us per step, against ~1 on one CPU core,
-    benchmarks/results/h100-gpu-throughput-2026-11-23.json); a GPU pays off from batches
-    of thousands (a sweep's chunks). Returns {name: Result} with numpy leaves, and the
-    wall time [s] (compile included).
-    """
-    import jax
-
-    import so3jax as sj
-    from so3jax.scenario import check_scenario
-
-    check_scenario(scenario)  # warnings (J0's triangle inequality) once, here
-    setups = controller_setups(log_derivative)
-    devices = jax.devices("cpu")
-
-    def simulate(i, name):
-        controller, gains = setups[name]
-        with warnings.catch_warnings(), jax.default_device(devices[i % len(devices)]):
-            warnings.simplefilter("ignore", sj.InertiaWarning)
-            return jax.tree.map(np.asarray, sj.simulate(scenario, controller, gains, seed, record_every=record_every))
-
-    start = time.perf_counter()
-    # one thread per controller: the two XLA compilations run in parallel, not one after the other
-    with concurrent.futures.ThreadPoolExecutor(len(setups)) as pool:
-        futures = {name: pool.submit(simulate, i, name) for i, name in enumerate(setups)}
-        results = {name: future.result() for name, future in futures.items()}
-    return results, time.perf_counter() - start
+def overrides(args) -> list[str]:
+    """The command-line options as overrides of the paper's mission (after --set's)."""
+    items = list(args.set)
+    for key, value in (("T", args.T), ("dt", args.dt), ("seed", args.seed), ("deployment.tau_J", args.tau_J),
+                       ("record_every", args.record_every)):
+        if value is not None:
+            items.append(f"{key}={value!r}")
+    if args.log_derivative is not None:
+        items.append(f'controller.adaptive.log_derivative="{args.log_derivative}"')
+    return items
 
 
-def controller_setups(log_derivative="exact") -> dict:
-    """{name: (controller, paper gains)} of the paper's two controllers."""
-    from so3jax.controllers import registry
+def load_mission(args):
+    """The paper's mission (:data:`so3jax.mission.PAPER`, missions/paper.toml) with the
+    command line's overrides; its controllers must be the paper's two."""
+    from so3jax import mission as missions
 
-    options = {"adaptive": {"log_derivative": log_derivative}}
-    return {name: (registry.get(name).factory(**options.get(name, {})), registry.get(name).defaults) for name in CONTROLLERS}
+    m = missions.load(None, overrides(args), base=missions.PAPER)
+    if m.controllers != CONTROLLERS:
+        raise ValueError(f"controllers: so3jax paper compares {' and '.join(CONTROLLERS)} (Table II); "
+                         "fly other controllers with so3jax fly missions/paper.toml")
+    return m
 
 
 def metrics_dict(result, steps_per_phase=None) -> dict:
@@ -172,40 +155,39 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
 def run(args) -> int:
     from so3jax import runfolder
 
-    with runfolder.claim(args.out, "paper", vars(args)):
-        return _run(args)
+    mission = load_mission(args)  # every check before the output folder exists
+    with runfolder.claim(args.out, "paper", {"mission": mission.describe(), "precision": args.precision}):
+        return _run(args, mission)
 
 
-def _run(args) -> int:
+def _run(args, mission) -> int:
     import jax
 
-    import so3jax as sj
-    from so3jax import config as cfg
     from so3jax import memory
+    from so3jax.fly import fly
     from so3jax.io import dumps, write_json
 
-    cfg.number(args.record_every, "--record-every [steps]", low=1, integer=True)
-    cfg.number(args.seed, "--seed", low=0, high=2**31 - 1, integer=True)
-    scenario = sj.paper_scenario(args.T, args.dt, tau_J=args.tau_J, dtype=args.precision)
-    needed = sum(memory.simulate_bytes(scenario, c, g, args.seed, record_every=args.record_every)
-                 for c, g in controller_setups(args.log_derivative).values())
-    budget = memory.check(needed, memory.from_args(args), f"--T {args.T:g} at --record-every {args.record_every}",
+    scenario = mission.scenario(args.precision)
+    needed = sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed,
+                                       record_every=mission.record_every) for name in CONTROLLERS)
+    budget = memory.check(needed, memory.from_args(args), f"--T {mission.T:g} at --record-every {mission.record_every}",
                           "raise --record-every or shorten --T")
-    results, wall = run_both(scenario, args.seed, args.log_derivative, args.record_every)
+    results, wall = fly(mission, args.precision)
     report = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
     report["config"] = {
-        "T": args.T,
-        "dt": args.dt,
+        "T": mission.T,
+        "dt": mission.dt,
         "n_steps": scenario.n_steps,
         "steps_per_phase": list(scenario.steps_per_phase),
-        "seed": args.seed,
+        "seed": mission.seed,
         "precision": args.precision,
-        "tau_J": args.tau_J,
-        "orbital_rate": float(sj.scenario.orbital_rate()),
-        "log_derivative": args.log_derivative,
-        "gains": {name: sj.controllers.get(name).defaults._asdict() for name in CONTROLLERS},
+        "tau_J": mission.tau_J,
+        "orbital_rate": mission.n,
+        "log_derivative": mission.options["adaptive"]["log_derivative"],
+        "gains": {name: mission.gains[name]._asdict() for name in CONTROLLERS},
+        "mission": mission.describe(),
         "wall_time_s": wall,
-        "devices": [str(d) for d in jax.devices("cpu")],  # where run_both ran them
+        "devices": [str(d) for d in jax.devices("cpu")],  # where fly ran them
         "memory": budget,
     }
     write_json(args.out / "metrics.json", report)
