@@ -118,8 +118,9 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, orbit.n, "
                              "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
                              "parameters of the mission's sensors, estimator and actuator")
-    if mission.constant_inertia:
-        fields["J1"] = fields["J2"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
+    if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
+        fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
+        fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
     dispersions = disp.Dispersions(**fields)
     disp.check(dispersions, warn=False)
     return dispersions, tuple(leaves)

@@ -251,6 +251,7 @@ class Samples(NamedTuple):
     draws: np.ndarray  # draws used (max_draws for a rejected sample, whose values are its last draw)
     scale: np.ndarray  # (N, 3) overall scale factors drawn for J0, J1, J2
     attitude_error: np.ndarray  # (N, 3) rotation vector of R0 (R_d(0) = I), rad
+    leaves: dict = {}  # dispersed component parameters {key: (N, *shape)} (so3jax.dispersed)
 
 
 # --- sampling ---------------------------------------------------------------------------

@@ -14,6 +14,7 @@ file, the flight mission of SPEC 8.5 (``missions/flight.toml`` spells it out).
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -335,6 +336,24 @@ def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
         offered = [n for n in components.names("sensor") if components.get("sensor", n).provides == missing[0]]
         raise ValueError(f"estimator '{estimator}' needs a sensor of the {' and the '.join(missing)} "
                          f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")
+
+
+def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple[Mission, dict]:
+    """(the mission, {table: value}) of a job file (a sweep, a tuning campaign): its
+    ``mission`` entry names a mission file (relative to ``base_dir``), its other mission
+    keys and tables override that file's (or ``base``'s) entries, and ``job_tables`` are the
+    job's own tables."""
+    d = dict(d)
+    jobs = {k: d.pop(k) for k in job_tables if k in d}
+    path = d.pop("mission", None)
+    if path is not None and not isinstance(path, str):
+        raise ValueError(f"mission must be the path of a mission file, got {cfg.short(path)}")
+    unknown = set(d) - set(_TOP) - set(_TABLES)
+    if unknown:
+        allowed = ("mission",) + job_tables + _TOP + _TABLES
+        raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
+    tables = cfg.read_toml(Path(base_dir) / path) if path is not None else {}
+    return from_dict(_merge(tables, d), base), jobs
 
 
 def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
