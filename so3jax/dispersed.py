@@ -12,7 +12,8 @@ distributions and keep :mod:`so3jax.dispersions`' variate layout:
 * ``initial.attitude``: ``{max_angle_deg}``, R(0) = R_mission(0) exp(hat(v)), v uniform
   on SO(3) up to that angle; ``initial.rate``: ``{norm}``, |Omega(0)| drawn from the
   distribution ``norm`` [rad/s], its direction uniform on the sphere;
-* ``seed = "random"``: a disturbance and sensor-noise seed per sample.
+* ``seed``: ``"random"``, a disturbance and sensor-noise seed per sample, or ``"mission"``
+  (the default), the mission's seed for every sample.
 
 Every other leaf is a parameter of a flown sensor, estimator or actuator: each element
 of its value is drawn independently from its own variates, ``fold_in(fold_in(key(seed),
@@ -96,10 +97,9 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
         path = tuple(key.split("."))
         where = f"dispersions.{key}"
         if key == "seed":
-            if value != "random":
-                raise ValueError(f"{where} must be \"random\" (a seed per sample), got {cfg.short(value)}; "
-                                 "one seed for every sample is the mission's seed")
-            fields["disturbance_seed"] = None
+            choice = cfg.choice(value, f"{where} (random: a seed per sample; mission: the mission's seed for all)",
+                                ("random", "mission"))
+            fields["disturbance_seed"] = None if choice == "random" else mission.seed
         elif path[0] == "inertia" and len(path) == 2 and path[1] in ("J0", "J1", "J2"):
             if mission.constant_inertia and path[1] != "J0":
                 raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")

@@ -69,7 +69,7 @@ _TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "initial"
            "controller", "gains")
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)
 class Mission:
     """A validated mission: plain numbers, strings and NumPy arrays (nothing compiled).
 
@@ -125,6 +125,11 @@ class Mission:
     def controller(self, name: str):
         """(Controller, gains) of a controller named in the mission."""
         return registry.get(name).factory(**self.options.get(name, {})), self.gains[name]
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Mission) and self.describe() == other.describe()
+
+    __hash__ = None
 
     def describe(self) -> dict:
         """The mission as JSON-ready plain data (the ``config`` of results)."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 
 from so3jax import dispersed, mission
 from so3jax import dispersions as disp
+from so3jax.scenario import InertiaWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {
@@ -70,6 +72,7 @@ def test_the_sampled_loop_carries_the_drawn_values_and_the_filter_keeps_the_nomi
     ({"gains": {"pd": {"k_R": 1.0}}}, "cannot be dispersed"),
     ({"sensors": {"gyro": {"arw": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, "outside that domain"),
     ({"seed": 3}, "random"),
+    ({"seed": "fixed"}, "mission"),
     ({"inertia": {"J0": {"size": 1.0}}}, "unknown key"),
     ({"initial": {"attitude": {"max_angle_deg": 200.0}}}, "max_angle_deg"),
     ({"deployment": {"tau_J": {"dist": "uniform", "low": -1.0, "high": 1.0}}}, "tau_J"),
@@ -102,3 +105,49 @@ def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
     for key, values in got.items():
         recorded = np.array([float(r[key]) for r in rows])
         np.testing.assert_allclose(values, recorded, rtol=1e-12, atol=1e-300, err_msg=key)
+
+
+FLIGHT_SWEEP = {
+    "mission": str(ROOT / "missions" / "flight.toml"),
+    "T": 1.0, "controllers": ["pd"], "gains": {"pd": {"k_R": 50.0, "k_Omega": 400.0}},  # wheels at their limits
+    "initial": {"rate": [0.02, -0.01, 0.015]},
+    "sweep": {"samples": 8, "chunk": 8},
+    "dispersions": {**LEAVES, "inertia": {"J0": {"scale": {"dist": "uniform", "low": 0.8, "high": 1.2}}}},
+}
+
+
+def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
+    """A sweep of the flight mission dispersing a sensor, an actuator and an inertia leaf:
+    each sample's metrics equal those of the mission written with that sample's values and
+    flown on its own (the filter assuming the nominal gyro), and differ between samples."""
+    from so3jax import fly, sweep
+    from so3jax.io import to_builtin
+
+    cfg = sweep.config_from_dict(FLIGHT_SWEEP)
+    sweep.run_sweep(cfg, tmp_path / "out", progress=False)
+    with np.load(tmp_path / "out" / "samples.npz") as f:
+        t = {k: f[k] for k in f.files}
+    assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
+    for i in (0, 5):
+        J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"] for a in "xyz"]
+             for name in ("J0", "J1", "J2")}
+        overrides = [f"sensors.gyro.arw={float(t['sensors.gyro.arw'][i])!r}", "estimator.mekf.arw=1e-6",
+                     f"actuator.wheels.max_torque={to_builtin([t[f'actuator.wheels.max_torque_{w}'][i] for w in range(1, 5)])}",
+                     *(f"inertia.{name}.nominal={to_builtin(J[name])}" for name in ("J0", "J1", "J2")),
+                     f"deployment.tau_J={float(t['tau_J'][i])!r}"]
+        tables = {k: v for k, v in FLIGHT_SWEEP.items() if k not in ("sweep", "dispersions")}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", InertiaWarning)  # the drawn J0 and J1 = 2 J0, as in the sweep
+            result = fly.fly(mission.from_dict(_with(tables, overrides)))[0]["pd"]
+        for key in ("rmse", "effort"):
+            np.testing.assert_allclose(float(result.metrics._asdict()[key]), t[f"pd_{key}"][i], rtol=1e-9, err_msg=key)
+
+
+def _with(tables: dict, overrides: list) -> dict:
+    from so3jax import config as cfg
+
+    d = cfg.read_toml(tables["mission"])
+    d = mission._merge(d, {k: v for k, v in tables.items() if k != "mission"})
+    for item in overrides:
+        cfg.set_dotted(d, *cfg.parse_override(item))
+    return d
