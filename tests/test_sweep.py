@@ -21,6 +21,7 @@ import pytest
 import so3jax as sj
 from so3jax import dispersions as disp
 from so3jax import sweep
+from so3jax.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("samples=11", "T=2700.0", "dt=0.5", "chunk=8")
@@ -218,7 +219,7 @@ def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_pa
 
 
 def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
-    save, chunks = sweep.save_npz, []
+    save, chunks = engine.save_npz, []
 
     def save_then_stop(path, **arrays):
         save(path, **arrays)
@@ -226,11 +227,11 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
             chunks.append(Path(path).name)
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(sweep, "save_npz", save_then_stop)
+    monkeypatch.setattr(engine, "save_npz", save_then_stop)
     with pytest.raises(KeyboardInterrupt):
         run(config(), tmp_path)
     assert chunks == ["pd-000000000.npz"] and not (tmp_path / "summary.json").exists()
-    monkeypatch.setattr(sweep, "save_npz", save)
+    monkeypatch.setattr(engine, "save_npz", save)
 
     with pytest.raises(ValueError, match="--resume"):
         run(config(), tmp_path)
@@ -256,8 +257,8 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
         run(config(), tmp_path, resume=True)
     chunk.write_bytes(good)
 
-    run_chunk, computed = sweep.run_chunk, []
-    monkeypatch.setattr(sweep, "run_chunk", lambda params, *a: computed.append(len(params.seed)) or run_chunk(params, *a))
+    run_chunk, computed = engine.run_chunk, []
+    monkeypatch.setattr(engine, "run_chunk", lambda params, *a: computed.append(len(params.seed)) or run_chunk(params, *a))
     summary = run(config(), tmp_path, resume=True)
     assert computed == [8, 8, 8]  # pd: samples 8-10 (padded); adaptive: 0-7, 8-10
     assert summary["run"]["computed_samples"] == 3 + 11
@@ -275,8 +276,8 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
 
 def test_impossible_samples_are_redrawn_or_rejected_never_simulated(tmp_path, monkeypatch):
     wild = 'inertia.J0.products={dist="normal", mean=0.0, std=400.0}'
-    run_chunk, seen = sweep.run_chunk, []
-    monkeypatch.setattr(sweep, "run_chunk", lambda params, *a: seen.append(params) or run_chunk(params, *a))
+    run_chunk, seen = engine.run_chunk, []
+    monkeypatch.setattr(engine, "run_chunk", lambda params, *a: seen.append(params) or run_chunk(params, *a))
 
     summary = run(config(wild, "samples=12", "max_draws=1", 'controllers=["pd"]'), tmp_path / "reject")
     t = table(tmp_path / "reject")

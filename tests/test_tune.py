@@ -17,6 +17,7 @@ import pytest
 
 from so3jax import cli, tune
 from so3jax.metrics import Metrics
+from so3jax.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
 
 BASE = {
     "controller": "pd",
@@ -136,7 +137,7 @@ def test_resume_after_interrupt_equals_an_uninterrupted_run(tmp_path, monkeypatc
 
     # Ctrl-C in the middle of the third iteration
     step = "cost_and_grad" if method == "gradient" else "population_costs"
-    original, calls = getattr(tune, step), []
+    original, calls = getattr(campaign, step), []
 
     def interrupted(*args, **kwargs):
         calls.append(1)
@@ -144,11 +145,11 @@ def test_resume_after_interrupt_equals_an_uninterrupted_run(tmp_path, monkeypatc
             raise KeyboardInterrupt
         return original(*args, **kwargs)
 
-    monkeypatch.setattr(tune, step, interrupted)
+    monkeypatch.setattr(campaign, step, interrupted)
     with pytest.raises(KeyboardInterrupt):
         tune.tune(cfg, tmp_path / "resumed", progress=False)
     assert len(read_history(tmp_path / "resumed")) == 2  # at most one iteration lost
-    monkeypatch.setattr(tune, step, original)
+    monkeypatch.setattr(campaign, step, original)
     with pytest.raises(ValueError, match="--resume"):
         tune.tune(cfg, tmp_path / "resumed", progress=False)
     with pytest.raises(ValueError, match="another configuration"):

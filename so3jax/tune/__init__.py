@@ -1,0 +1,110 @@
+"""Gain tuning through the simulator: SPEC 6 costs, an optax loop with resumable
+checkpoints, a gradient-free baseline, and the ``so3jax tune`` command.
+
+Gains are tuned in log space (p = log g, so every gain stays positive). The cost of
+gains g over a batch of B training scenarios (inertia scale x disturbance seed, see
+:mod:`so3jax.gradients`) is the batch mean of (SPEC 6)
+
+    weighted:      RMSE / RMSE_ref + lambda * Effort / Effort_ref
+    equal_effort:  RMSE / RMSE_ref + mu * max(0, Effort / Effort_budget - 1)^2
+
+RMSE_ref and Effort_ref default to the initial gains' batch means; Effort_budget is a
+number or another controller's effort on the same scenario (e.g. the PD with the
+paper's gains), scenario by scenario.
+
+A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
+an interrupted run loses at most one iteration and ``--resume`` continues to the same
+result), ``best_gains.json``, ``history.csv``, ``history.png`` and
+``validation.json`` (initial and tuned gains on held-out seeds).
+
+Modules: config (TuneConfig, parsing, checks), gains (tunable controllers, gains and
+log-gains), cost (SPEC 6 cost and gradient over a device mesh), optimizers (optax step,
+ES), problem (batches on devices, evaluations, normalizers), storage (checkpoint,
+history, best gains), campaign (the loop, resume), validation (held-out report,
+markdown), plots (history.png), cli (the subcommand).
+"""
+
+from so3jax.tune.gains import (
+    CONTROLLERS,
+    GAIN_TYPES,
+    PAPER_GAINS,
+    gain_columns,
+    gains_table,
+    resolve_gains,
+    to_gains,
+    to_params,
+)
+from so3jax.tune.config import (
+    COST_MODES,
+    METHODS,
+    CostConfig,
+    ESConfig,
+    OptimizerConfig,
+    ScenarioSet,
+    TuneConfig,
+    load_config,
+    make_optimizer,
+    parse_config,
+    validate,
+)
+from so3jax.tune.config import _SECTIONS  # noqa: F401 (tests walk the config's sections)
+from so3jax.tune.cost import BATCH, CostRefs, Evaluation, cost_and_grad, population_costs, scenario_costs
+from so3jax.tune.cost import _batch_metrics  # noqa: F401 (tests: the cost's metrics without the gradient)
+from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
+from so3jax.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate, place
+from so3jax.tune.storage import CHECKPOINT, load_checkpoint, save_checkpoint, write_history
+from so3jax.tune.storage import _best_row  # noqa: F401 (tests)
+from so3jax.tune.plots import plot_history
+from so3jax.tune.validation import markdown_table, validate_gains
+from so3jax.tune.campaign import tune
+from so3jax.tune.cli import DEFAULT_OUT, register
+
+__all__ = [
+    "BATCH",
+    "CHECKPOINT",
+    "CONTROLLERS",
+    "COST_MODES",
+    "CostConfig",
+    "CostRefs",
+    "DEFAULT_OUT",
+    "ESConfig",
+    "ESState",
+    "Evaluation",
+    "GAIN_TYPES",
+    "GradientState",
+    "METHODS",
+    "MIN_SHARD",
+    "NonFiniteGradientError",
+    "OptimizerConfig",
+    "PAPER_GAINS",
+    "Problem",
+    "ScenarioSet",
+    "TuneConfig",
+    "batch_devices",
+    "build_problem",
+    "cost_and_grad",
+    "cost_refs",
+    "es_candidates",
+    "es_select",
+    "evaluate",
+    "gain_columns",
+    "gains_table",
+    "load_checkpoint",
+    "load_config",
+    "make_optimizer",
+    "markdown_table",
+    "parse_config",
+    "place",
+    "plot_history",
+    "population_costs",
+    "register",
+    "resolve_gains",
+    "save_checkpoint",
+    "scenario_costs",
+    "to_gains",
+    "to_params",
+    "tune",
+    "validate",
+    "validate_gains",
+    "write_history",
+]

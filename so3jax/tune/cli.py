@@ -1,0 +1,56 @@
+"""``so3jax tune``: the subcommand's arguments, and the campaign they run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from so3jax import config as cfg
+from so3jax import distributed
+from so3jax.tune.campaign import tune
+from so3jax.tune.config import load_config
+from so3jax.tune.optimizers import NonFiniteGradientError
+from so3jax.tune.validation import markdown_table
+
+DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
+
+
+def _command(args) -> int:
+    distributed.initialize(args)  # before anything touches JAX's backend
+    overrides = [cfg.parse_override(text) for text in args.set]
+    if args.iterations is not None:
+        overrides.append(("iterations", args.iterations))
+    if args.T is not None:
+        overrides.append(("scenario.T", args.T))
+    config = load_config(args.config, overrides)
+    out = Path(args.out) if args.out else DEFAULT_OUT / Path(args.config).stem
+    try:
+        report = tune(config, out, resume=args.resume)
+    except NonFiniteGradientError as err:
+        print(f"so3jax tune: {err}", file=sys.stderr)
+        return 1
+    if distributed.writer():
+        print(markdown_table([report]))
+        print(f"results in {out}/")
+    return 0
+
+
+def register(subparsers) -> None:
+    from so3jax.cli import add_precision_argument
+
+    parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator")
+    parser.add_argument("config", help="campaign file (TOML), e.g. tuning/adaptive_equal_effort.toml")
+    parser.add_argument("--iterations", type=int, help="number of iterations (overrides the config)")
+    parser.add_argument("--T", type=float, help="horizon [s] (overrides scenario.T)")
+    parser.add_argument("--out", help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
+    parser.add_argument("--resume", action="store_true", help="continue the run saved in the run folder")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override a config key, e.g. optimizer.learning_rate=0.1",
+    )
+    distributed.add_arguments(parser)
+    add_precision_argument(parser)
+    parser.set_defaults(func=_command)

@@ -1,0 +1,103 @@
+"""The SPEC 6 tuning cost of log-gains over a batch of scenarios, its gradient, and a
+population's costs, with the batch split over a device mesh."""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax.sharding import PartitionSpec
+
+from so3jax.gradients import batch_metrics, value_and_grad
+from so3jax.tune.gains import to_gains
+
+class CostRefs(NamedTuple):
+    """Normalizers: RMSE_ref [rad/s]; Effort_ref or Effort_budget [N^2 m^2 s], a scalar or
+    one per scenario; weight lambda or mu."""
+
+    rmse: jax.Array
+    effort: jax.Array
+    weight: jax.Array
+
+
+def scenario_costs(metrics, refs: CostRefs, mode: str):
+    """SPEC 6 cost of each scenario (shape of metrics.rmse)."""
+    ratio = metrics.effort / refs.effort
+    if mode == "weighted":
+        return metrics.rmse / refs.rmse + refs.weight * ratio
+    return metrics.rmse / refs.rmse + refs.weight * jnp.maximum(ratio - 1.0, 0.0) ** 2
+
+
+class Evaluation(NamedTuple):
+    """Batch means of one evaluation."""
+
+    cost: jax.Array
+    rmse: jax.Array
+    effort: jax.Array
+    diverged: jax.Array  # number of diverged scenarios
+
+
+def _summary(metrics, refs, mode) -> Evaluation:
+    return Evaluation(
+        jnp.mean(scenario_costs(metrics, refs, mode)),
+        jnp.mean(metrics.rmse),
+        jnp.mean(metrics.effort),
+        jnp.sum(metrics.diverged.astype(jnp.int32)),
+    )
+
+
+BATCH = "batch"  # the mesh axis the scenario batch is split along
+
+
+def _metrics(scenario, controller, gains, batch, record_every, mesh):
+    """batch_metrics, split along the batch over the devices of mesh (None: one device).
+
+    Each device runs the single-device rollout on its shard (``jax.shard_map``): nothing
+    crosses devices inside the time loop. The batch is padded to a multiple of the mesh
+    size by repeating its last scenario, and the padding is dropped from the result.
+    """
+    run = lambda scenario, gains, batch: batch_metrics(scenario, controller, gains, batch, record_every=record_every)
+    if mesh is None:
+        return run(scenario, gains, batch)
+    n = batch.seed.shape[0]
+    index = jnp.minimum(jnp.arange(-(-n // mesh.size) * mesh.size), n - 1)
+    padded = jax.tree.map(lambda x: x[index], batch)
+    # check_vma=False: the rollout's loop carries start from the shared scenario and become
+    # per-device; without the check, the gradient of the shared gains sums over devices.
+    sharded = jax.shard_map(
+        run,
+        mesh=mesh,
+        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(BATCH)),
+        out_specs=PartitionSpec(BATCH),
+        check_vma=False,
+    )
+    return jax.tree.map(lambda x: x[:n], sharded(scenario, gains, padded))
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "record_every", "mesh"))
+def _batch_metrics(scenario, controller, gains, batch, record_every, mesh=None):
+    return _metrics(scenario, controller, gains, batch, record_every, mesh)
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "mode", "gradient", "record_every", "mesh"))
+def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every, mesh=None):
+    """(Evaluation, d cost / d params) of log-gains params over the batch (split over mesh)."""
+
+    def cost(p):
+        summary = _summary(_metrics(scenario, controller, to_gains(p), batch, record_every, mesh), refs, mode)
+        return summary.cost, summary
+
+    (_, summary), grad = value_and_grad(cost, gradient)(params)
+    return summary, grad
+
+
+@functools.partial(jax.jit, static_argnames=("controller", "mode", "record_every", "mesh"))
+def population_costs(population, scenario, controller, batch, refs, mode, record_every, mesh=None):
+    """Evaluation of each member of a population of log-gains (leading axis P)."""
+
+    def one(params):
+        return _summary(_metrics(scenario, controller, to_gains(params), batch, record_every, mesh), refs, mode)
+
+    return jax.vmap(one)(population)

@@ -1,0 +1,30 @@
+"""A campaign's figure: cost, RMSE, effort and gains over the iterations (history.png)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from so3jax import io
+
+def plot_history(out: Path, rows: list[dict], gain_names: list[str]) -> None:
+    from matplotlib.figure import Figure
+
+    it = [r["iteration"] for r in rows]
+    fig = Figure(figsize=(10, 6.5))
+    axes = fig.subplots(2, 2, sharex=True)
+    for ax, key, label in zip(axes.flat, ("cost", "rmse", "effort"), ("cost [-]", "RMSE [rad/s]", "effort [N² m² s]")):
+        ax.plot(it, [r[key] for r in rows], marker=".")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    ax = axes.flat[3]
+    for name in gain_names:
+        first = rows[0][name]
+        ax.plot(it, [r[name] / first for r in rows], label=name)
+    ax.set_yscale("log")
+    ax.set_ylabel("gain / initial gain")
+    ax.legend(fontsize=7, ncol=2)
+    ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("iteration")
+    fig.tight_layout()
+    io.save_figure(fig, out / "history.png")

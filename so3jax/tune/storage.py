@@ -1,0 +1,107 @@
+"""A campaign's run folder: the checkpoint a resume continues from, history.csv and its
+rows, and best_gains.json."""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io as _stringio
+import json
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import io, runfolder
+from so3jax.tune.config import TuneConfig
+from so3jax.tune.cost import CostRefs, Evaluation
+from so3jax.tune.gains import gain_columns, gains_table
+
+CHECKPOINT = "checkpoint.npz"
+
+
+def _fingerprint(config: TuneConfig) -> str:
+    """Fingerprint of everything but the iteration count (a resumed run may be extended)."""
+    return runfolder.fingerprint(dataclasses.asdict(dataclasses.replace(config, iterations=0)))
+
+
+def save_checkpoint(path, fingerprint, iteration, state, refs, rows) -> None:
+    leaves = jax.tree.leaves(state) + list(refs)
+    io.save_npz(
+        path,
+        fingerprint=np.array(fingerprint),
+        iteration=np.array(iteration),
+        rows=np.array(json.dumps(rows)),
+        **{f"leaf_{i}": np.asarray(leaf) for i, leaf in enumerate(leaves)},
+    )
+
+
+def load_checkpoint(path, fingerprint, state_template, refs_template):
+    """(iteration, state, refs, rows); leaf shapes and dtypes follow the templates."""
+    leaves_template, treedef = jax.tree.flatten((state_template, refs_template))
+    try:
+        with np.load(path) as data:
+            found = str(data["fingerprint"])
+            iteration, rows = int(data["iteration"]), json.loads(str(data["rows"]))
+            leaves = [data[f"leaf_{i}"] for i in range(len(leaves_template))]
+    except Exception as err:  # a truncated or foreign file: zip, pickle, key or JSON errors
+        raise runfolder.corrupt(path, err, "delete it to start the run over, or choose another --out") from None
+    if found != fingerprint:
+        raise ValueError(f"{path} was written for another configuration; use a new --out folder")
+    for i, (leaf, template) in enumerate(zip(leaves, leaves_template)):
+        if leaf.shape != np.shape(template):
+            raise ValueError(f"{path}: checkpoint leaf {i} has shape {leaf.shape}, expected {np.shape(template)}")
+    leaves = [jnp.asarray(leaf, np.asarray(template).dtype) for leaf, template in zip(leaves, leaves_template)]
+    state, refs = jax.tree.unflatten(treedef, leaves)
+    return iteration, state, CostRefs(*refs), rows
+
+
+def write_history(out: Path, rows: list[dict]) -> None:
+    buffer = _stringio.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
+    writer.writeheader()
+    writer.writerows(rows)
+    io.write_text(out / "history.csv", buffer.getvalue())
+
+
+def _row(iteration, evaluation: Evaluation, gains, wall, rollouts, **extra) -> dict:
+    return {
+        "iteration": iteration,
+        "cost": float(evaluation.cost),
+        "rmse": float(evaluation.rmse),
+        "effort": float(evaluation.effort),
+        "diverged": int(evaluation.diverged),
+        **extra,
+        "wall_s": round(wall, 3),
+        "rollouts": rollouts,
+        **gain_columns(gains),
+    }
+
+
+def _gains_from_row(row, template):
+    """The gains recorded in a history row, shaped like template."""
+    values = {}
+    for name, value in template._asdict().items():
+        size = np.size(value)
+        values[name] = row[name] if np.ndim(value) == 0 else [row[f"{name}_{i}"] for i in range(size)]
+    return type(template)(**{name: jnp.asarray(v, jnp.result_type(template[0])) for name, v in values.items()})
+
+
+def _best_row(rows):
+    """The row of the lowest finite cost (the first row when none is finite)."""
+    return min(rows, key=lambda r: r["cost"] if math.isfinite(r["cost"]) else math.inf)
+
+
+def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
+    """best_gains.json: the lowest training cost so far, and the last good gains."""
+    best, last = _best_row(rows), rows[-1]
+    record = {
+        "controller": config.controller,
+        "gains": gains_table(_gains_from_row(best, template)),
+        "iteration": best["iteration"],
+        "training": {key: best[key] for key in ("cost", "rmse", "effort")},
+        "last_good": {"iteration": last["iteration"], "gains": gains_table(_gains_from_row(last, template))},
+    }
+    io.write_json(out / "best_gains.json", record)

@@ -1,0 +1,116 @@
+"""Initial and tuned gains on the held-out scenarios (validation.json), and a markdown
+table of such reports."""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax import io
+from so3jax.metrics import cell, finite_values, reported
+from so3jax.tune.config import TuneConfig
+from so3jax.tune.cost import CostRefs, scenario_costs
+from so3jax.tune.gains import gains_table, resolve_gains
+from so3jax.tune.problem import Problem, evaluate
+
+def _metrics_table(metrics) -> dict:
+    """Per-scenario RMSE and effort (None for a diverged scenario, flagged in ``diverged``)
+    and their means over the scenarios that did not diverge (None if every one did)."""
+    diverged = np.asarray(metrics.diverged, dtype=bool)
+    rmse, effort = (reported(x, diverged) for x in (metrics.rmse, metrics.effort))
+
+    def mean(x):
+        finite, _ = finite_values(x)
+        return float(np.mean(finite)) if len(finite) else None
+
+    return {
+        "rmse": io.to_builtin(rmse),
+        "effort": io.to_builtin(effort),
+        "diverged": diverged.tolist(),
+        "diverged_count": int(np.sum(diverged | ~np.isfinite(rmse) | ~np.isfinite(effort))),
+        "mean_rmse": mean(rmse),
+        "mean_effort": mean(effort),
+    }
+
+
+def _mean_cost(metrics, refs, mode):
+    """The SPEC 6 cost over the scenarios, None when a scenario diverged (its cost is not a number)."""
+    cost = float(jnp.mean(scenario_costs(metrics, refs, mode)))
+    return cost if math.isfinite(cost) and not np.any(metrics.diverged) else None
+
+
+def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_train: CostRefs) -> dict:
+    """Initial and tuned gains (and the budget controller's) on the held-out scenarios.
+
+    The cost there uses the training RMSE_ref / Effort_ref, and a per-scenario budget
+    recomputed on the held-out scenarios.
+    """
+    batch = problem.validation
+    initial_metrics = evaluate(problem, initial, batch)
+    best_metrics = evaluate(problem, best, batch)
+    refs = refs_train
+    report = {
+        "controller": config.controller,
+        "scenarios": {
+            "seeds": np.asarray(batch.seed).tolist(),
+            "inertia_scale": np.asarray(batch.inertia_scale).tolist(),
+        },
+        "initial": {"gains": gains_table(initial), **_metrics_table(initial_metrics)},
+        "tuned": {"gains": gains_table(best), **_metrics_table(best_metrics)},
+    }
+    if config.cost.budget_controller is not None:
+        dtype = problem.scenario.R0.dtype
+        gains = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype)
+        budget_metrics = evaluate(problem, gains, batch, config.cost.budget_controller)
+        refs = refs._replace(effort=budget_metrics.effort)
+        report["budget"] = {
+            "controller": config.cost.budget_controller,
+            "gains": gains_table(gains),
+            **_metrics_table(budget_metrics),
+        }
+    report["cost"] = {
+        "mode": config.cost.mode,
+        "initial": _mean_cost(initial_metrics, refs, config.cost.mode),
+        "tuned": _mean_cost(best_metrics, refs, config.cost.mode),
+    }
+    return report
+
+
+def markdown_table(reports: list[dict]) -> str:
+    """Paper (initial) vs tuned gains, RMSE and effort on the held-out scenarios (means
+    over the scenarios that did not diverge, with their count; "diverged" if all did)."""
+    lines = [
+        "| campaign | controller | gains | held-out RMSE [rad/s] | held-out effort [N² m² s] |",
+        "|---|---|---|---|---|",
+    ]
+    for report in reports:
+        name = report.get("name", report["controller"])
+        entries = [("initial", report["initial"]), ("tuned", report["tuned"])]
+        if "budget" in report:
+            entries.insert(0, (f"budget ({report['budget']['controller']})", report["budget"]))
+        for label, entry in entries:
+            gains = ", ".join(f"{k}={_fmt(v)}" for k, v in entry["gains"].items())
+            controller = report["budget"]["controller"] if label.startswith("budget") else report["controller"]
+            lines.append(
+                f"| {name} ({label}) | {controller} | {gains} | {_mean_cell(entry, 'mean_rmse', '.4e')} "
+                f"| {_mean_cell(entry, 'mean_effort', '.2f')} |"
+            )
+    return "\n".join(lines)
+
+
+def _mean_cell(entry: dict, key: str, fmt: str) -> str:
+    """A validation mean: the number, and how many scenarios diverged if any did."""
+    total = len(entry["diverged"])
+    count = entry.get("diverged_count", sum(map(bool, entry["diverged"])))
+    value = entry[key]
+    if value is None or not math.isfinite(value):
+        return "diverged" if count else cell(None, fmt)
+    return format(value, fmt) + (f" ({count} of {total} diverged)" if count else "")
+
+
+def _fmt(value) -> str:
+    if isinstance(value, list):
+        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
+    return f"{value:.4g}"
