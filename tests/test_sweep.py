@@ -19,12 +19,12 @@ import numpy as np
 import pytest
 
 import so3jax as sj
+from so3jax import dispersed, sweep
 from so3jax import dispersions as disp
-from so3jax import sweep
 from so3jax.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
-SETTINGS = ("samples=11", "T=2700.0", "dt=0.5", "chunk=8")
+SETTINGS = ("sweep.samples=11", "T=2700.0", "dt=0.5", "sweep.chunk=8")
 METRIC_COLUMNS = ("rmse", "rmse_unrotated", "effort", "rmse_capture", "effort_deployment", "max_angle_detumble", "diverged")
 
 
@@ -65,25 +65,28 @@ def test_default_config_file_is_the_builtin_default():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", sj.InertiaWarning)
         from_file = sweep.load_config(ROOT / "sweeps" / "default.toml")
-        assert from_file == sweep.load_config(None) == sweep.SweepConfig()
+        assert from_file == sweep.load_config(None)
         assert sweep.config_from_dict(sweep.config_to_dict(from_file)) == from_file
+    assert from_file.mission.describe() == sj.mission.load(ROOT / "missions" / "paper.toml").describe()
 
 
 @pytest.mark.parametrize(
     "override, message",
     [
         ("bogus=1", "unknown config key"),
-        ("inertia.J0.wobble=1", "unknown key"),
-        ('deployment.tau_J={dist="gamma", k=1.0}', "unknown distribution"),
-        ('deployment.tau_J={dist="uniform", low=1.0}', "takes exactly"),
-        ('orbit.n={dist="normal", mean=1e-3, std=-1.0}', "std"),
+        ("sweep.bogus=1", "unknown key"),
+        ("dispersions.inertia.J0.wobble=1", "unknown key"),
+        ('dispersions.deployment.tau_J={dist="gamma", k=1.0}', "unknown distribution"),
+        ('dispersions.deployment.tau_J={dist="uniform", low=1.0}', "takes exactly"),
+        ('dispersions.orbit.n={dist="normal", mean=1e-3, std=-1.0}', "std"),
         ("T=10.005", "not a multiple of dt"),
         ('controllers=["pd", "lqr"]', "controllers"),
-        ("initial.max_angle_deg=170.0", "divergence_angle_deg"),
-        ("inertia.J1.nominal=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]", "J1's nominal"),
+        ("dispersions.initial.attitude.max_angle_deg=170.0", "divergence_angle_deg"),
         ("inertia.J2.nominal=[[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]", "positive definite"),
         ("gains.pd.k_R=-1.0", "positive"),
-        ("chunk=0", "chunk"),
+        ("sweep.chunk=0", "chunk"),
+        ("dispersions.sensors.gyro.arw=1e-6", "flies no sensors 'gyro'"),
+        ("mission=3", "mission must be the path"),
     ],
 )
 def test_bad_config_is_a_clear_error(override, message):
@@ -92,14 +95,15 @@ def test_bad_config_is_a_clear_error(override, message):
 
 
 def test_overrides_and_distributions():
-    cfg = config('inertia.J0.scale={dist="normal", mean=1.0, std=0.05}', "disturbance.seed=7", "orbit.n=1e-3")
+    cfg = config('dispersions.inertia.J0.scale={dist="normal", mean=1.0, std=0.05}', "seed=7",
+                 'dispersions.seed="mission"', "dispersions.orbit.n=1e-3")
     d = cfg.dispersions
     assert d.J0.scale == disp.Normal(1.0, 0.05) and d.disturbance_seed == 7 and d.n == disp.Fixed(1e-3)
     assert cfg.samples == 11 and cfg.dt == 0.5
 
 
 def test_samples_depend_only_on_seed_and_index():
-    d = sweep.DEFAULT_DISPERSIONS
+    d = config().dispersions
     few = disp.draw_samples(d, 3, 5, 20)
     many = disp.draw_samples(d, 3, disp.BLOCK + 9, 20)  # two sampler blocks
     fewer_draws = disp.draw_samples(d, 3, 5, 4)
@@ -111,7 +115,7 @@ def test_samples_depend_only_on_seed_and_index():
 
 
 def test_every_dispersion_is_sampled_within_its_law():
-    s = disp.draw_samples(sweep.DEFAULT_DISPERSIONS, 0, 400, 20)
+    s = disp.draw_samples(config().dispersions, 0, 400, 20)
     p = s.params
     assert s.valid.all()
     for name, value in p._asdict().items():
@@ -155,14 +159,16 @@ def test_each_dispersed_value_reaches_the_rollout():
     batch = jax.tree.map(lambda *xs: np.stack(xs), *(variants + [base] * (-len(variants) % 8)))
     gains = jax.tree.map(np.asarray, cfg.gains["pd"])
     halves = [jax.tree.map(lambda x: x[:8], batch), jax.tree.map(lambda x: x[8:], batch)]
-    m = [sweep.run_chunk(half, gains, "pd", cfg.T, cfg.dt, sweep.batch_mesh()) for half in halves]
+    key = sweep.mission_key(cfg.mission)
+    m = [sweep.run_chunk((half, {}), gains, "pd", key, sweep.batch_mesh()) for half in halves]
     rmse, effort = (np.concatenate([x[k] for x in m]) for k in ("rmse", "effort"))
     for i, name in enumerate(base._fields, start=1):
         assert rmse[i] != rmse[0] and effort[i] != effort[0], f"{name} does not change the motion"
 
 
 def test_sample_parameters_map_onto_the_mission():
-    p = jax.tree.map(lambda x: x[0], disp.draw_samples(sweep.DEFAULT_DISPERSIONS, 0, 1, 20).params)
+    cfg = config()
+    p = jax.tree.map(lambda x: x[0], disp.draw_samples(cfg.dispersions, 0, 1, 20).params)
     expected = sj.paper_scenario(
         2700.0,
         0.5,
@@ -176,7 +182,7 @@ def test_sample_parameters_map_onto_the_mission():
         noise_std=float(p.noise_std),
     )
     expected = dataclasses.replace(expected, R0=jax.numpy.asarray(p.R0), Omega0=jax.numpy.asarray(p.Omega0))
-    got = sweep.mission(jax.tree.map(jax.numpy.asarray, p), 2700.0, 0.5)
+    got = dispersed.scenario(cfg.mission, jax.tree.map(jax.numpy.asarray, p))
     assert jax.tree.structure(got) == jax.tree.structure(expected)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected)):
         np.testing.assert_allclose(a, b, rtol=1e-15, atol=0)
@@ -236,14 +242,14 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="--resume"):
         run(config(), tmp_path)
     with pytest.raises(ValueError, match="other settings"):
-        run(config("seed=1"), tmp_path, resume=True)
+        run(config("sweep.seed=1"), tmp_path, resume=True)
 
     # a resume refuses what it cannot match to this sweep, before computing anything
     stamp = tmp_path / "sweep.json"
     description = stamp.read_text()
     stamp.unlink()
     with pytest.raises(ValueError, match="sweep.json is missing"):
-        run(config("seed=1"), tmp_path, resume=True)
+        run(config("sweep.seed=1"), tmp_path, resume=True)
     stamp.write_text(description)
     chunk = tmp_path / "chunks" / "pd-000000000.npz"
     good = chunk.read_bytes()
@@ -258,14 +264,14 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
     chunk.write_bytes(good)
 
     run_chunk, computed = engine.run_chunk, []
-    monkeypatch.setattr(engine, "run_chunk", lambda params, *a: computed.append(len(params.seed)) or run_chunk(params, *a))
+    monkeypatch.setattr(engine, "run_chunk", lambda inputs, *a: computed.append(len(inputs[0].seed)) or run_chunk(inputs, *a))
     summary = run(config(), tmp_path, resume=True)
     assert computed == [8, 8, 8]  # pd: samples 8-10 (padded); adaptive: 0-7, 8-10
     assert summary["run"]["computed_samples"] == 3 + 11
     assert_same_results(table(reference[0]), table(tmp_path), ["pd", "adaptive"])
 
     computed.clear()
-    run(config("samples=13"), tmp_path, resume=True)  # more samples: extends the sweep
+    run(config("sweep.samples=13"), tmp_path, resume=True)  # more samples: extends the sweep
     assert computed == [8, 8]
     extended = {k: v[:11] for k, v in table(tmp_path).items()}
     assert_same_results(table(reference[0]), extended, ["pd", "adaptive"])
@@ -275,11 +281,11 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
 
 
 def test_impossible_samples_are_redrawn_or_rejected_never_simulated(tmp_path, monkeypatch):
-    wild = 'inertia.J0.products={dist="normal", mean=0.0, std=400.0}'
+    wild = 'dispersions.inertia.J0.products={dist="normal", mean=0.0, std=400.0}'
     run_chunk, seen = engine.run_chunk, []
-    monkeypatch.setattr(engine, "run_chunk", lambda params, *a: seen.append(params) or run_chunk(params, *a))
+    monkeypatch.setattr(engine, "run_chunk", lambda inputs, *a: seen.append(inputs[0]) or run_chunk(inputs, *a))
 
-    summary = run(config(wild, "samples=12", "max_draws=1", 'controllers=["pd"]'), tmp_path / "reject")
+    summary = run(config(wild, "sweep.samples=12", "sweep.max_draws=1", 'controllers=["pd"]'), tmp_path / "reject")
     t = table(tmp_path / "reject")
     rejected = t["status"] == "rejected"
     assert 0 < rejected.sum() < 12 and summary["samples"]["rejected"] == rejected.sum()
@@ -296,14 +302,14 @@ def test_impossible_samples_are_redrawn_or_rejected_never_simulated(tmp_path, mo
     assert np.linalg.eigvalsh(simulated).min() > 0  # only positive definite inertias reached the rollouts
     assert summary["controllers"]["pd"]["simulated"] == 12 - rejected.sum()
 
-    summary = run(config(wild, "samples=12", "max_draws=30", 'controllers=["pd"]'), tmp_path / "redraw")
+    summary = run(config(wild, "sweep.samples=12", "sweep.max_draws=30", 'controllers=["pd"]'), tmp_path / "redraw")
     assert summary["samples"]["rejected"] == 0 and summary["samples"]["redraws"] > 0
     assert (table(tmp_path / "redraw")["draws"] > 1).any()
 
 
 def test_diverged_samples_are_flagged_and_reported(tmp_path):
-    spin = 'initial.rate={dist="lognormal", median=0.1, sigma=4.0}'  # from gentle to a numerical blow-up
-    summary = run(config(spin, "samples=8", 'controllers=["pd"]'), tmp_path)
+    spin = 'dispersions.initial.rate={norm={dist="lognormal", median=0.1, sigma=4.0}}'  # from gentle to a blow-up
+    summary = run(config(spin, "sweep.samples=8", 'controllers=["pd"]'), tmp_path)
     t = table(tmp_path)
     nonfinite, diverged = t["pd_nonfinite"] == 1, t["pd_diverged"] == 1
     assert len(t["index"]) == 8  # nothing dropped
@@ -335,7 +341,7 @@ def test_diverged_samples_are_flagged_and_reported(tmp_path):
 def test_statistics_are_over_finite_samples_and_null_without_any():
     """Summaries from made-up results (no rollout): sample 1 non-finite, sample 2 rejected;
     then every sample non-finite."""
-    cfg = config("samples=3", 'controllers=["pd", "adaptive"]')
+    cfg = config("sweep.samples=3", 'controllers=["pd", "adaptive"]')
     samples = disp.draw_samples(cfg.dispersions, 0, 3, 20)
     samples = samples._replace(valid=np.array([True, True, False]))
     n, phases = 3, len(sweep.PHASE_NAMES)

@@ -29,9 +29,7 @@ summary (per-sample table, statistics), plots (figures), cli (the subcommand).
 
 from so3jax.metrics import Metrics
 from so3jax.sweep.config import (
-    CONTROLLERS,
-    DEFAULT_DISPERSIONS,
-    PAPER_GAINS,
+    DEFAULT,
     SweepConfig,
     config_from_dict,
     config_to_dict,
@@ -43,7 +41,7 @@ from so3jax.sweep.engine import (
     MIN_SHARD,
     batch_mesh,
     memory_needed,
-    mission,
+    mission_key,
     padded_chunk,
     run_chunk,
     run_sweep,
@@ -57,12 +55,10 @@ from so3jax.sweep.cli import main, register
 
 __all__ = [
     "BATCH",
-    "CONTROLLERS",
-    "DEFAULT_DISPERSIONS",
+    "DEFAULT",
     "LAYOUTS",
     "MIN_SHARD",
     "Metrics",
-    "PAPER_GAINS",
     "PHASE_NAMES",
     "STAT_NAMES",
     "SweepConfig",
@@ -77,7 +73,7 @@ __all__ = [
     "load_config",
     "main",
     "memory_needed",
-    "mission",
+    "mission_key",
     "padded_chunk",
     "register",
     "run_chunk",

@@ -9,7 +9,8 @@ from pathlib import Path
 
 from so3jax import distributed
 from so3jax.scenario import InertiaWarning
-from so3jax.sweep.config import CONTROLLERS, load_config
+from so3jax.controllers import registry
+from so3jax.sweep.config import load_config
 from so3jax.sweep.engine import LAYOUTS, run_sweep
 from so3jax.sweep.summary import format_summary
 
@@ -18,13 +19,14 @@ def register(subparsers) -> None:
 
     p = subparsers.add_parser(
         "sweep",
-        help="Monte Carlo robustness sweep of the paper's mission (sharded over all devices)",
-        description="Monte Carlo robustness sweep: dispersed missions x controllers, paired by sample.",
+        help="Monte Carlo robustness sweep of a mission (sharded over all devices)",
+        description="Monte Carlo robustness sweep: a mission dispersed on its own leaves x its controllers, paired by sample.",
     )
-    p.add_argument("config", nargs="?", type=Path, help="TOML config (default: the built-in one, = sweeps/default.toml)")
+    p.add_argument("config", nargs="?", type=Path,
+                   help="sweep file: a mission, [sweep] and [dispersions] (default: the built-in one, = sweeps/default.toml)")
     p.add_argument("--samples", type=int, help="number of samples")
-    p.add_argument("--T", type=float, help="horizon [s]")
-    p.add_argument("--controllers", help="comma-separated subset of: " + ", ".join(CONTROLLERS))
+    p.add_argument("--T", type=float, help="horizon [s] (the mission's T)")
+    p.add_argument("--controllers", help="comma-separated controllers (the mission's), among: " + ", ".join(registry.names()))
     p.add_argument("--chunk", type=int, help="samples per batch (at least 8 per device, a multiple of the device count)")
     p.add_argument("--seed", type=int, help="sampling seed")
     p.add_argument(
@@ -32,7 +34,8 @@ def register(subparsers) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override a config entry with a TOML value, e.g. --set 'inertia.J0.scale={dist=\"normal\", mean=1, std=0.1}'",
+        help="override an entry with a TOML value: a mission key (T=100.0), sweep.KEY or dispersions.LEAF, "
+        "e.g. --set 'dispersions.deployment.tau_J={dist=\"normal\", mean=300, std=30}'",
     )
     p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
@@ -47,9 +50,9 @@ def register(subparsers) -> None:
 def main(args: argparse.Namespace) -> int:
     distributed.initialize(args)
     overrides = list(args.set)
-    for key in ("samples", "T", "chunk", "seed"):
+    for key, where in (("samples", "sweep.samples"), ("T", "T"), ("chunk", "sweep.chunk"), ("seed", "sweep.seed")):
         if getattr(args, key) is not None:
-            overrides.append(f"{key}={getattr(args, key)}")
+            overrides.append(f"{where}={getattr(args, key)}")
     if args.controllers is not None:
         overrides.append("controllers=" + str([c.strip() for c in args.controllers.split(",")]).replace("'", '"'))
     with warnings.catch_warnings():

@@ -68,8 +68,8 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
 def _fingerprint(config: SweepConfig) -> dict:
     """What fixes each sample's results (chunk size, controller subset, sample count do not)."""
     d = config_to_dict(config)
-    for key in ("chunk", "controllers", "samples"):
-        d.pop(key)
+    d["sweep"] = {k: v for k, v in d["sweep"].items() if k not in ("chunk", "samples")}
+    d["mission"] = {k: v for k, v in config.mission.describe().items() if k not in ("controllers", "record_every")}
     d["precision"] = str(jnp.dtype(jnp.result_type(float)))
     return d
 

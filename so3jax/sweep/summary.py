@@ -11,7 +11,6 @@ import numpy as np
 
 from so3jax import dispersions as disp
 from so3jax.metrics import Metrics, cell, finite_values, reported
-from so3jax.scenario import paper_scenario
 from so3jax.sweep.config import SweepConfig, config_to_dict
 
 PHASE_NAMES = ("capture", "deployment", "detumble")
@@ -20,7 +19,7 @@ STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
 
 def _phases(config: SweepConfig) -> list[tuple[int, str]]:
     """(index, name) of the phases the horizon reaches."""
-    steps = paper_scenario(config.T, config.dt).steps_per_phase
+    steps = config.mission.scenario().steps_per_phase
     return [(p, PHASE_NAMES[p]) for p, k in enumerate(steps) if k > 0]
 
 
@@ -55,6 +54,9 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     cols["initial_angle_deg"] = np.degrees(np.linalg.norm(samples.attitude_error, axis=1))
     cols.update({f"attitude_error_{a}": samples.attitude_error[:, i] for i, a in enumerate("xyz")})
     cols.update({f"Omega0_{a}": p.Omega0[:, i] for i, a in enumerate("xyz")})
+    for key, value in samples.leaves.items():  # dispersed component parameters
+        flat = value.reshape(len(value), -1)
+        cols.update({key: flat[:, 0]} if value.ndim == 1 else {f"{key}_{i + 1}": flat[:, i] for i in range(flat.shape[1])})
     phases = _phases(config)
     n = len(p.seed)
     for c in config.controllers:
@@ -96,7 +98,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
     cols = columns(config, samples, results)
     phases = _phases(config)
     summary: dict[str, Any] = {
-        "config": config_to_dict(config),
+        "config": dict(config_to_dict(config), mission=config.mission.describe()),
         "precision": str(jnp.dtype(jnp.result_type(float))),
         "samples": {
             "requested": config.samples,
@@ -155,7 +157,7 @@ def format_summary(summary: dict) -> str:
     s = summary["samples"]
     lines.append(
         f"{s['requested']} samples: {s['simulated']} simulated, {s['rejected']} rejected "
-        f"(not positive definite after {summary['config']['max_draws']} draws), {s['redraws']} redraws, "
+        f"(not positive definite after {summary['config']['sweep']['max_draws']} draws), {s['redraws']} redraws, "
         f"{s['nonphysical_inertia']} with a non-physical inertia (triangle inequality)"
     )
     for metric, label in (("rmse", "RMSE [rad/s]"), ("effort", "effort [N^2 m^2 s]")):
