@@ -164,4 +164,4 @@ def get(kind: str, name: str) -> ComponentSpec:
 
 def _load_builtins() -> None:
     """Import the modules that register the built-in components."""
-    from so3jax import _actuator_specs, estimators, sensors  # noqa: F401 (registration)
+    from so3jax import actuators, estimators, sensors  # noqa: F401 (registration)

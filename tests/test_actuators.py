@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 
 from so3jax import plant, so3
 from so3jax._fusion import materialize
-from so3jax.actuators import ACTUATORS, Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
+from so3jax.actuators import Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
 from so3jax.integrate import lie_rk4_step
 from so3jax.plant import angular_acceleration
 
@@ -213,7 +213,11 @@ def test_saturated_clips_per_axis_and_ideal_is_the_identity():
     assert not np.any(np.asarray(ideal.limits((), tau, tau)))
     assert ideal.stored_momentum(()) is None and sat.stored_momentum(()) is None
     np.testing.assert_array_equal(np.asarray(momentum(ideal, (), tau)), np.zeros((3, 2)))
-    assert set(ACTUATORS) == {"ideal", "saturated", "wheels"} and ACTUATORS["wheels"] is Wheels
+    from so3jax import components
+
+    assert components.names("actuator") == ("ideal", "saturated", "wheels")
+    assert isinstance(components.get("actuator", "wheels").build(
+        components.get("actuator", "wheels").parse({}, "actuator.wheels"), components.BuildContext(np.asarray, {})), Wheels)
 
 
 def test_rigid_body_derivatives_are_bit_for_bit_the_paper_plant():
