@@ -1,6 +1,6 @@
 """Bad values of every config entry, generated from the schemas: the default mission's
 tree (so3jax.mission.default_tree(): the flight mission with every registered component, option and gain), the sweep
-defaults (sweep.config_to_dict(SweepConfig())) and a shipped tune campaign with its
+defaults (sweep.config_to_dict(sweep.load_config())) and a shipped tune campaign with its
 dataclass defaults. For every leaf: a wrong-type value (a string for a number, a bool for
 a number, a number for a string, a table for a leaf, ...), and for every array a
 wrong-shape one. Each must be a ValueError from the parser, one line, naming the key:
@@ -36,7 +36,7 @@ def mission_tree() -> dict:
 
 
 def sweep_tree() -> dict:
-    return json.loads(json.dumps(sweep.config_to_dict(sweep.SweepConfig())))
+    return json.loads(json.dumps(sweep.config_to_dict(sweep.load_config())))
 
 
 def tune_base() -> dict:
