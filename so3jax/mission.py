@@ -235,8 +235,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
             raise ValueError(f"[{t}] must be a table")
     full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
-    T = cfg.number(full["T"], "T", low=0.0)
-    dt = cfg.number(full["dt"], "dt", low=0.0)
+    T = cfg.number(full["T"], "T (horizon) [s]", low=0.0)
+    dt = cfg.number(full["dt"], "dt (step) [s]", low=0.0)
     n_steps = steps_for_horizon(T, dt)
     seed = cfg.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
     record_every = cfg.number(full["record_every"], "record_every", low=1, integer=True)
