@@ -199,7 +199,10 @@ class Wheels(Actuator):
     max_torque: u_max (N,) N m; max_speed: Omega_max (N,) rad/s; initial_speed:
     Omega_w(0) (N,) rad/s, relative to the body. The state is Omega_w (N, *b); the held
     input a :class:`WheelCommand`. momentum_compensation: the command becomes
-    tau_c + omega_hat x h_w_hat before it is distributed.
+    tau_c + omega_hat x h_w_hat before it is distributed. motor_torque: None, or a
+    constant motor-torque command per wheel (N,) [N m] that replaces the distributed
+    command (open-loop and identification runs: the controller's command is not used),
+    each wheel clipped on its own.
     """
 
     axes: jax.Array
@@ -208,6 +211,7 @@ class Wheels(Actuator):
     max_speed: jax.Array
     initial_speed: jax.Array
     momentum_compensation: bool = static_field(default=True)
+    motor_torque: jax.Array | None = None
 
     @property
     def count(self) -> int:
@@ -263,10 +267,15 @@ class Wheels(Actuator):
         (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
         tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
         wheel at its speed limit that it would spin faster; with the compensation they include."""
-        compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
+        if self.motor_torque is not None:  # a per-wheel command: nothing distributed, nothing compensated
+            compensation = jnp.zeros_like(tau_c)
+            wanted = jnp.broadcast_to(_per_wheel(self.motor_torque, state), state.shape)
+        else:
+            compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
+            wanted = self.distribute(tau_c + compensation)
         tau = tau_c + compensation
         u_max = _per_wheel(self.max_torque, tau)
-        u = jnp.clip(self.distribute(tau), -u_max, u_max)
+        u = jnp.clip(wanted, -u_max, u_max)
         faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
         return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
 
@@ -316,6 +325,8 @@ class Wheels(Actuator):
         _check_values("wheel max_torque [N m]", self.max_torque, (n,), positive=True)
         _check_values("wheel max_speed [rad/s]", self.max_speed, (n,), positive=True)
         _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
+        if self.motor_torque is not None:
+            _check_values("wheel motor_torque [N m]", self.motor_torque, (n,))
         speed, limit = _values(self.initial_speed), _values(self.max_speed)
         if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
             i = int(np.argmax(np.abs(speed) > limit))
@@ -362,6 +373,9 @@ def _wheel_values(values: dict) -> dict:
         if v.shape not in ((), (n,)):
             raise ValueError(f"actuator.wheels.{key} must be one number or {n} (one per wheel), got {v.shape[0]}")
         out[key] = np.broadcast_to(v, (n,)).copy()
+    motor = values["motor_torque"]
+    if motor is not None and np.shape(motor) != (n,):
+        raise ValueError(f"actuator.wheels.motor_torque [N m] must hold {n} values (one per wheel), got {np.size(motor)}")
     return out
 
 
@@ -378,8 +392,9 @@ def _complete_wheels(values: dict) -> dict:
 
 def _wheels(w: dict, ctx) -> Wheels:
     a = ctx.as_array
+    motor = None if w["motor_torque"] is None else a(w["motor_torque"])
     return Wheels(a(w["axes"].T), a(w["spin_inertia"]), a(w["max_torque"]), a(w["max_speed"]), a(w["initial_speed"]),
-                  bool(w["momentum_compensation"]))
+                  bool(w["momentum_compensation"]), motor)
 
 
 components.register(components.ComponentSpec(
@@ -401,6 +416,8 @@ components.register(components.ComponentSpec(
         Param("max_speed", 628.0, "rad/s", shapes=_PER_WHEEL, low=0.0, doc="speed limit Omega_max"),
         Param("initial_speed", 0.0, "rad/s", shapes=_PER_WHEEL, doc="Omega_w(0), relative to the body"),
         Param("momentum_compensation", True, boolean=True, doc="command tau_c + omega_hat x h_w_hat"),
+        Param("motor_torque", None, "N m", shapes=((None,),),
+              doc="a constant motor-torque command per wheel, replacing the controller's (open loop)"),
     ),
     complete=_complete_wheels,
     build=_wheels,

@@ -346,3 +346,27 @@ def test_vmap_matches_batch_axes_and_float32_stays_float32():
     for a, b in zip(single[6:], batched[6:]):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-4, atol=1e-4 * np.abs(np.asarray(b)).max())
     assert actuator.init((2,), jnp.float32).dtype == jnp.float32
+
+
+def test_a_per_wheel_motor_torque_command_clips_each_wheel_on_its_own():
+    """[actuator.wheels] motor_torque: wheel 1 commanded above its limit gets exactly u_max,
+    the others nothing; every wheel then obeys Omega_w,i(t) = u_i t / J_s - g_i^T (Omega(t) - Omega(0))."""
+    import warnings
+
+    from so3jax import fly
+    from so3jax import mission as missions
+    from so3jax.scenario import InertiaWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", InertiaWarning)
+        m = missions.load(None, ["T=1.0", "controllers=open_loop", "record_every=10", "initial.rate=[0.01, 0.0, -0.02]",
+                                 "actuator.wheels.motor_torque=[0.3, 0.0, 0.0, -0.1]"])
+        h = fly.fly(m)[0]["open_loop"].history
+    t, Omega, speed = np.asarray(h.t), np.asarray(h.Omega), np.asarray(h.actuator)
+    G = np.asarray(pyramid_axes())
+    u = np.array([0.25, 0.0, 0.0, -0.1])  # 0.3 clipped at u_max = 0.25
+    expected = u * t[:, None] / 0.16 - (Omega - Omega[0]) @ G
+    np.testing.assert_allclose(speed, expected, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(np.asarray(h.tau)[1:], np.broadcast_to(-G @ u, (len(t) - 1, 3)), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="motor_torque"):
+        missions.load(None, ["actuator.wheels.motor_torque=[0.1, 0.1]"])
