@@ -9,7 +9,7 @@ state, ``truth`` = (R, Omega) at the tick (None for every other estimator). Arra
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -26,6 +26,7 @@ class Estimate(NamedTuple):
     omega_hat: jax.Array  # (3, *b) rad/s
     bias_hat: jax.Array  # (3, *b) rad/s (zeros without a bias estimate)
     std: jax.Array  # (6, *b): sqrt(diag P) after the update (attitude rad, bias rad/s); zeros without a filter
+    covariance: Any = ()  # (6, 6, *b): P after the update (a filter's), or ()
 
 
 def _batch(x, core_ndim, batch_shape, dtype):
@@ -157,7 +158,7 @@ class MEKF:
         R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
         omega_hat = measured.omega_m - b_hat
         std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
-        estimate = Estimate(R_hat, omega_hat, b_hat, std)
+        estimate = Estimate(R_hat, omega_hat, b_hat, std, Covariance(A, B, C).matrix())
         # propagation to the next tick with w = omega_hat
         E = so3.exp(-omega_hat * dc)  # exp(-hat(w) Delta_c)
         EB = so3.matmul(E, B)

@@ -62,6 +62,8 @@ class History(NamedTuple):
     bias: Any = ()  # (M, 3) true gyro bias, rad/s (sampled wiring), or ()
     bias_hat: Any = ()  # (M, 3) rad/s (sampled wiring), or ()
     std: Any = ()  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s) (sampled wiring), or ()
+    covariance: Any = ()  # (M, 6, 6) the filter's P after the update (a filter in the sampled wiring), or ()
+    disturbance: Any = ()  # (M, 3) N m, the disturbance torque d_k of the recorded step
 
 
 class Result(NamedTuple):
@@ -212,7 +214,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
             seen = observe(scenario, controller, gains, state, k, loop)
             return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
                            seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, state.actuator,
-                           actuators.momentum(loop.actuator, state.actuator, state.Omega))
+                           actuators.momentum(loop.actuator, state.actuator, state.Omega),
+                           disturbance=disturbance_at(scenario, key, k))
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
@@ -229,7 +232,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def one_tick(carry, ds):
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
-        sample, record = _tick_sample(loop, state, new, out), _flight_record(scenario, loop, state, out, k)
+        sample, record = _tick_sample(loop, state, new, out), _flight_record(scenario, loop, state, out, k, key)
         share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
         flight = flight_metrics.update(flight, sample, k < n, share)
         if masked:
@@ -271,7 +274,7 @@ def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics
     )
 
 
-def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k) -> History:
+def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k, key) -> History:
     """The sampled wiring's history sample at tick step k (state: before the tick)."""
     err = tracking_error(Measured(state.R, state.Omega), out.desired)
     est = out.estimate
@@ -281,7 +284,7 @@ def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k) -> Hist
     return History(
         out.t, state.R, state.Omega, R_d, Omega_d, err.Omega_e, out.tau_applied, so3.angle(err.R_e), J,
         state.controller, out.tau_cmd, state.actuator, actuators.momentum(loop.actuator, state.actuator, state.Omega),
-        est.R_hat, est.omega_hat, out.bias, est.bias_hat, est.std,
+        est.R_hat, est.omega_hat, out.bias, est.bias_hat, est.std, est.covariance, disturbance_at(scenario, key, k),
     )
 
 

@@ -98,9 +98,12 @@ def test_fly_command_end_to_end(tmp_path):
         assert 0 <= r["max_wheel_speed_ratio"] < 1
     assert report["config"]["period_steps"] == 10
     with np.load(out / "trajectory.npz") as npz:
-        for key in ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed"):
+        for key in ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed",
+                    "disturbance", "covariance"):
             assert f"pd/{key}" in npz.files
-        assert npz["adaptive/wheel_speed"].shape == (20, 4)
+        assert npz["adaptive/wheel_speed"].shape == (20, 4) and npz["pd/disturbance"].shape == (20, 3)
+        P = npz["pd/covariance"]
+        assert P.shape == (20, 6, 6) and np.allclose(P, np.swapaxes(P, 1, 2)) and np.all(np.linalg.eigvalsh(P) > 0)
     for fig in ("attitude", "bias", "torque", "wheel_speeds", "momentum"):
         assert (out / f"{fig}.png").stat().st_size > 10_000
     assert json.loads((out / "metrics.json").read_text())["pd"] == report["pd"]
@@ -176,3 +179,23 @@ def test_two_sensors_of_one_quantity_are_refused():
             missions.load(None, ["sensors.second_gyro={}"])
     finally:
         components._REGISTRY["sensor"].pop("second_gyro")
+
+
+def test_the_history_records_the_filter_covariance_and_the_disturbance():
+    """P's diagonal is the recorded 1-sigma squared; the recorded d_k is the scenario's
+    disturbance at the recorded step k (its sinusoid plus noise, SPEC 4)."""
+    import jax
+
+    from so3jax import fly
+    from so3jax.rollout import disturbance_at
+
+    m = missions.load(None, ["T=2.0", "controllers=pd", "record_every=50"])
+    h = fly.fly(m)[0]["pd"].history
+    P, std = np.asarray(h.covariance), np.asarray(h.std)
+    np.testing.assert_allclose(np.sqrt(np.einsum("mii->mi", P)), std, rtol=1e-12)
+    scenario, key = m.scenario(), jax.random.key(m.seed)
+    ks = np.round(np.asarray(h.t) / m.dt).astype(int)
+    expected = np.stack([np.asarray(disturbance_at(scenario, key, jax.numpy.asarray(k))) for k in ks])
+    np.testing.assert_array_equal(np.asarray(h.disturbance), expected)
+    sinusoid = 0.1 * np.sin(1e-3 * np.asarray(h.t))[:, None]
+    assert np.all(np.abs(np.asarray(h.disturbance) - sinusoid) < 5 * 0.025)
