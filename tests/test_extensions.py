@@ -11,13 +11,13 @@ import numpy as np
 import pytest
 
 from so3jax import components, fly, mission
-from so3jax.actuators import Actuator
 from so3jax._pytree import pytree_dataclass
 from so3jax.components import ComponentSpec, Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
 from so3jax.estimators import Estimate
 from so3jax.sensors import sensor_noise
+from tests.test_actuator_interface import FirstOrderLag
 
 # --- a sensor: a rate gyro with a scale-factor error ---------------------------------------
 
@@ -66,27 +66,7 @@ class LowPass:
         pass
 
 
-# --- an actuator: a first-order lag between command and torque -----------------------------
-
-
-@pytree_dataclass
-class Lag(Actuator):
-    """tau' = (tau_c - tau) / time_constant; the body receives tau, the actuator's own state."""
-
-    time_constant: jnp.ndarray
-
-    def init(self, batch_shape, dtype):
-        return jnp.zeros((3, *batch_shape), dtype)
-
-    def command(self, state, tau_c, omega_hat):
-        return tau_c
-
-    def body_torque(self, state, held, Omega):
-        return state
-
-    def derivative(self, state, held, Omega, Omega_dot):
-        return (held - state) / jnp.asarray(self.time_constant, state.dtype)
-
+# --- an actuator: a first-order lag (tests/test_actuator_interface.py writes its interface out) ---
 
 # --- a controller: a rate damper ---------------------------------------------------------------
 
@@ -116,7 +96,7 @@ SPECS = [
                   params=(Param("gain", 1.0, low=0.0, high=1.0),),
                   build=lambda v, ctx: LowPass(ctx.as_array(v["gain"]))),
     ComponentSpec(kind="actuator", name="lag", params=(Param("time_constant", 0.5, "s", low=1e-6),),
-                  build=lambda v, ctx: Lag(ctx.as_array(v["time_constant"]))),
+                  build=lambda v, ctx: FirstOrderLag(ctx.as_array(v["time_constant"]))),
 ]
 CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=damper, gains_type=DamperGains,
                                      defaults=DamperGains(c=50.0), style={"label": "damper"}, check=_no_check,
