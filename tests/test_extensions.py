@@ -1,6 +1,7 @@
 """A new component of each kind is one definition plus its registration: a sensor, an
-estimator, an actuator and a controller defined here, in the test file, flown from a
-mission file with no edit of the library."""
+estimator and a controller defined here and an actuator defined in
+tests/test_actuator_interface.py, registered here and flown from a mission file with no
+edit of the library."""
 
 from __future__ import annotations
 
