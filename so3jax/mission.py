@@ -254,9 +254,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
         "frequency": cfg.number(dist["frequency"], "disturbance.frequency [rad/s]"),
         "noise_std": cfg.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
     }
-    init = cfg.table(full, "initial", ("attitude", "rate"))
-    initial = {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
-               "rate": cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))}
+    initial = _initial(d.get("initial", {}), full["initial"])
 
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
     estimator = _chosen(full, "estimator", "estimator", base)
@@ -325,6 +323,25 @@ def _inertias(given: dict, full: dict):
     J1 = cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
     J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
     return J0, J1, J2, scale, False
+
+
+def _initial(given: dict, full: dict) -> dict:
+    """{"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}; R(0) given as
+    ``attitude`` (a rotation vector) or ``quaternion`` [w, x, y, z] (scalar first, unit)."""
+    init = cfg.table({"initial": full}, "initial", ("attitude", "quaternion", "rate"))
+    rate = cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))
+    if not (isinstance(given, dict) and "quaternion" in given):
+        return {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
+                "rate": rate}
+    if "attitude" in given:
+        raise ValueError("initial.attitude and initial.quaternion both give R(0): give one")
+    q = cfg.array(given["quaternion"], "initial.quaternion [w, x, y, z]", (4,))
+    if abs(np.linalg.norm(q) - 1.0) > 1e-9:
+        raise ValueError(f"initial.quaternion [w, x, y, z] must be a unit quaternion, got norm {np.linalg.norm(q):.12g}")
+    w, v = q[0], q[1:]
+    sin_half = np.linalg.norm(v)
+    angle = 2.0 * np.arctan2(sin_half, w)
+    return {"attitude": v * (angle / sin_half) if sin_half > 0 else np.zeros(3), "rate": rate}
 
 
 def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:

@@ -199,3 +199,17 @@ def test_the_history_records_the_filter_covariance_and_the_disturbance():
     np.testing.assert_array_equal(np.asarray(h.disturbance), expected)
     sinusoid = 0.1 * np.sin(1e-3 * np.asarray(h.t))[:, None]
     assert np.all(np.abs(np.asarray(h.disturbance) - sinusoid) < 5 * 0.025)
+
+
+def test_the_initial_attitude_as_a_quaternion():
+    """[w, x, y, z] = [cos(a/2), sin(a/2) n]: the rotation vector a n; checked against scipy."""
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_rotvec([0.3, -0.2, 0.5]).as_quat()  # scipy: scalar last
+    m = missions.load(None, [f"initial.quaternion={[float(x) for x in (q[3], q[0], q[1], q[2])]}", "controllers=pd"])
+    np.testing.assert_allclose(m.initial["attitude"], [0.3, -0.2, 0.5], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(m.scenario().R0), Rotation.from_quat(q).as_matrix(), atol=1e-14)
+    with pytest.raises(ValueError, match="unit quaternion"):
+        missions.load(None, ["initial.quaternion=[1.0, 0.1, 0.0, 0.0]"])
+    with pytest.raises(ValueError, match="give one"):
+        missions.load(None, ["initial.quaternion=[1.0, 0.0, 0.0, 0.0]", "initial.attitude=[0.1, 0.0, 0.0]"])
