@@ -72,6 +72,7 @@ def _child(spec: dict) -> list:
     chunk = sweep.padded_chunk(spec["chunk"], mesh.size)
     n = -(-spec["samples"] // chunk) * chunk
     params = dispersions.draw_samples(config.dispersions, config.seed, n, config.max_draws).params
+    key = sweep.mission_key(config.mission)
     runs = []
     for controller in spec["controllers"]:
         gains = jax.tree.map(np.asarray, config.gains[controller])
@@ -81,7 +82,7 @@ def _child(spec: dict) -> list:
                 if claims is not None and not sweep._take(claims, controller, start):
                     continue
                 part = jax.tree.map(lambda x, start=start: x[start : start + chunk], params)
-                sweep.run_chunk(part, gains, controller, config.T, config.dt, mesh, layout)
+                sweep.run_chunk((part, {}), gains, controller, key, mesh, layout)
             distributed.barrier(f"benchmark: {controller} {first}-{last}")
 
         layout = spec.get("layout", "chunks")
