@@ -235,8 +235,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
             raise ValueError(f"[{t}] must be a table")
     full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
-    T = cfg.number(full["T"], "T (horizon) [s]", low=0.0)
-    dt = cfg.number(full["dt"], "dt (step) [s]", low=0.0)
+    T = cfg.number(full["T"], "T (horizon) [s]")  # a number here; positive and a multiple of dt below
+    dt = cfg.number(full["dt"], "dt (step) [s]")
     n_steps = steps_for_horizon(T, dt)
     seed = cfg.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
     record_every = cfg.number(full["record_every"], "record_every", low=1, integer=True)
@@ -244,7 +244,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     period_steps = _period_steps(cfg.table(full, "control", ("mode", "period")), T, dt, n_steps)
 
     J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
-    tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]", low=0.0)
+    tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]")
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
     n = cfg.number(cfg.table(full, "orbit", ("n",))["n"], "orbit.n [rad/s]", low=0.0)
