@@ -67,7 +67,7 @@ class _Step:
 
         from so3jax import tune
 
-        config = tune.load_config(spec["campaign"], [("scenario.T", spec["T"])])
+        config = tune.load_config(spec["campaign"], [("T", spec["T"])])
         if batch:
             scales = config.train.inertia_scales
             if batch % len(scales):
@@ -78,7 +78,8 @@ class _Step:
             warnings.simplefilter("ignore")  # the campaigns' inertia scales warn (InertiaWarning)
             problem = tune.build_problem(config)
         dtype = problem.scenario.R0.dtype
-        initial = tune.resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma)
+        initial = tune.resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma,
+                                     config.mission)
         self.size = int(problem.train.seed.shape[0])
         self.n_steps = int(problem.scenario.n_steps)
         self.devices_used = 1 if problem.mesh is None else problem.mesh.size
@@ -89,8 +90,9 @@ class _Step:
         per_scenario = config.cost.mode == "equal_effort" and config.cost.budget_controller is not None
         effort = jnp.ones((self.size,), dtype) if per_scenario else one
         refs = tune.place(tune.CostRefs(one, effort, jnp.asarray(config.cost.weight, dtype)), problem.mesh)
-        self.args = (tune.place(tune.to_params(initial), problem.mesh), problem.scenario, problem.train, refs)
-        self.static = {"controller": tune.CONTROLLERS[config.controller], "mode": config.cost.mode,
+        params = tune.place(tune.to_params(initial), problem.mesh)
+        self.args = (params, problem.scenario, problem.train, refs, problem.loop)
+        self.static = {"controller": tune.law(config.mission, config.controller), "mode": config.cost.mode,
                        "gradient": config.gradient, "record_every": problem.record_every, "mesh": problem.mesh}
         self.compiled = None
         self.jax = jax
@@ -98,14 +100,15 @@ class _Step:
     def compile(self) -> float:
         from so3jax import tune
 
-        params, scenario, batch, refs = self.args
+        params, scenario, batch, refs, loop = self.args
         start = time.perf_counter()
-        self.compiled = tune.cost_and_grad.lower(params, scenario, batch=batch, refs=refs, **self.static).compile()
+        self.compiled = tune.cost_and_grad.lower(params, scenario, batch=batch, refs=refs, loop=loop,
+                                                 **self.static).compile()
         return time.perf_counter() - start
 
     def call(self):
-        params, scenario, batch, refs = self.args
-        return self.jax.block_until_ready(self.compiled(params, scenario, batch=batch, refs=refs))
+        params, scenario, batch, refs, loop = self.args
+        return self.jax.block_until_ready(self.compiled(params, scenario, batch=batch, refs=refs, loop=loop))
 
     def run(self, calls: int) -> tuple[float, float]:
         """Median wall seconds of one step over calls (after one untimed call), and the
@@ -287,7 +290,7 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--campaign", default="tuning/pd_equal_effort.toml")
-    p.add_argument("--T", type=float, default=20.0, help="horizon [s] (the campaign's dt)")
+    p.add_argument("--T", type=float, default=20.0, help="horizon [s] (the campaign mission's T; its dt)")
     p.add_argument("--batches", default="0,64", help="scenarios per batch; 0: the campaign's training batch")
     p.add_argument("--devices", help="two device counts, e.g. 1,2 (default: 1 and one per usable core)")
     p.add_argument("--rounds", type=int, default=5)

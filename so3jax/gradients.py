@@ -1,8 +1,9 @@
 """Differentiable batched rollouts and their gradients in forward or reverse mode.
 
 A *batch* is a set of training scenarios: the base scenario with every inertia matrix
-scaled by ``inertia_scale[i]``, driven by disturbance seed ``seed[i]``. Its metrics are
-a vmap of :func:`so3jax.rollout` over the batch, a pure function of the gains.
+scaled by ``inertia_scale[i]``, driven by seed ``seed[i]`` (disturbance and sensor
+noise), flown through one loop. Its metrics are a vmap of :func:`so3jax.rollout` over
+the batch, a pure function of the gains.
 
 Two ways to differentiate a scalar function of the gains:
 
@@ -29,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax.controllers import Controller
+from so3jax.loop import PAPER_LOOP, Loop
 from so3jax.metrics import Metrics
 from so3jax.rollout import rollout_batch
 from so3jax.scenario import Scenario
@@ -59,18 +61,23 @@ def scale_inertia(scenario: Scenario, scale) -> Scenario:
     return dataclasses.replace(scenario, inertia=scaled)
 
 
-def batch_metrics(scenario: Scenario, controller: Controller, gains, batch: Batch, *, record_every=None) -> Metrics:
+def batch_metrics(
+    scenario: Scenario, controller: Controller, gains, batch: Batch, *, record_every=None, loop: Loop = PAPER_LOOP
+) -> Metrics:
     """Metrics of every scenario of the batch (leading axis B). Pure and differentiable.
 
     ``rollout_batch`` computes the vmap of :func:`so3jax.rollout` over the batch with the
-    reference and the time-only parts of the inertia shared by the batch.
+    reference, the time-only parts of the inertia and the loop (sensors, estimator,
+    actuator, control period; default the paper's) shared by the batch.
     """
     shared = jax.tree.map(lambda _: None, scenario)
     axes = dataclasses.replace(
         shared, inertia=dataclasses.replace(shared.inertia, **dict.fromkeys(scenario.inertia.matrices(), 0))
     )
     scaled = scale_inertia(scenario, batch.inertia_scale)
-    return rollout_batch(scaled, controller, gains, batch.seed, scenario_axes=axes, record_every=record_every).metrics
+    return rollout_batch(
+        scaled, controller, gains, batch.seed, scenario_axes=axes, loop=loop, record_every=record_every
+    ).metrics
 
 
 def value_and_grad(fun: Callable, mode: str) -> Callable:

@@ -44,14 +44,15 @@ def tune_base() -> dict:
 
 
 def tune_tree() -> dict:
-    """Every field of the shipped campaign's TuneConfig, defaults included."""
-    return json.loads(json.dumps(dataclasses.asdict(tune.load_config(TUNE_FILE))))
+    """The shipped campaign's [tune] table, every field of its TuneConfig (defaults
+    included); its mission's entries are the mission tree's."""
+    return json.loads(json.dumps({tune.TUNE: tune.tune_table(tune.load_config(TUNE_FILE))}))
 
 
 def _annotation(path) -> str:
-    """The dataclass annotation of a tune config field (the schema of a None default)."""
+    """The dataclass annotation of a [tune] field (the schema of a None default)."""
     cls = tune.TuneConfig
-    for key in path[:-1]:
+    for key in path[1:-1]:
         cls = tune._SECTIONS.get(key)
         if cls is None:
             return ""
@@ -328,8 +329,12 @@ def _non_utf8(tmp_path) -> str:
 
 
 def _tune_copy(tmp_path) -> str:
+    """The shipped campaign elsewhere, its mission file named by an absolute path."""
     path = tmp_path / "campaign.toml"
-    path.write_text(TUNE_FILE.read_text())
+    text = TUNE_FILE.read_text()
+    mission_line = next(line for line in text.splitlines() if line.startswith("mission = "))
+    mission_path = (TUNE_FILE.parent / cfg.parse_override(mission_line)[1]).resolve()
+    path.write_text(text.replace(mission_line, f"mission = {json.dumps(str(mission_path))}"))
     return str(path)
 
 
@@ -345,9 +350,11 @@ def _tune_copy(tmp_path) -> str:
         (["fly", "--set", "actuator.wheels.initial_speed=-700.0"], "actuator.wheels.initial_speed"),
         (["sweep", "--set", "dispersions.deployment.tau_J={dist=[1]}"], "dispersions.deployment.tau_J.dist must be one of"),
         (["sweep", "--set", "gains.adaptive.Gamma={a=1}"], "gains.adaptive.Gamma must be"),
-        (["tune", _tune_copy, "--set", "optimizer.options=1.5"], "'optimizer.options' must be a table"),
-        (["tune", _tune_copy, "--set", "train.seeds=3"], "'train.seeds' must be a non-empty list"),
-        (["tune", _tune_copy, "--set", "initial_gains={k_R=true, k_Omega=25.0}"], "gains.k_R must be a number"),
+        (["tune", _tune_copy, "--set", "tune.optimizer.options=1.5"], "'tune.optimizer.options' must be a table"),
+        (["tune", _tune_copy, "--set", "tune.train.seeds=3"], "'tune.train.seeds' must be a non-empty list"),
+        (["tune", _tune_copy, "--set", "tune.initial_gains={k_R=true, k_Omega=25.0}"], "gains.k_R must be a number"),
+        (["tune", _tune_copy, "--set", "gains.pd.k_R=true"], "gains.pd.k_R must be a number"),
+        (["tune", _tune_copy, "--set", "optimizer.name=1"], "unknown config key(s): optimizer"),
     ],
     ids=lambda x: x if isinstance(x, str) else None,
 )

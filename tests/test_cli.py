@@ -122,10 +122,10 @@ def in_process(monkeypatch, tmp_path):
         (["sweep", "--set", 'deployment.tau_J={dist="uniform", low=400.0, high=200.0}'], "uniform needs low <= high"),
         (["sweep", "--set", 'disturbance.noise_std={dist="normal", mean=0.025, std=-1.0}'], "std / sigma >= 0"),
         (["sweep", "--set", "inertia.J0.scale=0.0"], "inertia.J0.scale must be > 0"),
-        (["tune", TUNE_CONFIG, "--iterations", "0"], "'iterations' must be a positive integer"),
-        (["tune", TUNE_CONFIG, "--T", "-1"], "config key 'scenario': T (horizon) must be a positive"),
-        (["tune", TUNE_CONFIG, "--set", "scenario.tau_J=0.0"], "config key 'scenario': tau_J"),
-        (["tune", TUNE_CONFIG, "--set", "record_every=0"], "'record_every' must be a positive integer"),
+        (["tune", TUNE_CONFIG, "--iterations", "0"], "'tune.iterations' must be a positive integer"),
+        (["tune", TUNE_CONFIG, "--T", "0"], "T (horizon) must be a positive"),
+        (["tune", TUNE_CONFIG, "--set", "deployment.tau_J=0.0"], "deployment.tau_J [s] must be positive"),
+        (["tune", TUNE_CONFIG, "--set", "tune.record_every=0"], "'tune.record_every' must be a positive integer"),
     ],
 )
 def test_bad_arguments_are_one_line_errors(argv, message, in_process, capsys):

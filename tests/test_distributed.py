@@ -212,7 +212,7 @@ def test_one_process_runs_need_no_setting(monkeypatch):
     assert distributed.requested(args)
 
 
-CAMPAIGN = 'controller = "pd"\niterations = 2\n[scenario]\nT = 5.0\n[train]\nseeds = [0, 1]\n[validation]\nseeds = [10]\n[cost]\nmode = "weighted"\n'
+CAMPAIGN = 'T = 5.0\n[tune]\ncontroller = "pd"\niterations = 2\n[tune.train]\nseeds = [0, 1]\n[tune.validation]\nseeds = [10]\n[tune.cost]\nmode = "weighted"\n'
 
 
 def test_two_processes_tune_to_the_gains_of_one_process(tmp_path):

@@ -107,7 +107,7 @@ REFUSED = {
     "sweep memory": ("sweep", "--samples", "8", "--T", "1", "--max-memory", "1K"),
     "sweep bad value": ("sweep", "--samples", "0", "--T", "1"),
     "tune horizon": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--T", "0"),
-    "tune bad value": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--set", "optimizer.learning_rate=-1"),
+    "tune bad value": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--set", "tune.optimizer.learning_rate=-1"),
 }
 
 

@@ -168,7 +168,7 @@ def test_a_lock_from_another_host_is_not_broken(tmp_path):
 
 def _campaign():
     return tune.parse_config(
-        {"controller": "pd", "iterations": 1, "scenario": {"T": 10.0}, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}
+        {"T": 10.0, "tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}}
     )
 
 
@@ -189,7 +189,7 @@ def test_a_shipped_campaign_runs_into_results_and_a_failed_run_claims_no_gains(t
     shipped = ROOT / "tuning" / "pd_equal_effort"
     before = {p.name: p.read_bytes() for p in shipped.iterdir()}
     proc = cli("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--T", "1", "--iterations", "1",
-               "--set", "initial_gains={k_R=1e12, k_Omega=25.0}", cwd=tmp_path)
+               "--set", "tune.initial_gains={k_R=1e12, k_Omega=25.0}", cwd=tmp_path)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     run = tmp_path / "results" / "tune" / "pd_equal_effort"
     assert "non-finite cost" in proc.stderr and "no gains were written" in proc.stderr

@@ -1,12 +1,15 @@
-"""Tuning: cost modes, the optax loop's outputs, resume after an interrupt, the non-finite
-stop, the gradient-free baseline, bad configs and the command line.
+"""Tuning: cost modes, the optax loop's outputs, resume after an interrupt (and its refusal
+under another configuration or precision), the non-finite stop, the gradient-free
+baseline, campaign files (a mission and a [tune] table), bad configs and the command line.
 
-Every run uses T = 20 s and batches of 2 scenarios (as tests/test_gradients.py), so the
-compiled rollouts are shared across tests.
+Every paper-mission run uses T = 20 s and batches of 2 scenarios (as
+tests/test_gradients.py), so the compiled rollouts are shared across tests; the flight
+mission runs at T = 1 s.
 """
 
 import copy
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -19,25 +22,30 @@ from so3jax import cli, tune
 from so3jax.metrics import Metrics
 from so3jax.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
 
-BASE = {
-    "controller": "pd",
-    "iterations": 3,
-    "scenario": {"T": 20.0},
-    "train": {"seeds": [0, 1]},
-    "validation": {"seeds": [10, 11]},
-    "cost": {"mode": "weighted", "weight": 0.5},
-    "optimizer": {"learning_rate": 0.1},
+ROOT = Path(__file__).parents[1]
+BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
+    "T": 20.0,
+    "tune": {
+        "controller": "pd",
+        "iterations": 3,
+        "train": {"seeds": [0, 1]},
+        "validation": {"seeds": [10, 11]},
+        "cost": {"mode": "weighted", "weight": 0.5},
+        "optimizer": {"learning_rate": 0.1},
+    },
 }
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.scenario.InertiaWarning")
 
 
-def table(**changes):
-    """BASE with dotted-key changes; a value of None deletes the key."""
+def table(mission=None, **changes):
+    """BASE with changes to its [tune] table (dotted keys written a__b; a value of None
+    deletes the key) and mission entries ``mission`` at the top level."""
     t = copy.deepcopy(BASE)
+    t.update(mission or {})
     for dotted, value in changes.items():
         *parents, last = dotted.split("__")
-        holder = t
+        holder = t["tune"]
         for key in parents:
             holder = holder.setdefault(key, {})
         if value is None:
@@ -47,8 +55,8 @@ def table(**changes):
     return t
 
 
-def config(**changes):
-    return tune.parse_config(table(**changes))
+def config(mission=None, **changes):
+    return tune.parse_config(table(mission, **changes))
 
 
 def read_history(path):
@@ -171,6 +179,57 @@ def test_resume_after_interrupt_equals_an_uninterrupted_run(tmp_path, monkeypatc
     assert resumed == straight
 
 
+def test_a_resume_under_another_precision_is_refused_and_changes_nothing(tmp_path):
+    import jax
+
+    cfg = config(iterations=1)
+    tune.tune(cfg, tmp_path, progress=False)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    more = dataclasses.replace(cfg, iterations=2)
+    jax.config.update("jax_enable_x64", False)
+    try:
+        with pytest.raises(ValueError) as err:
+            tune.tune(more, tmp_path, resume=True, progress=False)
+    finally:
+        jax.config.update("jax_enable_x64", True)
+    message = str(err.value)
+    assert "another configuration (precision float64, this run float32)" in message and "\n" not in message
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before
+    with pytest.raises(ValueError, match=r"another configuration \(its mission differ\)"):
+        tune.tune(dataclasses.replace(more, mission=config(mission={"seed": 3}).mission), tmp_path, resume=True,
+                  progress=False)
+
+
+def test_the_flight_mission_tunes_through_its_own_loop(tmp_path, monkeypatch):
+    """missions/flight.toml (sampled control, gyro and star tracker, MEKF, wheels) at T = 1 s:
+    one forward-mode PD iteration through the mission's loop, a finite nonzero gradient."""
+    t = {"mission": "../missions/flight.toml", "T": 1.0,
+         "tune": {**BASE["tune"], "iterations": 1, "validation": {"seeds": [10, 11]}}}
+    cfg = tune.parse_config(t, ROOT / "tuning")
+    loops, step = [], campaign.cost_and_grad
+    monkeypatch.setattr(campaign, "cost_and_grad", lambda *args: loops.append(args[-1]) or step(*args))
+    report = tune.tune(cfg, tmp_path, progress=False)
+    (loop,) = loops
+    assert loop.period_steps == 10 and loop.sensors.rate is not None and loop.sensors.attitude is not None
+    assert type(loop.estimator).__name__ == "MEKF" and type(loop.actuator).__name__ == "Wheels"
+    (row,) = read_history(tmp_path)
+    assert math.isfinite(float(row["grad_norm"])) and float(row["grad_norm"]) > 0
+    assert report["training"]["T"] == 1.0 and all(math.isfinite(x) for x in report["tuned"]["rmse"])
+
+
+def test_the_missions_controller_options_and_gains_are_the_campaigns():
+    """[controller.NAME] options configure the tuned law (one instance per configuration);
+    [gains.NAME] are the initial gains of initial_gains = "mission"."""
+    J_hat = [[600.0, 0.0, 0.0], [0.0, 400.0, 0.0], [0.0, 0.0, 900.0]]
+    cfg = config(mission={"controller": {"pd": {"J_hat": J_hat}}, "gains": {"pd": {"k_R": 1.5}}})
+    same = config(mission={"controller": {"pd": {"J_hat": J_hat}}}).mission
+    assert tune.law(cfg.mission, "pd") is tune.law(same, "pd")
+    assert tune.law(cfg.mission, "pd") is not tune.law(config().mission, "pd")
+    gains = tune.resolve_gains("pd", cfg.initial_gains, jnp.float64, mission=cfg.mission)
+    assert tune.gains_table(gains) == {"k_R": 1.5, "k_Omega": 25.0}
+    assert tune.describe(cfg) != tune.describe(config())
+
+
 def test_non_finite_gradient_stops_with_the_last_good_gains_saved(tmp_path):
     # Almost no effort weight: the gradient asks for larger gains, and Adam's first step moves
     # every log-gain by the learning rate: k_Omega x e^20 makes RK4 blow up.
@@ -263,56 +322,124 @@ def test_two_host_devices_tune_to_the_gains_of_one(tmp_path):
 @pytest.mark.parametrize(
     ("changes", "key"),
     [
-        ({"optimizer__name": "adamm"}, "optimizer.name"),
-        ({"optimizer__name": "chain"}, "optimizer.name"),
-        ({"optimizer__name": "lbfgs"}, "optimizer.name"),
-        ({"optimizer__learning_rate": -0.1}, "optimizer.learning_rate"),
-        ({"optimizer__learning_rate": float("nan")}, "optimizer.learning_rate"),
-        ({"optimizer__options": {"bogus": 1}}, "optimizer.options"),
-        ({"optimizer__schedule": "no_such_schedule"}, "optimizer.schedule"),
-        ({"optimizer__schedule": "cosine_decay_schedule"}, "optimizer.schedule_options"),
-        ({"controller": None}, "controller"),
-        ({"iterations": None}, "iterations"),
-        ({"train": None}, "train"),
-        ({"train__seeds": None}, "train.seeds"),
-        ({"validation": None}, "validation"),
-        ({"controller": "lqr"}, "controller"),
-        ({"iterations": 0}, "iterations"),
-        ({"iterations": 2.5}, "iterations"),
-        ({"gradient": "sideways"}, "gradient"),
-        ({"method": "annealing"}, "method"),
-        ({"cost__mode": "minimax"}, "cost.mode"),
-        ({"cost__weight": -1.0}, "cost.weight"),
-        ({"cost__mode": "equal_effort"}, "cost.budget"),
-        ({"cost__budget_controller": "lqr", "cost__mode": "equal_effort"}, "cost.budget_controller"),
-        ({"cost__lambda": 1.0}, "cost.lambda"),
-        ({"validation__seeds": [1, 10]}, "validation.seeds"),
-        ({"train__inertia_scales": [1.0, -0.5]}, "train.inertia_scales"),
-        ({"scenario__Tend": 10.0}, "scenario.Tend"),
-        ({"record_every": 0}, "record_every"),
-        ({"diagonal_gamma": True}, "diagonal_gamma"),
-        ({"learning_rate": 0.1}, "learning_rate"),
-        ({"initial_gains": {"k_R": 1.0}}, "initial_gains"),
-        ({"initial_gains": "missing.json"}, "initial_gains"),
+        ({"optimizer__name": "adamm"}, "tune.optimizer.name"),
+        ({"optimizer__name": "chain"}, "tune.optimizer.name"),
+        ({"optimizer__name": "lbfgs"}, "tune.optimizer.name"),
+        ({"optimizer__learning_rate": -0.1}, "tune.optimizer.learning_rate"),
+        ({"optimizer__learning_rate": float("nan")}, "tune.optimizer.learning_rate"),
+        ({"optimizer__options": {"bogus": 1}}, "tune.optimizer.options"),
+        ({"optimizer__schedule": "no_such_schedule"}, "tune.optimizer.schedule"),
+        ({"optimizer__schedule": "cosine_decay_schedule"}, "tune.optimizer.schedule_options"),
+        ({"controller": None}, "tune.controller"),
+        ({"iterations": None}, "tune.iterations"),
+        ({"train": None}, "tune.train"),
+        ({"train__seeds": None}, "tune.train.seeds"),
+        ({"validation": None}, "tune.validation"),
+        ({"controller": "lqr"}, "tune.controller"),
+        ({"iterations": 0}, "tune.iterations"),
+        ({"iterations": 2.5}, "tune.iterations"),
+        ({"gradient": "sideways"}, "tune.gradient"),
+        ({"method": "annealing"}, "tune.method"),
+        ({"cost__mode": "minimax"}, "tune.cost.mode"),
+        ({"cost__weight": -1.0}, "tune.cost.weight"),
+        ({"cost__mode": "equal_effort"}, "tune.cost.budget"),
+        ({"cost__budget_controller": "lqr", "cost__mode": "equal_effort"}, "tune.cost.budget_controller"),
+        ({"cost__lambda": 1.0}, "tune.cost.lambda"),
+        ({"validation__seeds": [1, 10]}, "tune.validation.seeds"),
+        ({"train__inertia_scales": [1.0, -0.5]}, "tune.train.inertia_scales"),
+        ({"record_every": 0}, "tune.record_every"),
+        ({"diagonal_gamma": True}, "tune.diagonal_gamma"),
+        ({"learning_rate": 0.1}, "tune.learning_rate"),
+        ({"initial_gains": {"k_R": 1.0}}, "tune.initial_gains"),
+        ({"initial_gains": "missing.json"}, "tune.initial_gains"),
         (
             {
                 "cost__mode": "equal_effort",
                 "cost__budget_controller": "pd",
                 "cost__budget_gains": {"k_R": -1.0, "k_Omega": 1.0},
             },
-            "cost.budget_gains",
+            "tune.cost.budget_gains",
         ),
     ],
 )
-def test_bad_config_is_a_value_error_naming_the_key(changes, key):
-    with pytest.raises(ValueError, match=key.replace(".", r"\.")):
+def test_bad_config_is_a_one_line_value_error_naming_the_key(changes, key):
+    with pytest.raises(ValueError, match=key.replace(".", r"\.")) as err:
         config(**changes)
+    assert "\n" not in str(err.value)
 
 
-@pytest.mark.parametrize("path", sorted((Path(__file__).parents[1] / "tuning").glob("*.toml")), ids=lambda p: p.name)
-def test_recorded_campaign_configs_are_valid_full_missions(path):
-    cfg = tune.load_config(path)
-    assert cfg.scenario["T"] == 4000.0 and cfg.cost.mode == "equal_effort" and cfg.cost.budget_controller == "pd"
+@pytest.mark.parametrize(
+    ("campaign", "message"),
+    [
+        ({"T": 20.0}, "a campaign needs a [tune] table"),
+        ({**BASE, "tune": 3}, "config key 'tune' must be a table"),
+        ({**BASE, "tune": {**BASE["tune"], "mission": "x.toml"}}, "unknown config key 'tune.mission'"),
+        ({**BASE, "scenario": {"T": 20.0}}, "unknown config key(s): scenario"),
+        ({**BASE["tune"], "T": 20.0}, "unknown config key(s): cost, iterations, optimizer, train, validation"),
+        ({**BASE, "T": -1.0}, "T (horizon)"),
+        ({**BASE, "mission": 3}, "mission must be the path of a mission file"),
+        ({**BASE, "controllers": ["adaptive"]}, "'tune.initial_gains': 'mission' gains: the mission flies no 'pd'"),
+    ],
+)
+def test_bad_campaign_is_a_one_line_value_error(campaign, message):
+    with pytest.raises(ValueError) as err:
+        tune.parse_config(campaign)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+# What the shipped campaigns meant as a flat file with a [scenario] table (T = 4000 s,
+# dt = 0.01 s, default controllers): their [tune] tables, every field.
+_EQUAL_EFFORT = {"mode": "equal_effort", "weight": 1000.0, "rmse_ref": None, "effort_ref": None, "budget": None,
+                 "budget_controller": "pd", "budget_gains": "paper"}
+_ADAM = {"name": "adam", "learning_rate": 0.3, "options": {}, "schedule": "cosine_decay_schedule", "clip_norm": 1.0}
+_DEFAULT_OPTIMIZER = {"name": "adam", "learning_rate": 0.05, "options": {}, "schedule": None, "schedule_options": {},
+                      "clip_norm": 1.0}
+_COMMON = {"train": {"seeds": [0], "inertia_scales": [0.9, 1.1]},
+           "validation": {"seeds": [100, 101], "inertia_scales": [0.9, 1.0, 1.1]},
+           "cost": _EQUAL_EFFORT, "gradient": "forward", "record_every": None, "diagonal_gamma": False}
+SHIPPED = {
+    "pd_equal_effort": {**_COMMON, "controller": "pd", "iterations": 16, "method": "gradient",
+                        "optimizer": {**_ADAM, "schedule_options": {"decay_steps": 16, "alpha": 0.1}},
+                        "es": {"population": 8, "sigma": 0.2, "seed": 0}},
+    "pd_equal_effort_es": {**_COMMON, "controller": "pd", "iterations": 16, "method": "es",
+                           "optimizer": _DEFAULT_OPTIMIZER, "es": {"population": 6, "sigma": 0.3, "seed": 0}},
+    "adaptive_equal_effort": {**_COMMON, "controller": "adaptive", "iterations": 7, "method": "gradient",
+                              "optimizer": {**_ADAM, "schedule_options": {"decay_steps": 7, "alpha": 0.1}},
+                              "es": {"population": 8, "sigma": 0.2, "seed": 0}},
+    "adaptive_equal_effort_es": {**_COMMON, "controller": "adaptive", "iterations": 7, "method": "es",
+                                 "optimizer": _DEFAULT_OPTIMIZER, "es": {"population": 10, "sigma": 0.3, "seed": 0}},
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHIPPED))
+def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
+    """The paper's mission at T = 4000 s, dt = 0.01 s (the scenario paper_scenario built,
+    leaf for leaf, in both precisions), its continuous loop, the default control laws and
+    the paper's gains; the [tune] table field for field."""
+    import jax
+
+    from so3jax.controllers import registry
+    from so3jax.loop import PAPER_LOOP
+    from so3jax.scenario import paper_scenario
+
+    assert {p.stem for p in (ROOT / "tuning").glob("*.toml")} == set(SHIPPED)
+    cfg = tune.load_config(ROOT / "tuning" / f"{name}.toml")
+    assert json.loads(json.dumps(tune.tune_table(cfg))) == {**SHIPPED[name], "initial_gains": "mission"}
+    for dtype in (jnp.float64, jnp.float32):
+        built, recorded = cfg.mission.scenario(dtype), paper_scenario(4000.0, 0.01, dtype=dtype)
+        assert jax.tree.structure(built) == jax.tree.structure(recorded)
+        for a, b in zip(jax.tree.leaves(built), jax.tree.leaves(recorded)):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert cfg.mission.loop(jnp.float64) == PAPER_LOOP
+    assert cfg.mission.options["pd"] == {} and cfg.mission.options["adaptive"] == {"log_derivative": "exact"}
+    for controller in ("pd", "adaptive"):  # the mission's gains and the budget's "paper": the registered defaults
+        gains = tune.resolve_gains(controller, "mission", jnp.float64, mission=cfg.mission)
+        assert tune.gains_table(gains) == tune.gains_table(registry.get(controller).defaults)
+    # the recorded run's checkpoint belongs to this campaign: --resume --iterations N extends it
+    from so3jax import io, runfolder
+
+    description = io.to_builtin(tune.describe(dataclasses.replace(cfg, iterations=0)))
+    tune.check_fingerprint(ROOT / "tuning" / name / tune.CHECKPOINT, runfolder.fingerprint(description), description)
 
 
 def test_bad_initial_gains_name_the_gain():
@@ -328,21 +455,21 @@ def test_bad_initial_gains_name_the_gain():
 def test_cli_overrides_and_resume(tmp_path, capsys):
     path = tmp_path / "campaign.toml"
     path.write_text(
-        'controller = "pd"\niterations = 5\n[scenario]\nT = 4000.0\n[train]\nseeds = [0, 1]\n'
-        '[validation]\nseeds = [10, 11]\n[cost]\nmode = "weighted"\n'
+        f'mission = "{ROOT / "missions" / "paper.toml"}"\nT = 4000.0\n[tune]\ncontroller = "pd"\niterations = 5\n'
+        '[tune.train]\nseeds = [0, 1]\n[tune.validation]\nseeds = [10, 11]\n[tune.cost]\nmode = "weighted"\n'
     )
     out = tmp_path / "run"
     args = [
         "tune",
         str(path),
-        "--T",
-        "20",
+        "--set",
+        "T=20.0",
         "--iterations",
         "1",
         "--out",
         str(out),
         "--set",
-        "optimizer.learning_rate=0.2",
+        "tune.optimizer.learning_rate=0.2",
     ]
     assert cli.main(args) == 0
     assert "| pd (tuned) | pd |" in capsys.readouterr().out
@@ -353,9 +480,12 @@ def test_cli_overrides_and_resume(tmp_path, capsys):
     rows = read_history(out)
     assert len(rows) == 2 and json.loads((out / "validation.json").read_text())["training"]["T"] == 20.0
     assert (
-        cli.main(["tune", str(path), "--T", "20", "--set", "optimizer.name=adamm", "--out", str(tmp_path / "x")]) == 2
+        cli.main(["tune", str(path), "--T", "20", "--set", "tune.optimizer.name=adamm", "--out", str(tmp_path / "x")])
+        == 2
     )
-    assert "optimizer.name" in capsys.readouterr().err
+    assert "tune.optimizer.name" in capsys.readouterr().err
+    assert cli.main(["tune", str(path), "--set", "optimizer.name=adam", "--out", str(tmp_path / "x")]) == 2
+    assert "unknown config key(s): optimizer" in capsys.readouterr().err
 
 
 # --- diverged rollouts: reported as diverged, never as a number ----------------------

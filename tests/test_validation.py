@@ -293,15 +293,14 @@ def test_draw_samples_checks_its_dispersions():
         disp.draw_samples(disp.Dispersions(), 0, 0, 20)
 
 
-def test_tune_checks_its_scenario_values():
+def test_tune_checks_its_mission_values():
     from so3jax import tune
 
-    table = {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]},
-             "scenario": {"T": 1.0, "tau_J": -5.0}}
-    with pytest.raises(ValueError, match="config key 'scenario': tau_J .* must be a positive number"):
-        tune.parse_config(table)
-    with pytest.raises(ValueError, match="iterations"):
-        tune.parse_config({**table, "iterations": 0, "scenario": {"T": 1.0}})
+    campaign = {"tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}}
+    with pytest.raises(ValueError, match=r"deployment\.tau_J \[s\] must be positive"):
+        tune.parse_config({**campaign, "T": 1.0, "deployment": {"tau_J": -5.0}})
+    with pytest.raises(ValueError, match=r"tune\.iterations"):
+        tune.parse_config({"T": 1.0, "tune": {**campaign["tune"], "iterations": 0}})
 
 
 @pytest.mark.parametrize(

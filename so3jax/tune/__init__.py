@@ -1,8 +1,13 @@
 """Gain tuning through the simulator: SPEC 6 costs, an optax loop with resumable
 checkpoints, a gradient-free baseline, and the ``so3jax tune`` command.
 
+A campaign file is a mission (``mission = "PATH"`` relative to the file, and/or mission
+keys and tables inline; default the paper's mission) and a ``[tune]`` table. Its
+rollouts fly the mission's scenario through the mission's loop (sensors, estimator,
+actuator, control period) with the mission's controller options.
+
 Gains are tuned in log space (p = log g, so every gain stays positive). The cost of
-gains g over a batch of B training scenarios (inertia scale x disturbance seed, see
+gains g over a batch of B training scenarios (inertia scale x seed, see
 :mod:`so3jax.gradients`) is the batch mean of (SPEC 6)
 
     weighted:      RMSE / RMSE_ref + lambda * Effort / Effort_ref
@@ -14,22 +19,26 @@ paper's gains), scenario by scenario.
 
 A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
 an interrupted run loses at most one iteration and ``--resume`` continues to the same
-result), ``best_gains.json``, ``history.csv``, ``history.png`` and
-``validation.json`` (initial and tuned gains on held-out seeds).
+result; a resume under another mission, [tune] table or precision is refused),
+``best_gains.json``, ``history.csv``, ``history.png`` and ``validation.json`` (initial
+and tuned gains on held-out seeds).
 
-Modules: config (TuneConfig, parsing, checks), gains (tunable controllers, gains and
-log-gains), cost (SPEC 6 cost and gradient over a device mesh), optimizers (optax step,
-ES), problem (batches on devices, evaluations, normalizers), storage (checkpoint,
-history, best gains), campaign (the loop, resume), validation (held-out report,
-markdown), plots (history.png), cli (the subcommand).
+Modules: config (TuneConfig, parsing, checks, the campaign's description), gains (the
+mission's controllers, gains and log-gains), cost (SPEC 6 cost and gradient over a
+device mesh), optimizers (optax step, ES), problem (the mission's scenario and loop,
+batches on devices, evaluations, normalizers), storage (checkpoint, history, best
+gains), campaign (the loop, resume), validation (held-out report, markdown), plots
+(history.png), cli (the subcommand).
 """
 
 from so3jax.tune.gains import (
     CONTROLLERS,
     GAIN_TYPES,
     PAPER_GAINS,
+    diagonals,
     gain_columns,
     gains_table,
+    law,
     resolve_gains,
     to_gains,
     to_params,
@@ -40,11 +49,14 @@ from so3jax.tune.config import (
     CostConfig,
     ESConfig,
     OptimizerConfig,
+    TUNE,
     ScenarioSet,
     TuneConfig,
+    describe,
     load_config,
     make_optimizer,
     parse_config,
+    tune_table,
     validate,
 )
 from so3jax.tune.config import _SECTIONS  # noqa: F401 (tests walk the config's sections)
@@ -52,7 +64,7 @@ from so3jax.tune.cost import BATCH, CostRefs, Evaluation, cost_and_grad, populat
 from so3jax.tune.cost import _batch_metrics  # noqa: F401 (tests: the cost's metrics without the gradient)
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
 from so3jax.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate, place
-from so3jax.tune.storage import CHECKPOINT, load_checkpoint, save_checkpoint, write_history
+from so3jax.tune.storage import CHECKPOINT, check_fingerprint, load_checkpoint, save_checkpoint, write_history
 from so3jax.tune.storage import _best_row  # noqa: F401 (tests)
 from so3jax.tune.plots import plot_history
 from so3jax.tune.validation import markdown_table, validate_gains
@@ -79,16 +91,21 @@ __all__ = [
     "PAPER_GAINS",
     "Problem",
     "ScenarioSet",
+    "TUNE",
     "TuneConfig",
     "batch_devices",
     "build_problem",
+    "check_fingerprint",
     "cost_and_grad",
     "cost_refs",
+    "describe",
+    "diagonals",
     "es_candidates",
     "es_select",
     "evaluate",
     "gain_columns",
     "gains_table",
+    "law",
     "load_checkpoint",
     "load_config",
     "make_optimizer",
@@ -104,6 +121,7 @@ __all__ = [
     "to_gains",
     "to_params",
     "tune",
+    "tune_table",
     "validate",
     "validate_gains",
     "write_history",

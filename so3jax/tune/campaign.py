@@ -3,7 +3,6 @@ every iteration, resume, and the held-out validation at the end."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from pathlib import Path
@@ -14,16 +13,17 @@ import numpy as np
 import optax
 
 from so3jax import distributed, io, runfolder
-from so3jax.tune.config import TuneConfig, make_optimizer, validate
+from so3jax.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
-from so3jax.tune.gains import CONTROLLERS, gain_columns, resolve_gains, to_gains, to_params
+from so3jax.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
 from so3jax.tune.plots import plot_history
 from so3jax.tune.problem import build_problem, cost_refs, evaluate, place
 from so3jax.tune.storage import (
     CHECKPOINT,
     _best_row,
-    _fingerprint,
+    _description,
+    check_fingerprint,
     _gains_from_row,
     _row,
     _write_best,
@@ -39,7 +39,7 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
     Raises NonFiniteGradientError, after saving, when a cost or gradient is not finite.
     """
     validate(config)
-    with runfolder.claim(out, "tune", dataclasses.asdict(config), resume=resume, lock=distributed.writer()) as run:
+    with runfolder.claim(out, "tune", describe(config), resume=resume, lock=distributed.writer()) as run:
         if jax.process_count() > 1:
             run.start()  # the folder every process must see (distributed.check_shared)
         return _tune(config, run.out, resume, progress and distributed.writer())
@@ -52,13 +52,16 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     checkpoint = out / CHECKPOINT
     if checkpoint.exists() and not resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that run, or choose another --out")
+    description = _description(config)
+    fingerprint = runfolder.fingerprint(description)
+    if resume and checkpoint.exists():  # before any work: another configuration or precision is refused
+        check_fingerprint(checkpoint, fingerprint, description)
     problem = build_problem(config)
-    controller = CONTROLLERS[config.controller]
+    controller = law(config.mission, config.controller)
     dtype = problem.scenario.R0.dtype
-    initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma)
+    initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
     n_train = problem.train.seed.shape[0]
     mode = config.cost.mode
-    fingerprint = _fingerprint(config)
 
     params = to_params(initial)
     if config.method == "gradient":
@@ -74,7 +77,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     start = time.perf_counter()
     initial_diverged = 0  # training scenarios the initial gains diverge on
     if resume and checkpoint.exists():
-        iteration, state, refs, rows = load_checkpoint(checkpoint, fingerprint, state, refs)
+        iteration, state, refs, rows = load_checkpoint(checkpoint, fingerprint, state, refs, description)
         start -= rows[-1]["wall_s"] if rows else 0.0
     else:
         initial_metrics = evaluate(problem, initial, problem.train)
@@ -102,6 +105,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     config.gradient,
                     problem.record_every,
                     problem.mesh,
+                    problem.loop,
                 )
                 new_state = _optax_step(tx, state, grad, evaluation.cost)
                 rollouts += n_train
@@ -120,7 +124,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 candidates = place(es_candidates(state.params, state.sigma, key, config.es.population), problem.mesh)
                 evaluations = population_costs(
                     candidates, problem.scenario, controller, problem.train, refs, mode, problem.record_every,
-                    problem.mesh,
+                    problem.mesh, problem.loop,
                 )
                 new_state = es_select(state, candidates, evaluations)
                 rollouts += config.es.population * n_train
@@ -154,7 +158,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             state = new_state
             iteration += 1
             if distributed.writer():  # process 0 of a multi-process run writes; every process holds the same state
-                save_checkpoint(checkpoint, fingerprint, iteration, state, refs, rows)
+                save_checkpoint(checkpoint, fingerprint, iteration, state, refs, rows, description)
                 write_history(out, rows)
                 _write_best(out, config, rows, initial)
             bar.set_postfix(cost=f"{row['cost']:.4g}", rmse=f"{row['rmse']:.3e}", effort=f"{row['effort']:.4g}")

@@ -19,9 +19,9 @@ def _command(args) -> int:
     distributed.initialize(args)  # before anything touches JAX's backend
     overrides = [cfg.parse_override(text) for text in args.set]
     if args.iterations is not None:
-        overrides.append(("iterations", args.iterations))
+        overrides.append(("tune.iterations", args.iterations))
     if args.T is not None:
-        overrides.append(("scenario.T", args.T))
+        overrides.append(("T", args.T))
     config = load_config(args.config, overrides)
     out = Path(args.out) if args.out else DEFAULT_OUT / Path(args.config).stem
     try:
@@ -39,9 +39,10 @@ def register(subparsers) -> None:
     from so3jax.cli import add_precision_argument
 
     parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator")
-    parser.add_argument("config", help="campaign file (TOML), e.g. tuning/adaptive_equal_effort.toml")
-    parser.add_argument("--iterations", type=int, help="number of iterations (overrides the config)")
-    parser.add_argument("--T", type=float, help="horizon [s] (overrides scenario.T)")
+    parser.add_argument("config", help="campaign file (TOML): a mission and a [tune] table, "
+                        "e.g. tuning/adaptive_equal_effort.toml")
+    parser.add_argument("--iterations", type=int, help="number of iterations (overrides tune.iterations)")
+    parser.add_argument("--T", type=float, help="horizon [s] (overrides the mission's T)")
     parser.add_argument("--out", help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
     parser.add_argument("--resume", action="store_true", help="continue the run saved in the run folder")
     parser.add_argument(
@@ -49,7 +50,8 @@ def register(subparsers) -> None:
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="override a config key, e.g. optimizer.learning_rate=0.1",
+        help="override an entry with a TOML value: a mission key (T=100.0, gains.pd.k_R=1.0) "
+        "or a tune key (tune.optimizer.learning_rate=0.1)",
     )
     distributed.add_arguments(parser)
     add_precision_argument(parser)

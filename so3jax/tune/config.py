@@ -1,5 +1,6 @@
-"""A tuning campaign's configuration (one TOML file, tuning/*.toml): TuneConfig and its
-sections, parsing, and every check that can run before compilation."""
+"""A tuning campaign's configuration (one TOML file, tuning/*.toml): a mission (``mission =
+"PATH"`` and/or mission tables inline; default the paper's) and a ``[tune]`` table,
+parsed into a TuneConfig, with every check that can run before compilation."""
 
 from __future__ import annotations
 
@@ -14,17 +15,19 @@ import jax.numpy as jnp
 import optax
 
 from so3jax import config as cfg
+from so3jax import mission as missions
 from so3jax.gradients import MODES
-from so3jax.scenario import paper_scenario
-from so3jax.tune.gains import CONTROLLERS, resolve_gains
+from so3jax.tune.gains import CONTROLLERS, diagonals, resolve_gains
 
+TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
 COST_MODES = ("weighted", "equal_effort")
 METHODS = ("gradient", "es")
 
 
 @dataclasses.dataclass(frozen=True)
 class ScenarioSet:
-    """Scenarios = inertia_scales x seeds (every inertia matrix scaled, SPEC 4 noise seed)."""
+    """Scenarios = inertia_scales x seeds: the mission with every inertia matrix scaled
+    [-], flown with each seed in place of the mission's."""
 
     seeds: tuple[int, ...]
     inertia_scales: tuple[float, ...] = (1.0,)
@@ -40,7 +43,7 @@ class CostConfig:
     effort_ref: float | None = None  # N^2 m^2 s, weighted mode; None: initial gains' batch mean
     budget: float | None = None  # N^2 m^2 s, equal_effort mode (or budget_controller)
     budget_controller: str | None = None  # effort budget = this controller's effort, per scenario
-    budget_gains: Any = "paper"  # its gains: "paper", a table, or a best_gains.json path
+    budget_gains: Any = "mission"  # its gains: "mission", "paper", a table, or a best_gains.json path
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,22 +70,26 @@ class ESConfig:
 
 @dataclasses.dataclass(frozen=True)
 class TuneConfig:
-    """A tuning campaign (one TOML file; see tuning/*.toml). Controllers are the default
-    ones (nominal inertia I, exact log derivative)."""
+    """A tuning campaign: the ``[tune]`` table's fields and the mission it tunes (its
+    scenario, loop, controller options and gains; None: the paper's mission)."""
 
-    controller: str  # "pd" or "adaptive"
+    controller: str  # a tunable registered controller
     iterations: int
     train: ScenarioSet
     validation: ScenarioSet  # held-out seeds
-    initial_gains: Any = "paper"  # "paper", a table of gains, or a best_gains.json path
-    scenario: dict = dataclasses.field(default_factory=dict)  # paper_scenario() arguments
+    initial_gains: Any = "mission"  # "mission", "paper", a table of gains, or a best_gains.json path
     cost: CostConfig = CostConfig()
     optimizer: OptimizerConfig = OptimizerConfig()
     method: str = "gradient"
     gradient: str = "forward"  # differentiation mode, see so3jax.gradients
-    record_every: int | None = None  # checkpoint block of the rollout (reverse mode memory)
-    diagonal_gamma: bool = False  # adaptive: tune the 9 diagonal entries of Gamma
+    record_every: int | None = None  # checkpoint block of the rollout [steps] (reverse mode memory)
+    diagonal_gamma: bool = False  # tune each entry of a gain that may be a diagonal (the adaptive Gamma: 9)
     es: ESConfig = ESConfig()
+    mission: Any = None  # so3jax.mission.Mission
+
+    def __post_init__(self):
+        if self.mission is None:
+            object.__setattr__(self, "mission", missions.from_dict({}, missions.PAPER))
 
 
 _SECTIONS = {
@@ -94,11 +101,15 @@ _SECTIONS = {
 }
 
 
-def _build(cls, table: dict, prefix: str):
-    """cls(**table), with a ValueError naming any unknown or missing key."""
+def _key(name: str) -> str:
+    return f"{TUNE}.{name}"
+
+
+def _build(cls, table: dict, prefix: str, **extra):
+    """cls(**table, **extra), with a ValueError naming any unknown or missing key of table."""
     if not isinstance(table, dict):
-        raise ValueError(f"config key {prefix.rstrip('.') or 'config'!r} must be a table, got {table!r}")  # noqa: TRY004
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+        raise ValueError(f"config key {prefix.rstrip('.')!r} must be a table, got {cfg.short(table)}")  # noqa: TRY004
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "mission"}
     for key in table:
         if key not in fields:
             raise ValueError(f"unknown config key '{prefix}{key}' (known: {', '.join(fields)})")
@@ -108,31 +119,32 @@ def _build(cls, table: dict, prefix: str):
     values = {}
     for key, value in table.items():
         if key in _SECTIONS and cls is TuneConfig:
-            value = _build(_SECTIONS[key], value, f"{key}.")
+            value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
         elif isinstance(value, list) and key in ("seeds", "inertia_scales"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
             raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg.short(value)}")
         values[key] = value
-    return cls(**values)
+    return cls(**values, **extra)
 
 
 def _positive(name, value, integer=False):
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
     if isinstance(value, bool) or not ok or not cfg.finite(value) or value <= 0:
         kind = "a positive integer" if integer else "a positive finite number"
-        raise ValueError(f"config key {name!r} must be {kind}, got {cfg.short(value)}")
+        raise ValueError(f"config key {_key(name)!r} must be {kind}, got {cfg.short(value)}")
 
 
 def _choice(name, value, choices):
     if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"config key {name!r} must be one of {choices}, got {cfg.short(value)}")
+        raise ValueError(f"config key {_key(name)!r} must be one of {choices}, got {cfg.short(value)}")
 
 
 def _check_kwargs(fn, options, where: str) -> None:
     """The keyword options of an optax function, each of the type of its default (a
     number, true or false) where it has one, a number where it is annotated int or float.
     A table is required; options without a typed default are left to the call."""
+    where = _key(where)
     if not isinstance(options, dict):
         got = cfg.short(options)
         raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {got}")  # noqa: TRY004
@@ -150,47 +162,32 @@ def _check_kwargs(fn, options, where: str) -> None:
             raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg.short(value)}")
 
 
-# The types of paper_scenario's arguments in a config's [scenario] table (by their defaults;
-# None defaults: a number for n, a (3, 3) matrix for J1).
-_SCENARIO_ARRAYS = {"J0": (3, 3), "J1": (3, 3), "J2": (3, 3)}
-
-
-def _check_scenario_types(table: dict) -> None:
-    """Each [scenario] entry of its type: a number, a (3, 3) matrix of numbers, or true/false."""
-    for key, value in table.items():
-        where = f"config key 'scenario.{key}'"
-        if key in _SCENARIO_ARRAYS:
-            cfg.array(value, where, _SCENARIO_ARRAYS[key])
-        elif isinstance(inspect.signature(paper_scenario).parameters[key].default, bool):
-            cfg.boolean(value, where)
-        elif isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ValueError(f"{where} must be a number, got {cfg.short(value)}")
-
-
 def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     """apply_if_finite(chain(clip_by_global_norm, optax.<name>(schedule, **options)))."""
     _positive("optimizer.learning_rate", config.learning_rate)
     _positive("optimizer.clip_norm", config.clip_norm)
+    name_key = _key("optimizer.name")
     factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
     if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
-        name = cfg.short(config.name)
-        raise ValueError(f"config key 'optimizer.name': {name} is not an optax optimizer (e.g. adam, sgd)")
+        raise ValueError(f"config key {name_key!r}: {cfg.short(config.name)} is not an optax optimizer "
+                         "(e.g. adam, sgd)")
     _check_kwargs(factory, config.options, "optimizer.options")
     learning_rate = config.learning_rate
     if config.schedule is not None:
         schedule = getattr(optax, config.schedule, None) if isinstance(config.schedule, str) else None
         if not callable(schedule):
-            raise ValueError(f"config key 'optimizer.schedule': {cfg.short(config.schedule)} is not an optax schedule")
+            raise ValueError(f"config key {_key('optimizer.schedule')!r}: {cfg.short(config.schedule)} "
+                             "is not an optax schedule")
         _check_kwargs(schedule, config.schedule_options, "optimizer.schedule_options")
         try:
             learning_rate = schedule(config.learning_rate, **config.schedule_options)
             learning_rate(0)
         except (TypeError, ValueError) as err:
-            raise ValueError(f"config key 'optimizer.schedule_options': {err}") from err
+            raise ValueError(f"config key {_key('optimizer.schedule_options')!r}: {err}") from err
     try:
         inner = factory(learning_rate, **config.options)
     except TypeError as err:
-        raise ValueError(f"config key 'optimizer.options': {err}") from err
+        raise ValueError(f"config key {_key('optimizer.options')!r}: {err}") from err
     # Large enough never to give up: the loop stops at the first non-finite gradient.
     tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30)
     try:  # an optimizer that needs more than (grad, value), e.g. lbfgs's value_fn
@@ -198,7 +195,7 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
             tx.update(probe, tx.init(probe), probe, value=jnp.zeros(()))
     except Exception as err:  # any failure on a trivial update disqualifies it
-        raise ValueError(f"config key 'optimizer.name': optax.{config.name} cannot be used here: {err}") from err
+        raise ValueError(f"config key {name_key!r}: optax.{config.name} cannot be used here: {err}") from err
     return tx
 
 
@@ -216,69 +213,87 @@ def validate(config: TuneConfig) -> None:
         if not scenarios.seeds or not all(
             isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**31 for s in scenarios.seeds
         ):
-            raise ValueError(f"config key '{section}.seeds' must be a non-empty list of integers in [0, 2^31)")
+            raise ValueError(f"config key {_key(section + '.seeds')!r} must be a non-empty list of integers "
+                             "in [0, 2^31)")
         if not scenarios.inertia_scales:
-            raise ValueError(f"config key '{section}.inertia_scales' must be a non-empty list")
+            raise ValueError(f"config key {_key(section + '.inertia_scales')!r} must be a non-empty list")
         for scale in scenarios.inertia_scales:
             _positive(f"{section}.inertia_scales", scale)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
     if held_out:
-        raise ValueError(f"config key 'validation.seeds' must be held out of train.seeds; both have {sorted(held_out)}")
+        raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
+                         f"both have {sorted(held_out)}")
     cost = config.cost
     _positive("cost.weight", cost.weight)
     for key in ("rmse_ref", "effort_ref", "budget"):
         if getattr(cost, key) is not None:
             _positive(f"cost.{key}", getattr(cost, key))
     if cost.mode == "equal_effort" and (cost.budget is None) == (cost.budget_controller is None):
-        raise ValueError("equal_effort cost needs exactly one of config keys 'cost.budget', 'cost.budget_controller'")
+        raise ValueError(f"equal_effort cost needs exactly one of config keys {_key('cost.budget')!r}, "
+                         f"{_key('cost.budget_controller')!r}")
     if cost.budget_controller is not None:
         _choice("cost.budget_controller", cost.budget_controller, tuple(CONTROLLERS))
-    if not isinstance(config.scenario, dict):
-        raise ValueError(f"config key 'scenario' must be a table of paper_scenario arguments, got {config.scenario!r}")  # noqa: TRY004
-    signature = inspect.signature(paper_scenario).parameters
-    for key in config.scenario:
-        if key not in signature or key == "dtype":
-            raise ValueError(f"unknown config key 'scenario.{key}' (paper_scenario arguments: {', '.join(signature)})")
-    _check_scenario_types(config.scenario)
-    try:
-        paper_scenario(**config.scenario)  # its values: horizon, step, tau_J, inertias
-    except (TypeError, ValueError) as err:
-        raise ValueError(f"config key 'scenario': {err}") from None
+    cfg.boolean(config.diagonal_gamma, f"config key {_key('diagonal_gamma')!r}")
+    if config.diagonal_gamma and not diagonals(config.controller):
+        raise ValueError(f"config key {_key('diagonal_gamma')!r}: no gain of the {config.controller} controller "
+                         "may be a diagonal")
+    if not isinstance(config.mission, missions.Mission):
+        got = cfg.short(config.mission)
+        raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
     for key, controller, spec in (
         ("initial_gains", config.controller, config.initial_gains),
         ("cost.budget_gains", cost.budget_controller, cost.budget_gains),
     ):
         if controller is not None:
             try:
-                resolve_gains(
-                    controller, spec, jnp.result_type(float), config.diagonal_gamma and key == "initial_gains"
-                )
+                diagonal = config.diagonal_gamma and key == "initial_gains"
+                resolve_gains(controller, spec, jnp.result_type(float), diagonal, config.mission)
             except (OSError, ValueError) as err:
-                raise ValueError(f"config key {key!r}: {err}") from err
+                raise ValueError(f"config key {_key(key)!r}: {err}") from None
     make_optimizer(config.optimizer)
     _positive("es.population", config.es.population, integer=True)
     _positive("es.sigma", config.es.sigma)
-    cfg.number(config.es.seed, "config key 'es.seed'", low=0, high=2**32 - 1, integer=True)
-    cfg.boolean(config.diagonal_gamma, "config key 'diagonal_gamma'")
-    if config.diagonal_gamma and config.controller != "adaptive":
-        raise ValueError("config key 'diagonal_gamma' applies to the adaptive controller only")
+    cfg.number(config.es.seed, f"config key {_key('es.seed')!r}", low=0, high=2**32 - 1, integer=True)
 
 
-def parse_config(table: dict, base_dir=".") -> TuneConfig:
-    """A validated TuneConfig from a TOML-like table; gain-file paths relative to base_dir."""
+def tune_table(config: TuneConfig) -> dict:
+    """The ``[tune]`` table of a config, every field (defaults included)."""
+    return {f.name: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
+            for f in dataclasses.fields(config) if f.name != "mission" for v in [getattr(config, f.name)]}
+
+
+def describe(config: TuneConfig) -> dict:
+    """What fixes a campaign's results: its mission (less the trajectory sampling, which
+    no tuning rollout records), its [tune] table and the precision of the run."""
+    mission = {k: v for k, v in config.mission.describe().items() if k != "record_every"}
+    return {"mission": mission, TUNE: tune_table(config), "precision": str(jnp.dtype(jnp.result_type(float)))}
+
+
+def parse_config(table: dict, base_dir=".", base: dict = missions.PAPER) -> TuneConfig:
+    """A validated TuneConfig from a campaign's tables: ``mission`` (a mission file relative
+    to base_dir) and/or mission tables over ``base``, and ``[tune]``; gain-file paths
+    relative to base_dir."""
+    if not isinstance(table, dict):
+        raise ValueError(f"a campaign must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
     table = json.loads(json.dumps(table))  # a deep copy
-    for section, key in (("", "initial_gains"), ("cost", "budget_gains")):
-        holder = table.get(section, {}) if section else table
+    mission, jobs = missions.load_job(table, base_dir, (TUNE,), base)
+    if TUNE not in jobs:
+        raise ValueError(f"a campaign needs a [{TUNE}] table: controller, iterations, "
+                         f"[{TUNE}.train] seeds, [{TUNE}.validation] seeds, ...")
+    tune = jobs[TUNE]
+    cost = tune.get("cost") if isinstance(tune, dict) else None
+    for holder, key in ((tune, "initial_gains"), (cost, "budget_gains")):
         value = holder.get(key) if isinstance(holder, dict) else None
         if isinstance(value, str) and value.endswith(".json"):
             holder[key] = str((Path(base_dir) / value).resolve())
-    config = _build(TuneConfig, table, "")
+    config = _build(TuneConfig, tune, f"{TUNE}.", mission=mission)
     validate(config)
     return config
 
 
 def load_config(path, overrides=()) -> TuneConfig:
-    """Read a TOML campaign file and apply (dotted key, value) overrides."""
+    """Read a TOML campaign file and apply (dotted key, value) overrides: mission keys
+    (``T``, ``gains.pd.k_R``) or ``tune.*`` keys."""
     table = cfg.read_toml(path)
     for key, value in overrides:
         cfg.set_dotted(table, key, value)

@@ -11,7 +11,9 @@ import jax.numpy as jnp
 from jax.sharding import PartitionSpec
 
 from so3jax.gradients import batch_metrics, value_and_grad
+from so3jax.loop import PAPER_LOOP
 from so3jax.tune.gains import to_gains
+
 
 class CostRefs(NamedTuple):
     """Normalizers: RMSE_ref [rad/s]; Effort_ref or Effort_budget [N^2 m^2 s], a scalar or
@@ -51,16 +53,20 @@ def _summary(metrics, refs, mode) -> Evaluation:
 BATCH = "batch"  # the mesh axis the scenario batch is split along
 
 
-def _metrics(scenario, controller, gains, batch, record_every, mesh):
-    """batch_metrics, split along the batch over the devices of mesh (None: one device).
+def _metrics(scenario, controller, gains, batch, record_every, mesh, loop):
+    """batch_metrics through ``loop``, split along the batch over the devices of mesh (None:
+    one device).
 
     Each device runs the single-device rollout on its shard (``jax.shard_map``): nothing
     crosses devices inside the time loop. The batch is padded to a multiple of the mesh
     size by repeating its last scenario, and the padding is dropped from the result.
     """
-    run = lambda scenario, gains, batch: batch_metrics(scenario, controller, gains, batch, record_every=record_every)
+
+    def run(scenario, gains, batch, loop):
+        return batch_metrics(scenario, controller, gains, batch, record_every=record_every, loop=loop)
+
     if mesh is None:
-        return run(scenario, gains, batch)
+        return run(scenario, gains, batch, loop)
     n = batch.seed.shape[0]
     index = jnp.minimum(jnp.arange(-(-n // mesh.size) * mesh.size), n - 1)
     padded = jax.tree.map(lambda x: x[index], batch)
@@ -69,24 +75,25 @@ def _metrics(scenario, controller, gains, batch, record_every, mesh):
     sharded = jax.shard_map(
         run,
         mesh=mesh,
-        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(BATCH)),
+        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(BATCH), PartitionSpec()),
         out_specs=PartitionSpec(BATCH),
         check_vma=False,
     )
-    return jax.tree.map(lambda x: x[:n], sharded(scenario, gains, padded))
+    return jax.tree.map(lambda x: x[:n], sharded(scenario, gains, padded, loop))
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "mesh"))
-def _batch_metrics(scenario, controller, gains, batch, record_every, mesh=None):
-    return _metrics(scenario, controller, gains, batch, record_every, mesh)
+def _batch_metrics(scenario, controller, gains, batch, record_every, mesh=None, loop=PAPER_LOOP):
+    return _metrics(scenario, controller, gains, batch, record_every, mesh, loop)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mode", "gradient", "record_every", "mesh"))
-def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every, mesh=None):
-    """(Evaluation, d cost / d params) of log-gains params over the batch (split over mesh)."""
+def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, record_every, mesh=None, loop=PAPER_LOOP):
+    """(Evaluation, d cost / d params) of log-gains params over the batch (split over mesh),
+    flown through ``loop``."""
 
     def cost(p):
-        summary = _summary(_metrics(scenario, controller, to_gains(p), batch, record_every, mesh), refs, mode)
+        summary = _summary(_metrics(scenario, controller, to_gains(p), batch, record_every, mesh, loop), refs, mode)
         return summary.cost, summary
 
     (_, summary), grad = value_and_grad(cost, gradient)(params)
@@ -94,10 +101,10 @@ def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, rec
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mode", "record_every", "mesh"))
-def population_costs(population, scenario, controller, batch, refs, mode, record_every, mesh=None):
+def population_costs(population, scenario, controller, batch, refs, mode, record_every, mesh=None, loop=PAPER_LOOP):
     """Evaluation of each member of a population of log-gains (leading axis P)."""
 
     def one(params):
-        return _summary(_metrics(scenario, controller, to_gains(params), batch, record_every, mesh), refs, mode)
+        return _summary(_metrics(scenario, controller, to_gains(params), batch, record_every, mesh, loop), refs, mode)
 
     return jax.vmap(one)(population)

@@ -1,5 +1,6 @@
-"""Tunable controllers and their gains: reading gains ("paper", a table, a
-best_gains.json), the log-gain parameters p = log g, and gains as tables and columns."""
+"""Tunable controllers and their gains: the laws a mission configures, reading gains
+("mission", "paper", a table, a best_gains.json), the log-gain parameters p = log g, and
+gains as tables and columns."""
 
 from __future__ import annotations
 
@@ -14,21 +15,46 @@ import numpy as np
 from so3jax import config as cfg
 from so3jax import runfolder
 from so3jax.controllers import registry
-from so3jax.scenario import check_gains
 
-# One instance per controller, so that jit caches hit across runs in one process.
+# One instance per controller with its default options, so that jit caches hit across runs.
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
-
-
 GAIN_TYPES = {n: registry.get(n).gains_type for n in CONTROLLERS}
 PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
 
+_LAWS: dict = {}  # (name, options' fingerprint) -> Controller: one instance per configuration
 
-def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False):
-    """Gains from "paper", a table {name: value}, or a best_gains.json path; checked (SPEC 6)."""
-    cls = GAIN_TYPES[controller]
-    if spec == "paper":
-        table = PAPER_GAINS[controller]._asdict()
+
+def law(mission, name: str):
+    """The controller ``name`` with the mission's options ([controller.NAME]: J_hat, ...);
+    the same instance for the same options (a static jit argument)."""
+    options = mission.options.get(name, {}) if mission is not None else {}
+    key = (name, runfolder.fingerprint(options))
+    if key not in _LAWS:
+        _LAWS[key] = registry.get(name).factory(**options)
+    return _LAWS[key]
+
+
+def diagonals(controller: str) -> dict:
+    """{gain: (n,)} of the gains that may be a diagonal of n entries (the adaptive law's Gamma)."""
+    spec = registry.get(controller)
+    return {f: s for f, shapes in spec.gain_shapes().items() for s in shapes if len(s) == 1}
+
+
+def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=None):
+    """Gains from "mission" (the mission's [gains.NAME]), "paper" (the registered defaults),
+    a table {name: value}, or a best_gains.json path; checked by the registration. Each
+    gain a number or a diagonal (no matrix); ``diagonal_gamma``: every gain that may be a
+    diagonal broadcast to one."""
+    registered = registry.get(controller)
+    cls = registered.gains_type
+    if spec == "mission":
+        if mission is None or controller not in mission.gains:
+            flown = ", ".join(mission.controllers) if mission is not None else "none"
+            raise ValueError(f"'mission' gains: the mission flies no {controller!r} controller (controllers: {flown}); "
+                             f"add it to the mission's controllers or give the gains")
+        table = {k: np.asarray(v).tolist() for k, v in mission.gains[controller]._asdict().items()}
+    elif spec == "paper":
+        table = registered.defaults._asdict()
     elif isinstance(spec, str):
         saved = json.loads(Path(spec).read_text())
         if runfolder.incomplete(Path(spec).parent):
@@ -40,24 +66,22 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False):
     elif isinstance(spec, dict):
         table = spec
     else:
-        raise ValueError(f"gains must be 'paper', a table or a .json path, got {cfg.short(spec)}")
+        raise ValueError(f"gains must be 'mission', 'paper', a table or a .json path, got {cfg.short(spec)}")
     for name in table:
         if name not in cls._fields:
             raise ValueError(f"unknown gain {name!r} for the {controller} controller ({', '.join(cls._fields)})")
     missing = [name for name in cls._fields if name not in table]
     if missing:
         raise ValueError(f"missing gain {missing[0]!r} for the {controller} controller")
-    registered = registry.get(controller)
-    shapes = {name: tuple(s for s in allowed if len(s) < 2)  # tuning: a scalar or a (9,) diagonal Gamma
-              for name, allowed in registered.gain_shapes().items()}
+    shapes = {name: tuple(s for s in allowed if len(s) < 2) for name, allowed in registered.gain_shapes().items()}
     table = cfg.gains(table, registered.defaults, shapes, "gains")._asdict()
     gains = cls(**{name: jnp.asarray(table[name], dtype) for name in cls._fields})
-    if controller == "adaptive":
-        if gains.Gamma.ndim > 1:
-            raise ValueError("tuning supports a scalar or (9,) diagonal Gamma")
-        if diagonal_gamma:
-            gains = gains._replace(Gamma=jnp.broadcast_to(gains.Gamma, (9,)))
-    check_gains(gains)
+    if diagonal_gamma:
+        gains = gains._replace(**{f: jnp.broadcast_to(getattr(gains, f), s) for f, s in diagonals(controller).items()})
+    try:
+        registered.check(gains)
+    except TypeError as err:
+        raise ValueError(str(err)) from None
     return gains
 
 

@@ -1,6 +1,6 @@
-"""What a campaign evaluates: the scenario and the training and validation batches placed
-on the devices (how many, by the batch size), fixed-gain evaluations and the cost's
-normalizers."""
+"""What a campaign evaluates: the mission's scenario and loop, the training and validation
+batches placed on the devices (how many, by the batch size), fixed-gain evaluations and
+the cost's normalizers."""
 
 from __future__ import annotations
 
@@ -12,10 +12,12 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from so3jax.gradients import Batch, make_batch
-from so3jax.scenario import Scenario, check_scenario, paper_scenario
+from so3jax.loop import Loop
+from so3jax.scenario import Scenario
 from so3jax.tune.config import TuneConfig
 from so3jax.tune.cost import BATCH, CostRefs, _batch_metrics
-from so3jax.tune.gains import CONTROLLERS, resolve_gains
+from so3jax.tune.gains import law, resolve_gains
+
 
 class Problem(NamedTuple):
     """What a run evaluates, built from the config, placed on the devices."""
@@ -26,6 +28,8 @@ class Problem(NamedTuple):
     validation: Batch
     record_every: int | None
     mesh: Mesh | None  # the devices the batch is split over (batch_devices), or None: one device
+    loop: Loop  # the mission's sensors, estimator, actuator and control period
+    mission: object  # so3jax.mission.Mission: the controllers' options and gains
 
 
 def place(tree, mesh: Mesh | None):
@@ -58,8 +62,7 @@ def batch_devices(config: TuneConfig, n_devices: int) -> int:
 
 def build_problem(config: TuneConfig) -> Problem:
     dtype = jnp.result_type(float)
-    scenario = paper_scenario(**config.scenario, dtype=dtype)
-    check_scenario(scenario)
+    scenario, loop = config.mission.scenario(dtype), config.mission.loop(dtype)
     if jax.process_count() > 1:  # several processes: the batch is split over all of their devices
         devices = jax.devices()
     else:
@@ -68,14 +71,16 @@ def build_problem(config: TuneConfig) -> Problem:
     train, validation = (
         place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
     )
-    return Problem(place(scenario, mesh), config.controller, train, validation, config.record_every, mesh)
+    return Problem(place(scenario, mesh), config.controller, train, validation, config.record_every, mesh,
+                   place(loop, mesh), config.mission)
 
 
 def evaluate(problem: Problem, gains, batch: Batch, controller=None):
     """Per-scenario metrics of fixed gains (forward only)."""
-    controller = CONTROLLERS[controller or problem.controller]
+    controller = law(problem.mission, controller or problem.controller)
     return _batch_metrics(
-        problem.scenario, controller, place(gains, problem.mesh), batch, problem.record_every, problem.mesh
+        problem.scenario, controller, place(gains, problem.mesh), batch, problem.record_every, problem.mesh,
+        problem.loop,
     )
 
 
@@ -89,6 +94,6 @@ def cost_refs(config: TuneConfig, problem: Problem, initial_metrics, batch: Batc
     elif cost.budget is not None:
         effort = cost.budget
     else:
-        gains = resolve_gains(cost.budget_controller, cost.budget_gains, dtype)
+        gains = resolve_gains(cost.budget_controller, cost.budget_gains, dtype, mission=config.mission)
         effort = evaluate(problem, gains, batch, cost.budget_controller).effort
     return CostRefs(jnp.asarray(rmse, dtype), jnp.asarray(effort, dtype), jnp.asarray(cost.weight, dtype))

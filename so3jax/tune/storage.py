@@ -15,41 +15,67 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax import io, runfolder
-from so3jax.tune.config import TuneConfig
+from so3jax.tune.config import TuneConfig, describe
 from so3jax.tune.cost import CostRefs, Evaluation
 from so3jax.tune.gains import gain_columns, gains_table
 
 CHECKPOINT = "checkpoint.npz"
 
 
+def _description(config: TuneConfig) -> dict:
+    """What a checkpoint belongs to: the mission, the [tune] table but the iteration count
+    (a resumed run may be extended) and the precision."""
+    return io.to_builtin(describe(dataclasses.replace(config, iterations=0)))
+
+
 def _fingerprint(config: TuneConfig) -> str:
-    """Fingerprint of everything but the iteration count (a resumed run may be extended)."""
-    return runfolder.fingerprint(dataclasses.asdict(dataclasses.replace(config, iterations=0)))
+    return runfolder.fingerprint(_description(config))
 
 
-def save_checkpoint(path, fingerprint, iteration, state, refs, rows) -> None:
+def save_checkpoint(path, fingerprint, iteration, state, refs, rows, description=None) -> None:
     leaves = jax.tree.leaves(state) + list(refs)
     io.save_npz(
         path,
         fingerprint=np.array(fingerprint),
+        description=np.array(json.dumps(description)),
         iteration=np.array(iteration),
         rows=np.array(json.dumps(rows)),
         **{f"leaf_{i}": np.asarray(leaf) for i, leaf in enumerate(leaves)},
     )
 
 
-def load_checkpoint(path, fingerprint, state_template, refs_template):
-    """(iteration, state, refs, rows); leaf shapes and dtypes follow the templates."""
-    leaves_template, treedef = jax.tree.flatten((state_template, refs_template))
+def check_fingerprint(path, fingerprint, description=None) -> None:
+    """A one-line ValueError unless the checkpoint was written for this campaign (its
+    mission, [tune] table and precision), naming what differs where it can."""
     try:
         with np.load(path) as data:
             found = str(data["fingerprint"])
+            previous = json.loads(str(data["description"])) if "description" in data else None
+    except Exception as err:  # a truncated or foreign file: zip, pickle, key or JSON errors
+        raise runfolder.corrupt(path, err, "delete it to start the run over, or choose another --out") from None
+    if found == fingerprint:
+        return
+    detail = ""
+    if isinstance(previous, dict) and isinstance(description, dict):
+        changed = [k for k in description if previous.get(k) != description[k]]
+        if "precision" in changed:
+            detail = f" (precision {previous.get('precision')}, this run {description['precision']})"
+        elif changed:
+            detail = f" (its {' and '.join(changed)} differ)"
+    raise ValueError(f"{path} was written for another configuration{detail}; resume it with its own settings, "
+                     "or use a new --out folder")
+
+
+def load_checkpoint(path, fingerprint, state_template, refs_template, description=None):
+    """(iteration, state, refs, rows); leaf shapes and dtypes follow the templates."""
+    check_fingerprint(path, fingerprint, description)
+    leaves_template, treedef = jax.tree.flatten((state_template, refs_template))
+    try:
+        with np.load(path) as data:
             iteration, rows = int(data["iteration"]), json.loads(str(data["rows"]))
             leaves = [data[f"leaf_{i}"] for i in range(len(leaves_template))]
     except Exception as err:  # a truncated or foreign file: zip, pickle, key or JSON errors
         raise runfolder.corrupt(path, err, "delete it to start the run over, or choose another --out") from None
-    if found != fingerprint:
-        raise ValueError(f"{path} was written for another configuration; use a new --out folder")
     for i, (leaf, template) in enumerate(zip(leaves, leaves_template)):
         if leaf.shape != np.shape(template):
             raise ValueError(f"{path}: checkpoint leaf {i} has shape {leaf.shape}, expected {np.shape(template)}")

@@ -62,7 +62,7 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
     }
     if config.cost.budget_controller is not None:
         dtype = problem.scenario.R0.dtype
-        gains = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype)
+        gains = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype, mission=config.mission)
         budget_metrics = evaluate(problem, gains, batch, config.cost.budget_controller)
         refs = refs._replace(effort=budget_metrics.effort)
         report["budget"] = {
