@@ -390,6 +390,16 @@ def _complete_wheels(values: dict) -> dict:
     return w
 
 
+def _wheel_figures(histories, phase_times, T, w: dict) -> dict:
+    """Wheel speeds against their limits, and the wheels' momentum against the array's
+    capacity (the largest |h_w| along a body axis) [N m s]."""
+    from so3jax import flight_plots
+
+    capacity = np.abs(np.asarray(w["axes"]).T) @ (w["spin_inertia"] * w["max_speed"])
+    return {"wheel_speeds.png": flight_plots.wheel_speed_figure(histories, phase_times, T, w["max_speed"]),
+            "momentum.png": flight_plots.momentum_figure(histories, phase_times, T, capacity)}
+
+
 def _wheels(w: dict, ctx) -> Wheels:
     a = ctx.as_array
     motor = None if w["motor_torque"] is None else a(w["motor_torque"])
@@ -420,6 +430,8 @@ components.register(components.ComponentSpec(
               doc="a constant motor-torque command per wheel, replacing the controller's (open loop)"),
     ),
     complete=_complete_wheels,
+    figures=_wheel_figures,
+    effort_label="motor effort",
     build=_wheels,
     doc="N reaction wheels (SPEC 8.4)",
 ))

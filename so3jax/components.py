@@ -103,7 +103,10 @@ class ComponentSpec:
     ``MEASUREMENTS``; noise(values) (sensors): the noise levels an estimator may assume,
     {name: value}. needs (estimators): the measurements it reads; truth (estimators):
     whether it reads the true state (an explicit input only such estimators get; the
-    continuous-time wiring takes only such an estimator).
+    continuous-time wiring takes only such an estimator). figures(histories, phase_times,
+    T, values) (actuators): {file name: matplotlib Figure} of the actuator's own state,
+    which ``so3jax fly`` adds to its figures; effort_label: what the flight metrics'
+    actuator effort sums (wheels: the motor torques).
     """
 
     kind: str
@@ -116,6 +119,8 @@ class ComponentSpec:
     noise: Callable[[dict], dict] | None = None
     needs: tuple = ()
     truth: bool = False
+    figures: Callable[..., dict] | None = None
+    effort_label: str = "actuator effort"
 
     def parse(self, given: dict, where: str) -> dict:
         values = parse_params(self.params, given, where)

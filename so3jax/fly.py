@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from so3jax import components
 from so3jax.metrics import cell
 
 PHASE_LABELS = ("capture", "deployment", "detumble")
@@ -122,9 +123,8 @@ def format_table(mission, reports: dict) -> str:
     row("max |tau| delivered [N m]", lambda r: r["max_torque"], ".4f")
     if mission.period_steps is not None:
         row("command effort [N^2 m^2 s]", lambda r: r["command_effort"], ".2f")
-        wheels = mission.actuator["kind"] == "wheels"
-        row("motor effort [N^2 m^2 s]" if wheels else "actuator effort [N^2 m^2 s]",
-            lambda r: r["actuator_effort"], ".2f")
+        label = components.get("actuator", mission.actuator["kind"]).effort_label
+        row(f"{label} [N^2 m^2 s]", lambda r: r["actuator_effort"], ".2f")
         row("attitude estimation RMS [arcsec]", lambda r: _arcsec(r["attitude_estimation_rms"]), ".2f")
         row("attitude estimation max [arcsec]", lambda r: _arcsec(r["attitude_estimation_max"]), ".2f")
         row("bias estimation RMS [deg/h]", lambda r: _deg_h(r["bias_estimation_rms"]), ".4f")
@@ -181,12 +181,10 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
             "bias.png": flight_plots.bias_figure(histories, phases, mission.T),
             "torque.png": flight_plots.torque_figure(histories, phases, mission.T),
         }
-        if mission.actuator["kind"] == "wheels":
-            w = mission.actuator["wheels"]
-            G = np.asarray(w["axes"]).T
-            capacity = np.abs(G) @ (w["spin_inertia"] * w["max_speed"])
-            figures["wheel_speeds.png"] = flight_plots.wheel_speed_figure(histories, phases, mission.T, w["max_speed"])
-            figures["momentum.png"] = flight_plots.momentum_figure(histories, phases, mission.T, capacity)
+        kind = mission.actuator["kind"]
+        own = components.get("actuator", kind).figures  # the actuator's figures of its own state
+        if own is not None:
+            figures.update(own(histories, phases, mission.T, mission.actuator[kind]))
     return save_figures(out, figures)
 
 
