@@ -141,12 +141,13 @@ def test_bad_arguments_are_one_line_errors(argv, message, in_process, capsys):
 
 
 def test_warnings_are_one_line_each_and_shown_once(in_process, capsys):
-    """A J0 that breaks the triangle inequality (a warning), then a bad J1 scale (an error)."""
+    """A mission J0 that breaks the triangle inequality (a warning), then a bad dispersion
+    of J1's scale (an error)."""
     code = cli.main(["sweep", "--set", "inertia.J0.nominal=[[100.0, 0, 0], [0, 120.0, 0], [0, 0, 300.0]]",
-                     "--set", "inertia.J1.scale=0.0", "--out", str(in_process / "s")])
+                     "--set", "dispersions.inertia.J1.scale=0.0", "--out", str(in_process / "s")])
     err = capsys.readouterr().err.splitlines()
     assert code == 2
-    assert err[0].startswith("so3jax sweep: warning: inertia J0 (inertia.J0.nominal) breaks the triangle inequality")
+    assert err[0].startswith("so3jax sweep: warning: inertia J0, J1 break the triangle inequality")
     assert "check the matrix" in err[0]
     assert err[1:] == ["so3jax sweep: error: inertia.J1.scale must be > 0: 0.0 is outside that domain"]
     show = cli._warning_printer("fly")
