@@ -254,33 +254,33 @@ def test_checks_compose_with_jit_vmap_and_grad():
 @pytest.mark.parametrize(
     "override,match",
     [
-        ("deployment.tau_J=-50.0", "deployment.tau_J \\[s\\] must be > 0"),
-        ("deployment.tau_J=0.0", "deployment.tau_J \\[s\\] must be > 0"),
-        ('deployment.tau_J={dist="uniform", low=-100.0, high=400.0}', "deployment.tau_J \\[s\\] must be > 0"),
-        ('deployment.tau_J={dist="normal", mean=-300.0, std=10.0}', "deployment.tau_J \\[s\\] must be > 0"),
-        ('deployment.tau_J={dist="uniform", low=400.0, high=200.0}', "uniform needs low <= high"),
-        ('disturbance.noise_std={dist="normal", mean=0.025, std=-1.0}', "std / sigma >= 0"),
-        ('disturbance.noise_std={dist="uniform", low=-0.1, high=0.1}', "disturbance.noise_std \\[N m\\] must be >= 0"),
-        ("inertia.J0.scale=0.0", "inertia.J0.scale must be > 0"),
-        ('inertia.J1.scale={dist="uniform", low=-1.0, high=2.0}', "inertia.J1.scale must be > 0"),
-        ("inertia.J2.axis_scale=-1.0", "inertia.J2.axis_scale must be > 0"),
-        ("orbit.n=-1e-3", "orbit.n \\[rad/s\\] must be >= 0"),
-        ('initial.rate={dist="uniform", low=-0.1, high=0.1}', "initial.rate \\[rad/s\\] must be >= 0"),
+        ("dispersions.deployment.tau_J=-50.0", "deployment.tau_J \\[s\\] must be > 0"),
+        ("dispersions.deployment.tau_J=0.0", "deployment.tau_J \\[s\\] must be > 0"),
+        ('dispersions.deployment.tau_J={dist="uniform", low=-100.0, high=400.0}', "deployment.tau_J \\[s\\] must be > 0"),
+        ('dispersions.deployment.tau_J={dist="normal", mean=-300.0, std=10.0}', "deployment.tau_J \\[s\\] must be > 0"),
+        ('dispersions.deployment.tau_J={dist="uniform", low=400.0, high=200.0}', "uniform needs low <= high"),
+        ('dispersions.disturbance.noise_std={dist="normal", mean=0.025, std=-1.0}', "std / sigma >= 0"),
+        ('dispersions.disturbance.noise_std={dist="uniform", low=-0.1, high=0.1}', "disturbance.noise_std \\[N m\\] must be >= 0"),
+        ("dispersions.inertia.J0.scale=0.0", "inertia.J0.scale must be > 0"),
+        ('dispersions.inertia.J1.scale={dist="uniform", low=-1.0, high=2.0}', "inertia.J1.scale must be > 0"),
+        ("dispersions.inertia.J2.axis_scale=-1.0", "inertia.J2.axis_scale must be > 0"),
+        ("dispersions.orbit.n=-1e-3", "orbit.n \\[rad/s\\] must be >= 0"),
+        ('dispersions.initial.rate={norm={dist="uniform", low=-0.1, high=0.1}}', "initial.rate \\[rad/s\\] must be >= 0"),
     ],
 )
 def test_impossible_dispersions_are_errors(override, match):
     from so3jax import sweep
 
     with pytest.raises(ValueError, match=match):
-        sweep.load_config(None, ("samples=8", override))
+        sweep.load_config(None, ("sweep.samples=8", override))
 
 
 def test_possible_dispersions_are_accepted():
     """A normal's tails below the domain are redrawn or rejected sample by sample."""
     from so3jax import sweep
 
-    sweep.load_config(None, ('deployment.tau_J={dist="normal", mean=300.0, std=200.0}', "inertia.J0.scale=1.0",
-                             'orbit.n={dist="lognormal", median=1e-3, sigma=0.1}'))
+    sweep.load_config(None, ('dispersions.deployment.tau_J={dist="normal", mean=300.0, std=200.0}',
+                             "dispersions.inertia.J0.scale=1.0", 'dispersions.orbit.n={dist="lognormal", median=1e-3, sigma=0.1}'))
 
 
 def test_draw_samples_checks_its_dispersions():
