@@ -149,8 +149,11 @@ def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     table, name, param = path[0], path[1] if len(path) > 1 else "", path[2] if len(path) > 2 else ""
     if len(path) != 3:
         raise ValueError(f"{where} must name a component parameter, e.g. dispersions.{table}.NAME.PARAMETER")
-    flown = mission.sensors if table == "sensors" else {getattr(mission, table)["kind"]: getattr(mission, table)[
-        getattr(mission, table)["kind"]]}
+    if table == "sensors":
+        flown = mission.sensors
+    else:
+        chosen = getattr(mission, table)  # {"kind": name, name: values}
+        flown = {chosen["kind"]: chosen[chosen["kind"]]}
     if name not in flown:
         raise ValueError(f"{where}: the mission flies no {table} {name!r} (flown: {', '.join(flown) or 'none'})")
     kind = "sensor" if table == "sensors" else table
