@@ -68,7 +68,8 @@ def _child(spec: dict) -> list:
         warnings.simplefilter("ignore", InertiaWarning)
         config = sweep.load_config(None, (f"T={spec['T']}",))
     n_steps = steps_for_horizon(config.T, config.dt)
-    mesh = sweep.batch_mesh()
+    layout = spec.get("layout", "chunks")
+    mesh = sweep.batch_mesh(layout)
     chunk = sweep.padded_chunk(spec["chunk"], mesh.size)
     n = -(-spec["samples"] // chunk) * chunk
     params = dispersions.draw_samples(config.dispersions, config.seed, n, config.max_draws).params
@@ -82,10 +83,9 @@ def _child(spec: dict) -> list:
                 if claims is not None and not sweep._take(claims, controller, start):
                     continue
                 part = jax.tree.map(lambda x, start=start: x[start : start + chunk], params)
-                sweep.run_chunk((part, {}), gains, controller, key, mesh, layout)
+                sweep.run_chunk((part, {}), gains, controller, key, mesh)
             distributed.barrier(f"benchmark: {controller} {first}-{last}")
 
-        layout = spec.get("layout", "chunks")
         start = time.perf_counter()
         run(0, chunk)  # every process compiles (layout "chunks": on its own devices)
         first = time.perf_counter() - start
@@ -96,7 +96,7 @@ def _child(spec: dict) -> list:
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
         runs.append(
             {
-                "devices": mesh.size,
+                "devices": jax.device_count(),
                 "processes": jax.process_count(),
                 "layout": layout if jax.process_count() > 1 else None,
                 "hog": spec.get("pin") is not None,

@@ -65,7 +65,7 @@ class _Step:
         import jax
         import jax.numpy as jnp
 
-        from so3jax import tune
+        from so3jax import devices, tune
 
         config = tune.load_config(spec["campaign"], [("T", spec["T"])])
         if batch:
@@ -89,8 +89,8 @@ class _Step:
         one = jnp.ones((), dtype)
         per_scenario = config.cost.mode == "equal_effort" and config.cost.budget_controller is not None
         effort = jnp.ones((self.size,), dtype) if per_scenario else one
-        refs = tune.place(tune.CostRefs(one, effort, jnp.asarray(config.cost.weight, dtype)), problem.mesh)
-        params = tune.place(tune.to_params(initial), problem.mesh)
+        refs = devices.place(tune.CostRefs(one, effort, jnp.asarray(config.cost.weight, dtype)), problem.mesh)
+        params = devices.place(tune.to_params(initial), problem.mesh)
         self.args = (params, problem.scenario, problem.train, refs, problem.loop)
         self.static = {"controller": tune.law(config.mission, config.controller), "mode": config.cost.mode,
                        "gradient": config.gradient, "record_every": problem.record_every, "mesh": problem.mesh}
@@ -98,7 +98,7 @@ class _Step:
         self.jax = jax
 
     def compile(self) -> float:
-        from so3jax import tune
+        from so3jax import devices, tune
 
         params, scenario, batch, refs, loop = self.args
         start = time.perf_counter()

@@ -3,7 +3,7 @@ sampled-data control, actuators), each controller on the same mission and seed."
 
 from __future__ import annotations
 
-import concurrent.futures
+import functools
 import json
 import math
 import sys
@@ -57,27 +57,26 @@ def overrides(args) -> list[str]:
 
 
 def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
-    """Every controller of the mission on its own CPU device (compilations in parallel).
-    Returns {name: Result with NumPy leaves} and the wall time [s], compile included."""
+    """Every controller of the mission, side by side on the CPU devices
+    (:func:`so3jax.devices.side_by_side`: compilations in parallel). Returns {name:
+    Result with NumPy leaves} and the wall time [s], compile included."""
     import jax
 
     import so3jax as sj
+    from so3jax import devices
 
     scenario, loop = mission.scenario(dtype), mission.loop(dtype)
-    devices = jax.devices("cpu")
 
-    def simulate(i, name):
+    def simulate(name):
         controller, gains = mission.controller(name)
-        with warnings.catch_warnings(), jax.default_device(devices[i % len(devices)]):
+        with warnings.catch_warnings():
             warnings.simplefilter("ignore", sj.InertiaWarning)  # reported once, when the mission was read
             result = sj.simulate(scenario, controller, gains, mission.seed, loop=loop,
                                  record_every=mission.record_every)
             return jax.tree.map(np.asarray, result)
 
     start = time.perf_counter()
-    with concurrent.futures.ThreadPoolExecutor(len(mission.controllers)) as pool:
-        futures = {name: pool.submit(simulate, i, name) for i, name in enumerate(mission.controllers)}
-        results = {name: f.result() for name, f in futures.items()}
+    results = devices.side_by_side({name: functools.partial(simulate, name) for name in mission.controllers})
     return results, time.perf_counter() - start
 
 

@@ -1,6 +1,6 @@
 """Several processes on JAX's runtime, tried with two local processes on the CPU (gloo
-collectives, coordinator on 127.0.0.1): the same sweep files as one process with the same
-device count in either layout, a stopped process reported and the sweep finished by
+collectives, coordinator on 127.0.0.1): the same sweep files as one process with as many
+devices as a chunk runs over in either layout, a stopped process reported and the sweep finished by
 --resume, the tuned gains of one process, a coordinator that cannot be reached or peers
 that never join reported within the timeout, processes that do not share the output
 folder told so, an error in one process alone (process 0's or another's) told to the
@@ -85,15 +85,20 @@ def _files(out):
 
 @pytest.fixture(scope="module")
 def one_process(tmp_path_factory):
-    """The sweep in one process with two devices."""
-    out = tmp_path_factory.mktemp("one") / "out"
-    [(rc, _, stderr)] = _finish([_start((*SWEEP, "--out", str(out)), out.parent, devices=2)])
-    assert rc == 0, stderr
-    return _files(out)
+    """The sweep in one process, with one device and with two: {devices: files}."""
+    files = {}
+    for devices in (1, 2):
+        out = tmp_path_factory.mktemp(f"one-{devices}") / "out"
+        [(rc, _, stderr)] = _finish([_start((*SWEEP, "--out", str(out)), out.parent, devices=devices)])
+        assert rc == 0, stderr
+        files[devices] = _files(out)
+    return files
 
 
-@pytest.mark.parametrize("layout", ["chunks", "mesh"])
-def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_process, tmp_path, layout):
+@pytest.mark.parametrize("layout, devices", [("chunks", 1), ("mesh", 2)])
+def test_two_processes_write_what_one_process_with_a_chunks_devices_writes(one_process, tmp_path, layout, devices):
+    """Two processes of one device each: whole chunks ("chunks") run over one device, as in
+    one process with one device; "mesh" runs each chunk over both, as one process with two."""
     results = _finish(_pair(tmp_path / "out", tmp_path, "--layout", layout))
     assert [rc for rc, _, _ in results] == [0, 0], results[0][2][-2000:] + results[1][2][-2000:]
     for _, _, stderr in results:
@@ -101,11 +106,12 @@ def test_two_processes_write_what_one_process_with_as_many_devices_writes(one_pr
     ours = [[line for line in stdout.splitlines() if not line.startswith("[Gloo]")] for _, stdout, _ in results]
     assert any("adaptive vs pd" in line for line in ours[0]) and ours[1] == []  # process 0 reports, once
     csv, arrays, summary = _files(tmp_path / "out")
-    assert csv == one_process[0] and summary == one_process[2]
+    expected = one_process[devices]
+    assert csv == expected[0] and summary == expected[2]
     run = json.loads((tmp_path / "out" / "summary.json").read_text())["run"]
     assert (run["processes"], run["devices"], run["layout"]) == (2, 2, layout)
     assert not (tmp_path / "out" / "chunks" / ".claims").exists()
-    for key, value in one_process[1].items():
+    for key, value in expected[1].items():
         np.testing.assert_array_equal(arrays[key], value, err_msg=key)
 
 
@@ -127,7 +133,7 @@ def test_a_stopped_process_is_reported_and_resume_finishes_the_sweep(one_process
     for _, _, stderr in results:
         _clean(stderr)
     csv, arrays, summary = _files(out)
-    assert csv == one_process[0] and summary == one_process[2]
+    assert csv == one_process[1][0] and summary == one_process[1][2]  # whole chunks, each over one device
 
 
 def test_a_coordinator_that_cannot_be_reached_is_reported_within_the_timeout(tmp_path):

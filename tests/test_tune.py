@@ -269,16 +269,6 @@ def test_a_batch_is_split_only_where_every_device_gets_enough_rollouts():
     assert tune.batch_devices(config(method="es", es={"population": 1}), 16) == 1
 
 
-def test_placement_is_replicated_with_one_sharding():
-    import jax
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
-    mesh = Mesh(np.array(jax.devices()[:1]), (tune.BATCH,))
-    placed = tune.place({"a": jnp.ones(3), "b": jnp.zeros(())}, mesh)
-    assert {x.sharding for x in jax.tree.leaves(placed)} == {NamedSharding(mesh, PartitionSpec())}
-    assert tune.place(placed, None) is placed
-
-
 TWO_DEVICE_RUN = """
 import json, sys, tempfile, warnings
 import jax

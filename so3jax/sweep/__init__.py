@@ -1,18 +1,17 @@
 """``so3jax sweep``: Monte Carlo robustness sweeps of the paper's mission.
 
 Samples (:mod:`so3jax.dispersions`) run with every chosen controller, so results pair
-sample by sample. Rollouts run in chunks; each chunk is split into one shard per device
-JAX sees (every process's), and each shard runs the same single-device executable (a
-natively batched rollout, :func:`so3jax.rollout.rollout_batch`), rather than one
-SPMD-partitioned program. Over several processes, each takes whole chunks as it becomes
-free (a claim file per chunk in the shared output folder) and runs their shards on its
-own devices; with ``--layout mesh`` every chunk runs over all processes' devices at once.
-Results are reproducible bit for bit for a given chunk size and total device count,
-whatever the number of processes or the layout (so a resumed sweep equals an
-uninterrupted one); another chunking
-changes them at round-off only (~1e-15 relative, tested): the batched step is vectorized
-across the shard, and how XLA vectorizes depends on the shard's size. A shard holds at
-least 8 samples.
+sample by sample. Rollouts run in chunks, each split over the devices one chunk runs
+over (:mod:`so3jax.devices`): every device runs the same program (a natively batched
+rollout, :func:`so3jax.rollout.rollout_batch`) on its shard. Over several processes,
+each takes whole chunks as it becomes free (a claim file per chunk in the shared output
+folder) and runs them over its own devices; with ``--layout mesh`` every chunk runs over
+all processes' devices at once. Results are reproducible bit for bit for a given chunk
+size and count of devices a chunk runs over, whatever the number of processes (so a
+resumed sweep equals an uninterrupted one); another chunking or device count changes them
+at round-off only (~1e-15 relative, tested): the batched step is vectorized across the
+shard, and how XLA vectorizes depends on the shard's size and on the program's
+partitioning. A shard holds at least 8 samples.
 A rollout keeps no history (record_every = N): about 2 kB of device memory per sample,
 so the chunk size sets progress and resume granularity rather than memory. Finished
 chunks are saved at once under ``OUT/chunks``; an interrupted sweep resumes
@@ -22,8 +21,8 @@ Output folder: samples.csv / samples.npz (parameters and metrics per sample),
 summary.json and summary.md (statistics, diverged samples, paired comparison),
 cdf.png, histograms.png, rmse_vs_inertia_scale.png.
 
-Modules: config (SweepConfig, TOML parsing, defaults), engine (batched executables,
-chunks over devices, run_sweep), storage (output folder, chunk files, resume, outputs),
+Modules: config (SweepConfig, TOML parsing, defaults), engine (a chunk's shards over
+the devices, run_sweep), storage (output folder, chunk files, resume, outputs),
 summary (per-sample table, statistics), plots (figures), cli (the subcommand).
 """
 
@@ -36,7 +35,6 @@ from so3jax.sweep.config import (
     load_config,
 )
 from so3jax.sweep.engine import (
-    BATCH,
     LAYOUTS,
     MIN_SHARD,
     batch_mesh,
@@ -54,7 +52,6 @@ from so3jax.sweep.plots import figures
 from so3jax.sweep.cli import main, register
 
 __all__ = [
-    "BATCH",
     "DEFAULT",
     "LAYOUTS",
     "MIN_SHARD",

@@ -1,5 +1,5 @@
-"""Running a sweep: each sample's mission, the batched single-device executables, a
-chunk split into one shard per device, and the chunk loop (run_sweep)."""
+"""Running a sweep: each sample's mission, a chunk of samples split over the devices
+(:mod:`so3jax.devices`), and the chunk loop (run_sweep)."""
 
 from __future__ import annotations
 
@@ -7,15 +7,14 @@ import functools
 import operator
 import shutil
 import time
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec, SingleDeviceSharding
+from jax.sharding import Mesh
 
-from so3jax import dispersed, distributed, runfolder
+from so3jax import devices, dispersed, distributed, runfolder
 from so3jax import dispersions as disp
 from so3jax.io import save_npz
 from so3jax.metrics import Metrics
@@ -25,7 +24,6 @@ from so3jax.sweep.config import SweepConfig, config_to_dict
 from so3jax.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
 from so3jax.sweep.summary import summarize
 
-BATCH = "batch"
 MIN_SHARD = 8  # samples per device and batch, at least
 LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
@@ -40,13 +38,8 @@ def mission_key(mission) -> str:
     return key
 
 
-@functools.partial(jax.jit, static_argnames=("controller", "mission"))
-def simulate_batch(inputs, gains, *, controller: str, mission: str) -> Metrics:
-    """Metrics of a batch of samples: inputs = (RolloutParams, {dispersed component
-    parameter: values}), leading batch axis. Their scenarios share the mission's loop and
-    run natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a vmap of
-    rollouts); with dispersed component parameters, each sample's loop is its own (a vmap
-    of rollouts)."""
+def _simulate_shard(inputs, gains, *, controller: str, mission: str) -> Metrics:
+    """Metrics of a batch of samples on one device (see :func:`simulate_batch`)."""
     params, leaves = inputs
     m = _MISSIONS[mission]
     law, dtype = m.controller(controller)[0], params.J0.dtype
@@ -61,9 +54,22 @@ def simulate_batch(inputs, gains, *, controller: str, mission: str) -> Metrics:
     return jax.vmap(one)(scenarios, params.seed, leaves)
 
 
-def batch_mesh() -> Mesh:
-    """A Mesh of every device JAX sees (all processes), over the batch axis."""
-    return Mesh(np.array(jax.devices()), (BATCH,))
+@functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
+def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh | None = None) -> Metrics:
+    """Metrics of a batch of samples: inputs = (RolloutParams, {dispersed component
+    parameter: values}), leading batch axis, split over the devices of ``mesh``
+    (:func:`so3jax.devices.split`; None: one device). Their scenarios share the mission's
+    loop and run natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a
+    vmap of rollouts); with dispersed component parameters, each sample's loop is its own
+    (a vmap of rollouts)."""
+    shard = functools.partial(_simulate_shard, controller=controller, mission=mission)
+    return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
+
+
+def batch_mesh(layout: str = "mesh") -> Mesh:
+    """The devices one chunk runs over: every device JAX sees (all processes) with layout
+    "mesh", this process's own with layout "chunks" (the same in one process)."""
+    return devices.mesh(jax.devices() if layout == "mesh" else jax.local_devices())
 
 
 def padded_chunk(chunk: int, n_devices: int) -> int:
@@ -71,58 +77,17 @@ def padded_chunk(chunk: int, n_devices: int) -> int:
     return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
 
 
-_EXECUTABLES: dict = {}  # (controller, mission, device, argument shapes) -> compiled simulate_batch
-
-
-def _executables(controller: str, mission: str, devices, args) -> list:
-    """simulate_batch compiled for each device (args: one shard's (inputs, gains), arrays);
-    the missing ones are lowered one by one and compiled in parallel."""
-    signature = tuple((x.shape, x.dtype) for x in jax.tree.leaves(args))
-    keys = [(controller, mission, device, signature) for device in devices]
-    missing = list(dict.fromkeys(key for key in keys if key not in _EXECUTABLES))
-    if missing:
-
-        def lower(device):
-            spec = lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype, sharding=SingleDeviceSharding(device))
-            return simulate_batch.lower(*jax.tree.map(spec, args), controller=controller, mission=mission)
-
-        lowered = [lower(key[2]) for key in missing]
-        with ThreadPoolExecutor(len(lowered)) as pool:
-            _EXECUTABLES.update(zip(missing, pool.map(lambda low: low.compile(), lowered)))
-    return [_EXECUTABLES[key] for key in keys]
-
-
-def _run_shards(shards: list, gains, controller: str, mission: str, devices) -> list:
-    """Metrics of each shard (equal sizes), shard j on devices[j]; dispatched before any is read."""
-    executables = _executables(controller, mission, devices, (shards[0], gains))
-    return [f(*jax.device_put((shard, gains), device)) for f, shard, device in zip(executables, shards, devices)]
-
-
-def run_chunk(inputs, gains, controller: str, mission: str, mesh: Mesh, layout: str = "chunks") -> dict:
-    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size, in mesh.size
-    equal shards, each run by ``simulate_batch`` on one device: the same shard programs, so
-    the same bits, whichever devices run them. Layout "chunks": this process runs every
-    shard on its own devices in turn. Layout "mesh": each process runs the shards of its
-    devices in the mesh, and the processes exchange their results. inputs: (RolloutParams,
-    dispersed component values), see :func:`simulate_batch`."""
-    n = len(inputs[0].seed)
-    if layout == "mesh" and jax.process_count() > 1:
+def run_chunk(inputs, gains, controller: str, mission: str, mesh: Mesh) -> dict:
+    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size, split over
+    the mesh's devices (:func:`simulate_batch`). Over several processes with a mesh of
+    every process's devices, each process runs its devices' shards and the processes
+    exchange their results. inputs: (RolloutParams, dispersed component values)."""
+    out = simulate_batch(*devices.place((inputs, gains), mesh), controller=controller, mission=mission, mesh=mesh)
+    if not out.rmse.is_fully_addressable:  # a mesh of several processes
         from jax.experimental import multihost_utils
 
-        sharding = NamedSharding(mesh, PartitionSpec(BATCH))
-        index_map = sharding.addressable_devices_indices_map((n,))
-        shards = [jax.tree.map(operator.itemgetter(index), inputs) for index in index_map.values()]
-        outputs = _run_shards(shards, gains, controller, mission, list(index_map))
-        out = jax.tree.map(
-            lambda *parts: jax.make_array_from_single_device_arrays((n,) + parts[0].shape[1:], sharding, list(parts)),
-            *outputs,
-        )
         out = multihost_utils.process_allgather(out, tiled=True)
-        return {k: np.asarray(v) for k, v in out._asdict().items()}
-    size, local = n // mesh.size, jax.local_devices()
-    shards = [jax.tree.map(lambda x: x[j * size : (j + 1) * size], inputs) for j in range(mesh.size)]
-    outputs = _run_shards(shards, gains, controller, mission, [local[j % len(local)] for j in range(mesh.size)])
-    return {k: np.concatenate([np.asarray(getattr(o, k)) for o in outputs]) for k in Metrics._fields}
+    return {k: np.asarray(v) for k, v in out._asdict().items()}
 
 
 def run_sweep(
@@ -132,8 +97,10 @@ def run_sweep(
     """Run (or finish, with resume) a sweep; write the output folder; return the summary.
     ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate.
     Over several processes, ``layout`` "chunks" gives each process whole chunks (the next
-    unclaimed one whenever it is free) and "mesh" runs every chunk over all processes'
-    devices; both write the same files (see :func:`run_chunk`)."""
+    unclaimed one whenever it is free), run over its own devices, and "mesh" runs every
+    chunk over all processes' devices. The files are those of one process with as many
+    devices as a chunk runs over (:func:`batch_mesh`), bit for bit: each device runs the
+    same program on a shard of the same samples."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     settings = dict(config_to_dict(config), mission=config.mission.describe())
@@ -174,7 +141,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     key = mission_key(config.mission)
     valid = np.flatnonzero(samples.valid)
     n_steps = steps_for_horizon(config.T, config.dt)
-    mesh = batch_mesh()
+    mesh = batch_mesh(layout)
     chunk = padded_chunk(config.chunk, mesh.size)
     budget = memory.check(memory_needed(config, inputs, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
                           "lower --chunk or --samples")
@@ -211,7 +178,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
             padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
             chunk_inputs = jax.tree.map(operator.itemgetter(padded), inputs)
             with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
-                metrics = run_chunk(chunk_inputs, gains, controller, key, mesh, layout)
+                metrics = run_chunk(chunk_inputs, gains, controller, key, mesh)
             if distributed.writer() or share:
                 save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
             if share:  # count every process's saved chunks
@@ -229,7 +196,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     results = load_chunks(out, config.controllers, config.samples, fingerprint)
     summary = summarize(config, samples, results)
     summary["run"] = {
-        "devices": mesh.size,
+        "devices": jax.device_count(),
         "processes": processes,
         "layout": layout,
         "chunk": chunk,

@@ -60,10 +60,10 @@ from so3jax.tune.config import (
     validate,
 )
 from so3jax.tune.config import _SECTIONS  # noqa: F401 (tests walk the config's sections)
-from so3jax.tune.cost import BATCH, CostRefs, Evaluation, cost_and_grad, population_costs, scenario_costs
+from so3jax.tune.cost import CostRefs, Evaluation, cost_and_grad, population_costs, scenario_costs
 from so3jax.tune.cost import _batch_metrics  # noqa: F401 (tests: the cost's metrics without the gradient)
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
-from so3jax.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate, place
+from so3jax.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate
 from so3jax.tune.storage import CHECKPOINT, check_fingerprint, load_checkpoint, save_checkpoint, write_history
 from so3jax.tune.storage import _best_row  # noqa: F401 (tests)
 from so3jax.tune.plots import plot_history
@@ -72,7 +72,6 @@ from so3jax.tune.campaign import tune
 from so3jax.tune.cli import DEFAULT_OUT, register
 
 __all__ = [
-    "BATCH",
     "CHECKPOINT",
     "CONTROLLERS",
     "COST_MODES",
@@ -111,7 +110,6 @@ __all__ = [
     "make_optimizer",
     "markdown_table",
     "parse_config",
-    "place",
     "plot_history",
     "population_costs",
     "register",

@@ -13,12 +13,13 @@ import numpy as np
 import optax
 
 from so3jax import distributed, io, runfolder
+from so3jax.devices import place
 from so3jax.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
 from so3jax.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
 from so3jax.tune.plots import plot_history
-from so3jax.tune.problem import build_problem, cost_refs, evaluate, place
+from so3jax.tune.problem import build_problem, cost_refs, evaluate
 from so3jax.tune.storage import (
     CHECKPOINT,
     _best_row,

@@ -8,8 +8,8 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-from jax.sharding import PartitionSpec
 
+from so3jax import devices
 from so3jax.gradients import batch_metrics, value_and_grad
 from so3jax.loop import PAPER_LOOP
 from so3jax.tune.gains import to_gains
@@ -50,36 +50,14 @@ def _summary(metrics, refs, mode) -> Evaluation:
     )
 
 
-BATCH = "batch"  # the mesh axis the scenario batch is split along
-
-
 def _metrics(scenario, controller, gains, batch, record_every, mesh, loop):
-    """batch_metrics through ``loop``, split along the batch over the devices of mesh (None:
-    one device).
-
-    Each device runs the single-device rollout on its shard (``jax.shard_map``): nothing
-    crosses devices inside the time loop. The batch is padded to a multiple of the mesh
-    size by repeating its last scenario, and the padding is dropped from the result.
-    """
+    """batch_metrics through ``loop``, the batch split over the devices of mesh (None: one
+    device; :func:`so3jax.devices.split`)."""
 
     def run(scenario, gains, batch, loop):
         return batch_metrics(scenario, controller, gains, batch, record_every=record_every, loop=loop)
 
-    if mesh is None:
-        return run(scenario, gains, batch, loop)
-    n = batch.seed.shape[0]
-    index = jnp.minimum(jnp.arange(-(-n // mesh.size) * mesh.size), n - 1)
-    padded = jax.tree.map(lambda x: x[index], batch)
-    # check_vma=False: the rollout's loop carries start from the shared scenario and become
-    # per-device; without the check, the gradient of the shared gains sums over devices.
-    sharded = jax.shard_map(
-        run,
-        mesh=mesh,
-        in_specs=(PartitionSpec(), PartitionSpec(), PartitionSpec(BATCH), PartitionSpec()),
-        out_specs=PartitionSpec(BATCH),
-        check_vma=False,
-    )
-    return jax.tree.map(lambda x: x[:n], sharded(scenario, gains, padded, loop))
+    return devices.split(run, mesh, batched=(False, False, True, False))(scenario, gains, batch, loop)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "mesh"))

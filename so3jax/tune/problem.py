@@ -8,14 +8,15 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jax.sharding import Mesh
 
+from so3jax import devices
+from so3jax.devices import place
 from so3jax.gradients import Batch, make_batch
 from so3jax.loop import Loop
 from so3jax.scenario import Scenario
 from so3jax.tune.config import TuneConfig
-from so3jax.tune.cost import BATCH, CostRefs, _batch_metrics
+from so3jax.tune.cost import CostRefs, _batch_metrics
 from so3jax.tune.gains import law, resolve_gains
 
 
@@ -32,17 +33,6 @@ class Problem(NamedTuple):
     mission: object  # so3jax.mission.Mission: the controllers' options and gains
 
 
-def place(tree, mesh: Mesh | None):
-    """Put tree on every device of the mesh, replicated (the jitted functions split the
-    scenario batch over the mesh themselves), so that jit sees the same placement at
-    every call and compiles once per shape."""
-    if mesh is None:
-        return tree
-    if jax.process_count() > 1:  # every process holds the same values: give them as host data
-        tree = jax.tree.map(np.asarray, tree)
-    return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
-
-
 # Rollouts per device and evaluation, at least, for a batch to be split. One device runs a
 # batch natively vectorized (CPU time of a tuning step, PD, forward gradient, T = 20 s, an
 # AMD EPYC core: 1 scenario 6.7 ms, 2: 11.7, 4: 13.2, 32: ~60, 64: ~104), and the shards
@@ -57,17 +47,17 @@ def batch_devices(config: TuneConfig, n_devices: int) -> int:
     rollouts per evaluation (scenarios x ES population members) and one scenario."""
     scenarios = len(config.train.seeds) * len(config.train.inertia_scales)
     rollouts = scenarios * (config.es.population if config.method == "es" else 1)
-    return max(1, min(n_devices, scenarios, rollouts // MIN_SHARD))
+    return min(scenarios, devices.devices_for(rollouts, n_devices, MIN_SHARD))
 
 
 def build_problem(config: TuneConfig) -> Problem:
     dtype = jnp.result_type(float)
     scenario, loop = config.mission.scenario(dtype), config.mission.loop(dtype)
     if jax.process_count() > 1:  # several processes: the batch is split over all of their devices
-        devices = jax.devices()
+        used = jax.devices()
     else:
-        devices = jax.devices()[: batch_devices(config, jax.device_count())]
-    mesh = Mesh(np.array(devices), (BATCH,)) if len(devices) > 1 else None
+        used = jax.devices()[: batch_devices(config, jax.device_count())]
+    mesh = devices.mesh(used) if len(used) > 1 else None
     train, validation = (
         place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
     )
