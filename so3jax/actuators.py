@@ -203,6 +203,11 @@ class Wheels(Actuator):
     constant motor-torque command per wheel (N,) [N m] that replaces the distributed
     command (open-loop and identification runs: the controller's command is not used),
     each wheel clipped on its own.
+
+    axes and spin_inertia are the wheels as the flight software knows them (the command's
+    distribution and momentum compensation); plant_axes (3, N) and plant_spin_inertia (N,)
+    are the wheels the body carries, where they differ (a misaligned spin axis, a spin
+    inertia error; None: as known).
     """
 
     axes: jax.Array
@@ -212,14 +217,21 @@ class Wheels(Actuator):
     initial_speed: jax.Array
     momentum_compensation: bool = static_field(default=True)
     motor_torque: jax.Array | None = None
+    plant_axes: jax.Array | None = None
+    plant_spin_inertia: jax.Array | None = None
 
     @property
     def count(self) -> int:
         return np.shape(self.axes)[1]
 
-    def _axes(self, like):
-        """G_s as (3, N, 1, ...) in the dtype of ``like`` (3 or N, *b)."""
-        return so3.batch_like(jnp.asarray(self.axes).astype(like.dtype), 2, like)
+    def _axes(self, like, plant: bool = False):
+        """G_s (the plant's with ``plant``) as (3, N, 1, ...) in the dtype of ``like`` (3 or N, *b)."""
+        G = self.plant_axes if plant and self.plant_axes is not None else self.axes
+        return so3.batch_like(jnp.asarray(G).astype(like.dtype), 2, like)
+
+    def _plant_spin_inertia(self):
+        """J_s of the wheels the body carries (N,) [kg m^2]."""
+        return self.spin_inertia if self.plant_spin_inertia is None else self.plant_spin_inertia
 
     def init(self, batch_shape, dtype):
         """Omega_w(0) broadcast to (N, *batch_shape) [rad/s]."""
@@ -228,13 +240,15 @@ class Wheels(Actuator):
         return jnp.broadcast_to(speed, speed.shape[:1] + tuple(batch_shape))
 
     def _spin_inertia_matrix(self, dtype):
-        """G_s J_s G_s^T (3, 3) [kg m^2]."""
-        return _weighted_gram(jnp.asarray(self.axes).astype(dtype), jnp.asarray(self.spin_inertia).astype(dtype))
+        """G_s J_s G_s^T (3, 3) [kg m^2] of the wheels the body carries."""
+        G = self.axes if self.plant_axes is None else self.plant_axes
+        return _weighted_gram(jnp.asarray(G).astype(dtype), jnp.asarray(self._plant_spin_inertia()).astype(dtype))
 
     def spin_inertia_values(self):
         """G_s J_s G_s^T (3, 3) [kg m^2] as a NumPy array, or None where a parameter is
         traced (the checks' host-side copy of :meth:`_spin_inertia_matrix`)."""
-        G, J_s = _values(self.axes), _values(self.spin_inertia)
+        G = _values(self.axes if self.plant_axes is None else self.plant_axes)
+        J_s = _values(self._plant_spin_inertia())
         if G is None or J_s is None or G.ndim != 2 or J_s.shape != G.shape[1:]:
             return None
         return (G * J_s) @ G.T
@@ -246,13 +260,15 @@ class Wheels(Actuator):
         return J - self._spin_inertia_matrix(J.dtype).reshape((3, 3) + (1,) * (J.ndim - 2))
 
     def momentum(self, state, Omega):
-        """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (SPEC 8.4)."""
+        """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (SPEC 8.4), as the flight
+        software models it (the momentum compensation's h_w_hat)."""
         G = self._axes(Omega)
         return _spin_sum(G, _per_wheel(self.spin_inertia, Omega) * (so3.rmatvec(G, Omega) + state))
 
     def stored_momentum(self, state):
-        """(G_s J_s G_s^T, G_s J_s Omega_w): h_w = G_s J_s G_s^T Omega + G_s J_s Omega_w (SPEC 8.4)."""
-        relative = _spin_sum(self._axes(state), _per_wheel(self.spin_inertia, state) * state)
+        """(G_s J_s G_s^T, G_s J_s Omega_w): h_w = G_s J_s G_s^T Omega + G_s J_s Omega_w (SPEC 8.4),
+        of the wheels the body carries."""
+        relative = _spin_sum(self._axes(state, plant=True), _per_wheel(self._plant_spin_inertia(), state) * state)
         return StoredMomentum(self._spin_inertia_matrix(state.dtype), relative)
 
     def distribute(self, tau):
@@ -280,8 +296,8 @@ class Wheels(Actuator):
         return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
 
     def body_torque(self, state, held, Omega):
-        """-G_s u (3, *b) [N m]."""
-        return -_spin_sum(self._axes(held.u), held.u)
+        """-G_s u (3, *b) [N m], along the axes the body carries."""
+        return -_spin_sum(self._axes(held.u, plant=True), held.u)
 
     def _compensation(self, state, omega_hat):
         """omega_hat x h_w_hat (3, *b) [N m]."""
@@ -294,7 +310,7 @@ class Wheels(Actuator):
 
     def derivative(self, state, held, Omega, Omega_dot):
         """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (SPEC 8.4)."""
-        return held.u / _per_wheel(self.spin_inertia, Omega) - so3.rmatvec(self._axes(Omega), Omega_dot)
+        return held.u / _per_wheel(self._plant_spin_inertia(), Omega) - so3.rmatvec(self._axes(Omega, plant=True), Omega_dot)
 
     def effort(self, held):
         """sum_i u_i^2 [N^2 m^2]."""
@@ -327,6 +343,10 @@ class Wheels(Actuator):
         _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
         if self.motor_torque is not None:
             _check_values("wheel motor_torque [N m]", self.motor_torque, (n,))
+        if self.plant_axes is not None:
+            _check_values("wheel plant_axes", self.plant_axes, shape)
+        if self.plant_spin_inertia is not None:
+            _check_values("wheel plant_spin_inertia [kg m^2]", self.plant_spin_inertia, (n,), positive=True)
         speed, limit = _values(self.initial_speed), _values(self.max_speed)
         if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
             i = int(np.argmax(np.abs(speed) > limit))
@@ -361,7 +381,7 @@ def pyramid_axes(n: int = 4, elevation_deg: float = 54.74, azimuth0_deg: float =
 _PYRAMID = [[0.8165408118857462, 0.0, 0.5772877120855479], [0.0, 0.8165408118857462, 0.5772877120855479],
             [-0.8165408118857462, 0.0, 0.5772877120855479], [0.0, -0.8165408118857462, 0.5772877120855479]]
 _PER_WHEEL = ((), (None,))  # one value for every wheel, or one per wheel
-_WHEEL_LISTS = ("spin_inertia", "max_torque", "max_speed", "initial_speed")
+_WHEEL_LISTS = ("spin_inertia", "max_torque", "max_speed", "initial_speed", "spin_inertia_error")
 
 
 def _wheel_values(values: dict) -> dict:
@@ -373,6 +393,11 @@ def _wheel_values(values: dict) -> dict:
         if v.shape not in ((), (n,)):
             raise ValueError(f"actuator.wheels.{key} must be one number or {n} (one per wheel), got {v.shape[0]}")
         out[key] = np.broadcast_to(v, (n,)).copy()
+    if out["misalignment"] is None:
+        out["misalignment"] = np.zeros((n, 3))
+    elif np.shape(out["misalignment"]) != (n, 3):
+        raise ValueError(f"actuator.wheels.misalignment [rad] must hold {n} rotation vectors (one per wheel), "
+                         f"got shape {np.shape(out['misalignment'])}")
     motor = values["motor_torque"]
     if motor is not None and np.shape(motor) != (n,):
         raise ValueError(f"actuator.wheels.motor_torque [N m] must hold {n} values (one per wheel), got {np.size(motor)}")
@@ -400,11 +425,21 @@ def _wheel_figures(histories, phase_times, T, w: dict) -> dict:
             "momentum.png": flight_plots.momentum_figure(histories, phase_times, T, capacity)}
 
 
+def _known_zero(x) -> bool:
+    """x is concrete and all zero (a dispersed, traced value is not)."""
+    return isinstance(x, (int, float, np.ndarray, list)) and not np.any(np.asarray(x))
+
+
 def _wheels(w: dict, ctx) -> Wheels:
+    """The wheels; where misalignment or spin_inertia_error is not zero, the plant's axes
+    g_i' = exp(hat(misalignment_i)) g_i and spin inertias J_s (1 + spin_inertia_error)."""
     a = ctx.as_array
     motor = None if w["motor_torque"] is None else a(w["motor_torque"])
-    return Wheels(a(w["axes"].T), a(w["spin_inertia"]), a(w["max_torque"]), a(w["max_speed"]), a(w["initial_speed"]),
-                  bool(w["momentum_compensation"]), motor)
+    axes, spin = a(w["axes"].T), a(w["spin_inertia"])
+    plant_axes = None if _known_zero(w["misalignment"]) else so3.matvec(so3.exp(a(w["misalignment"]).T), axes)
+    plant_spin = None if _known_zero(w["spin_inertia_error"]) else spin * (1 + a(w["spin_inertia_error"]))
+    return Wheels(axes, spin, a(w["max_torque"]), a(w["max_speed"]), a(w["initial_speed"]),
+                  bool(w["momentum_compensation"]), motor, plant_axes, plant_spin)
 
 
 components.register(components.ComponentSpec(
@@ -428,6 +463,11 @@ components.register(components.ComponentSpec(
         Param("momentum_compensation", True, boolean=True, doc="command tau_c + omega_hat x h_w_hat"),
         Param("motor_torque", None, "N m", shapes=((None,),),
               doc="a constant motor-torque command per wheel, replacing the controller's (open loop)"),
+        Param("misalignment", None, "rad", shapes=((None, 3),),
+              doc="each wheel's spin axis in the body rotated by this rotation vector, the flight software "
+                  "keeping `axes` (default: none)"),
+        Param("spin_inertia_error", 0.0, "-", shapes=_PER_WHEEL, low=-0.9, high=10.0,
+              doc="the body's wheels have J_s (1 + error), the flight software keeping `spin_inertia`"),
     ),
     complete=_complete_wheels,
     figures=_wheel_figures,

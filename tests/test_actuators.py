@@ -370,3 +370,37 @@ def test_a_per_wheel_motor_torque_command_clips_each_wheel_on_its_own():
     np.testing.assert_allclose(np.asarray(h.tau)[1:], np.broadcast_to(-G @ u, (len(t) - 1, 3)), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="motor_torque"):
         missions.load(None, ["actuator.wheels.motor_torque=[0.1, 0.1]"])
+
+
+def test_misaligned_wheels_act_along_the_plant_s_axes_while_the_command_uses_the_nominal():
+    """actuator.wheels.misalignment and spin_inertia_error: the motor torques (distribution,
+    momentum compensation, limits) are the nominal wheels'; the body torque, the wheels'
+    rates and the stored momentum follow the axes rotated by scipy's Rotation and
+    J_s (1 + error)."""
+    from scipy.spatial.transform import Rotation
+
+    from so3jax import mission
+
+    theta = np.array([[0.01, -0.02, 0.005], [0.0, 0.03, 0.0], [-0.01, 0.0, 0.02], [0.004, 0.004, -0.004]])  # rad
+    error = np.array([0.05, -0.1, 0.0, 0.2])
+    flight = mission.load(None, ["T=1.0"])
+    nominal = mission._build_loop(flight, jnp.asarray).actuator
+    tilted = mission._build_loop(mission.load(None, ["T=1.0", f"actuator.wheels.misalignment={theta.tolist()}",
+                                                     f"actuator.wheels.spin_inertia_error={error.tolist()}"]),
+                                 jnp.asarray).actuator
+    speed, tau_c, omega = jnp.asarray(WHEEL0), jnp.asarray([0.05, -0.02, 0.03]), jnp.asarray(OMEGA0)
+    held = tilted.command(speed, tau_c, omega)
+    nominal_held = nominal.command(speed, tau_c, omega)
+    np.testing.assert_array_equal(held.u, nominal_held.u)
+    np.testing.assert_array_equal(held.compensation, nominal_held.compensation)
+
+    G = Rotation.from_rotvec(theta).apply(pyramid_axes(4).T).T  # (3, N): the body's spin axes
+    spin = 0.16 * (1 + error)
+    np.testing.assert_allclose(tilted.body_torque(speed, held, omega), -G @ np.asarray(held.u), rtol=1e-12, atol=1e-15)
+    assert np.linalg.norm(np.asarray(tilted.body_torque(speed, held, omega) - nominal.body_torque(speed, held, omega))) > 1e-4
+    Omega_dot = np.array([1e-3, -2e-3, 5e-4])
+    np.testing.assert_allclose(tilted.derivative(speed, held, omega, jnp.asarray(Omega_dot)),
+                               np.asarray(held.u) / spin - G.T @ Omega_dot, rtol=1e-12)
+    stored = tilted.stored_momentum(speed)
+    np.testing.assert_allclose(stored.locked_inertia, G @ np.diag(spin) @ G.T, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(stored.relative, G @ (spin * WHEEL0), rtol=1e-12)

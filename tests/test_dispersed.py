@@ -114,12 +114,18 @@ FLIGHT_SWEEP = {
     "sweep": {"samples": 8, "chunk": 8},
     "dispersions": {**LEAVES, "inertia": {"J0": {"scale": {"dist": "uniform", "low": 0.8, "high": 1.2}}}},
 }
+FLIGHT_SWEEP["dispersions"]["actuator"] = {"wheels": {
+    **LEAVES["actuator"]["wheels"],
+    "misalignment": {"dist": "normal", "mean": 0.0, "std": 0.05},  # the plant's spin axes, the controller's nominal
+    "spin_inertia_error": {"dist": "normal", "mean": 0.0, "std": 0.1},
+}}
 
 
 def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
-    """A sweep of the flight mission dispersing a sensor, an actuator and an inertia leaf:
-    each sample's metrics equal those of the mission written with that sample's values and
-    flown on its own (the filter assuming the nominal gyro), and differ between samples."""
+    """A sweep of the flight mission dispersing a sensor, actuator leaves (torque limits,
+    misalignment, spin-inertia errors) and an inertia leaf: each sample's metrics and
+    flight metrics equal those of the mission written with that sample's values and flown
+    on its own (the filter assuming the nominal gyro), and differ between samples."""
     from so3jax import fly, sweep
     from so3jax.io import to_builtin
 
@@ -128,11 +134,15 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
     with np.load(tmp_path / "out" / "samples.npz") as f:
         t = {k: f[k] for k in f.files}
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
+    assert (tmp_path / "out" / "flight.png").exists()  # time at a torque limit against the dispersed limit
     for i in (0, 5):
         J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"] for a in "xyz"]
              for name in ("J0", "J1", "J2")}
         overrides = [f"sensors.gyro.arw={float(t['sensors.gyro.arw'][i])!r}", "estimator.mekf.arw=1e-6",
                      f"actuator.wheels.max_torque={to_builtin([t[f'actuator.wheels.max_torque_{w}'][i] for w in range(1, 5)])}",
+                     f"actuator.wheels.spin_inertia_error={to_builtin([t[f'actuator.wheels.spin_inertia_error_{w}'][i] for w in range(1, 5)])}",
+                     "actuator.wheels.misalignment="
+                     + repr(to_builtin([[t[f"actuator.wheels.misalignment_{3 * w + a + 1}"][i] for a in range(3)] for w in range(4)])),
                      *(f"inertia.{name}.nominal={to_builtin(J[name])}" for name in ("J0", "J1", "J2")),
                      f"deployment.tau_J={float(t['tau_J'][i])!r}"]
         tables = {k: v for k, v in FLIGHT_SWEEP.items() if k not in ("sweep", "dispersions")}
@@ -141,6 +151,9 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
             result = fly.fly(mission.from_dict(_with(tables, overrides)))[0]["pd"]
         for key in ("rmse", "effort"):
             np.testing.assert_allclose(float(result.metrics._asdict()[key]), t[f"pd_{key}"][i], rtol=1e-9, err_msg=key)
+        for key, value in result.flight._asdict().items():
+            np.testing.assert_allclose(float(value), t[f"pd_{key}"][i], rtol=1e-9, atol=1e-12, err_msg=key)
+        assert t["pd_time_at_torque_limit"][i] > 0  # the limits bind: the dispersed limits matter
 
 
 def _with(tables: dict, overrides: list) -> dict:

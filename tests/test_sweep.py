@@ -372,3 +372,54 @@ def test_statistics_are_over_finite_samples_and_null_without_any():
     text = sweep.format_summary(summary)
     assert "| pd | mission | " + " | ".join(["diverged"] * len(sweep.STAT_NAMES)) + " | 0 |" in text
     assert "nan" not in text.lower() and "lower in" not in text
+
+
+def test_flight_metrics_are_summarized_and_samples_at_a_limit_flagged():
+    """Made-up flight results (no rollout), T = 10 s, limit_share 0.05 (0.5 s): a sample is
+    flagged where its time at either limit exceeds 0.5 s; flight statistics skip diverged
+    samples; paired differences are in the metrics' units."""
+    from so3jax.flight_metrics import FlightMetrics
+
+    cfg = config("sweep.samples=4", 'controllers=["pd", "adaptive"]', "T=10.0", "sweep.limit_share=0.05")
+    samples = disp.draw_samples(cfg.dispersions, 0, 4, 20)
+    n, phases = 4, len(sweep.PHASE_NAMES)
+
+    def results(torque, speed, estimation, nonfinite=(0, 0, 0, 0)):
+        r = {f: np.full((n, phases) if f.endswith("_phase") else n, 0.5) for f in sweep.Metrics._fields}
+        r.update({f: np.full(n, 0.0) for f in FlightMetrics._fields})
+        r["diverged"] = np.asarray(nonfinite, float)
+        r["max_angle_phase"] = np.full((n, phases), 0.1)
+        r.update(time_at_torque_limit=np.asarray(torque, float), time_at_speed_limit=np.asarray(speed, float),
+                 attitude_estimation_rms=np.asarray(estimation, float), done=np.ones(n, bool))
+        return r
+
+    res = {"pd": results([0.0, 0.5, 0.6, 0.0], [0.0, 0.0, 0.0, 2.0], [1e-5, 2e-5, 3e-5, 4e-5]),
+           "adaptive": results([0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 0.0], [2e-5, 3e-5, 4e-5, 5e-5], (0, 0, 0, 1))}
+    summary = sweep.summarize(cfg, samples, res)
+    pd, adaptive = summary["controllers"]["pd"], summary["controllers"]["adaptive"]
+    assert pd["at_limit"] == {"share": 0.05, "samples": 2, "indices": [2, 3]}  # 0.5 s is not more than 5 %
+    assert adaptive["at_limit"]["samples"] == 0
+    assert pd["flight"]["attitude_estimation_rms"]["mean"] == pytest.approx(2.5e-5)
+    assert adaptive["flight"]["attitude_estimation_rms"]["samples"] == 3  # the non-finite sample left out
+    assert adaptive["flight"]["attitude_estimation_rms"]["max"] == pytest.approx(4e-5)
+    difference = summary["paired"]["adaptive_vs_pd"]["flight_difference"]
+    assert difference["attitude_estimation_rms"]["mean"] == pytest.approx(1e-5)
+    assert difference["time_at_torque_limit"]["p50"] == pytest.approx(-0.5)  # over samples 0-2
+    cols = sweep.columns(cfg, samples, res)
+    np.testing.assert_array_equal(cols["pd_at_limit"], [0, 0, 1, 1])
+    text = sweep.format_summary(summary)
+    assert "| pd | 4 | 0 | 0 | 2 |" in text and "more than 5 % of the horizon" in text
+    assert "| time_at_torque_limit [s] | pd |" in text
+
+
+def test_the_flight_sweep_file_disperses_the_flight_hardware():
+    """sweeps/flight.toml: the flight mission with its sensors', wheels' and the scenario's
+    dispersions (parsed only; tests/test_dispersed.py flies such a sweep)."""
+    cfg = sweep.load_config(Path(__file__).resolve().parents[1] / "sweeps" / "flight.toml")
+    assert cfg.mission.period_steps == 10 and cfg.mission.actuator["kind"] == "wheels"
+    assert {leaf.key for leaf in cfg.leaves} == {
+        "sensors.gyro.arw", "sensors.gyro.rrw", "sensors.gyro.bias0", "sensors.star_tracker.sigma",
+        "actuator.wheels.max_torque", "actuator.wheels.max_speed", "actuator.wheels.initial_speed",
+        "actuator.wheels.misalignment", "actuator.wheels.spin_inertia_error"}
+    default = sweep.load_config(None)
+    assert cfg.dispersions == default.dispersions  # the scenario dispersed as sweeps/default.toml does it

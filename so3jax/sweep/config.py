@@ -14,7 +14,8 @@ from so3jax import mission as missions
 
 # The default sweep (sweeps/default.toml, on the paper's mission).
 DEFAULT = {
-    "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0},
+    "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0,
+              "limit_share": 0.05},
     "dispersions": {
         "inertia": {
             "J0": {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},
@@ -46,7 +47,9 @@ class SweepConfig:
     chunk: samples per batch (at least 8 per device, a multiple of the device count);
     max_draws: attempts at a positive definite sample before it is rejected; a sample
     diverged when its state is non-finite or its attitude error exceeds
-    divergence_angle_deg [deg]. table: the [dispersions] table as given.
+    divergence_angle_deg [deg]; in a loop with limits, a sample is flagged where a
+    controller spends more than limit_share of the horizon with a torque or speed limit
+    binding. table: the [dispersions] table as given.
     """
 
     mission: missions.Mission
@@ -58,6 +61,7 @@ class SweepConfig:
     chunk: int = 128
     max_draws: int = 20
     divergence_angle_deg: float = 150.0
+    limit_share: float = 0.05
 
     @property
     def T(self) -> float:
@@ -88,6 +92,7 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     top = {key: cfg.number(values[key], f"sweep.{key}", low=1, integer=True) for key in ("samples", "chunk", "max_draws")}
     top["seed"] = cfg.number(values["seed"], "sweep.seed", low=0, high=2**32 - 1, integer=True)
     top["divergence_angle_deg"] = cfg.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg", 0.0, 180.0)
+    top["limit_share"] = cfg.number(values["limit_share"], "sweep.limit_share", 0.0, 1.0)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
     dispersions, leaves = dispersed.parse(table, mission)
     if not dispersions.initial_angle_deg < top["divergence_angle_deg"]:

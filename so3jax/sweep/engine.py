@@ -17,7 +17,6 @@ from jax.sharding import Mesh
 from so3jax import devices, dispersed, distributed, runfolder
 from so3jax import dispersions as disp
 from so3jax.io import save_npz
-from so3jax.metrics import Metrics
 from so3jax.rollout import rollout, rollout_batch
 from so3jax.scenario import steps_for_horizon
 from so3jax.sweep.config import SweepConfig, config_to_dict
@@ -38,7 +37,13 @@ def mission_key(mission) -> str:
     return key
 
 
-def _simulate_shard(inputs, gains, *, controller: str, mission: str) -> Metrics:
+def _results(result) -> dict:
+    """A rollout's SPEC 6 metrics and, in the sampled wiring, its flight metrics, by name."""
+    flight = {} if result.flight == () else result.flight._asdict()
+    return {**result.metrics._asdict(), **flight}
+
+
+def _simulate_shard(inputs, gains, *, controller: str, mission: str) -> dict:
     """Metrics of a batch of samples on one device (see :func:`simulate_batch`)."""
     params, leaves = inputs
     m = _MISSIONS[mission]
@@ -46,17 +51,18 @@ def _simulate_shard(inputs, gains, *, controller: str, mission: str) -> Metrics:
     scenarios = jax.vmap(lambda p: dispersed.scenario(m, p))(params)
     n = scenarios.n_steps
     if not leaves:
-        return rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=n).metrics
+        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=n))
 
     def one(scenario, seed, values):
-        return rollout(scenario, law, gains, seed, loop=dispersed.loop(m, values, dtype), record_every=n).metrics
+        return _results(rollout(scenario, law, gains, seed, loop=dispersed.loop(m, values, dtype), record_every=n))
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
-def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh | None = None) -> Metrics:
-    """Metrics of a batch of samples: inputs = (RolloutParams, {dispersed component
+def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh | None = None) -> dict:
+    """{metric: values} of a batch of samples (the SPEC 6 metrics, and the flight metrics
+    of a sampled loop): inputs = (RolloutParams, {dispersed component
     parameter: values}), leading batch axis, split over the devices of ``mesh``
     (:func:`so3jax.devices.split`; None: one device). Their scenarios share the mission's
     loop and run natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a
@@ -78,16 +84,16 @@ def padded_chunk(chunk: int, n_devices: int) -> int:
 
 
 def run_chunk(inputs, gains, controller: str, mission: str, mesh: Mesh) -> dict:
-    """Metrics (numpy) of a chunk whose size is a multiple of the mesh size, split over
+    """{metric: values} (numpy) of a chunk whose size is a multiple of the mesh size, split over
     the mesh's devices (:func:`simulate_batch`). Over several processes with a mesh of
     every process's devices, each process runs its devices' shards and the processes
     exchange their results. inputs: (RolloutParams, dispersed component values)."""
     out = simulate_batch(*devices.place((inputs, gains), mesh), controller=controller, mission=mission, mesh=mesh)
-    if not out.rmse.is_fully_addressable:  # a mesh of several processes
+    if not out["rmse"].is_fully_addressable:  # a mesh of several processes
         from jax.experimental import multihost_utils
 
         out = multihost_utils.process_allgather(out, tiled=True)
-    return {k: np.asarray(v) for k, v in out._asdict().items()}
+    return {k: np.asarray(v) for k, v in out.items()}
 
 
 def run_sweep(

@@ -57,4 +57,43 @@ def figures(config: SweepConfig, cols: dict) -> dict:
         ax.grid(alpha=0.3)
         ax.legend()
     scatter.suptitle(title)
-    return {"cdf.png": cdf, "histograms.png": hist, "rmse_vs_inertia_scale.png": scatter}
+    out = {"cdf.png": cdf, "histograms.png": hist, "rmse_vs_inertia_scale.png": scatter}
+    flight = _flight_figure(config, cols, good, color, title)
+    if flight is not None:
+        out["flight.png"] = flight
+    return out
+
+
+ARCSEC = 180 / np.pi * 3600  # arcsec per rad
+# (x parameter, its label, its scale to the label's unit, y metric, its label and scale): a
+# panel is drawn where the sweep disperses its x parameter (per element: the smallest)
+FLIGHT_PANELS = (
+    ("sensors.star_tracker.sigma", "star-tracker noise sigma [arcsec]", ARCSEC,
+     "attitude_estimation_rms", "attitude estimation RMS [arcsec]", ARCSEC),
+    ("actuator.wheels.max_torque", "smallest wheel torque limit u_max [N m]", 1.0,
+     "time_at_torque_limit", "time at a torque limit [s]", 1.0),
+)
+
+
+def _flight_figure(config: SweepConfig, cols: dict, good: dict, color: dict, title: str):
+    """Estimation error against star-tracker noise, time at a limit against the torque
+    limit: the panels whose parameter the sweep disperses (None: none)."""
+    from matplotlib.figure import Figure
+
+    panels = []
+    for x, xlabel, x_scale, y, ylabel, y_scale in FLIGHT_PANELS:
+        elements = [cols[k] for k in cols if k == x or k.startswith(f"{x}_")]  # one column, or one per element
+        if elements and f"{config.controllers[0]}_{y}" in cols:
+            panels.append((np.min(elements, axis=0), xlabel, x_scale, y, ylabel, y_scale))
+    if not panels:
+        return None
+    fig = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
+    for ax, (x, xlabel, x_scale, y, ylabel, y_scale) in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
+        for c in config.controllers:
+            ax.scatter(x[good[c]] * x_scale, cols[f"{c}_{y}"][good[c]] * y_scale, s=6, alpha=0.6, **color[c])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    return fig

@@ -48,7 +48,10 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
             continue
         try:
             with np.load(path) as f:
-                chunk = {key: f[key] for key in ("fingerprint", "index", *Metrics._fields)}
+                chunk = {key: f[key] for key in f.files}
+            missing = {"fingerprint", "index", *Metrics._fields} - set(chunk)
+            if missing:
+                raise KeyError(", ".join(sorted(missing)))
         except Exception as err:  # a truncated or foreign file: zip, pickle or key errors
             raise runfolder.corrupt(path, err, remedy) from None
         if str(chunk["fingerprint"]) != fingerprint:
@@ -56,7 +59,7 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
         keep = chunk["index"] < n_samples
         index = chunk["index"][keep]
         r = results.setdefault(match.group(1), {"done": np.zeros(n_samples, bool)})
-        for field in Metrics._fields:
+        for field in (key for key in chunk if key not in ("fingerprint", "index")):
             value = chunk[field][keep]
             if field not in r:
                 r[field] = np.full((n_samples,) + value.shape[1:], np.nan)
@@ -68,7 +71,7 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
 def _fingerprint(config: SweepConfig) -> dict:
     """What fixes each sample's results (chunk size, controller subset, sample count do not)."""
     d = config_to_dict(config)
-    d["sweep"] = {k: v for k, v in d["sweep"].items() if k not in ("chunk", "samples")}
+    d["sweep"] = {k: v for k, v in d["sweep"].items() if k not in ("chunk", "samples", "limit_share")}
     d["mission"] = {k: v for k, v in config.mission.describe().items() if k not in ("controllers", "record_every")}
     d["precision"] = str(jnp.dtype(jnp.result_type(float)))
     return d

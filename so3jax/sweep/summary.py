@@ -15,6 +15,15 @@ from so3jax.sweep.config import SweepConfig, config_to_dict
 
 PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
+# The flight metrics a sweep of a sampled loop summarizes (FlightMetrics fields), with units.
+FLIGHT = {
+    "attitude_estimation_rms": "rad",
+    "bias_estimation_rms": "rad/s",
+    "command_effort": "N^2 m^2 s",
+    "time_at_torque_limit": "s",
+    "time_at_speed_limit": "s",
+    "max_wheel_speed_ratio": "-",
+}
 
 
 def _phases(config: SweepConfig) -> list[tuple[int, str]]:
@@ -72,9 +81,22 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
                 cols.update({f"{c}_{field.removesuffix('_phase')}_{name}": value[:, i] for i, name in phases})
             else:
                 cols[f"{c}_{field}"] = value
+        for field in flight_fields(results):
+            cols[f"{c}_{field}"] = reported(r.get(field, np.full(n, np.nan)), nonfinite)
         cols[f"{c}_nonfinite"] = np.where(done, r.get("diverged", np.zeros(n)) == 1, np.nan)
         cols[f"{c}_diverged"] = np.where(done, diverged(config, r) if r else False, np.nan)
+        if "time_at_torque_limit" in r:
+            at_limit = np.maximum(r["time_at_torque_limit"], r["time_at_speed_limit"]) > config.limit_share * config.T
+            cols[f"{c}_at_limit"] = np.where(done, at_limit, np.nan)
     return cols
+
+
+def flight_fields(results: dict) -> list[str]:
+    """The flight metrics the results hold (those of a sampled loop; none otherwise)."""
+    from so3jax.flight_metrics import FlightMetrics
+
+    held = set().union(*(r.keys() for r in results.values())) if results else set()
+    return [field for field in FlightMetrics._fields if field in held]
 
 
 def _stats(x) -> dict:
@@ -124,6 +146,11 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
         for metric in ("rmse", "effort"):
             entry[metric] = {"mission": _stats(cols[f"{c}_{metric}"][good])}
             entry[metric].update({name: _stats(cols[f"{c}_{metric}_{name}"][good]) for _, name in phases})
+        if f"{c}_attitude_estimation_rms" in cols:
+            entry["flight"] = {metric: _stats(cols[f"{c}_{metric}"][good]) for metric in FLIGHT}
+            flagged = cols[f"{c}_at_limit"] == 1
+            entry["at_limit"] = {"share": config.limit_share, "samples": int(flagged.sum()),
+                                 "indices": np.flatnonzero(flagged).tolist()}
         summary["controllers"][c] = entry
     for j, b in enumerate(config.controllers):
         for a in config.controllers[:j]:
@@ -139,6 +166,11 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
                 pair[metric] = {
                     f"{b}_better_fraction": float(np.mean(y < x)) if len(x) else None,
                     "relative_change": dict(zip(("mean", "p5", "p50", "p95"), _quantiles((y - x) / x))),
+                }
+            if f"{a}_attitude_estimation_rms" in cols:  # flight metrics: differences in their units
+                pair["flight_difference"] = {
+                    metric: dict(zip(("mean", "p5", "p50", "p95"), _quantiles(cols[f"{b}_{metric}"][both] - cols[f"{a}_{metric}"][both])))
+                    for metric in FLIGHT
                 }
             summary["paired"][f"{b}_vs_{a}"] = pair
     return summary
@@ -168,9 +200,23 @@ def format_summary(summary: dict) -> str:
                 none = "diverged" if entry["diverged"] else "—"  # no sample left: all diverged, or none simulated
                 cells = [none if st[k] is None else cell(st[k], ".4g") for k in STAT_NAMES]
                 lines.append(f"| {c} | {phase} | " + " | ".join(cells) + f" | {st.get('samples', '')} |")
-    lines += ["", "| controller | simulated | diverged | non-finite |", "|---|---:|---:|---:|"]
+    flight = [c for c, e in summary["controllers"].items() if "flight" in e]
+    if flight:
+        lines += ["", "| flight metric | controller | " + " | ".join(STAT_NAMES) + " | samples |",
+                  "|---|---|" + "---:|" * (len(STAT_NAMES) + 1)]
+        for metric, unit in FLIGHT.items():
+            for c in flight:
+                st = summary["controllers"][c]["flight"][metric]
+                cells = ["—" if st[k] is None else cell(st[k], ".4g") for k in STAT_NAMES]
+                lines.append(f"| {metric} [{unit}] | {c} | " + " | ".join(cells) + f" | {st['samples']} |")
+    lines += ["", "| controller | simulated | diverged | non-finite |" + (" at a limit |" if flight else ""),
+              "|---|---:|---:|---:|" + ("---:|" if flight else "")]
     for c, e in summary["controllers"].items():
-        lines.append(f"| {c} | {e['simulated']} | {e['diverged']} | {e['nonfinite']} |")
+        limit = f" {e['at_limit']['samples']} |" if "at_limit" in e else (" |" if flight else "")
+        lines.append(f"| {c} | {e['simulated']} | {e['diverged']} | {e['nonfinite']} |" + limit)
+    if flight:
+        share = summary["controllers"][flight[0]]["at_limit"]["share"]
+        lines.append(f"\nat a limit: a torque or speed limit binding over more than {100 * share:g} % of the horizon")
     for name, pair in summary["paired"].items():
         b, a = name.split("_vs_")
         lines.append("")
@@ -184,4 +230,8 @@ def format_summary(summary: dict) -> str:
                 f"- {metric}: {b} lower in {100 * frac:.1f} % of samples; change {b}/{a} - 1: "
                 f"median {100 * q['p50']:+.1f} %, 5-95 % [{100 * q['p5']:+.1f} %, {100 * q['p95']:+.1f} %], mean {100 * q['mean']:+.1f} %"
             )
+        for metric, q in pair.get("flight_difference", {}).items():
+            if q["mean"] is not None:
+                lines.append(f"- {metric} [{FLIGHT[metric]}]: {b} - {a} median {q['p50']:.4g}, "
+                             f"5-95 % [{q['p5']:.4g}, {q['p95']:.4g}], mean {q['mean']:.4g}")
     return "\n".join(lines) + "\n"
