@@ -179,13 +179,13 @@ def _leaf_words(seed, indices, salt, n_words: int):
     return jax.vmap(draw)(indices)
 
 
-def draw_leaves(leaves: tuple, seed: int, n_samples: int) -> tuple[dict, np.ndarray]:
-    """({key: values (N, *shape)}, valid (N,)): each leaf's values for samples 0 .. N-1, in
-    float64, and whether every value lies in its parameter's domain."""
+def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tuple[dict, np.ndarray]:
+    """({key: values (N, *shape)}, valid (N,)): each leaf's values for samples first ..
+    first + N - 1, in float64, and whether every value lies in its parameter's domain."""
     values, valid = {}, np.ones(n_samples, bool)
     for leaf in leaves:
         size = int(np.prod(leaf.shape))
-        words = np.asarray(_leaf_words(np.uint32(seed), np.arange(n_samples, dtype=np.uint32),
+        words = np.asarray(_leaf_words(np.uint32(seed), np.arange(first, first + n_samples, dtype=np.uint32),
                                        np.uint32(zlib.crc32(leaf.key.encode())), 2 * max(size, 1)))
         v = disp._variates(words)
         u, z = v.take(max(size, 1))
@@ -195,7 +195,66 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int) -> tuple[dict, np.ndar
     return values, valid
 
 
+def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int, max_draws: int,
+         first: int = 0) -> disp.Samples:
+    """Samples first .. first + n_samples - 1 with their dispersed component values
+    (``leaves``); valid: a positive definite inertia within max_draws and every component
+    value in its domain."""
+    samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
+    values, in_domain = draw_leaves(leaves, seed, n_samples, first)
+    return samples._replace(valid=samples.valid & in_domain, leaves=values)
+
+
+def inputs(samples: disp.Samples, dtype) -> tuple:
+    """(RolloutParams, {leaf: values}) of the samples, reals in dtype: :func:`sample_metrics`' inputs."""
+    as_dtype = lambda x: x.astype(dtype) if x.dtype.kind == "f" else x
+    return jax.tree.map(as_dtype, samples.params), {k: as_dtype(v) for k, v in samples.leaves.items()}
+
+
 # --- a sample's scenario and loop ------------------------------------------------------------
+
+
+MISSIONS: dict = {}  # fingerprint -> Mission: the static key that names a mission to sample_metrics
+
+
+def mission_key(mission: Mission) -> str:
+    """A hashable name of the mission (its fingerprint), for :func:`sample_metrics`' ``mission``."""
+    from so3jax import runfolder
+
+    key = runfolder.fingerprint(mission.describe())
+    MISSIONS[key] = mission
+    return key
+
+
+def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None) -> dict:
+    """{metric: values} of a batch of samples of the mission named by ``mission`` (see
+    :func:`mission_key`) flown by the controller ``law`` at ``gains``: the SPEC 6 metrics, and the
+    flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
+    parameter: values}), leading batch axis. The samples share the mission's loop and run
+    natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a vmap of
+    rollouts); with dispersed component parameters, each sample's loop is its own (a vmap
+    of rollouts). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
+    memory; the horizon's steps: none). Pure: jit, grad and :func:`so3jax.devices.split`
+    compose with it."""
+    from so3jax.rollout import rollout, rollout_batch
+
+    params, leaves = inputs
+    m, dtype = MISSIONS[mission], params.J0.dtype
+    scenarios = jax.vmap(lambda p: scenario(m, p))(params)
+    n = record_every
+    if not leaves:
+        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=n))
+
+    def one(s, seed, values):
+        return _results(rollout(s, law, gains, seed, loop=loop(m, values, dtype), record_every=n))
+
+    return jax.vmap(one)(scenarios, params.seed, leaves)
+
+
+def _results(result) -> dict:
+    """A rollout's SPEC 6 metrics and, in the sampled wiring, its flight metrics, by name."""
+    flight = {} if result.flight == () else result.flight._asdict()
+    return {**result.metrics._asdict(), **flight}
 
 
 def scenario(mission: Mission, p: disp.RolloutParams) -> Scenario:

@@ -353,8 +353,8 @@ def _draw_block(d: Dispersions, words, max_draws: int):
     return Samples(params, valid, (first + 1).astype(np.int32), scale, attitude_error)
 
 
-def draw_samples(dispersions: Dispersions, seed: int, n_samples: int, max_draws: int) -> Samples:
-    """Samples 0 .. n_samples-1, in float64. Sample k depends only on (seed, k)."""
+def draw_samples(dispersions: Dispersions, seed: int, n_samples: int, max_draws: int, first: int = 0) -> Samples:
+    """Samples first .. first + n_samples - 1, in float64. Sample k depends only on (seed, k)."""
     check(dispersions, warn=False)
     if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
         raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
@@ -363,6 +363,7 @@ def draw_samples(dispersions: Dispersions, seed: int, n_samples: int, max_draws:
     n_words = 1 + 2 * (OTHER_VARIATES + max_draws * PHYSICAL_VARIATES)
     blocks = []
     for start in range(0, n_samples, BLOCK):
-        words = np.asarray(_words(np.uint32(seed), np.arange(start, start + BLOCK, dtype=np.uint32), n_words))
+        indices = np.arange(first + start, first + start + BLOCK, dtype=np.uint32)
+        words = np.asarray(_words(np.uint32(seed), indices, n_words))
         blocks.append(_draw_block(dispersions, words[: n_samples - start], max_draws))
     return jax.tree.map(lambda *xs: np.concatenate(xs), *blocks)

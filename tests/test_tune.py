@@ -207,7 +207,7 @@ def test_the_flight_mission_tunes_through_its_own_loop(tmp_path, monkeypatch):
          "tune": {**BASE["tune"], "iterations": 1, "validation": {"seeds": [10, 11]}}}
     cfg = tune.parse_config(t, ROOT / "tuning")
     loops, step = [], campaign.cost_and_grad
-    monkeypatch.setattr(campaign, "cost_and_grad", lambda *args: loops.append(args[-1]) or step(*args))
+    monkeypatch.setattr(campaign, "cost_and_grad", lambda *args, **kw: loops.append(args[-1]) or step(*args, **kw))
     report = tune.tune(cfg, tmp_path, progress=False)
     (loop,) = loops
     assert loop.period_steps == 10 and loop.sensors.rate is not None and loop.sensors.attitude is not None

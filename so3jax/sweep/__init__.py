@@ -39,12 +39,12 @@ from so3jax.sweep.engine import (
     MIN_SHARD,
     batch_mesh,
     memory_needed,
-    mission_key,
     padded_chunk,
     run_chunk,
     run_sweep,
     simulate_batch,
 )
+from so3jax.dispersed import mission_key
 from so3jax.sweep.storage import _take  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
 from so3jax.sweep.storage import load_chunks, write_csv, write_outputs
 from so3jax.sweep.summary import PHASE_NAMES, STAT_NAMES, columns, diverged, format_summary, summarize

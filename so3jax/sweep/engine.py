@@ -15,9 +15,7 @@ import numpy as np
 from jax.sharding import Mesh
 
 from so3jax import devices, dispersed, distributed, runfolder
-from so3jax import dispersions as disp
 from so3jax.io import save_npz
-from so3jax.rollout import rollout, rollout_batch
 from so3jax.scenario import steps_for_horizon
 from so3jax.sweep.config import SweepConfig, config_to_dict
 from so3jax.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
@@ -25,38 +23,6 @@ from so3jax.sweep.summary import summarize
 
 MIN_SHARD = 8  # samples per device and batch, at least
 LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
-
-
-_MISSIONS: dict = {}  # fingerprint -> Mission: the static key that names a mission to simulate_batch
-
-
-def mission_key(mission) -> str:
-    """A hashable name of the mission (its fingerprint), for simulate_batch's ``mission``."""
-    key = runfolder.fingerprint(mission.describe())
-    _MISSIONS[key] = mission
-    return key
-
-
-def _results(result) -> dict:
-    """A rollout's SPEC 6 metrics and, in the sampled wiring, its flight metrics, by name."""
-    flight = {} if result.flight == () else result.flight._asdict()
-    return {**result.metrics._asdict(), **flight}
-
-
-def _simulate_shard(inputs, gains, *, controller: str, mission: str) -> dict:
-    """Metrics of a batch of samples on one device (see :func:`simulate_batch`)."""
-    params, leaves = inputs
-    m = _MISSIONS[mission]
-    law, dtype = m.controller(controller)[0], params.J0.dtype
-    scenarios = jax.vmap(lambda p: dispersed.scenario(m, p))(params)
-    n = scenarios.n_steps
-    if not leaves:
-        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=n))
-
-    def one(scenario, seed, values):
-        return _results(rollout(scenario, law, gains, seed, loop=dispersed.loop(m, values, dtype), record_every=n))
-
-    return jax.vmap(one)(scenarios, params.seed, leaves)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
@@ -68,7 +34,9 @@ def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh |
     loop and run natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a
     vmap of rollouts); with dispersed component parameters, each sample's loop is its own
     (a vmap of rollouts)."""
-    shard = functools.partial(_simulate_shard, controller=controller, mission=mission)
+    m = dispersed.MISSIONS[mission]
+    shard = functools.partial(dispersed.sample_metrics, law=m.controller(controller)[0], mission=mission,
+                              record_every=steps_for_horizon(m.T, m.dt))  # no history
     return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
 
 
@@ -122,7 +90,7 @@ def memory_needed(config: SweepConfig, inputs, chunk: int) -> int:
 
     dtype = jnp.result_type(float)
     first = jax.tree.map(lambda x: x[:1], inputs)
-    per_sample, key = 0, mission_key(config.mission)
+    per_sample, key = 0, dispersed.mission_key(config.mission)
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         run = functools.partial(simulate_batch, controller=controller, mission=key)
@@ -139,12 +107,9 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     # every check before the first file (sweep.json): a refused sweep writes nothing
     dtype = jnp.result_type(float)
-    samples = disp.draw_samples(config.dispersions, config.seed, config.samples, config.max_draws)
-    leaves, in_domain = dispersed.draw_leaves(config.leaves, config.seed, config.samples)
-    samples = samples._replace(valid=samples.valid & in_domain, leaves=leaves)
-    as_dtype = lambda x: x.astype(dtype) if x.dtype.kind == "f" else x
-    inputs = (jax.tree.map(as_dtype, samples.params), {k: as_dtype(v) for k, v in leaves.items()})
-    key = mission_key(config.mission)
+    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws)
+    inputs = dispersed.inputs(samples, dtype)
+    key = dispersed.mission_key(config.mission)
     valid = np.flatnonzero(samples.valid)
     n_steps = steps_for_horizon(config.T, config.dt)
     mesh = batch_mesh(layout)

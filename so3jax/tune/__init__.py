@@ -15,7 +15,10 @@ gains g over a batch of B training scenarios (inertia scale x seed, see
 
 RMSE_ref and Effort_ref default to the initial gains' batch means; Effort_budget is a
 number or another controller's effort on the same scenario (e.g. the PD with the
-paper's gains), scenario by scenario.
+paper's gains), scenario by scenario. ``objective = "cvar"`` replaces the batch mean by
+the mean of the worst 1 - alpha share of the scenario costs. With a
+``[tune.dispersions]`` table the scenarios are dispersed missions (:mod:`so3jax.dispersed`),
+a fresh batch of them every iteration.
 
 A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
 an interrupted run loses at most one iteration and ``--resume`` continues to the same
@@ -46,6 +49,7 @@ from so3jax.tune.gains import (
 from so3jax.tune.config import (
     COST_MODES,
     METHODS,
+    OBJECTIVES,
     CostConfig,
     ESConfig,
     OptimizerConfig,
@@ -60,7 +64,7 @@ from so3jax.tune.config import (
     validate,
 )
 from so3jax.tune.config import _SECTIONS  # noqa: F401 (tests walk the config's sections)
-from so3jax.tune.cost import CostRefs, Evaluation, cost_and_grad, population_costs, scenario_costs
+from so3jax.tune.cost import CostRefs, Evaluation, cost_and_grad, cvar, population_costs, scenario_costs
 from so3jax.tune.cost import _batch_metrics  # noqa: F401 (tests: the cost's metrics without the gradient)
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
 from so3jax.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate
@@ -84,6 +88,7 @@ __all__ = [
     "GAIN_TYPES",
     "GradientState",
     "METHODS",
+    "OBJECTIVES",
     "MIN_SHARD",
     "NonFiniteGradientError",
     "OptimizerConfig",
@@ -97,6 +102,7 @@ __all__ = [
     "check_fingerprint",
     "cost_and_grad",
     "cost_refs",
+    "cvar",
     "describe",
     "diagonals",
     "es_candidates",

@@ -19,7 +19,7 @@ from so3jax.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, popu
 from so3jax.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
 from so3jax.tune.plots import plot_history
-from so3jax.tune.problem import build_problem, cost_refs, evaluate
+from so3jax.tune.problem import batch_at, build_problem, cost_refs, evaluate, mission_of
 from so3jax.tune.storage import (
     CHECKPOINT,
     _best_row,
@@ -61,8 +61,12 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     controller = law(config.mission, config.controller)
     dtype = problem.scenario.R0.dtype
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
-    n_train = problem.train.seed.shape[0]
+    n_train = config.train.samples or problem.train.seed.shape[0]
     mode = config.cost.mode
+    mission = mission_of(problem)
+    budget = None  # with dispersions and a budget controller: its gains, flown on every fresh batch
+    if mission is not None and mode == "equal_effort" and config.cost.budget_controller is not None:
+        budget = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype, mission=config.mission)
 
     params = to_params(initial)
     if config.method == "gradient":
@@ -81,12 +85,13 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         iteration, state, refs, rows = load_checkpoint(checkpoint, fingerprint, state, refs, description)
         start -= rows[-1]["wall_s"] if rows else 0.0
     else:
-        initial_metrics = evaluate(problem, initial, problem.train)
+        first_batch = batch_at(config, problem, 0)
+        initial_metrics = evaluate(problem, initial, first_batch)
         initial_diverged = int(np.sum(initial_metrics.diverged))
-        refs = cost_refs(config, problem, initial_metrics, problem.train)
+        refs = cost_refs(config, problem, initial_metrics, first_batch)
         iteration, rows = 0, []
         if config.method == "es":
-            first = _summary(initial_metrics, refs, mode)
+            first = _summary(initial_metrics, refs, mode, config.objective, config.alpha)
             state = state._replace(cost=first.cost, rmse=first.rmse, effort=first.effort)
     rollouts = rows[-1]["rollouts"] if rows else n_train  # the initial evaluation
     refs = place(refs, problem.mesh)
@@ -95,18 +100,25 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     try:
         while iteration < config.iterations:
             state = place(state, problem.mesh)
+            batch = batch_at(config, problem, iteration)
+            if budget is not None:  # the budget on this batch's missions (common random numbers)
+                refs = refs._replace(effort=evaluate(problem, budget, batch, config.cost.budget_controller).effort)
+                rollouts += n_train
             if config.method == "gradient":
                 evaluation, grad = cost_and_grad(
                     state.params,
                     problem.scenario,
                     controller,
-                    problem.train,
+                    batch,
                     refs,
                     mode,
                     config.gradient,
                     problem.record_every,
                     problem.mesh,
                     problem.loop,
+                    objective=config.objective,
+                    alpha=config.alpha,
+                    mission=mission,
                 )
                 new_state = _optax_step(tx, state, grad, evaluation.cost)
                 rollouts += n_train
@@ -124,8 +136,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 key = jax.random.fold_in(jax.random.key(config.es.seed), iteration)
                 candidates = place(es_candidates(state.params, state.sigma, key, config.es.population), problem.mesh)
                 evaluations = population_costs(
-                    candidates, problem.scenario, controller, problem.train, refs, mode, problem.record_every,
-                    problem.mesh, problem.loop,
+                    candidates, problem.scenario, controller, batch, refs, mode, problem.record_every,
+                    problem.mesh, problem.loop, objective=config.objective, alpha=config.alpha,
                 )
                 new_state = es_select(state, candidates, evaluations)
                 rollouts += config.es.population * n_train
@@ -169,7 +181,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
 
     if distributed.writer():
         plot_history(out, rows, list(gain_columns(initial)))
-    best_row = _best_row(rows)
+    best_row = _best_row(rows, config.dispersions is not None)
     report = validate_gains(config, problem, initial, _gains_from_row(best_row, initial), refs)
     report["training"] = {
         "method": config.method,
@@ -180,10 +192,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         "wall_s": rows[-1]["wall_s"],
         "rollouts": rows[-1]["rollouts"],
         "T": problem.scenario.horizon,
-        "scenarios": {
-            "seeds": np.asarray(problem.train.seed).tolist(),
-            "inertia_scale": np.asarray(problem.train.inertia_scale).tolist(),
-        },
+        "scenarios": _training_scenarios(config, problem),
         "refs": {
             "rmse": np.asarray(refs.rmse).tolist(),
             "effort": np.asarray(refs.effort).tolist(),
@@ -194,3 +203,12 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     if distributed.writer():
         io.write_json(out / "validation.json", report)
     return report
+
+
+def _training_scenarios(config: TuneConfig, problem) -> dict:
+    """What the training batches were: the scenario set, or the dispersed draws."""
+    if problem.train is None:
+        return {"dispersed_missions_per_iteration": config.train.samples, "sampling_seed": config.train.seeds[0],
+                "objective": config.objective, "alpha": config.alpha if config.objective == "cvar" else None}
+    return {"seeds": np.asarray(problem.train.seed).tolist(),
+            "inertia_scale": np.asarray(problem.train.inertia_scale).tolist()}

@@ -22,15 +22,19 @@ from so3jax.tune.gains import CONTROLLERS, diagonals, resolve_gains
 TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
 COST_MODES = ("weighted", "equal_effort")
 METHODS = ("gradient", "es")
+OBJECTIVES = ("mean", "cvar")
 
 
 @dataclasses.dataclass(frozen=True)
 class ScenarioSet:
     """Scenarios = inertia_scales x seeds: the mission with every inertia matrix scaled
-    [-], flown with each seed in place of the mission's."""
+    [-], flown with each seed in place of the mission's. With [tune.dispersions]:
+    ``samples`` dispersed missions drawn with the one sampling seed ``seeds[0]`` (training:
+    a fresh batch every iteration; validation: one held-out batch)."""
 
     seeds: tuple[int, ...]
     inertia_scales: tuple[float, ...] = (1.0,)
+    samples: int | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +89,9 @@ class TuneConfig:
     record_every: int | None = None  # checkpoint block of the rollout [steps] (reverse mode memory)
     diagonal_gamma: bool = False  # tune each entry of a gain that may be a diagonal (the adaptive Gamma: 9)
     es: ESConfig = ESConfig()
+    objective: str = "mean"  # over the batch's scenario costs: "mean", or "cvar" (the worst 1 - alpha share's mean)
+    alpha: float = 0.9  # the CVaR level
+    dispersions: dict | None = None  # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
     mission: Any = None  # so3jax.mission.Mission
 
     def __post_init__(self):
@@ -205,6 +212,10 @@ def validate(config: TuneConfig) -> None:
     _choice("method", config.method, METHODS)
     _choice("gradient", config.gradient, MODES)
     _choice("cost.mode", config.cost.mode, COST_MODES)
+    _choice("objective", config.objective, OBJECTIVES)
+    cfg.number(config.alpha, f"config key {_key('alpha')!r}", low=0.0, high=1.0)
+    if not 0.0 < config.alpha < 1.0:
+        raise ValueError(f"config key {_key('alpha')!r} must lie strictly between 0 and 1, got {config.alpha}")
     _positive("iterations", config.iterations, integer=True)
     if config.record_every is not None:
         _positive("record_every", config.record_every, integer=True)
@@ -219,6 +230,7 @@ def validate(config: TuneConfig) -> None:
             raise ValueError(f"config key {_key(section + '.inertia_scales')!r} must be a non-empty list")
         for scale in scenarios.inertia_scales:
             _positive(f"{section}.inertia_scales", scale)
+    _check_dispersions(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
     if held_out:
         raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
@@ -256,10 +268,49 @@ def validate(config: TuneConfig) -> None:
     cfg.number(config.es.seed, f"config key {_key('es.seed')!r}", low=0, high=2**32 - 1, integer=True)
 
 
+def _check_dispersions(config: TuneConfig) -> None:
+    """[tune.dispersions]: parsed against the mission; then each scenario set names one
+    sampling seed and its sample count, with no inertia scales, and the method is the
+    gradient's (the ES's elitist selection would compare costs across batches)."""
+    from so3jax import dispersed
+
+    for section in ("train", "validation"):
+        s = getattr(config, section)
+        if config.dispersions is None:
+            if s.samples is not None:
+                raise ValueError(f"config key {_key(section + '.samples')!r} draws dispersed missions: "
+                                 f"it needs a [{TUNE}.dispersions] table")
+            continue
+        _positive(f"{section}.samples", s.samples, integer=True)
+        if len(s.seeds) != 1 or tuple(s.inertia_scales) != (1.0,):
+            raise ValueError(f"with [{TUNE}.dispersions], {_key(section + '.seeds')} holds one sampling seed and "
+                             f"{_key(section + '.inertia_scales')} is not given (the dispersions scale the inertias)")
+    if config.dispersions is None:
+        return
+    if not isinstance(config.dispersions, dict):
+        raise ValueError(f"config key {_key('dispersions')!r} must be a table, got {cfg.short(config.dispersions)}")
+    if config.method != "gradient":
+        raise ValueError(f"config key {_key('dispersions')!r} needs {_key('method')} = \"gradient\": a fresh batch "
+                         "every iteration, where the ES's elitist selection would compare costs of different batches")
+    try:
+        dispersed.parse(config.dispersions, config.mission)
+    except ValueError as err:
+        raise ValueError(f"{_key('dispersions')}: {err}") from None
+
+
 def tune_table(config: TuneConfig) -> dict:
-    """The ``[tune]`` table of a config, every field (defaults included)."""
-    return {f.name: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
-            for f in dataclasses.fields(config) if f.name != "mission" for v in [getattr(config, f.name)]}
+    """The ``[tune]`` table of a config, every field (defaults included) but those of a
+    feature the campaign does not use (no dispersions: their table and sample counts; the
+    mean objective: alpha), which change nothing it computes."""
+    table = {f.name: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
+             for f in dataclasses.fields(config) if f.name != "mission" for v in [getattr(config, f.name)]}
+    if config.dispersions is None:
+        del table["dispersions"]
+        for section in ("train", "validation"):
+            del table[section]["samples"]
+    if config.objective == "mean":
+        del table["objective"], table["alpha"]
+    return table
 
 
 def describe(config: TuneConfig) -> dict:

@@ -4,20 +4,43 @@ the cost's normalizers."""
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.sharding import Mesh
 
-from so3jax import devices
+from so3jax import devices, dispersed
 from so3jax.devices import place
 from so3jax.gradients import Batch, make_batch
 from so3jax.loop import Loop
 from so3jax.scenario import Scenario
 from so3jax.tune.config import TuneConfig
-from so3jax.tune.cost import CostRefs, _batch_metrics
+from so3jax.tune.cost import CostRefs, _batch_metrics, batch_mean
 from so3jax.tune.gains import law, resolve_gains
+
+
+class DispersedBatch(NamedTuple):
+    """B dispersed missions (:mod:`so3jax.dispersed`): their parameters and component
+    values, leading axis B, and which were drawn valid (a rejected draw flies the batch's
+    first valid sample in its place and counts for nothing)."""
+
+    params: object  # so3jax.dispersions.RolloutParams
+    leaves: dict
+    valid: jax.Array  # (B,) bool
+
+
+class Sampler(NamedTuple):
+    """[tune.dispersions] parsed: what draws a batch of dispersed missions."""
+
+    dispersions: object  # so3jax.dispersions.Dispersions
+    leaves: tuple  # so3jax.dispersed.Leaf, the dispersed component parameters
+    mission: str  # so3jax.dispersed.mission_key of the campaign's mission
+
+
+MAX_DRAWS = 20  # attempts at a positive definite inertia before a sample is rejected (the sweep's default)
 
 
 class Problem(NamedTuple):
@@ -25,12 +48,13 @@ class Problem(NamedTuple):
 
     scenario: Scenario
     controller: str
-    train: Batch
-    validation: Batch
+    train: Batch | None  # None with dispersions: a fresh batch every iteration (batch_at)
+    validation: Batch | DispersedBatch
     record_every: int | None
     mesh: Mesh | None  # the devices the batch is split over (batch_devices), or None: one device
     loop: Loop  # the mission's sensors, estimator, actuator and control period
     mission: object  # so3jax.mission.Mission: the controllers' options and gains
+    sampler: Sampler | None = None  # with [tune.dispersions]
 
 
 # Rollouts per device and evaluation, at least, for a batch to be split. One device runs a
@@ -45,7 +69,7 @@ MIN_SHARD = 4
 def batch_devices(config: TuneConfig, n_devices: int) -> int:
     """How many devices the training batch is split over: each gets at least MIN_SHARD
     rollouts per evaluation (scenarios x ES population members) and one scenario."""
-    scenarios = len(config.train.seeds) * len(config.train.inertia_scales)
+    scenarios = config.train.samples or len(config.train.seeds) * len(config.train.inertia_scales)
     rollouts = scenarios * (config.es.population if config.method == "es" else 1)
     return min(scenarios, devices.devices_for(rollouts, n_devices, MIN_SHARD))
 
@@ -58,6 +82,12 @@ def build_problem(config: TuneConfig) -> Problem:
     else:
         used = jax.devices()[: batch_devices(config, jax.device_count())]
     mesh = devices.mesh(used) if len(used) > 1 else None
+    if config.dispersions is not None:
+        parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+        sampler = Sampler(parsed, leaves, dispersed.mission_key(config.mission))
+        validation = draw_batch(sampler, config.validation.seeds[0], config.validation.samples, 0, dtype, mesh)
+        return Problem(place(scenario, mesh), config.controller, None, validation, config.record_every, mesh,
+                       place(loop, mesh), config.mission, sampler)
     train, validation = (
         place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
     )
@@ -65,22 +95,50 @@ def build_problem(config: TuneConfig) -> Problem:
                    place(loop, mesh), config.mission)
 
 
-def evaluate(problem: Problem, gains, batch: Batch, controller=None):
+def draw_batch(sampler: Sampler, seed: int, samples: int, first: int, dtype, mesh) -> DispersedBatch:
+    """Dispersed missions first .. first + samples - 1 of sampling seed ``seed``."""
+    drawn = dispersed.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, first)
+    valid = np.asarray(drawn.valid)
+    if not valid.any():
+        raise ValueError(f"every dispersed mission {first}..{first + samples - 1} of sampling seed {seed} is rejected "
+                         "(an inertia not positive definite, or a value outside its domain): narrow the dispersions")
+    params, leaves = dispersed.inputs(drawn, dtype)
+    stand_in = np.where(valid, np.arange(samples), int(np.argmax(valid)))  # a rejected draw flies a valid one
+    params, leaves = jax.tree.map(lambda x: x[stand_in], (params, leaves))
+    return place(DispersedBatch(params, leaves, valid), mesh)
+
+
+def batch_at(config: TuneConfig, problem: Problem, iteration: int):
+    """The training batch of an iteration: the scenario set's, or with dispersions the
+    iteration's fresh draw (samples iteration * B .. (iteration + 1) * B - 1)."""
+    if problem.sampler is None:
+        return problem.train
+    B = config.train.samples
+    return draw_batch(problem.sampler, config.train.seeds[0], B, iteration * B, problem.scenario.R0.dtype, problem.mesh)
+
+
+def evaluate(problem: Problem, gains, batch, controller=None):
     """Per-scenario metrics of fixed gains (forward only)."""
     controller = law(problem.mission, controller or problem.controller)
     return _batch_metrics(
         problem.scenario, controller, place(gains, problem.mesh), batch, problem.record_every, problem.mesh,
-        problem.loop,
+        problem.loop, mission=mission_of(problem),
     )
 
 
-def cost_refs(config: TuneConfig, problem: Problem, initial_metrics, batch: Batch) -> CostRefs:
+def mission_of(problem: Problem) -> str | None:
+    """The key of the mission that dispersed batches vary (None without dispersions)."""
+    return None if problem.sampler is None else problem.sampler.mission
+
+
+def cost_refs(config: TuneConfig, problem: Problem, initial_metrics, batch) -> CostRefs:
     """RMSE_ref, Effort_ref / budget (per scenario when taken from a controller run), weight."""
     dtype = initial_metrics.rmse.dtype
     cost = config.cost
-    rmse = cost.rmse_ref if cost.rmse_ref is not None else jnp.mean(initial_metrics.rmse)
+    mean = functools.partial(batch_mean, valid=getattr(batch, "valid", None))
+    rmse = cost.rmse_ref if cost.rmse_ref is not None else mean(initial_metrics.rmse)
     if cost.mode == "weighted":
-        effort = cost.effort_ref if cost.effort_ref is not None else jnp.mean(initial_metrics.effort)
+        effort = cost.effort_ref if cost.effort_ref is not None else mean(initial_metrics.effort)
     elif cost.budget is not None:
         effort = cost.budget
     else:

@@ -115,14 +115,18 @@ def _gains_from_row(row, template):
     return type(template)(**{name: jnp.asarray(v, jnp.result_type(template[0])) for name, v in values.items()})
 
 
-def _best_row(rows):
-    """The row of the lowest finite cost (the first row when none is finite)."""
+def _best_row(rows, fresh_batches: bool = False):
+    """The row of the lowest finite cost (the first row when none is finite); with a fresh
+    batch every iteration (dispersions), whose costs do not compare, the last row."""
+    if fresh_batches:
+        return rows[-1]
     return min(rows, key=lambda r: r["cost"] if math.isfinite(r["cost"]) else math.inf)
 
 
 def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
-    """best_gains.json: the lowest training cost so far, and the last good gains."""
-    best, last = _best_row(rows), rows[-1]
+    """best_gains.json: the lowest training cost so far (with dispersions: the last
+    iterate), and the last good gains."""
+    best, last = _best_row(rows, config.dispersions is not None), rows[-1]
     record = {
         "controller": config.controller,
         "gains": gains_table(_gains_from_row(best, template)),

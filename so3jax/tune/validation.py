@@ -5,27 +5,28 @@ from __future__ import annotations
 
 import math
 
-import jax.numpy as jnp
 import numpy as np
 
 from so3jax import io
 from so3jax.metrics import cell, finite_values, reported
 from so3jax.tune.config import TuneConfig
-from so3jax.tune.cost import CostRefs, scenario_costs
+from so3jax.tune.cost import CostRefs, _summary
 from so3jax.tune.gains import gains_table, resolve_gains
 from so3jax.tune.problem import Problem, evaluate
 
-def _metrics_table(metrics) -> dict:
+def _metrics_table(metrics, valid=None) -> dict:
     """Per-scenario RMSE and effort (None for a diverged scenario, flagged in ``diverged``)
-    and their means over the scenarios that did not diverge (None if every one did)."""
-    diverged = np.asarray(metrics.diverged, dtype=bool)
-    rmse, effort = (reported(x, diverged) for x in (metrics.rmse, metrics.effort))
+    and their means over the scenarios that did not diverge (None if every one did); of
+    dispersed missions (``valid``: the draws that count), also the 95th percentile RMSE."""
+    keep = slice(None) if valid is None else np.asarray(valid, bool)
+    diverged = np.asarray(metrics.diverged, dtype=bool)[keep]
+    rmse, effort = (reported(np.asarray(x)[keep], diverged) for x in (metrics.rmse, metrics.effort))
 
     def mean(x):
         finite, _ = finite_values(x)
         return float(np.mean(finite)) if len(finite) else None
 
-    return {
+    table = {
         "rmse": io.to_builtin(rmse),
         "effort": io.to_builtin(effort),
         "diverged": diverged.tolist(),
@@ -33,12 +34,18 @@ def _metrics_table(metrics) -> dict:
         "mean_rmse": mean(rmse),
         "mean_effort": mean(effort),
     }
+    if valid is not None:
+        finite, _ = finite_values(rmse)
+        table["p95_rmse"] = float(np.percentile(finite, 95)) if len(finite) else None
+    return table
 
 
-def _mean_cost(metrics, refs, mode):
-    """The SPEC 6 cost over the scenarios, None when a scenario diverged (its cost is not a number)."""
-    cost = float(jnp.mean(scenario_costs(metrics, refs, mode)))
-    return cost if math.isfinite(cost) and not np.any(metrics.diverged) else None
+def _mean_cost(metrics, refs, mode, objective="mean", alpha=0.9, valid=None):
+    """The objective (mean or CVaR) of the SPEC 6 costs over the scenarios, None when a
+    scenario diverged (its cost is not a number)."""
+    cost = float(_summary(metrics, refs, mode, objective, alpha, valid).cost)
+    counted = np.asarray(metrics.diverged, bool) & (True if valid is None else np.asarray(valid, bool))
+    return cost if math.isfinite(cost) and not np.any(counted) else None
 
 
 def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_train: CostRefs) -> dict:
@@ -48,17 +55,19 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
     recomputed on the held-out scenarios.
     """
     batch = problem.validation
+    valid = getattr(batch, "valid", None)  # dispersed missions: the draws that count
     initial_metrics = evaluate(problem, initial, batch)
     best_metrics = evaluate(problem, best, batch)
     refs = refs_train
+    if valid is None:
+        scenarios = {"seeds": np.asarray(batch.seed).tolist(), "inertia_scale": np.asarray(batch.inertia_scale).tolist()}
+    else:
+        scenarios = {"dispersed_missions": int(np.sum(valid)), "sampling_seed": config.validation.seeds[0]}
     report = {
         "controller": config.controller,
-        "scenarios": {
-            "seeds": np.asarray(batch.seed).tolist(),
-            "inertia_scale": np.asarray(batch.inertia_scale).tolist(),
-        },
-        "initial": {"gains": gains_table(initial), **_metrics_table(initial_metrics)},
-        "tuned": {"gains": gains_table(best), **_metrics_table(best_metrics)},
+        "scenarios": scenarios,
+        "initial": {"gains": gains_table(initial), **_metrics_table(initial_metrics, valid)},
+        "tuned": {"gains": gains_table(best), **_metrics_table(best_metrics, valid)},
     }
     if config.cost.budget_controller is not None:
         dtype = problem.scenario.R0.dtype
@@ -68,12 +77,15 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
         report["budget"] = {
             "controller": config.cost.budget_controller,
             "gains": gains_table(gains),
-            **_metrics_table(budget_metrics),
+            **_metrics_table(budget_metrics, valid),
         }
+    objective = (config.cost.mode, config.objective, config.alpha, valid)
     report["cost"] = {
         "mode": config.cost.mode,
-        "initial": _mean_cost(initial_metrics, refs, config.cost.mode),
-        "tuned": _mean_cost(best_metrics, refs, config.cost.mode),
+        "objective": config.objective,
+        **({"alpha": config.alpha} if config.objective == "cvar" else {}),
+        "initial": _mean_cost(initial_metrics, refs, *objective),
+        "tuned": _mean_cost(best_metrics, refs, *objective),
     }
     return report
 
