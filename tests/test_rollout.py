@@ -289,7 +289,8 @@ def _tiny_axes():
 @pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 5), (2, 1, 5), (None, 2, 3)])
 def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, monkeypatch):
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
-    also with an unrolled scan over blocks of an odd number of steps."""
+    also with an unrolled scan over blocks of an odd number of steps (a property of the scan:
+    checked with the PD law alone)."""
     from so3jax.rollout import rollout_batch
 
     scales = jnp.array([1.0, 1.3, 0.8])
@@ -307,7 +308,7 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
     seeds = jnp.array([0, 5, 9])
     if sub_batch:  # on CPU: sub-batches of 2, the last one padded
         monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "CPU_SUB_BATCH", sub_batch)
-    for controller, gains in LAWS:
+    for controller, gains in LAWS if unroll == 1 else LAWS[:1]:
         gains = jax.tree.map(jnp.asarray, gains)
         native = jax.jit(  # traced here, so under this test's CPU_SUB_BATCH
             lambda b, s, g: rollout_batch(b, controller, g, s, scenario_axes=axes, record_every=record_every,
