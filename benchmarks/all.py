@@ -7,7 +7,7 @@ horizon.
 
 Each benchmark runs as a subprocess with its own time limit; the limits add up to 19
 minutes (``--quick``: 8); on 2 cores at a load average of ~1-2 the set without the tuning
-step took 12.5-13.5 minutes on 2026-11-23 (the adaptive reverse-mode compilations take ~5
+step took 12.5-13.5 minutes (the adaptive reverse-mode compilations take ~5
 of them). On a loaded
 machine the throughput script skips its lowest-priority work once past its budget (it
 lists what it skipped), a benchmark out of time is recorded with its error (the
