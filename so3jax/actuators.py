@@ -226,8 +226,12 @@ class Wheels(Actuator):
 
     def _axes(self, like, plant: bool = False):
         """G_s (the plant's with ``plant``) as (3, N, 1, ...) in the dtype of ``like`` (3 or N, *b)."""
-        G = self.plant_axes if plant and self.plant_axes is not None else self.axes
+        G = self._plant_axes() if plant else self.axes
         return so3.batch_like(jnp.asarray(G).astype(like.dtype), 2, like)
+
+    def _plant_axes(self):
+        """G_s of the wheels the body carries (3, N)."""
+        return self.axes if self.plant_axes is None else self.plant_axes
 
     def _plant_spin_inertia(self):
         """J_s of the wheels the body carries (N,) [kg m^2]."""
@@ -241,14 +245,13 @@ class Wheels(Actuator):
 
     def _spin_inertia_matrix(self, dtype):
         """G_s J_s G_s^T (3, 3) [kg m^2] of the wheels the body carries."""
-        G = self.axes if self.plant_axes is None else self.plant_axes
-        return _weighted_gram(jnp.asarray(G).astype(dtype), jnp.asarray(self._plant_spin_inertia()).astype(dtype))
+        G, J_s = self._plant_axes(), self._plant_spin_inertia()
+        return _weighted_gram(jnp.asarray(G).astype(dtype), jnp.asarray(J_s).astype(dtype))
 
     def spin_inertia_values(self):
         """G_s J_s G_s^T (3, 3) [kg m^2] as a NumPy array, or None where a parameter is
         traced (the checks' host-side copy of :meth:`_spin_inertia_matrix`)."""
-        G = _values(self.axes if self.plant_axes is None else self.plant_axes)
-        J_s = _values(self._plant_spin_inertia())
+        G, J_s = _values(self._plant_axes()), _values(self._plant_spin_inertia())
         if G is None or J_s is None or G.ndim != 2 or J_s.shape != G.shape[1:]:
             return None
         return (G * J_s) @ G.T

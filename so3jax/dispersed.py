@@ -241,12 +241,11 @@ def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None
     params, leaves = inputs
     m, dtype = MISSIONS[mission], params.J0.dtype
     scenarios = jax.vmap(lambda p: scenario(m, p))(params)
-    n = record_every
     if not leaves:
-        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=n))
+        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=record_every))
 
     def one(s, seed, values):
-        return _results(rollout(s, law, gains, seed, loop=loop(m, values, dtype), record_every=n))
+        return _results(rollout(s, law, gains, seed, loop=loop(m, values, dtype), record_every=record_every))
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 

@@ -27,13 +27,9 @@ LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
 def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh | None = None) -> dict:
-    """{metric: values} of a batch of samples (the SPEC 6 metrics, and the flight metrics
-    of a sampled loop): inputs = (RolloutParams, {dispersed component
-    parameter: values}), leading batch axis, split over the devices of ``mesh``
-    (:func:`so3jax.devices.split`; None: one device). Their scenarios share the mission's
-    loop and run natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a
-    vmap of rollouts); with dispersed component parameters, each sample's loop is its own
-    (a vmap of rollouts)."""
+    """:func:`so3jax.dispersed.sample_metrics` of a batch of samples without histories,
+    by controller name, the batch split over the devices of ``mesh``
+    (:func:`so3jax.devices.split`; None: one device)."""
     m = dispersed.MISSIONS[mission]
     shard = functools.partial(dispersed.sample_metrics, law=m.controller(controller)[0], mission=mission,
                               record_every=steps_for_horizon(m.T, m.dt))  # no history

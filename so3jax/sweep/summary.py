@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax import dispersions as disp
+from so3jax.flight_metrics import FlightMetrics
 from so3jax.metrics import Metrics, cell, finite_values, reported
 from so3jax.sweep.config import SweepConfig, config_to_dict
 
@@ -68,6 +69,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
         cols.update({key: flat[:, 0]} if value.ndim == 1 else {f"{key}_{i + 1}": flat[:, i] for i in range(flat.shape[1])})
     phases = _phases(config)
     n = len(p.seed)
+    flight = flight_fields(results)
     for c in config.controllers:
         r = results.get(c, {})
         done = r.get("done", np.zeros(n, bool))
@@ -81,7 +83,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
                 cols.update({f"{c}_{field.removesuffix('_phase')}_{name}": value[:, i] for i, name in phases})
             else:
                 cols[f"{c}_{field}"] = value
-        for field in flight_fields(results):
+        for field in flight:
             cols[f"{c}_{field}"] = reported(r.get(field, np.full(n, np.nan)), nonfinite)
         cols[f"{c}_nonfinite"] = np.where(done, r.get("diverged", np.zeros(n)) == 1, np.nan)
         cols[f"{c}_diverged"] = np.where(done, diverged(config, r) if r else False, np.nan)
@@ -93,8 +95,6 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
 
 def flight_fields(results: dict) -> list[str]:
     """The flight metrics the results hold (those of a sampled loop; none otherwise)."""
-    from so3jax.flight_metrics import FlightMetrics
-
     held = set().union(*(r.keys() for r in results.values())) if results else set()
     return [field for field in FlightMetrics._fields if field in held]
 
