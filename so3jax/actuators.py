@@ -20,7 +20,9 @@ that reports what it does to it, from its own state and the input held over a pe
   (the flight metrics' actuator effort);
 * ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of the batch shape;
 * ``speed_ratio(state)``: max_i |Omega_w,i| / Omega_max,i (0 without wheels);
-* ``check()``: one-line ValueErrors on bad parameters, before compilation.
+* ``check()``: one-line ValueErrors on bad parameters, before compilation;
+* ``uncompensated_momentum(state, omega_hat)`` (optional): the stored momentum a control
+  law must account for itself, h_w_hat (3, *b) [N m s], or None (also when absent).
 
 :class:`Actuator` gives the defaults of a stateless actuator without stored momentum or
 limits. Arrays follow :mod:`so3jax.so3`: components first, batch axes last; wheel arrays
@@ -112,8 +114,19 @@ class Actuator:
     def speed_ratio(self, state):
         return 0.0
 
+    def uncompensated_momentum(self, state, omega_hat):
+        """The stored momentum a control law must account for itself (3, *b) [N m s]:
+        None where the actuator stores none or compensates it in its command."""
+        return None
+
     def check(self) -> None:
         pass
+
+
+def uncompensated_momentum(actuator, state, omega_hat):
+    """``actuator.uncompensated_momentum(state, omega_hat)``, None where it has no such method."""
+    method = getattr(actuator, "uncompensated_momentum", None)
+    return None if method is None else method(state, omega_hat)
 
 
 def momentum(actuator, state, Omega):
@@ -301,6 +314,11 @@ class Wheels(Actuator):
     def body_torque(self, state, held, Omega):
         """-G_s u (3, *b) [N m], along the axes the body carries."""
         return -_spin_sum(self._axes(held.u, plant=True), held.u)
+
+    def uncompensated_momentum(self, state, omega_hat):
+        """h_w_hat (from omega_hat and the tachometers) without the momentum compensation,
+        None with it (the command then adds omega_hat x h_w_hat itself)."""
+        return None if self.momentum_compensation else self.momentum(state, omega_hat)
 
     def _compensation(self, state, omega_hat):
         """omega_hat x h_w_hat (3, *b) [N m]."""

@@ -32,7 +32,7 @@ import numpy as np
 
 from so3jax import metrics, plant, so3
 from so3jax._pytree import pytree_dataclass, static_field
-from so3jax.actuators import Ideal
+from so3jax.actuators import Ideal, uncompensated_momentum
 from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
 from so3jax.estimators import Truth
 from so3jax.integrate import OnSO3, rk4_step
@@ -185,7 +185,8 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
     def law(t, x, wanted):
         if not continuous:
             return state.held, ()
-        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega), wanted, t)
+        h_w = uncompensated_momentum(loop.actuator, x.actuator, x.Omega)
+        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega, h_w), wanted, t)
         return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
 
     field = _field(scenario, loop, p, d, law)
@@ -215,7 +216,8 @@ def observe(scenario: Scenario, controller: Controller, gains, state: State, k, 
     """The :class:`Observation` at step start k of the continuous wiring."""
     t, p = time(scenario, k), phase(scenario, k)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
-    tau_cmd, _ = controller.torque(gains, state.controller, Measured(state.R, state.Omega), wanted, t)
+    h_w = uncompensated_momentum(loop.actuator, state.actuator, state.Omega)
+    tau_cmd, _ = controller.torque(gains, state.controller, Measured(state.R, state.Omega, h_w), wanted, t)
     tau = loop.actuator.delivered(state.actuator, loop.actuator.command(state.actuator, tau_cmd, state.Omega),
                                   state.Omega)
     batch = state.Omega.shape[1:]
@@ -243,7 +245,8 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
     estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
-    measured_state = Measured(estimate.R_hat, estimate.omega_hat)
+    h_w = uncompensated_momentum(loop.actuator, state.actuator, estimate.omega_hat)
+    measured_state = Measured(estimate.R_hat, estimate.omega_hat, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, measured_state, wanted, t)
     held = loop.actuator.command(state.actuator, tau_cmd, estimate.omega_hat)
     if controller.update is None:

@@ -134,6 +134,10 @@ class Mission:
     def describe(self) -> dict:
         """The mission as JSON-ready plain data (the ``config`` of results)."""
         d = dataclasses.asdict(self)
+        # options fix results only for the laws flown and where given: a law registered
+        # or left at its defaults elsewhere does not change what a mission is
+        d["options"] = {name: values for name, values in d["options"].items()
+                        if name in self.controllers or to_builtin(values) != to_builtin(registry.parse_options(name, {}))}
         d["gains"] = {k: {f: np.asarray(v).tolist() for f, v in g._asdict().items()} for k, g in self.gains.items()}
         return to_builtin(d)
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -248,11 +248,26 @@ def check_inertia_profile(scenario: Scenario, *, batch_last: bool = False) -> No
         )
 
 
+class Nonnegative(NamedTuple):
+    """The domain g >= 0 of a gain (0 turns a term off), declared in its gains type's class
+    attribute ``domains`` ({field: Nonnegative(scale)}); every other gain is positive.
+    scale: the gain's typical size, in its unit: the tuner's parameter is g / scale."""
+
+    scale: float
+
+
+def gain_domain(gains, name: str):
+    """Nonnegative(scale) where the gains type declares it, else None (a positive gain)."""
+    return getattr(type(gains), "domains", {}).get(name)
+
+
 def check_gains(gains, *, batch_axes: int = 0) -> None:
-    """Every gain positive and finite; a matrix Gamma symmetric positive definite.
-    batch_axes: leading batch axes of every gain (a batch of gains)."""
+    """Every gain finite and positive (>= 0 where its type declares it :class:`Nonnegative`);
+    a matrix Gamma symmetric positive definite. batch_axes: leading batch axes of every
+    gain (a batch of gains)."""
     for path, value in jax.tree_util.tree_flatten_with_path(gains)[0]:
         name = jax.tree_util.keystr(path, simple=True, separator=".")
+        nonnegative = isinstance(gain_domain(gains, name), Nonnegative)
         _real_dtype(value, f"gain {name}")
         value = _concrete(value)
         if value is None:
@@ -266,7 +281,9 @@ def check_gains(gains, *, batch_axes: int = 0) -> None:
                 raise ValueError("gain Gamma is not symmetric")
             if np.any(np.linalg.eigvalsh(value) <= 0):
                 raise ValueError("gain Gamma is not positive definite")
-        elif np.any(value <= 0):
+        elif nonnegative and np.any(value < 0):
+            raise ValueError(f"gain {name} must be >= 0, got {value}")
+        elif not nonnegative and np.any(value <= 0):
             raise ValueError(f"gain {name} must be positive, got {value}")
 
 

@@ -27,6 +27,7 @@ from so3jax import so3
 class Measured(NamedTuple):
     R: jax.Array  # (3, 3) body -> inertial
     Omega: jax.Array  # (3,) body rate, rad/s
+    wheel_momentum: Any = None  # (3,) N m s: h_w the law must account for (the actuator does not), or None
 
 
 class Desired(NamedTuple):

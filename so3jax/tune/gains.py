@@ -1,5 +1,5 @@
 """Tunable controllers and their gains: the laws a mission configures, reading gains
-("mission", "paper", a table, a best_gains.json), the log-gain parameters p = log g, and
+("mission", "paper", a table, a best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
 gains as tables and columns."""
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import numpy as np
 from so3jax import config as cfg
 from so3jax import runfolder
 from so3jax.controllers import registry
+from so3jax.scenario import gain_domain
 
 # One instance per controller with its default options, so that jit caches hit across runs.
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
@@ -85,13 +86,30 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     return gains
 
 
+def _fieldwise(gains, positive, nonnegative):
+    """positive(value) on each positive gain, nonnegative(value, scale) on each gain its
+    type declares Nonnegative(scale) (scenario.gain_domain)."""
+    def one(name, value):
+        domain = gain_domain(gains, name)
+        return positive(value) if domain is None else nonnegative(value, domain.scale)
+
+    return type(gains)(**{name: one(name, value) for name, value in gains._asdict().items()})
+
+
 def to_params(gains):
-    """Log-gains, the tuned parameters."""
-    return jax.tree.map(jnp.log, gains)
+    """The tuned parameters: p = log g of a positive gain, p = g / scale of a nonnegative one."""
+    return _fieldwise(gains, jnp.log, lambda g, scale: g / scale)
 
 
 def to_gains(params):
-    return jax.tree.map(jnp.exp, params)
+    """g = exp p, or scale max(p, 0) for a nonnegative gain."""
+    return _fieldwise(params, jnp.exp, lambda p, scale: scale * jnp.maximum(p, 0.0))
+
+
+def project(params):
+    """Parameters on their domain: a nonnegative gain's p clipped at 0 after each step
+    (projected gradient), so that a gain at 0 keeps a derivative that can move it."""
+    return _fieldwise(params, lambda p: p, lambda p, scale: jnp.maximum(p, 0.0))
 
 
 def gains_table(gains) -> dict:

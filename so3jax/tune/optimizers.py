@@ -1,4 +1,5 @@
-"""Optimizer steps in log-gain space: an optax update, and the gradient-free (1+lambda)-ES
+"""Optimizer steps on the tuned parameters (log-gains; a nonnegative gain scaled, kept >= 0):
+an optax update, and the gradient-free (1+lambda)-ES
 baseline."""
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from so3jax.tune.cost import Evaluation
+from so3jax.tune.gains import project
 
 class GradientState(NamedTuple):
     params: Any
@@ -30,7 +32,7 @@ class ESState(NamedTuple):
 def _optax_step(tx, state: GradientState, grad, value):
     with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
         updates, opt_state = tx.update(grad, state.opt_state, state.params, value=value)
-    return GradientState(optax.apply_updates(state.params, updates), opt_state)
+    return GradientState(project(optax.apply_updates(state.params, updates)), opt_state)
 
 
 def es_candidates(params, sigma, key, population):
