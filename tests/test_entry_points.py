@@ -2,12 +2,15 @@
 
 ``rollout``, ``rollout_batch`` and ``simulate`` on a tiny sampled-data mission (T = 0.3 s,
 dt = 0.05 s, control period 0.1 s: three ticks) under ``jax.jit``, ``jax.vmap`` and
-``jax.grad``; every estimator (truth, raw, mekf), actuator (ideal, saturated, wheels) and
-registered controller appears in one of three loops, so that few programs compile: per
-loop, the un-jitted ``rollout`` (the reference), one jitted program holding the rollout
-under ``vmap`` (over seeds) of ``value_and_grad`` and ``rollout_batch``, and ``simulate``.
-The results are finite and equal to the un-jitted call (to round-off: XLA fuses the
-programs differently); the gradient equals central differences of the jitted rollout.
+``jax.grad`` or ``jax.jacfwd``; every estimator (truth, raw, mekf), actuator (ideal,
+saturated, wheels) and registered controller appears in one of the loops, so that few
+programs compile: per loop, the un-jitted ``rollout`` (the reference), one jitted program
+holding the rollout under ``vmap`` (over seeds) of its derivative and ``rollout_batch``,
+and ``simulate``. Reverse mode, the costly one to compile, in one loop (every component's
+reverse mode is also checked where it is tested: tests/test_loop.py for the MEKF); forward
+mode in the others. The results are finite and equal to the un-jitted call (to round-off:
+XLA fuses the programs differently); the derivative equals central differences of the
+jitted rollout.
 """
 
 from __future__ import annotations
@@ -26,9 +29,11 @@ from so3jax import mission as missions
 from so3jax.controllers import registry
 
 TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
-# Each registered component in one loop (estimator, actuator, controller), the heavy
-# parts (MEKF, wheels, the adaptive law) spread over the loops.
-LOOPS = [("mekf", "ideal", "pd"), ("truth", "wheels", "adaptive"), ("raw", "saturated", "open_loop")]
+# Each registered component in one loop (estimator, actuator, controller, derivative), the
+# heavy parts (MEKF, wheels, the adaptive law, reverse mode) spread over the loops.
+LOOPS = [("mekf", "ideal", "pd", "forward"), ("truth", "wheels", "adaptive", "reverse"),
+         ("raw", "saturated", "open_loop", "forward"), ("raw", "wheels", "mrp_feedback", "forward"),
+         ("truth", "saturated", "sliding_mode", "forward")]
 SEEDS = jnp.arange(2)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
@@ -36,7 +41,7 @@ FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive
 
 
 def test_every_registered_component_is_flown():
-    estimators, actuators, controllers = (set(parts) for parts in zip(*LOOPS))
+    estimators, actuators, controllers, _ = (set(parts) for parts in zip(*LOOPS))
     assert estimators == set(components.names("estimator")) and actuators == set(components.names("actuator")) and controllers == set(registry.names())
 
 
@@ -44,7 +49,7 @@ class Setup:
     """A tiny mission's scenario, loop, controller and gains; the loop is closed over by
     the traced functions (as benchmarks/flight.py does), its checks run under the trace."""
 
-    def __init__(self, estimator, actuator, controller):
+    def __init__(self, estimator, actuator, controller, mode):
         overrides = [*TINY, f'estimator.kind="{estimator}"', f'actuator.kind="{actuator}"',
                      f'controllers=["{controller}"]']
         with warnings.catch_warnings():
@@ -54,6 +59,7 @@ class Setup:
         self.loop = m.loop()
         self.controller, self.gains = m.controller(controller)
         self.gains = jax.tree.map(lambda g: jnp.asarray(g, jnp.float64), self.gains)
+        self.mode = mode
 
     def with_omega0(self, omega0):
         return dataclasses.replace(self.scenario, Omega0=omega0)
@@ -62,16 +68,16 @@ class Setup:
         return sj.rollout(self.with_omega0(omega0), self.controller, gains, seed, loop=self.loop, record_every=6)
 
     def transformed(self, gains, omega0, seeds):
-        """The jitted program: the rollout under vmap over seeds of value_and_grad (its rmse
-        differentiated in gains and Omega0, the whole Result alongside), and rollout_batch
-        over the same seeds."""
+        """The jitted program: the rollout under vmap over seeds of its derivative (its rmse
+        differentiated in gains and Omega0 by jax.grad or jax.jacfwd, the whole Result
+        alongside), and rollout_batch over the same seeds."""
 
         def rmse(gains, omega0, seed):
             result = self.rollout(gains, omega0, seed)
             return result.metrics.rmse, result
 
-        value_and_grad = jax.value_and_grad(rmse, argnums=(0, 1), has_aux=True)
-        (_, mapped), grad = jax.vmap(value_and_grad, in_axes=(None, None, 0))(gains, omega0, seeds)
+        derivative = (jax.grad if self.mode == "reverse" else jax.jacfwd)(rmse, argnums=(0, 1), has_aux=True)
+        grad, mapped = jax.vmap(derivative, in_axes=(None, None, 0))(gains, omega0, seeds)
         batch = sj.rollout_batch(self.with_omega0(omega0), self.controller, gains, seeds, scenario_axes=None,
                                  loop=self.loop, record_every=6)
         return mapped, grad, batch
@@ -153,7 +159,7 @@ def test_grad_is_finite_and_matches_central_differences(flown):
         fd = (rmse(setup.gains, OMEGA0 + e) - rmse(setup.gains, OMEGA0 - e)) / (2 * h)
         np.testing.assert_allclose(omega_grad[:, i], fd, rtol=1e-6)
     for name, value in setup.gains._asdict().items():
-        h = 1e-4 * float(value)
+        h = 1e-4 * float(value) if float(value) != 0 else 1e-8  # a gain at 0 (mrp_feedback's K_i)
         bump = lambda s: setup.gains._replace(**{name: value + s * h})
         fd = (rmse(bump(1.0), OMEGA0) - rmse(bump(-1.0), OMEGA0)) / (2 * h)
         np.testing.assert_allclose(getattr(gains_grad, name), fd, rtol=1e-4)  # Gamma's is ~1e-18: FD noise
@@ -164,7 +170,7 @@ def test_checks_under_tracing_read_no_traced_value():
     """Every component's check and the loop's check run under jit (shapes and static
     data only): building the programs above traced them; here the wheel inertia check,
     which reads the scenario's inertias, with the wheels' parameters traced."""
-    setup = Setup("truth", "wheels", "adaptive")
+    setup = Setup("truth", "wheels", "adaptive", "forward")
     wheels = setup.loop.actuator
 
     def rmse_of_spin(spin):

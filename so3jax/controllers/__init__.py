@@ -1,7 +1,7 @@
 """Attitude controllers behind one interface (see :mod:`so3jax.controllers.base`), each
 registered by name in :mod:`so3jax.controllers.registry`."""
 
-from so3jax.controllers import pd, adaptive, open_loop  # noqa: I001 (registration order: pd, adaptive, open_loop)
+from so3jax.controllers import pd, adaptive, open_loop, mrp_feedback, sliding_mode  # noqa: I001 (registration order)
 
 from so3jax.controllers.adaptive import (
     PAPER_ADAPTIVE_GAINS,
@@ -14,6 +14,7 @@ from so3jax.controllers.base import Controller, Desired, Measured, TrackingError
 from so3jax.controllers.open_loop import NoGains, open_loop
 from so3jax.controllers.pd import PAPER_PD_GAINS, PDGains, geometric_pd
 from so3jax.controllers.registry import ControllerSpec, get, names, register
+from so3jax.controllers.sliding_mode import SlidingModeGains, sliding_mode
 
 __all__ = [
     "PAPER_ADAPTIVE_GAINS",
@@ -25,6 +26,7 @@ __all__ = [
     "Measured",
     "NoGains",
     "PDGains",
+    "SlidingModeGains",
     "TrackingError",
     "adaptive_backstepping",
     "geometric_pd",
@@ -34,5 +36,6 @@ __all__ = [
     "register",
     "regressor",
     "regressor_parameters",
+    "sliding_mode",
     "tracking_error",
 ]

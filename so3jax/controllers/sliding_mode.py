@@ -1,0 +1,111 @@
+"""Geometric sliding mode on SO(3) with a boundary layer.
+
+The sliding variable combines the rate and attitude errors (T. Lee, "Robust adaptive
+attitude tracking on SO(3) with an application to a quadrotor UAV", IEEE TCST 21(5),
+2013: e_Omega + c e_R), with R_e = R_d^T R:
+
+    e_R = 1/2 (R_e - R_e^T)^vee           [rad]      (Lee's 1/2 (R_d^T R - R^T R_d)^vee)
+    Omega_e = Omega - Omega_r,  Omega_r = R_e^T Omega_d                    [rad/s]
+    s = Omega_e + lam e_R                 [rad/s]
+    e_R' = E(R_e) Omega_e,  E = 1/2 (tr(R_e^T) I - R_e^T)  (Lee, Leok, McClamroch 2010)
+    Omega_e' = Omega' + Omega x Omega_r - R^T R_d Omega_d'
+
+With a nominal inertia J_hat (option ``J_hat``, the identity by default):
+
+    tau = Omega x J_hat Omega - J_hat (Omega x Omega_r - R^T R_d Omega_d' + lam E(R_e) Omega_e)
+          - k_s s - eta sat_phi(s)
+
+sat_phi(s) = tanh(s / phi) (``boundary="tanh"``) or clip(s / phi, -1, 1) (``"sat"``),
+elementwise: the switching term -eta sign(s) smoothed in a boundary layer of width phi
+(Slotine & Li, Applied Nonlinear Control, 1991, sec. 7.1-7.2).
+
+For J_hat = J constant and no disturbance, J Omega' = J Omega x Omega + tau gives
+J s' = -k_s s - eta sat_phi(s), so V = 1/2 s^T J s has V' = -k_s |s|^2 - eta s^T sat_phi(s)
+<= 0 (each s_i sat_phi(s_i) >= 0): s -> 0. On s = 0, Psi = 1/2 tr(I - R_e) = 1 - cos(angle)
+has Psi' = e_R . Omega_e = -lam |e_R|^2: the attitude error falls from any angle below pi.
+
+Units: lam [1/s], k_s [N m s/rad], eta [N m], phi [rad/s].
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from so3jax import so3
+from so3jax._fusion import materialize
+from so3jax.components import Param
+from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.pd import J_HAT
+from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.scenario import check_gains
+
+
+class SlidingModeGains(NamedTuple):
+    lam: jax.Array  # 1/s: slope of the sliding surface s = Omega_e + lam e_R
+    k_s: jax.Array  # N m s / rad: linear feedback on s
+    eta: jax.Array  # N m: switching gain
+    phi: jax.Array  # rad/s: boundary layer width
+
+
+# k_s lam = k_R and k_s + lam ~ k_Omega of the paper's PD (its linearization with J_hat = I); eta, phi: a small boundary-layer term.
+DEFAULT_GAINS = SlidingModeGains(lam=0.5714 / 25.0, k_s=25.0, eta=0.01, phi=1e-3)
+
+BOUNDARIES = ("tanh", "sat")
+
+
+def attitude_error_rate_matrix(R_e):
+    """E(R_e) = 1/2 (tr(R_e^T) I - R_e^T) (3, 3, ...), with e_R' = E(R_e) Omega_e."""
+    return 0.5 * (so3.trace(R_e) * so3.eye_like(R_e[0]) - so3.transpose(R_e))
+
+
+def sliding_variable(gains, measured, desired):
+    """s = Omega_e + lam e_R [rad/s] (3, ...)."""
+    err = tracking_error(measured, desired)
+    return err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
+
+
+def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
+    """tau = Omega x J_hat Omega - J_hat (Omega x Omega_r - R^T R_d Omega_d' + lam E(R_e) Omega_e)
+    - k_s s - eta sat_phi(s)  [N m], s = Omega_e + lam e_R (see the module).
+
+    J_hat: nominal inertia (3, 3) [kg m^2], the identity by default. boundary: "tanh"
+    (tanh(s / phi)) or "sat" (clip(s / phi, -1, 1)).
+    """
+    if boundary not in BOUNDARIES:
+        raise ValueError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
+    saturate = jnp.tanh if boundary == "tanh" else (lambda x: jnp.clip(x, -1.0, 1.0))
+
+    def init(gains):
+        return ()
+
+    def torque(gains, state, measured, desired, t):
+        err = materialize(tracking_error(measured, desired), t)
+        Omega = measured.Omega
+        nominal = (lambda v: v) if J_hat is None else (lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v))
+        s = err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
+        # E(R_e) Omega_e = 1/2 (tr(R_e) Omega_e - R_e^T Omega_e)
+        e_R_dot = 0.5 * (so3.trace(err.R_e) * err.Omega_e - so3.rmatvec(err.R_e, err.Omega_e))
+        inertial = so3.cross(Omega, nominal(Omega))
+        feedforward = nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot + gains.lam * e_R_dot)
+        tau = inertial - feedforward - gains.k_s * s - gains.eta * saturate(s / gains.phi)
+        return tau, ()
+
+    return Controller(init, torque, SlidingModeGains)
+
+
+register(
+    ControllerSpec(
+        name="sliding_mode",
+        label="sliding mode",
+        factory=sliding_mode,
+        gains_type=SlidingModeGains,
+        defaults=DEFAULT_GAINS,
+        style=dict(ls="-.", color="tab:green", label="sliding mode"),
+        check=check_gains,
+        options=(J_HAT, Param("boundary", "tanh", choices=BOUNDARIES,
+                              doc="sat_phi(s): tanh(s/phi), or sat: clip(s/phi, -1, 1)")),
+    )
+)
