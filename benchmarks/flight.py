@@ -111,9 +111,9 @@ def _time(run) -> float:
     return time.perf_counter() - start
 
 
-def rates(batch: int, n_steps: int, rounds: int) -> dict:
+def rates(batch: int, n_steps: int, rounds: int, controllers=CONTROLLERS) -> dict:
     out = {}
-    for controller in CONTROLLERS:
+    for controller in controllers:
         runs = {w: _programs(w, controller, batch, n_steps) for w in ("paper", "flight")}
         for run in runs.values():
             run()  # warm-up
@@ -185,6 +185,7 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=4096)
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--controllers", default=",".join(CONTROLLERS), help="comma-separated, among " + ", ".join(CONTROLLERS))
     p.add_argument("--against", type=Path, help="another source tree: compare the paper's mode with it")
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -203,7 +204,7 @@ def main(argv=None) -> int:
 
         jax.config.update("jax_enable_x64", True)
         report["devices"] = len(jax.devices())
-        report["rates"] = rates(args.batch, args.steps, args.rounds)
+        report["rates"] = rates(args.batch, args.steps, args.rounds, tuple(args.controllers.split(",")))
     print(json.dumps(report))
     return 0
 

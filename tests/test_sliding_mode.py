@@ -1,8 +1,8 @@
 """sliding_mode against an independent NumPy transcription of the law (scipy's rotations),
 the kinematics e_R' = E(R_e) Omega_e by finite differences, the Lyapunov function
-V = 1/2 s^T J s along a closed-loop rollout, gradients of a rollout, the registration."""
+V = 1/2 s^T J s along a closed-loop rollout, the registration (its derivatives in the flight
+loop, at zero rotation error, against central differences: tests/test_entry_points.py)."""
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -131,41 +131,6 @@ def test_lyapunov_function_decreases(lyapunov_run):
     assert angle[0] > 0.9 and angle[-1] < 0.1 * angle[0]
 
 
-ZERO_RATE = lambda t: jnp.zeros(3) * t  # noqa: E731 (one function object: the scenarios share a program)
-
-
-@pytest.fixture(scope="module")
-def value_and_grad():
-    """jit(value_and_grad) of a 0.5 s rollout's RMSE + effort w.r.t. the gains, the
-    scenario an argument: one program for every scenario and gains below."""
-    law = sliding_mode()
-
-    def cost(gains, scenario):
-        metrics = sj.rollout(scenario, law, gains, 0).metrics
-        return metrics.rmse + metrics.effort
-
-    return jax.jit(jax.value_and_grad(cost))
-
-
-def short_scenario(rotvec):
-    return custom_scenario(0.5, 0.01, rate_fn=ZERO_RATE, R0=Rotation.from_rotvec(rotvec).as_matrix(), Omega0=(1e-3, 0.0, 0.0))
-
-
-def test_gradients_are_finite_and_match_differences(value_and_grad):
-    """At zero rotation error (R = R_d at t = 0) the gradient w.r.t. every gain is finite;
-    with an error, also non-zero and equal to central differences of the same program."""
-    gains = SlidingModeGains(*map(jnp.asarray, (0.05, 25.0, 0.05, 1e-3)))
-    _, grad = value_and_grad(gains, short_scenario([0.0, 0.0, 0.0]))
-    assert all(np.isfinite(g) for g in grad), grad
-
-    scenario = short_scenario([0.2, -0.1, 0.3])
-    _, grad = value_and_grad(gains, scenario)
-    for name, g in zip(SlidingModeGains._fields, grad):
-        assert np.isfinite(g) and g != 0.0, (name, g)
-        step = 1e-4 * getattr(gains, name)
-        up, _ = value_and_grad(gains._replace(**{name: getattr(gains, name) + step}), scenario)
-        down, _ = value_and_grad(gains._replace(**{name: getattr(gains, name) - step}), scenario)
-        np.testing.assert_allclose(g, (up - down) / (2 * step), rtol=1e-5, err_msg=name)
 
 
 def test_registration():
