@@ -258,8 +258,10 @@ class Run:
 
 
 def writing(path) -> None:
-    """Called by :func:`so3jax.io.atomic_path` before it writes ``path``: the run whose
-    folder holds it starts (folder, lock, manifest) and lists it."""
+    """Called by :func:`so3jax.io.atomic_path` before it writes ``path``: each run whose
+    folder holds it starts (folder, lock, manifest) and lists it (a run inside another's
+    folder, as ``compare`` holds its campaigns and sweep, lists its files; the outer run
+    lists the inner folder)."""
     name = os.path.basename(path)
     if name in _OWN:
         return
@@ -268,7 +270,6 @@ def writing(path) -> None:
         for run in _ACTIVE:
             if target.startswith(run.root + os.sep):
                 run.record(target)
-                return
 
 
 @contextlib.contextmanager
