@@ -16,7 +16,6 @@ and their difference, with its interval). Each part resumes with ``--resume``.
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import sys
