@@ -1,7 +1,38 @@
-"""Adaptive backstepping on SO(3) (the paper's controller, corrected; SPEC 3.2)."""
+"""Adaptive backstepping on SO(3) (the paper's controller, corrected; SPEC 3.2), with two
+optional robustness modifications of its update law against parameter drift.
+
+Units (rad dimensionless): Phi [1/s^2], Theta [kg m^2], z [1/s], so Gamma [kg m^2 s^2]
+(Theta_hat' = -Gamma Phi z^T in kg m^2/s). With dTheta = Theta_hat - Theta_0, Theta_0 =
+Theta(J_hat) the initial estimate, and ||.|| the Frobenius norm of the (9, 3) matrix (per
+batch element):
+
+* sigma-modification (Ioannou & Sun, Robust Adaptive Control, 1996, sec. 8.5.2):
+  Theta_hat' = -Gamma (Phi z^T + sigma_s dTheta), sigma [1/(kg m^2 s^3)] so that
+  Gamma sigma is a rate [1/s]. ``leakage="fixed"``: sigma_s = sigma. ``"switching"``:
+  sigma_s = 0 for ||dTheta|| <= M0, sigma (||dTheta|| / M0 - 1) for M0 < ||dTheta|| <= 2 M0,
+  sigma beyond (continuous; M0 = ``theta_bound`` [kg m^2]). The leak pulls toward the
+  nominal Theta_0, not zero: its bias is then proportional to ||Theta - Theta_0|| (none
+  for a right prior), where Theta = 0 is a massless body.
+* projection (Lavretsky & Wise, Robust and Adaptive Control, 2013, sec. 11.4): with
+  theta_max = ``projection_bound`` [kg m^2] and eps = ``projection_eps``,
+  f = ((1 + eps) ||dTheta||^2 - theta_max^2) / (eps theta_max^2) (f <= 0 on the inner
+  ball ||dTheta|| <= theta_max / sqrt(1 + eps), f = 1 on ||dTheta|| = theta_max), and
+  with y the unprojected rate (Gamma applied, leakage included),
+  Theta_hat' = Proj(dTheta, y) = y - Gamma grad f <grad f, y> f / <grad f, Gamma grad f>
+  where f > 0 and <grad f, y> > 0, else y (<A, B> = tr(A^T B)). Then <grad f, Theta_hat'>
+  = (1 - f) <grad f, y>: reduced in the layer 0 < f < 1, zero on f = 1, negative beyond,
+  so ||dTheta|| <= theta_max is invariant. A full (9, 9) Gamma acts on each of
+  Theta_hat's three columns, i.e. the 27-vector gain I_3 kron Gamma, symmetric positive
+  definite with Gamma: the operator uses that metric. The layer makes the flow stiff:
+  the radial rate changes by ~2 (1 + eps) |y| / (eps theta_max) per unit of ||dTheta||,
+  so an explicit integrator holds the bound only where dt ||y|| is small against
+  eps theta_max; beyond, the estimate leaves the ball and gradients through a rollout
+  grow without bound (the sampled wiring's tick clips: see :func:`adaptive_backstepping`).
+"""
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax
@@ -85,29 +116,135 @@ def adaptive_terms(gains, measured, desired, log_derivative="exact", t=None) -> 
     return once(AdaptiveTerms(e, Omega - beta, regressor(Omega, beta_dot)))
 
 
-def adaptive_backstepping(J_hat=None, log_derivative: str = "exact") -> Controller:
+def _gamma_columns(Gamma, M):
+    """Gamma applied to each column of M (9, 3, ...): the 27-vector gain I_3 kron Gamma."""
+    return jnp.stack([_apply_gamma(Gamma, M[:, k]) for k in range(M.shape[1])], 1)
+
+
+def _inner(A, B):
+    """<A, B> = tr(A^T B) over the leading (9, 3) axes, per batch element."""
+    return so3.sum_leading(A * B, 2)
+
+
+def _safe_sqrt(x):
+    """sqrt(x) for x >= 0 with a zero (not infinite) derivative at x = 0."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
+def leakage_rate(d, leakage: str, sigma: float, theta_bound: float | None = None):
+    """sigma_s(dTheta) (batch shape) of the sigma-modification [1/(kg m^2 s^3)], dTheta
+    (9, 3, ...) [kg m^2]: sigma (``"fixed"``) or the switching sigma of bound M0 =
+    theta_bound (``"switching"``, module docstring); zero for ``"none"``."""
+    n2 = _inner(d, d)
+    if leakage == "none":
+        return jnp.zeros_like(n2)
+    if leakage == "fixed":
+        return jnp.full_like(n2, sigma)
+    ratio = _safe_sqrt(n2) / theta_bound
+    return jnp.where(ratio <= 1.0, 0.0, jnp.where(ratio <= 2.0, sigma * (ratio - 1.0), sigma))
+
+
+def project(d, y, Gamma, bound: float, eps: float):
+    """Lavretsky & Wise's smooth projection Proj(dTheta, y) (module docstring): dTheta,
+    y (9, 3, ...) [kg m^2, kg m^2/s], Gamma scalar, (9,) or (9, 9) (with y's batch axes),
+    bound theta_max [kg m^2], eps in (0, 1]. grad f = 2 (1 + eps) dTheta / (eps theta_max^2),
+    whose scale cancels: dTheta stands for it."""
+    f = ((1.0 + eps) * _inner(d, d) - bound**2) / (eps * bound**2)
+    g_y = _inner(d, y)
+    gamma_g = _gamma_columns(Gamma, d)
+    active = (f > 0) & (g_y > 0)  # f > 0 implies dTheta != 0, so <g, Gamma g> > 0
+    scale = jnp.where(active, g_y * f / jnp.where(active, _inner(d, gamma_g), 1.0), 0.0)
+    return jnp.where(active, y - gamma_g * scale, y)
+
+
+def project_to_ball(d, bound: float):
+    """dTheta scaled back onto ||dTheta|| <= theta_max (radially), unchanged inside."""
+    norm = _safe_sqrt(_inner(d, d))
+    return d * jnp.where(norm > bound, bound / jnp.where(norm > bound, norm, 1.0), 1.0)
+
+
+LEAKAGES = ("none", "fixed", "switching")
+
+
+def _checked(name: str, value, unit: str, zero: bool = False) -> float | None:
+    """value as a float, finite and > 0 (>= 0 with zero=True); None stays None."""
+    if value is None:
+        return None
+    x = float(value)
+    if not (math.isfinite(x) and (x >= 0.0 if zero else x > 0.0)):
+        label = f"{name} {unit}" if unit else name
+        raise ValueError(f"{label} must be finite and {'>=' if zero else '>'} 0, got {value!r}")
+    return x
+
+
+def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: str | None = None,
+                          sigma: float | None = None, theta_bound: float | None = None,
+                          projection_bound: float | None = None, projection_eps: float | None = None) -> Controller:
     """tau = -K_r e - K_w z + Theta_hat^T Phi,  Theta_hat' = -Gamma Phi z^T  (SPEC 3.2).
 
-    J_hat: nominal inertia for the initial estimate Theta_hat(0) = Theta(J_hat)
+    J_hat: nominal inertia for the initial estimate Theta_hat(0) = Theta_0 = Theta(J_hat)
     (identity by default). log_derivative: "exact" (e' = J_r^{-1}(e) Omega_e) or
     "paper" (e' = Omega_e, the paper's approximation).
+
+    Robustness modifications (module docstring), off by default (the paper's law, bit for bit):
+    leakage: "none" (default), "fixed" or "switching" sigma-modification, with sigma
+    [1/(kg m^2 s^3)] >= 0 (Gamma sigma [1/s]) and, for "switching", theta_bound M0
+    [kg m^2] > 0 (checked and unused with "none"). projection_bound: theta_max [kg m^2]
+    > 0 of ||Theta_hat - Theta_0||_F (None: no projection), with projection_eps in
+    (0, 1] (default 0.1; checked and unused without a bound). The true Theta - Theta_0
+    should lie in the inner ball theta_max / sqrt(1 + eps) for the Lyapunov argument, and
+    within M0 for the switching sigma's. With the projection, the sampled wiring's tick
+    (``update``) takes the forward-Euler step and scales the result back onto the ball
+    (the continuous operator bounds the continuous flow only). With leakage, forward
+    Euler at a tick of period Delta_c is stable for lambda_max(Gamma) sigma Delta_c < 2.
     """
     if log_derivative not in LOG_DERIVATIVES:
         raise ValueError(f"log_derivative must be one of {LOG_DERIVATIVES}, got {log_derivative!r}")
+    leakage = "none" if leakage is None else leakage
+    if leakage not in LEAKAGES:
+        raise ValueError(f"leakage must be one of {LEAKAGES}, got {leakage!r}")
+    sigma = _checked("sigma", sigma, "[1/(kg m^2 s^3)]", zero=True)
+    theta_bound = _checked("theta_bound", theta_bound, "[kg m^2]")
+    projection_bound = _checked("projection_bound", projection_bound, "[kg m^2]")
+    projection_eps = 0.1 if projection_eps is None else _checked("projection_eps", projection_eps, "")
+    if projection_eps > 1.0:
+        raise ValueError(f"projection_eps must be in (0, 1], got {projection_eps!r}")
+    if leakage != "none" and sigma is None:
+        raise ValueError(f"leakage {leakage!r} needs sigma [1/(kg m^2 s^3)]")
+    if leakage == "switching" and theta_bound is None:
+        raise ValueError("leakage 'switching' needs theta_bound (M0) [kg m^2]")
+    robust = leakage != "none" or projection_bound is not None
 
-    def init(gains):
-        dtype = jnp.result_type(gains.K_r, float)
+    def nominal(dtype):
         J = jnp.eye(3, dtype=dtype) if J_hat is None else jnp.asarray(J_hat, dtype)
         return regressor_parameters(J)
+
+    def init(gains):
+        return nominal(jnp.result_type(gains.K_r, float))
 
     def torque(gains, theta_hat, measured, desired, t):
         terms = adaptive_terms(gains, measured, desired, log_derivative, t)
         feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
         tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
+        if not robust:
+            return tau, theta_dot
+        theta_0 = nominal(theta_hat.dtype)
+        d = theta_hat - theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+        if leakage != "none":
+            theta_dot = theta_dot - leakage_rate(d, leakage, sigma, theta_bound) * _gamma_columns(gains.Gamma, d)
+        if projection_bound is not None:
+            theta_dot = project(d, theta_dot, gains.Gamma, projection_bound, projection_eps)
         return tau, theta_dot
 
-    return Controller(init, torque, AdaptiveGains)
+    def update(gains, theta_hat, measured, desired, t, period):
+        theta_0 = nominal(theta_hat.dtype)
+        theta_0 = theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+        stepped = theta_hat + period * torque(gains, theta_hat, measured, desired, t)[1]
+        return theta_0 + project_to_ball(stepped - theta_0, projection_bound)
+
+    return Controller(init, torque, AdaptiveGains, None if projection_bound is None else update)
 
 
 register(
@@ -120,7 +257,19 @@ register(
         style=dict(ls="-", color="tab:blue", label="adaptive"),
         check=check_gains,
         shapes={"Gamma": GAMMA_SHAPES},
+        # the robustness options default to None (absent unless given): a mission that does
+        # not set them describes, fingerprints and flies as before
         options=(J_HAT, Param("log_derivative", "exact", choices=LOG_DERIVATIVES,
-                              doc="exact: e' = J_r^-1(e) Omega_e; paper: e' = Omega_e")),
+                              doc="exact: e' = J_r^-1(e) Omega_e; paper: e' = Omega_e"),
+                 Param("leakage", None, choices=LEAKAGES,
+                       doc="sigma-modification toward Theta(J_hat): none (default) | fixed | switching"),
+                 Param("sigma", None, "1/(kg m^2 s^3)", low=0.0,
+                       doc="leakage sigma (Gamma sigma is a rate [1/s]); needed by fixed and switching"),
+                 Param("theta_bound", None, "kg m^2", low=0.0,
+                       doc="switching sigma's M0: no leakage while ||Theta_hat - Theta_0||_F <= M0, full beyond 2 M0"),
+                 Param("projection_bound", None, "kg m^2", low=0.0,
+                       doc="projection keeps ||Theta_hat - Theta_0||_F <= this (default: no projection)"),
+                 Param("projection_eps", None, low=0.0, high=1.0,
+                       doc="projection's boundary layer eps in (0, 1] (default 0.1)")),
     )
 )
