@@ -40,7 +40,7 @@ from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.components import Param
 from so3jax.controllers.base import Controller, tracking_error
-from so3jax.controllers.pd import J_HAT
+from so3jax.controllers.pd import J_HAT, nominal_inertia
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import Nonnegative, check_gains
 
@@ -86,8 +86,7 @@ def mrp_feedback(J_hat=None, law_type: int = 0) -> Controller:
     if law_type not in LAW_TYPES:
         raise ValueError(f"law_type must be 0 or 1, got {law_type!r}")
 
-    def nominal(v):
-        return v if J_hat is None else so3.matvec(so3.batch_like(J_hat, 2, v), v)
+    nominal = nominal_inertia(J_hat)
 
     def init(gains):
         dtype = jnp.result_type(gains.K, float)

@@ -16,6 +16,13 @@ from so3jax.scenario import check_gains
 J_HAT = Param("J_hat", None, "kg m^2", shapes=((3, 3),), doc="nominal inertia (default: the identity)")
 
 
+def nominal_inertia(J_hat):
+    """v -> J_hat v [kg m^2 x v's unit] for v (3, ...), the identity where J_hat is None."""
+    if J_hat is None:
+        return lambda v: v
+    return lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v)
+
+
 class PDGains(NamedTuple):
     k_R: jax.Array  # N m / rad
     k_Omega: jax.Array  # N m s / rad
@@ -29,6 +36,7 @@ def geometric_pd(J_hat=None) -> Controller:
 
     J_hat: nominal inertia (3, 3) [kg m^2]; identity by default (the paper: "no knowledge").
     """
+    nominal = nominal_inertia(J_hat)
 
     def init(gains):
         return ()
@@ -36,7 +44,6 @@ def geometric_pd(J_hat=None) -> Controller:
     def torque(gains, state, measured, desired, t):
         err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
-        nominal = (lambda v: v) if J_hat is None else (lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v))
         e_R = so3.skew_vee(err.R_e)
         inertial = so3.cross(Omega, nominal(Omega))
         feedforward = nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot)

@@ -38,7 +38,7 @@ from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.components import Param
 from so3jax.controllers.base import Controller, tracking_error
-from so3jax.controllers.pd import J_HAT
+from so3jax.controllers.pd import J_HAT, nominal_inertia
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import check_gains
 
@@ -77,6 +77,7 @@ def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
     if boundary not in BOUNDARIES:
         raise ValueError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
     saturate = jnp.tanh if boundary == "tanh" else (lambda x: jnp.clip(x, -1.0, 1.0))
+    nominal = nominal_inertia(J_hat)
 
     def init(gains):
         return ()
@@ -84,7 +85,6 @@ def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
     def torque(gains, state, measured, desired, t):
         err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
-        nominal = (lambda v: v) if J_hat is None else (lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v))
         s = err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
         # E(R_e) Omega_e = 1/2 (tr(R_e) Omega_e - R_e^T Omega_e)
         e_R_dot = 0.5 * (so3.trace(err.R_e) * err.Omega_e - so3.rmatvec(err.R_e, err.Omega_e))
