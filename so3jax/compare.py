@@ -180,9 +180,11 @@ def figure(config: CompareConfig, columns: dict):
     ref = config.reference
     others = [law for law in config.laws if law != ref]
     for law in config.laws:
-        x = np.sort(columns[f"{law}_rmse"][(columns[f"{law}_diverged"] == 0)])
-        cdf.plot(x, np.arange(1, len(x) + 1) / max(len(x), 1), **registry.style(law))
-    cdf.set(xscale="log", xlabel="RMSE [rad/s]", ylabel="share of samples", title="RMSE over the dispersed missions")
+        flown = ~np.isnan(columns[f"{law}_diverged"])  # a diverged sample keeps the curve below 1
+        x = np.sort(columns[f"{law}_rmse"][flown & (columns[f"{law}_diverged"] == 0)])
+        cdf.plot(x, np.arange(1, len(x) + 1) / max(int(flown.sum()), 1), **registry.style(law))
+    cdf.set(xscale="log", xlabel="RMSE [rad/s]", ylabel="share of samples (diverged: never reached)",
+            title="RMSE over the dispersed missions")
     cdf.legend()
     data = []
     for law in others:
