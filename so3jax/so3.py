@@ -112,11 +112,15 @@ def solve_spd(m, b):
     return jnp.stack([c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z]) * inv_det
 
 
+def safe_sqrt(x):
+    """sqrt(x) for x >= 0 with a zero (not infinite) derivative at x = 0."""
+    pos = x > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
+
+
 def safe_norm(v):
     """|v| with a zero (not NaN) gradient at v = 0."""
-    n2 = dot(v, v)
-    pos = n2 > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, n2, 1.0)), 0.0)
+    return safe_sqrt(dot(v, v))
 
 
 # --- the Lie algebra ------------------------------------------------------------

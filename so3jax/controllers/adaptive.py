@@ -126,12 +126,6 @@ def _inner(A, B):
     return so3.sum_leading(A * B, 2)
 
 
-def _safe_sqrt(x):
-    """sqrt(x) for x >= 0 with a zero (not infinite) derivative at x = 0."""
-    pos = x > 0
-    return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
-
-
 def leakage_rate(d, leakage: str, sigma: float, theta_bound: float | None = None):
     """sigma_s(dTheta) (batch shape) of the sigma-modification [1/(kg m^2 s^3)], dTheta
     (9, 3, ...) [kg m^2]: sigma (``"fixed"``) or the switching sigma of bound M0 =
@@ -141,7 +135,7 @@ def leakage_rate(d, leakage: str, sigma: float, theta_bound: float | None = None
         return jnp.zeros_like(n2)
     if leakage == "fixed":
         return jnp.full_like(n2, sigma)
-    ratio = _safe_sqrt(n2) / theta_bound
+    ratio = so3.safe_sqrt(n2) / theta_bound
     return jnp.where(ratio <= 1.0, 0.0, jnp.where(ratio <= 2.0, sigma * (ratio - 1.0), sigma))
 
 
@@ -160,7 +154,7 @@ def project(d, y, Gamma, bound: float, eps: float):
 
 def project_to_ball(d, bound: float):
     """dTheta scaled back onto ||dTheta|| <= theta_max (radially), unchanged inside."""
-    norm = _safe_sqrt(_inner(d, d))
+    norm = so3.safe_sqrt(_inner(d, d))
     return d * jnp.where(norm > bound, bound / jnp.where(norm > bound, norm, 1.0), 1.0)
 
 
@@ -220,6 +214,11 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: st
         J = jnp.eye(3, dtype=dtype) if J_hat is None else jnp.asarray(J_hat, dtype)
         return regressor_parameters(J)
 
+    def nominal_like(theta_hat):
+        """Theta_0 with theta_hat's batch axes (of size 1)."""
+        theta_0 = nominal(theta_hat.dtype)
+        return theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+
     def init(gains):
         return nominal(jnp.result_type(gains.K_r, float))
 
@@ -230,8 +229,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: st
         theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
         if not robust:
             return tau, theta_dot
-        theta_0 = nominal(theta_hat.dtype)
-        d = theta_hat - theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+        d = theta_hat - nominal_like(theta_hat)
         if leakage != "none":
             theta_dot = theta_dot - leakage_rate(d, leakage, sigma, theta_bound) * _gamma_columns(gains.Gamma, d)
         if projection_bound is not None:
@@ -239,8 +237,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: st
         return tau, theta_dot
 
     def update(gains, theta_hat, measured, desired, t, period):
-        theta_0 = nominal(theta_hat.dtype)
-        theta_0 = theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+        theta_0 = nominal_like(theta_hat)
         stepped = theta_hat + period * torque(gains, theta_hat, measured, desired, t)[1]
         return theta_0 + project_to_ball(stepped - theta_0, projection_bound)
 

@@ -57,3 +57,17 @@ def tracking_error(measured: Measured, desired: Desired) -> TrackingError:
     Omega_r = so3.rmatvec(R_e, desired.Omega_d)
     feedforward_dot = so3.rmatvec(R_e, desired.Omega_d_dot)
     return TrackingError(R_e, Omega_r, measured.Omega - Omega_r, feedforward_dot)
+
+
+def nominal_inertia(J_hat):
+    """v -> J_hat v [kg m^2 x v's unit] for v (3, ...), the identity where J_hat is None."""
+    if J_hat is None:
+        return lambda v: v
+    return lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v)
+
+
+def inertial_terms(nominal, Omega, err: TrackingError, extra=None):
+    """(Omega x J_hat Omega, J_hat (Omega x Omega_r - R^T R_d Omega_d' [+ extra])) [N m], the
+    rigid body's terms a law with a nominal inertia cancels (SPEC 3.1); nominal: v -> J_hat v."""
+    rate = so3.cross(Omega, err.Omega_r) - err.feedforward_dot
+    return so3.cross(Omega, nominal(Omega)), nominal(rate if extra is None else rate + extra)

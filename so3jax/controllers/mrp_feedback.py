@@ -39,8 +39,8 @@ import jax.numpy as jnp
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.components import Param
-from so3jax.controllers.base import Controller, tracking_error
-from so3jax.controllers.pd import J_HAT, nominal_inertia
+from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import Nonnegative, check_gains
 
@@ -92,16 +92,16 @@ def mrp_feedback(J_hat=None, law_type: int = 0) -> Controller:
         dtype = jnp.result_type(gains.K, float)
         return IntegralState(jnp.zeros(3, dtype), jnp.zeros((), dtype))
 
-    def advanced(gains, state, sigma):
-        """int_sigma after this tick's K dt sigma, clipped per component."""
-        limit = so3.batch_like(gains.integral_limit, 0, sigma)
+    def advanced(gains, state, sigma, limit):
+        """int_sigma after this tick's K dt sigma, clipped per component to +-limit."""
         return jnp.clip(state.integral + gains.K * state.dt * sigma, -limit, limit)
 
     def torque(gains, state, measured, desired, t):
         err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
         sigma = mrp(err.R_e)
-        integral = advanced(gains, state, sigma)
+        limit = so3.batch_like(gains.integral_limit, 0, sigma)
+        integral = advanced(gains, state, sigma, limit)
         z = integral + nominal(err.Omega_e)
         H = nominal(Omega)
         if measured.wheel_momentum is not None:
@@ -112,16 +112,16 @@ def mrp_feedback(J_hat=None, law_type: int = 0) -> Controller:
             + gains.P * err.Omega_e
             + gains.P * gains.K_i * z
             - so3.cross(v, H)
-            + nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot)
+            + inertial_terms(nominal, Omega, err)[1]
         )
-        limit = so3.batch_like(gains.integral_limit, 0, sigma)
         held = (jnp.abs(integral) >= limit) & (integral * sigma > 0)
         integral_dot = jnp.where(held, jnp.zeros_like(sigma), gains.K * sigma)
         return -L_r, IntegralState(integral_dot, jnp.zeros_like(state.dt))
 
     def update(gains, state, measured, desired, t, period):
         sigma = mrp(tracking_error(measured, desired).R_e)
-        return IntegralState(advanced(gains, state, sigma), jnp.broadcast_to(period, state.dt.shape).astype(state.dt.dtype))
+        limit = so3.batch_like(gains.integral_limit, 0, sigma)
+        return IntegralState(advanced(gains, state, sigma, limit), jnp.broadcast_to(period, state.dt.shape).astype(state.dt.dtype))
 
     return Controller(init, torque, MRPFeedbackGains, update)
 

@@ -8,19 +8,12 @@ import jax
 
 from so3jax import so3
 from so3jax._fusion import materialize
-from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
 from so3jax.components import Param
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import check_gains
 
 J_HAT = Param("J_hat", None, "kg m^2", shapes=((3, 3),), doc="nominal inertia (default: the identity)")
-
-
-def nominal_inertia(J_hat):
-    """v -> J_hat v [kg m^2 x v's unit] for v (3, ...), the identity where J_hat is None."""
-    if J_hat is None:
-        return lambda v: v
-    return lambda v: so3.matvec(so3.batch_like(J_hat, 2, v), v)
 
 
 class PDGains(NamedTuple):
@@ -45,8 +38,7 @@ def geometric_pd(J_hat=None) -> Controller:
         err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
         e_R = so3.skew_vee(err.R_e)
-        inertial = so3.cross(Omega, nominal(Omega))
-        feedforward = nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot)
+        inertial, feedforward = inertial_terms(nominal, Omega, err)
         tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e + inertial - feedforward
         return tau, ()
 

@@ -37,8 +37,8 @@ import jax.numpy as jnp
 from so3jax import so3
 from so3jax._fusion import materialize
 from so3jax.components import Param
-from so3jax.controllers.base import Controller, tracking_error
-from so3jax.controllers.pd import J_HAT, nominal_inertia
+from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
 from so3jax.scenario import check_gains
 
@@ -61,10 +61,14 @@ def attitude_error_rate_matrix(R_e):
     return 0.5 * (so3.trace(R_e) * so3.eye_like(R_e[0]) - so3.transpose(R_e))
 
 
+def _surface(gains, err):
+    """s = Omega_e + lam e_R [rad/s] (3, ...) of a tracking error."""
+    return err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
+
+
 def sliding_variable(gains, measured, desired):
     """s = Omega_e + lam e_R [rad/s] (3, ...)."""
-    err = tracking_error(measured, desired)
-    return err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
+    return _surface(gains, tracking_error(measured, desired))
 
 
 def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
@@ -85,11 +89,10 @@ def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
     def torque(gains, state, measured, desired, t):
         err = materialize(tracking_error(measured, desired), t)
         Omega = measured.Omega
-        s = err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
+        s = _surface(gains, err)
         # E(R_e) Omega_e = 1/2 (tr(R_e) Omega_e - R_e^T Omega_e)
         e_R_dot = 0.5 * (so3.trace(err.R_e) * err.Omega_e - so3.rmatvec(err.R_e, err.Omega_e))
-        inertial = so3.cross(Omega, nominal(Omega))
-        feedforward = nominal(so3.cross(Omega, err.Omega_r) - err.feedforward_dot + gains.lam * e_R_dot)
+        inertial, feedforward = inertial_terms(nominal, Omega, err, gains.lam * e_R_dot)
         tau = inertial - feedforward - gains.k_s * s - gains.eta * saturate(s / gains.phi)
         return tau, ()
 
