@@ -125,3 +125,69 @@ def test_a_run_inside_another_s_folder_lists_its_own_files(tmp_path):
             io.write_text(out / "top.txt", "t")
     assert json.loads((out / "manifest.json").read_text())["files"] == ["part/", "top.txt"]
     assert json.loads((out / "part" / "manifest.json").read_text())["files"] == ["x.txt"]
+
+
+def test_candidates_name_what_is_compared():
+    """[compare.candidates]: one law tuned two ways or at fixed gains, each paired with its
+    own ``against``; candidates of one law go to separate sweeps of the same samples; the
+    campaigns tune over the comparison's dispersions where tune.dispersions = "sweep"."""
+    cvar = compare.load_config(ROOT / "comparisons" / "flight_cvar.toml")
+    assert cvar.laws == ("pd_mean", "adaptive_mean", "pd_cvar", "adaptive_cvar")
+    assert cvar.sweeps() == [["pd_mean", "adaptive_mean"], ["pd_cvar", "adaptive_cvar"]]
+    assert [compare.sweep_folder(i) for i in range(2)] == ["sweep", "sweep_2"]
+    assert [c.campaign.objective for c in cvar.candidates.values()] == ["mean", "mean", "cvar", "cvar"]
+    assert cvar.candidates["pd_cvar"].campaign.dispersions == cvar.sweep_table["dispersions"]
+    assert [compare.paired_with(cvar, n) for n in cvar.laws] == ["adaptive_mean", None, "pd_mean", "adaptive_mean"]
+    flown = compare.load_config(ROOT / "comparisons" / "paper_gains_in_flight.toml")
+    fixed = flown.candidates["pd_paper_tuned"]
+    saved = json.loads((ROOT / "tuning" / "pd_equal_effort" / "best_gains.json").read_text())["gains"]
+    assert fixed.law == "pd" and fixed.gains._asdict() == pytest.approx(saved, rel=1e-12)
+    assert flown.candidates["pd"].gains is None and "candidates" in compare.describe(flown)
+    assert "candidates" not in compare.describe(compare.load_config(ROOT / "comparisons" / "flight.toml"))
+
+
+@pytest.mark.parametrize(("candidates", "message"), [
+    ({"a": {"controller": "pd"}}, "at least two"),
+    ({"a": {"controller": "open_loop"}, "b": {"controller": "pd"}}, "controller must be one of"),
+    ({"a": {"controller": "pd", "gains": "paper", "tune": {}}, "b": {"controller": "pd"}}, "not both"),
+    ({"a": {"controller": "pd", "against": "a"}, "b": {"controller": "pd"}}, "paired with another"),
+    ({"a": {"controller": "pd", "against": "c"}, "b": {"controller": "pd"}}, "against must be one of"),
+    ({"a": {"controller": "pd", "gains": {"k_R": 1.0}}, "b": {"controller": "pd"}}, "missing gain"),
+    ({"a": {"controller": "pd", "colour": 1}, "b": {"controller": "pd"}}, "unknown key"),
+    ({"a": {"controller": "pd", "tune": {"controller": "pd"}}, "b": {"controller": "pd"}}, "a table of \\[tune\\]"),
+])
+def test_bad_candidates_are_refused_in_one_line(candidates, message):
+    table = {"mission": "../missions/paper.toml", "compare": {"candidates": candidates},
+             "tune": {"iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}}
+    with pytest.raises(ValueError, match=message):
+        compare.parse(table, ROOT / "comparisons")
+
+
+def test_tuning_over_the_sweep_s_dispersions_keeps_its_samples_out():
+    table = {"mission": "../missions/paper.toml", "sweep": {"seed": 1},
+                         "tune": {"iterations": 1, "dispersions": "sweep", "train": {"seeds": [1], "samples": 4},
+                                  "validation": {"seeds": [2], "samples": 4}}}
+    with pytest.raises(ValueError, match="would tune pd on the missions that judge it"):
+        compare.parse(table, ROOT / "comparisons")
+    table["sweep"]["seed"] = 0
+    from so3jax.sweep.config import DEFAULT
+
+    assert compare.parse(table, ROOT / "comparisons").campaigns["pd"].dispersions == DEFAULT["dispersions"]
+
+
+def test_a_candidate_paired_with_another_than_the_reference():
+    rng = np.random.default_rng(4)
+    x = rng.lognormal(-6.0, 0.2, 40)
+    columns = {f"{n}_{k}": v for n, f in (("a", 1.0), ("b", 0.9), ("c", 1.2)) for k, v in
+               (("rmse", x * f), ("effort", x * 1e4), ("diverged", np.zeros(40)))}
+    candidates = {"a": compare.Candidate("pd", None), "b": compare.Candidate("adaptive", None),
+                  "c": compare.Candidate("pd", None, against="b")}
+    config = SimpleNamespace(laws=("a", "b", "c"), candidates=candidates, reference="a", bootstrap=200, seed=0)
+    reports = {n: {"tuned": {"gains": {"g": 1.0}, "mean_rmse": 1e-3, "mean_effort": 10.0, "diverged_count": 0}}
+               for n in "abc"}
+    result = compare.judge(config, reports, columns)
+    assert result["laws"]["c"]["paired_with"] == "b" and "paired_with" not in result["laws"]["b"]
+    assert result["laws"]["c"]["against_reference"]["relative_change"]["mean"] == pytest.approx(1.2 / 0.9 - 1)
+    assert "vs b: +33.3 %" in compare.markdown(io.to_builtin(result))
+    labels = [t.get_text() for t in compare.figure(config, columns).axes[1].get_xticklabels()]
+    assert labels == ["b", "c\nvs b"]  # named after the candidate where it is not its law

@@ -12,7 +12,7 @@ from so3jax.metrics import cell, finite_values, reported
 from so3jax.tune.config import TuneConfig
 from so3jax.tune.cost import CostRefs, _summary
 from so3jax.tune.gains import gains_table, resolve_gains
-from so3jax.tune.problem import Problem, evaluate
+from so3jax.tune.problem import Problem, build_problem, evaluate
 
 def _metrics_table(metrics, valid=None) -> dict:
     """Per-scenario RMSE and effort (None for a diverged scenario, flagged in ``diverged``)
@@ -48,6 +48,37 @@ def _mean_cost(metrics, refs, mode, objective="mean", alpha=0.9, valid=None):
     return cost if math.isfinite(cost) and not np.any(counted) else None
 
 
+def _scenarios(config: TuneConfig, problem: Problem) -> dict:
+    batch = problem.validation
+    valid = getattr(batch, "valid", None)
+    if valid is None:
+        return {"seeds": np.asarray(batch.seed).tolist(), "inertia_scale": np.asarray(batch.inertia_scale).tolist()}
+    return {"dispersed_missions": int(np.sum(valid)), "sampling_seed": config.validation.seeds[0]}
+
+
+def _budget(config: TuneConfig, problem: Problem):
+    """(report entry, metrics) of the budget controller on the held-out scenarios."""
+    batch = problem.validation
+    dtype = problem.scenario.R0.dtype
+    gains = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype, mission=config.mission)
+    metrics = evaluate(problem, gains, batch, config.cost.budget_controller)
+    entry = {"controller": config.cost.budget_controller, "gains": gains_table(gains),
+             **_metrics_table(metrics, getattr(batch, "valid", None))}
+    return entry, metrics
+
+
+def held_out(config: TuneConfig, gains) -> dict:
+    """Fixed gains of ``config.controller`` on the campaign's held-out scenarios (and its
+    budget controller there), in validation.json's layout with the gains as ``tuned``."""
+    problem = build_problem(config)
+    metrics = evaluate(problem, gains, problem.validation)
+    report = {"controller": config.controller, "scenarios": _scenarios(config, problem),
+              "tuned": {"gains": gains_table(gains), **_metrics_table(metrics, getattr(problem.validation, "valid", None))}}
+    if config.cost.budget_controller is not None:
+        report["budget"], _ = _budget(config, problem)
+    return io.to_builtin(report)
+
+
 def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_train: CostRefs) -> dict:
     """Initial and tuned gains (and the budget controller's) on the held-out scenarios.
 
@@ -59,26 +90,15 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
     initial_metrics = evaluate(problem, initial, batch)
     best_metrics = evaluate(problem, best, batch)
     refs = refs_train
-    if valid is None:
-        scenarios = {"seeds": np.asarray(batch.seed).tolist(), "inertia_scale": np.asarray(batch.inertia_scale).tolist()}
-    else:
-        scenarios = {"dispersed_missions": int(np.sum(valid)), "sampling_seed": config.validation.seeds[0]}
     report = {
         "controller": config.controller,
-        "scenarios": scenarios,
+        "scenarios": _scenarios(config, problem),
         "initial": {"gains": gains_table(initial), **_metrics_table(initial_metrics, valid)},
         "tuned": {"gains": gains_table(best), **_metrics_table(best_metrics, valid)},
     }
     if config.cost.budget_controller is not None:
-        dtype = problem.scenario.R0.dtype
-        gains = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype, mission=config.mission)
-        budget_metrics = evaluate(problem, gains, batch, config.cost.budget_controller)
+        report["budget"], budget_metrics = _budget(config, problem)
         refs = refs._replace(effort=budget_metrics.effort)
-        report["budget"] = {
-            "controller": config.cost.budget_controller,
-            "gains": gains_table(gains),
-            **_metrics_table(budget_metrics, valid),
-        }
     objective = (config.cost.mode, config.objective, config.alpha, valid)
     report["cost"] = {
         "mode": config.cost.mode,

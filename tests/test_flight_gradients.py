@@ -1,0 +1,78 @@
+"""Gradients through the flight loop where the wheels' torque limits bind (SPEC 8.1, 8.4):
+forward and reverse mode against central differences when the limits bind part of the
+time, and what the gradient sees while they bind: nothing (a clipped motor torque does
+not depend on the gains), exactly zero when every wheel is clipped at every tick."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import so3jax as sj
+from so3jax.actuators import Wheels, pyramid_axes
+from so3jax.estimators import MEKF
+from so3jax.loop import Loop
+from so3jax.sensors import Gyro, Sensors, StarTracker
+from tests.helpers import custom_scenario
+
+SCENARIO = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))
+LOG_GAINS = jnp.log(jnp.asarray([0.5714, 25.0]))  # the paper's PD gains
+# Motor torque limits [N m]: the paper's PD commands ~0.5 N m here, so with 0.6 N m some
+# wheel is at its limit over 2.45 s of the 4 s (with 0.02 N m, every wheel all the time).
+PARTLY, ALWAYS = jnp.asarray(0.6), jnp.asarray(0.02)
+
+
+def _loop(max_torque: float) -> Loop:
+    gyro = Gyro(jnp.asarray(1e-6), jnp.asarray(1e-9), jnp.full(3, 1e-4))
+    star = StarTracker(jnp.asarray(3e-5), 1)
+    mekf = MEKF(jnp.asarray(1e-3), jnp.asarray(1e-3), jnp.zeros(3), gyro.arw, gyro.rrw, star.sigma)
+    wheels = Wheels(jnp.asarray(pyramid_axes(4), float), jnp.full(4, 0.16), jnp.full(4, max_torque),
+                    jnp.full(4, 628.0), jnp.zeros(4))
+    return Loop(period_steps=5, sensors=Sensors(gyro, star), estimator=mekf, actuator=wheels)
+
+
+def _run(log_gains, max_torque):
+    return sj.rollout(SCENARIO, sj.geometric_pd(), sj.PDGains(*jnp.exp(log_gains)), 2, loop=_loop(max_torque))
+
+
+def _cost(log_gains, max_torque):
+    m = _run(log_gains, max_torque).metrics
+    return m.rmse / 1e-2 + m.effort / 1.0
+
+
+@pytest.fixture(scope="module")
+def programs():
+    """One compilation per program, shared by the tests (the limit is an argument)."""
+    return jax.jit(_cost), jax.jit(jax.jacfwd(_cost)), jax.jit(jax.grad(_cost))
+
+
+def _central(value, max_torque, h=1e-6):
+    return np.array([(value(LOG_GAINS.at[i].add(h), max_torque) - value(LOG_GAINS.at[i].add(-h), max_torque)) / (2 * h)
+                     for i in range(2)])
+
+
+def test_the_limits_bind_part_of_the_time():
+    """The case below is the one it claims to be: a limit binds over part of the horizon."""
+    flight = jax.jit(lambda g: _run(g, PARTLY).flight)(LOG_GAINS)
+    assert 0.3 * SCENARIO.horizon < float(flight.time_at_torque_limit) < 0.8 * SCENARIO.horizon
+
+
+def test_gradients_where_the_limits_bind_part_of_the_time_match_central_differences(programs):
+    """Clipping makes the cost piecewise smooth in the gains; both modes give its
+    derivative, the central differences' to 1e-5 relative."""
+    value, forward, reverse = programs
+    central = _central(value, PARTLY)
+    for grad in (forward(LOG_GAINS, PARTLY), reverse(LOG_GAINS, PARTLY)):
+        np.testing.assert_allclose(grad, central, rtol=1e-5)
+
+
+def test_the_gradient_sees_nothing_while_every_limit_binds(programs):
+    """Every wheel clipped at every tick: the delivered torque, hence the whole trajectory,
+    does not depend on the gains; the gradient is exactly zero, as are the differences,
+    though the command itself depends on the gains."""
+    value, forward, reverse = programs
+    np.testing.assert_array_equal(forward(LOG_GAINS, ALWAYS), 0.0)
+    np.testing.assert_array_equal(reverse(LOG_GAINS, ALWAYS), 0.0)
+    np.testing.assert_array_equal(_central(value, ALWAYS), 0.0)
+    command = jax.jit(lambda g: _run(g, ALWAYS).flight.command_effort)
+    assert float(command(LOG_GAINS.at[1].add(0.1))) > 1.1 * float(command(LOG_GAINS))
