@@ -168,6 +168,8 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
         raise ValueError(f"{where}.tune must be a table of [tune] entries (the law is {where}.controller), "
                          f"got {cfg.short(changes)}")
     campaign = parse_config({**table, "tune": {**_merged(shared, changes), "controller": law}}, base_dir)
+    if campaign.estimator:
+        raise ValueError(f"{where}: tune.estimator: a comparison sweeps the laws' gains with the mission's estimator")
     gains = None
     if "gains" in entry:
         spec = entry["gains"]

@@ -226,7 +226,7 @@ def mission_key(mission: Mission) -> str:
     return key
 
 
-def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None) -> dict:
+def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None, estimator=None) -> dict:
     """{metric: values} of a batch of samples of the mission named by ``mission`` (see
     :func:`mission_key`) flown by the controller ``law`` at ``gains``: the SPEC 6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
@@ -234,18 +234,21 @@ def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None
     natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a vmap of
     rollouts); with dispersed component parameters, each sample's loop is its own (a vmap
     of rollouts). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
-    memory; the horizon's steps: none). Pure: jit, grad and :func:`so3jax.devices.split`
-    compose with it."""
+    memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
+    estimator that every sample shares (the noise levels the filter assumes, tuned).
+    Pure: jit, grad and :func:`so3jax.devices.split` compose with it."""
     from so3jax.rollout import rollout, rollout_batch
 
     params, leaves = inputs
     m, dtype = MISSIONS[mission], params.J0.dtype
     scenarios = jax.vmap(lambda p: scenario(m, p))(params)
+    shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
-        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=m.loop(dtype), record_every=record_every))
+        shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
+        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=shared_loop, record_every=record_every))
 
     def one(s, seed, values):
-        return _results(rollout(s, law, gains, seed, loop=loop(m, values, dtype), record_every=record_every))
+        return _results(rollout(s, law, gains, seed, loop=loop(m, {**shared, **values}, dtype), record_every=record_every))
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 

@@ -16,7 +16,7 @@ from so3jax import distributed, io, runfolder
 from so3jax.devices import place
 from so3jax.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
-from so3jax.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params
+from so3jax.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params, with_estimator
 from so3jax.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
 from so3jax.tune.plots import plot_history
 from so3jax.tune.problem import batch_at, build_problem, cost_refs, evaluate, mission_of
@@ -61,6 +61,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     controller = law(config.mission, config.controller)
     dtype = problem.scenario.R0.dtype
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
+    initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype) for n in config.estimator})
     n_train = config.train.samples or problem.train.seed.shape[0]
     mode = config.cost.mode
     mission = mission_of(problem)

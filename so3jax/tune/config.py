@@ -92,6 +92,7 @@ class TuneConfig:
     objective: str = "mean"  # over the batch's scenario costs: "mean", or "cvar" (the worst 1 - alpha share's mean)
     alpha: float = 0.9  # the CVaR level
     dispersions: dict | None = None  # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
+    estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
     mission: Any = None  # so3jax.mission.Mission
 
     def __post_init__(self):
@@ -127,10 +128,12 @@ def _build(cls, table: dict, prefix: str, **extra):
     for key, value in table.items():
         if key in _SECTIONS and cls is TuneConfig:
             value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
-        elif isinstance(value, list) and key in ("seeds", "inertia_scales"):
+        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
             raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg.short(value)}")
+        elif key == "estimator":
+            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, got {cfg.short(value)}")
         values[key] = value
     return cls(**values, **extra)
 
@@ -231,6 +234,7 @@ def validate(config: TuneConfig) -> None:
         for scale in scenarios.inertia_scales:
             _positive(f"{section}.inertia_scales", scale)
     _check_dispersions(config)
+    _check_estimator(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
     if held_out:
         raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
@@ -298,6 +302,37 @@ def _check_dispersions(config: TuneConfig) -> None:
         raise ValueError(f"{_key('dispersions')}: {err}") from None
 
 
+def tunable_estimator(mission) -> tuple:
+    """The parameters of the mission's estimator that can be tuned: positive real numbers."""
+    from so3jax import components
+
+    kind = mission.estimator["kind"]
+    return tuple(p.name for p in components.get("estimator", kind).params
+                 if p.shapes == ((),) and p.low >= 0.0 and not (p.integer or p.boolean or p.choices))
+
+
+def _check_estimator(config: TuneConfig) -> None:
+    """tune.estimator: distinct tunable parameters of the mission's estimator, each positive
+    as the loop builds it (their logarithms are tuned)."""
+    names = config.estimator
+    if not names:
+        return
+    where = _key("estimator")
+    kind = config.mission.estimator["kind"]
+    tunable = tunable_estimator(config.mission)
+    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+        raise ValueError(f"config key {where!r} must list distinct parameter names, got {cfg.short(list(names))}")
+    for name in names:
+        if name not in tunable:
+            raise ValueError(f"config key {where!r}: the mission's estimator {kind!r} has no tunable parameter "
+                             f"{name!r} (tunable: {', '.join(tunable) or 'none'})")
+    estimator = config.mission.loop(jnp.result_type(float)).estimator
+    for name in names:
+        if not float(getattr(estimator, name)) > 0.0:
+            raise ValueError(f"config key {where!r}: {name} is 0 in the mission; its logarithm is tuned, so it "
+                             "must start positive")
+
+
 def tune_table(config: TuneConfig) -> dict:
     """The ``[tune]`` table of a config, every field (defaults included) but those of a
     feature the campaign does not use (no dispersions: their table and sample counts; the
@@ -310,6 +345,8 @@ def tune_table(config: TuneConfig) -> dict:
             del table[section]["samples"]
     if config.objective == "mean":
         del table["objective"], table["alpha"]
+    if not config.estimator:
+        del table["estimator"]
     return table
 
 

@@ -3,6 +3,7 @@ its gradient, and a population's costs, with the batch split over a device mesh.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import NamedTuple
 
@@ -13,7 +14,7 @@ from so3jax import devices, dispersed
 from so3jax.gradients import batch_metrics, value_and_grad
 from so3jax.loop import PAPER_LOOP
 from so3jax.metrics import Metrics
-from so3jax.tune.gains import to_gains
+from so3jax.tune.gains import split, to_gains
 
 
 class CostRefs(NamedTuple):
@@ -80,16 +81,22 @@ def _summary(metrics, refs, mode, objective="mean", alpha=0.9, valid=None) -> Ev
 def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, mission=None):
     """Per-scenario metrics, the batch split over the devices of mesh (None: one device;
     :func:`so3jax.devices.split`): batch_metrics through ``loop``, or with ``mission`` (a
-    :func:`so3jax.dispersed.mission_key`) the dispersed missions of a DispersedBatch."""
+    :func:`so3jax.dispersed.mission_key`) the dispersed missions of a DispersedBatch.
+    ``gains``: the law's, or tuned parameters with the estimator's (:func:`with_estimator`),
+    which then replace the loop's estimator parameters."""
     if mission is not None:
         def missions(gains, batch):
+            gains, believed = split(gains)
             m = dispersed.sample_metrics((batch.params, batch.leaves), gains, law=controller, mission=mission,
-                                         record_every=record_every)
+                                         record_every=record_every, estimator=believed)
             return Metrics(**{k: m[k] for k in Metrics._fields})
 
         return devices.split(missions, mesh, batched=(False, True))(gains, batch)
 
     def run(scenario, gains, batch, loop):
+        gains, believed = split(gains)
+        if believed:
+            loop = dataclasses.replace(loop, estimator=dataclasses.replace(loop.estimator, **believed))
         return batch_metrics(scenario, controller, gains, batch, record_every=record_every, loop=loop)
 
     return devices.split(run, mesh, batched=(False, False, True, False))(scenario, gains, batch, loop)

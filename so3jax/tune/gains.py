@@ -4,6 +4,7 @@ gains as tables and columns."""
 
 from __future__ import annotations
 
+import collections
 import json
 import warnings
 from pathlib import Path
@@ -112,8 +113,46 @@ def project(params):
     return _fieldwise(params, lambda p: p, lambda p, scale: jnp.maximum(p, 0.0))
 
 
+# --- the estimator's assumed noise levels, tuned beside the gains --------------------------
+
+ESTIMATOR = "estimator_"  # the prefix of an estimator parameter among the tuned ones
+_TUNED: dict = {}  # (gains type, estimator names) -> the NamedTuple type of both
+
+
+def with_estimator(gains, values: dict):
+    """The tuned parameters: the law's gains and the estimator's parameters {name: value}
+    (each positive, e.g. the noise levels the filter assumes) as one NamedTuple, fields
+    ``estimator_NAME`` after the gains', so that the optimizer, the history and the
+    checkpoints treat them as gains; the gains themselves where values is empty."""
+    if not values:
+        return gains
+    base = type(gains)
+    key = (base, tuple(values))
+    if key not in _TUNED:
+        tuned = collections.namedtuple(f"{base.__name__}AndEstimator", base._fields + tuple(ESTIMATOR + n for n in values))
+        tuned.domains, tuned.law_gains = getattr(base, "domains", {}), base
+        _TUNED[key] = tuned
+    return _TUNED[key](*gains, *values.values())
+
+
+def split(tuned) -> tuple:
+    """(the law's gains, {estimator parameter: value}) of tuned parameters."""
+    base = getattr(type(tuned), "law_gains", None)
+    if base is None:
+        return tuned, {}
+    n = len(base._fields)
+    return base(*tuned[:n]), {f[len(ESTIMATOR):]: v for f, v in zip(tuned._fields[n:], tuned[n:])}
+
+
 def gains_table(gains) -> dict:
-    return {name: np.asarray(value).tolist() for name, value in gains._asdict().items()}
+    """{gain: value} of the law's gains (an estimator's tuned parameters left out)."""
+    return {name: np.asarray(value).tolist() for name, value in split(gains)[0]._asdict().items()}
+
+
+def tables(tuned) -> dict:
+    """{"gains": the law's gains, "estimator": its tuned parameters (where any)}."""
+    believed = split(tuned)[1]
+    return {"gains": gains_table(tuned), **({"estimator": {k: float(v) for k, v in believed.items()}} if believed else {})}
 
 
 def gain_columns(gains) -> dict:

@@ -17,7 +17,7 @@ import numpy as np
 from so3jax import io, runfolder
 from so3jax.tune.config import TuneConfig, describe
 from so3jax.tune.cost import CostRefs, Evaluation
-from so3jax.tune.gains import gain_columns, gains_table
+from so3jax.tune.gains import gain_columns, tables
 
 CHECKPOINT = "checkpoint.npz"
 
@@ -129,9 +129,9 @@ def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
     best, last = _best_row(rows, config.dispersions is not None), rows[-1]
     record = {
         "controller": config.controller,
-        "gains": gains_table(_gains_from_row(best, template)),
+        **tables(_gains_from_row(best, template)),
         "iteration": best["iteration"],
         "training": {key: best[key] for key in ("cost", "rmse", "effort")},
-        "last_good": {"iteration": last["iteration"], "gains": gains_table(_gains_from_row(last, template))},
+        "last_good": {"iteration": last["iteration"], **tables(_gains_from_row(last, template))},
     }
     io.write_json(out / "best_gains.json", record)

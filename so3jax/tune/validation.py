@@ -11,7 +11,7 @@ from so3jax import io
 from so3jax.metrics import cell, finite_values, reported
 from so3jax.tune.config import TuneConfig
 from so3jax.tune.cost import CostRefs, _summary
-from so3jax.tune.gains import gains_table, resolve_gains
+from so3jax.tune.gains import gains_table, resolve_gains, tables
 from so3jax.tune.problem import Problem, build_problem, evaluate
 
 def _metrics_table(metrics, valid=None) -> dict:
@@ -93,8 +93,8 @@ def validate_gains(config: TuneConfig, problem: Problem, initial, best, refs_tra
     report = {
         "controller": config.controller,
         "scenarios": _scenarios(config, problem),
-        "initial": {"gains": gains_table(initial), **_metrics_table(initial_metrics, valid)},
-        "tuned": {"gains": gains_table(best), **_metrics_table(best_metrics, valid)},
+        "initial": {**tables(initial), **_metrics_table(initial_metrics, valid)},
+        "tuned": {**tables(best), **_metrics_table(best_metrics, valid)},
     }
     if config.cost.budget_controller is not None:
         report["budget"], budget_metrics = _budget(config, problem)
@@ -123,7 +123,7 @@ def markdown_table(reports: list[dict]) -> str:
         if "budget" in report:
             entries.insert(0, (f"budget ({report['budget']['controller']})", report["budget"]))
         for label, entry in entries:
-            gains = ", ".join(f"{k}={_fmt(v)}" for k, v in entry["gains"].items())
+            gains = ", ".join(f"{k}={_fmt(v)}" for k, v in {**entry["gains"], **entry.get("estimator", {})}.items())
             controller = report["budget"]["controller"] if label.startswith("budget") else report["controller"]
             lines.append(
                 f"| {name} ({label}) | {controller} | {gains} | {_mean_cell(entry, 'mean_rmse', '.4e')} "
