@@ -17,6 +17,12 @@ against central finite differences of the value (step 1e-4 in log-gain).
     python benchmarks/gradients.py                       # N = 1e4, 3e4, 1e5, 4e5; B = 8
     python benchmarks/gradients.py --horizons 10000 --batch 2 --controllers pd
 
+With ``--mission FILE`` the rollouts fly that mission's loop (e.g. missions/flight.toml:
+sensors, MEKF, wheels, sampled control) at its gains, over B seeds of its scenario:
+
+    python benchmarks/gradients.py --mission missions/flight.toml --horizons 400000 --batch 4 \
+        --controllers pd adaptive mrp_feedback sliding_mode --fd-horizon 0 --modes forward reverse
+
 Prints one JSON object: ``runs`` (one per subprocess), ``summary`` (gradient / value
 time ratios, from runs interleaved with the value's in one process, and peak RSS per
 controller and N) and ``fd_check``.
@@ -33,6 +39,7 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 from concurrent.futures import ThreadPoolExecutor
 
 WHATS = ("value", "forward", "reverse")
@@ -57,20 +64,32 @@ def _child(spec: dict) -> dict:
     from so3jax.scenario import InertiaWarning, paper_scenario
 
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    diagonal = spec.get("diagonal_gamma", False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
-        scenario = paper_scenario(T=spec["N"] * 0.01)
-    scales = [0.9, 1.0, 1.1, 1.2][: max(1, spec["batch"] // 2)]
-    seeds = list(range(spec["batch"] // len(scales)))
-    batch = gradients.make_batch(scales, seeds, jnp.float64)
-    controller = tune.CONTROLLERS[spec["controller"]]
+        if spec.get("mission"):  # the mission's scenario and loop, B seeds, its gains
+            from so3jax import mission as missions
+
+            flown = missions.load(spec["mission"], [f"T={spec['N'] * 0.01!r}"])
+            scenario, loop = flown.scenario(jnp.float64), flown.loop(jnp.float64)
+            batch = gradients.make_batch([1.0], list(range(spec["batch"])), jnp.float64)
+            controller = tune.law(flown, spec["controller"])
+            source = "mission" if spec["controller"] in flown.controllers else "paper"
+            gains = tune.resolve_gains(spec["controller"], source, jnp.float64, diagonal, flown)
+        else:
+            scenario, loop, flown = paper_scenario(T=spec["N"] * 0.01), None, None
+            scales = [0.9, 1.0, 1.1, 1.2][: max(1, spec["batch"] // 2)]
+            seeds = list(range(spec["batch"] // len(scales)))
+            batch = gradients.make_batch(scales, seeds, jnp.float64)
+            controller = tune.CONTROLLERS[spec["controller"]]
+            gains = tune.resolve_gains(spec["controller"], "paper", jnp.float64, diagonal_gamma=diagonal)
     refs = tune.CostRefs(jnp.asarray(1e-3), jnp.asarray(100.0), jnp.asarray(1.0))
-    diagonal = spec.get("diagonal_gamma", False)
-    params = tune.to_params(tune.resolve_gains(spec["controller"], "paper", jnp.float64, diagonal_gamma=diagonal))
+    params = tune.to_params(gains)
     flat, unravel = ravel_pytree(params)
+    through = {} if loop is None else {"loop": loop}
 
     def cost(p):
-        metrics = gradients.batch_metrics(scenario, controller, tune.to_gains(p), batch)
+        metrics = gradients.batch_metrics(scenario, controller, tune.to_gains(p), batch, **through)
         return jnp.mean(tune.scenario_costs(metrics, refs, "weighted")), ()
 
     if spec["what"] == "value":
@@ -153,7 +172,9 @@ def _relative_error(a, b):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--child", help=argparse.SUPPRESS)
-    parser.add_argument("--controllers", nargs="+", default=["pd", "adaptive"], choices=["pd", "adaptive"])
+    parser.add_argument("--controllers", nargs="+", default=["pd", "adaptive"],
+                        choices=["pd", "adaptive", "mrp_feedback", "sliding_mode"])
+    parser.add_argument("--mission", help="fly this mission file's loop and gains (default: the paper's scenario)")
     parser.add_argument("--horizons", nargs="+", type=int, default=[10_000, 30_000, 100_000, 400_000])
     parser.add_argument("--batch", type=int, default=8, help="scenarios per batch (even: 2 seeds x B/2 inertias)")
     parser.add_argument("--modes", nargs="+", default=["forward", "reverse"], choices=["forward", "reverse"])
@@ -175,6 +196,7 @@ def main() -> None:
             "repeat": max(1, min(3, 100_000 // n)),
             "fd": what == "value" and n == args.fd_horizon,
             "diagonal_gamma": args.diagonal_gamma and c == "adaptive",
+            "mission": str(Path(args.mission).resolve()) if args.mission else None,
         }
         for c in args.controllers
         for n in args.horizons
@@ -245,6 +267,7 @@ def main() -> None:
             "load_average_at_end": os.getloadavg(),
         },
         "batch": args.batch,
+        "mission": args.mission,
         "dt": 0.01,
         "wall_s": time.perf_counter() - started,
         "summary": summary,
