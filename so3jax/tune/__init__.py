@@ -18,7 +18,9 @@ number or another controller's effort on the same scenario (e.g. the PD with the
 paper's gains), scenario by scenario. ``objective = "cvar"`` replaces the batch mean by
 the mean of the worst 1 - alpha share of the scenario costs. With a
 ``[tune.dispersions]`` table the scenarios are dispersed missions (:mod:`so3jax.dispersed`),
-a fresh batch of them every iteration.
+a fresh batch of them every iteration. ``estimator = [names]`` tunes positive parameters
+of the mission's estimator (the noise levels the MEKF assumes) beside the gains, in log
+space too (:func:`so3jax.tune.gains.with_estimator`).
 
 A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
 an interrupted run loses at most one iteration and ``--resume`` continues to the same
