@@ -201,8 +201,9 @@ def test_sweep_benchmark_runs_as_committed():
     assert report["full_sweep"]["by_devices"]["1"]["median_trajectory_steps_per_s"]["pd"] > 0
 
 
-def test_gradients_benchmark_runs_as_committed():
+@pytest.mark.parametrize("mission", [(), ("--mission", "missions/flight.toml")], ids=["paper", "flight"])
+def test_gradients_benchmark_runs_as_committed(mission):
     report = _run_benchmark("benchmarks.gradients", "--controllers", "pd", "--horizons", "20", "--batch", "2",
-                            "--modes", "forward", "--fd-horizon", "0")
+                            "--modes", "forward", "--fd-horizon", "0", *mission)
     rows = [r for r in report["runs"] if r.get("what") == "forward"]
-    assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows)
+    assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows) and not any("error" in r for r in report["runs"])
