@@ -86,7 +86,7 @@ def _child(spec: dict) -> dict:
     refs = tune.CostRefs(jnp.asarray(1e-3), jnp.asarray(100.0), jnp.asarray(1.0))
     params = tune.to_params(gains)
     flat, unravel = ravel_pytree(params)
-    through = {} if loop is None else {"loop": loop}
+    through = {} if loop is None else {"loop": loop, "record_every": gradients.checkpoint_steps(loop, spec["what"])}
 
     def cost(p):
         metrics = gradients.batch_metrics(scenario, controller, tune.to_gains(p), batch, **through)

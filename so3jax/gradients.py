@@ -15,7 +15,8 @@ Two ways to differentiate a scalar function of the gains:
   parameters; memory is bounded by the rollout's two-level checkpointing (the state at
   each of the N / record_every block starts, plus one block of record_every steps
   recomputed during the backward pass): O(N / record_every + record_every), smallest at
-  record_every = sqrt(N), the rollout's default.
+  record_every = sqrt(N), the rollout's default. Through a sampled loop the block is one
+  control period (:func:`checkpoint_steps`).
 
 ``benchmarks/gradients.py`` measures which is faster for which controller.
 """
@@ -36,6 +37,17 @@ from so3jax.rollout import rollout_batch
 from so3jax.scenario import Scenario
 
 MODES = ("forward", "reverse")
+
+
+def checkpoint_steps(loop: Loop, mode: str, record_every: int | None = None) -> int | None:
+    """Steps per checkpointed block of a rollout differentiated in ``mode``: record_every
+    where given; in reverse mode through a sampled loop, one control period, so that the
+    backward pass nests one loop (the period's RK4 steps) in the loop over ticks, not two
+    (XLA:CPU compiles it several times sooner, and it runs faster: benchmarks/gradients.md;
+    memory: one loop state per tick); else None, the rollout's ~sqrt(N)."""
+    if record_every is not None or mode != "reverse" or loop.continuous:
+        return record_every
+    return loop.period_steps
 
 
 class Batch(NamedTuple):

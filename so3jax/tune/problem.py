@@ -14,7 +14,7 @@ from jax.sharding import Mesh
 
 from so3jax import devices, dispersed
 from so3jax.devices import place
-from so3jax.gradients import Batch, make_batch
+from so3jax.gradients import Batch, checkpoint_steps, make_batch
 from so3jax.loop import Loop
 from so3jax.scenario import Scenario
 from so3jax.tune.config import TuneConfig
@@ -82,16 +82,18 @@ def build_problem(config: TuneConfig) -> Problem:
     else:
         used = jax.devices()[: batch_devices(config, jax.device_count())]
     mesh = devices.mesh(used) if len(used) > 1 else None
+    mode = config.gradient if config.method == "gradient" else None  # the ES differentiates nothing
+    record_every = checkpoint_steps(loop, mode, config.record_every)
     if config.dispersions is not None:
         parsed, leaves = dispersed.parse(config.dispersions, config.mission)
         sampler = Sampler(parsed, leaves, dispersed.mission_key(config.mission))
         validation = draw_batch(sampler, config.validation.seeds[0], config.validation.samples, 0, dtype, mesh)
-        return Problem(place(scenario, mesh), config.controller, None, validation, config.record_every, mesh,
+        return Problem(place(scenario, mesh), config.controller, None, validation, record_every, mesh,
                        place(loop, mesh), config.mission, sampler)
     train, validation = (
         place(make_batch(s.inertia_scales, s.seeds, dtype), mesh) for s in (config.train, config.validation)
     )
-    return Problem(place(scenario, mesh), config.controller, train, validation, config.record_every, mesh,
+    return Problem(place(scenario, mesh), config.controller, train, validation, record_every, mesh,
                    place(loop, mesh), config.mission)
 
 
