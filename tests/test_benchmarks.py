@@ -201,7 +201,8 @@ def test_sweep_benchmark_runs_as_committed():
     assert report["full_sweep"]["by_devices"]["1"]["median_trajectory_steps_per_s"]["pd"] > 0
 
 
-@pytest.mark.parametrize("mission", [(), ("--mission", "missions/flight.toml")], ids=["paper", "flight"])
+@pytest.mark.parametrize("mission", [(), pytest.param(("--mission", "missions/flight.toml"), marks=pytest.mark.slow)],
+                         ids=["paper", "flight"])
 def test_gradients_benchmark_runs_as_committed(mission):
     report = _run_benchmark("benchmarks.gradients", "--controllers", "pd", "--horizons", "20", "--batch", "2",
                             "--modes", "forward", "--fd-horizon", "0", *mission)

@@ -11,6 +11,7 @@ import pytest
 import so3jax as sj
 from so3jax.actuators import Wheels, pyramid_axes
 from so3jax.estimators import MEKF
+from so3jax.gradients import checkpoint_steps
 from so3jax.loop import Loop
 from so3jax.sensors import Gyro, Sensors, StarTracker
 from tests.helpers import custom_scenario
@@ -32,7 +33,9 @@ def _loop(max_torque: float) -> Loop:
 
 
 def _run(log_gains, max_torque):
-    return sj.rollout(SCENARIO, sj.geometric_pd(), sj.PDGains(*jnp.exp(log_gains)), 2, loop=_loop(max_torque))
+    loop = _loop(max_torque)  # checkpointed a control period at a time, as the tuner does in reverse mode
+    return sj.rollout(SCENARIO, sj.geometric_pd(), sj.PDGains(*jnp.exp(log_gains)), 2, loop=loop,
+                      record_every=checkpoint_steps(loop, "reverse"))
 
 
 def _cost(log_gains, max_torque):
