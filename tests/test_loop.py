@@ -175,7 +175,8 @@ def test_batched_flight_equals_one_trajectory_at_a_time():
                                        atol=1e-14, err_msg=name)
 
 
-@pytest.mark.parametrize("mode", ["forward", "reverse"])  # forward: tune's default mode
+# forward: tune's default mode; reverse through sensors, MEKF and wheels: tests/test_flight_gradients.py
+@pytest.mark.parametrize("mode", ["forward", pytest.param("reverse", marks=pytest.mark.slow)])
 def test_gradients_through_the_flight_loop_match_central_differences(mode):
     """d cost / d log gains through sensors, MEKF and zero-order hold (no limit binds)."""
     scenario = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))

@@ -61,6 +61,7 @@ def test_the_cost_s_derivative_in_the_assumed_noise_matches_central_differences(
     assert all(float(grad[i]) != 0.0 for i in range(len(params)))
 
 
+@pytest.mark.slow
 def test_dispersed_missions_fly_the_tuned_filter():
     """sample_metrics(estimator=...) equals the mission written with those noise levels."""
     values = {"arw": 2e-6, "sigma_st": 5e-5}
