@@ -145,14 +145,6 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     return CompareConfig(laws, candidates, sweep_table, Path(base_dir), reference, bootstrap, seed, given)
 
 
-def _merged(base: dict, over: dict) -> dict:
-    """base with over's entries, tables merged key by key."""
-    out = dict(base)
-    for key, value in over.items():
-        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
-    return out
-
-
 def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_dir) -> Candidate:
     """A candidate of ``[compare.candidates]`` (or a mission's law, ``entry`` empty)."""
     from so3jax.tune.config import parse_config
@@ -167,7 +159,7 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
     if not isinstance(changes, dict) or "controller" in changes:
         raise ValueError(f"{where}.tune must be a table of [tune] entries (the law is {where}.controller), "
                          f"got {cfg.short(changes)}")
-    campaign = parse_config({**table, "tune": {**_merged(shared, changes), "controller": law}}, base_dir)
+    campaign = parse_config({**table, "tune": {**missions._merge(shared, changes), "controller": law}}, base_dir)
     if campaign.estimator:
         raise ValueError(f"{where}: tune.estimator: a comparison sweeps the laws' gains with the mission's estimator")
     gains = None
@@ -370,7 +362,8 @@ def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
 
 def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: bool, seen: dict) -> dict:
     """Sweep candidates of distinct laws at their gains into ``out``: the samples' columns,
-    each law's renamed after its candidate; the samples must be those of earlier sweeps."""
+    each law's renamed after its candidate; ``seen``: the columns of the comparison's other
+    sweeps, whose samples these must equal."""
     from so3jax.sweep.config import config_from_dict
     from so3jax.sweep.engine import run_sweep
 
