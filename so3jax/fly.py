@@ -165,6 +165,20 @@ def trajectory_arrays(results: dict) -> dict:
     return arrays
 
 
+def write_telemetry(out: Path, mission, results: dict) -> str:
+    """OUT/telemetry/NAME.npz per controller (:mod:`so3jax.identify.telemetry`'s format),
+    where the loop has a gyro and a star tracker; what the summary line lists."""
+    from so3jax.identify import telemetry
+    from so3jax.io import save_npz
+
+    sensors = mission.sensors
+    if mission.period_steps is None or "gyro" not in sensors or "star_tracker" not in sensors:
+        return ""
+    for name, r in results.items():
+        save_npz(out / "telemetry" / f"{name}.npz", **telemetry.from_run(mission, r.history, mission.seed))
+    return ", telemetry/"
+
+
 def write_figures(out: Path, mission, results: dict) -> list[Path]:
     from so3jax import flight_plots, plots
     from so3jax.io import save_figures
@@ -214,6 +228,7 @@ def _fly_into(args, mission) -> int:
                          "mission_file": None if args.mission is None else str(args.mission)}
     write_json(args.out / "metrics.json", reports)
     save_npz(args.out / "trajectory.npz", **trajectory_arrays(results))
+    telemetry = write_telemetry(args.out, mission, results)
     figures = [] if args.no_figures else write_figures(args.out, mission, results)
     diverged = [n for n in mission.controllers if reports[n]["diverged"]]
     if diverged:
@@ -223,5 +238,5 @@ def _fly_into(args, mission) -> int:
     else:
         print(format_table(mission, {n: reports[n] for n in mission.controllers}))
         print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
-              f"results in {args.out}/ (metrics.json, trajectory.npz, {len(figures)} figures)")
+              f"results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, {len(figures)} figures)")
     return 1 if diverged else 0
