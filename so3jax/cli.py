@@ -1,4 +1,4 @@
-"""Command line: so3jax paper | fly | tune | sweep | compare.
+"""Command line: so3jax paper | fly | tune | sweep | compare | identify.
 
 Each command lives in its own module, which exposes ``register(subparsers)``; the
 parser it adds sets ``func(args) -> int``. JAX is configured here (precision, one
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from so3jax import _xla_flags, distributed
 
-COMMAND_MODULES = ("so3jax.paper", "so3jax.fly", "so3jax.tune", "so3jax.sweep", "so3jax.compare")
+COMMAND_MODULES = ("so3jax.paper", "so3jax.fly", "so3jax.tune", "so3jax.sweep", "so3jax.compare", "so3jax.identify.cli")
 
 
 class _Parser(argparse.ArgumentParser):

@@ -70,7 +70,8 @@ def _rows(tm, sets, degree: int, bias: bool):
 
 def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, instruments: bool = True) -> dict:
     """The fit: {"J", "theta_cov", "bias", "bias_cov", "disturbance", "disturbance_cov",
-    "residual_rms", "intervals", "iterations", "converged"}; degree: the disturbance
+    "residual_rms", "residuals" ({"t": s, name: (n, 3)}), "intervals", "iterations",
+    "converged"}; degree: the disturbance
     polynomial's (-1: no disturbance torque). Each block's even-numbered samples form the
     equation, its odd-numbered ones the instruments (``instruments=False``: every sample
     in the equation, ordinary least squares)."""
@@ -115,8 +116,10 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     # the residual's scale from the structural equation (the measured regressors), not the projected one
     structural = X @ np.asarray(coefficients(jnp.asarray(solution.p))) - y
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
+    ends = np.array([tm.t[g[-1]] for g in groups[1:]])
     return _report(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
-                   residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1)
+                   residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
+                   residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
 
 
 def _report(p, cov_p, bias: bool, degree: int, solution, **extra) -> dict:
