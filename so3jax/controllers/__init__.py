@@ -1,7 +1,7 @@
 """Attitude controllers behind one interface (see :mod:`so3jax.controllers.base`), each
 registered by name in :mod:`so3jax.controllers.registry`."""
 
-from so3jax.controllers import pd, adaptive, open_loop, mrp_feedback, sliding_mode, excitation  # noqa: I001 (registration order)
+from so3jax.controllers import pd, adaptive, open_loop, mrp_feedback, sliding_mode  # noqa: I001 (registration order)
 
 from so3jax.controllers.adaptive import (
     PAPER_ADAPTIVE_GAINS,

@@ -1,4 +1,14 @@
-"""Open loop: a constant commanded body torque (actuator tests, identification runs)."""
+"""Open loop: a commanded body torque that ignores the state (actuator tests,
+identification manoeuvres).
+
+    tau_i(t) = torque_i + amplitude_i sign(sin(2 pi t / period_i + phase_i)),   i = x, y, z
+
+A constant torque, plus a square wave per body axis (amplitude 0 by default). With
+different periods per axis the body's rate sweeps directions and magnitudes that excite
+every inertia entry (``missions/identify.toml``). With wheels, the actuator distributes
+it to per-wheel motor torques (minimum norm, SPEC 8.4) and clips each wheel; a square
+wave of period P moves a wheel's speed by at most u P / (4 J_s) around its mean.
+"""
 
 from __future__ import annotations
 
@@ -16,15 +26,20 @@ class NoGains(NamedTuple):
     """A law without gains."""
 
 
-def open_loop(torque=(0.0, 0.0, 0.0)) -> Controller:
-    """tau = torque (3,) [N m], whatever the state; no internal state."""
+def open_loop(torque=(0.0, 0.0, 0.0), amplitude=(0.0, 0.0, 0.0), period=(100.0, 140.0, 60.0),
+              phase=(0.0, 0.0, 0.0)) -> Controller:
+    """tau = torque + amplitude sign(sin(2 pi t / period + phase)) per body axis, whatever
+    the state: torque, amplitude (3,) [N m], period (3,) [s], phase (3,) [rad]; no
+    internal state."""
 
     def init(gains):
         return ()
 
     def tau(gains, state, measured, desired, t):
-        command = so3.batch_like(jnp.asarray(torque, measured.Omega.dtype), 1, measured.Omega)
-        return jnp.broadcast_to(command, measured.Omega.shape), ()
+        like = measured.Omega
+        c, a, p, f = (so3.batch_like(jnp.asarray(x, like.dtype), 1, like) for x in (torque, amplitude, period, phase))
+        command = c + a * jnp.sign(jnp.sin(2.0 * jnp.pi * jnp.asarray(t, like.dtype) / p + f))
+        return jnp.broadcast_to(command, like.shape), ()
 
     return Controller(init, tau, NoGains)
 
@@ -44,6 +59,11 @@ register(
         style=dict(ls=":", color="tab:gray", label="open loop"),
         check=_check,
         tunable=False,
-        options=(Param("torque", [0.0, 0.0, 0.0], "N m", shapes=((3,),), doc="constant body torque"),),
+        options=(Param("torque", [0.0, 0.0, 0.0], "N m", shapes=((3,),), doc="constant body torque"),
+                 Param("amplitude", [0.0, 0.0, 0.0], "N m", shapes=((3,),), low=0.0,
+                       doc="square-wave amplitude per body axis"),
+                 Param("period", [100.0, 140.0, 60.0], "s", shapes=((3,),), low=1e-9,
+                       doc="square-wave period per body axis"),
+                 Param("phase", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="square-wave phase per body axis")),
     )
 )

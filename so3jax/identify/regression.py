@@ -25,6 +25,8 @@ estimate is physical by construction; where the unconstrained one is physical, b
 
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -95,31 +97,38 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     b0 = np.linalg.solve(start, beta[6:9]) if bias else np.zeros(0)
     p0 = np.concatenate([inertia.to_params(start), b0, beta[6 + len(b0):]])
 
-    def coefficients(p):
-        J = inertia.from_params(p[:6])
-        parts = [inertia.entries(J)]
-        if bias:
-            parts.append(J @ p[6:9])
-        parts.append(p[6 + (3 if bias else 0):])
-        return jnp.concatenate(parts)
-
-    Xh_, y_ = jnp.asarray(Xh), jnp.asarray(y)
-    residual = lambda p: Xh_ @ coefficients(p) - y_
-
-    @jax.jit
-    def evaluate(p):
-        r, A = residual(p), jax.jacfwd(residual)(p)
-        return 0.5 * r @ r, A.T @ A, A.T @ r
-
-    cost = jax.jit(lambda p: 0.5 * jnp.sum(residual(p) ** 2))
-    solution = fit.levenberg_marquardt(evaluate, cost, p0)
+    solution = fit.levenberg_marquardt(lambda p: _evaluate(p, Xh, y, bias), lambda p: _cost(p, Xh, y, bias), p0)
     # the residual's scale from the structural equation (the measured regressors), not the projected one
-    structural = X @ np.asarray(coefficients(jnp.asarray(solution.p))) - y
+    structural = X @ np.asarray(_coefficients(jnp.asarray(solution.p), bias)) - y
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
     ends = np.array([tm.t[g[-1]] for g in groups[1:]])
     return _report(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
                    residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
                    residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
+
+
+def _coefficients(p, bias: bool):
+    """(theta, [c = J b], d) of p = (log-Cholesky, [b], d)."""
+    J = inertia.from_params(p[:6])
+    parts = [inertia.entries(J)]
+    if bias:
+        parts.append(J @ p[6:9])
+    parts.append(p[6 + (3 if bias else 0):])
+    return jnp.concatenate(parts)
+
+
+@partial(jax.jit, static_argnames="bias")
+def _cost(p, Xh, y, bias):
+    r = Xh @ _coefficients(p, bias) - y
+    return 0.5 * r @ r
+
+
+@partial(jax.jit, static_argnames="bias")
+def _evaluate(p, Xh, y, bias):
+    """(cost, A^T A, A^T r) of the projected equation's residual r = Xh beta(p) - y."""
+    residual = lambda q: Xh @ _coefficients(q, bias) - y
+    r, A = residual(p), jax.jacfwd(residual)(p)
+    return 0.5 * r @ r, A.T @ A, A.T @ r
 
 
 def _report(p, cov_p, bias: bool, degree: int, solution, **extra) -> dict:

@@ -23,6 +23,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 REQUIRED = ("t", "gyro", "attitude")
@@ -177,25 +179,16 @@ def from_run(mission, history, seed) -> dict:
     (SPEC 8.2's recipe: the same draws the estimator saw), the tachometers' wheel speeds and
     the wheels as the flight software knows them. Needs the sampled wiring with a gyro and
     a star tracker, and a history recorded at ticks."""
-    import jax
-    import jax.numpy as jnp
-
     loop = mission.loop()
     gyro, tracker = loop.sensors.rate, loop.sensors.attitude
     if mission.period is None or gyro is None or tracker is None:
         raise ValueError("telemetry needs the sampled wiring with a gyro and a star tracker")
     t = np.asarray(history.t, float)
     j = np.rint(t / mission.period).astype(np.int64)
-    key = jax.random.key(seed)
-
-    def measure(R, Omega, bias, j):
-        _, omega_m = gyro.measure(bias, R, Omega, key, j, mission.period)
-        _, (R_m, valid) = tracker.measure((), R, Omega, key, j, mission.period)
-        return omega_m, R_m, valid
-
     as_array = lambda x: jnp.asarray(np.asarray(x, float))
-    omega_m, R_m, valid = jax.jit(jax.vmap(measure))(as_array(history.R), as_array(history.Omega),
-                                                      as_array(history.bias), jnp.asarray(j, jnp.uint32))
+    omega_m, R_m, valid = _readings(gyro, tracker, jax.random.key(seed), jnp.asarray(mission.period),
+                                    as_array(history.R), as_array(history.Omega), as_array(history.bias),
+                                    jnp.asarray(j, jnp.uint32))
     arrays = {"t": t, "gyro": np.asarray(omega_m), "attitude": matrix_to_quaternion(np.asarray(R_m)),
               "attitude_valid": np.asarray(valid, bool)}
     wheels = mission.actuator.get("wheels") if mission.actuator["kind"] == "wheels" else None
@@ -204,3 +197,15 @@ def from_run(mission, history, seed) -> dict:
         arrays.update(wheel_speed=np.asarray(history.actuator, float), wheel_axes=axes,
                       spin_inertia=np.broadcast_to(np.asarray(wheels["spin_inertia"], float), (axes.shape[1],)).copy())
     return arrays
+
+
+@jax.jit
+def _readings(gyro, tracker, key, period, R, Omega, bias, j):
+    """The gyro's and star tracker's readings at ticks j (M,) of the true R (M, 3, 3),
+    Omega (M, 3) and bias (M, 3)."""
+    def measure(R, Omega, bias, j):
+        _, omega_m = gyro.measure(bias, R, Omega, key, j, period)
+        _, (R_m, valid) = tracker.measure((), R, Omega, key, j, period)
+        return omega_m, R_m, valid
+
+    return jax.vmap(measure)(R, Omega, bias, j)
