@@ -111,6 +111,8 @@ def _identify_into(args, tm, initial) -> int:
     else:
         print(format_report(report))
         print(f"\n{wall:.1f} s; results in {args.out}/ (identification.json, J_hat.toml, {len(figures)} figure(s))")
+    if "warning" in fit:
+        print(f"warning: {fit['warning']}", file=sys.stderr)
     if not fit["converged"]:
         print("warning: the fit did not converge; the estimate is the last iterate", file=sys.stderr)
         return 1
@@ -132,7 +134,7 @@ def summary(fit) -> dict:
            "disturbance": fit["disturbance"],
            "disturbance_std": None if fit["disturbance"] is None else np.sqrt(np.diag(fit["disturbance_cov"])).reshape(-1, 3),
            "residual_rms": fit["residual_rms"], "iterations": fit["iterations"], "converged": fit["converged"]}
-    for key in ("intervals", "windows", "sigma_gyro", "sigma_star"):
+    for key in ("intervals", "windows", "sigma_gyro", "sigma_star", "sigma_momentum_jump", "warning"):
         if key in fit:
             out[key] = fit[key]
     return to_builtin(out)

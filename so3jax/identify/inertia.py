@@ -49,6 +49,9 @@ def is_physical(J) -> bool:
 
 def to_params(J) -> np.ndarray:
     """The log-Cholesky parameters (6,) of a physical inertia; ValueError otherwise."""
+    J = np.asarray(J, float)
+    if not np.allclose(J, J.T, rtol=0, atol=1e-12 * np.abs(J).max()):
+        raise ValueError("not a physical inertia (not symmetric)")
     if not is_physical(J):
         raise ValueError("not a physical inertia (its principal moments break the triangle inequality)")
     L = np.linalg.cholesky(second_moment(J))

@@ -47,7 +47,8 @@ def noise_levels(tm) -> tuple[float, float]:
     delta = lambda a, b: np.asarray(so3.log(jnp.asarray(np.einsum("nji,njk->ikn", R[a], R[b]))).T)
     d2 = delta(run - 1, run) - delta(run - 2, run - 1)
     sigma_st = mad_sigma(d2) if len(d2) >= 3 else 1e-5
-    return sigma_g, sigma_st
+    # floors: readings free of noise (a simulated perfect sensor) still give finite weights
+    return max(sigma_g, 1e-15), max(sigma_st, 1e-15)
 
 
 def identify(tm, *, bias: bool = True, degree: int = 1, window: float = 10.0, initial=None) -> dict:
@@ -74,37 +75,53 @@ def identify(tm, *, bias: bool = True, degree: int = 1, window: float = 10.0, in
         J0, b0, d0 = np.asarray(initial, float), np.zeros(3), np.zeros(k_d)
         if not inertia.is_physical(J0):
             raise ValueError("the initial inertia is not physical")
-    cut = lambda x: jnp.asarray(x[: n_w * K].reshape((n_w, K) + x.shape[1:]))
+    # each window's K samples and the next window's first (where its momentum must arrive)
+    take = np.minimum(np.arange(n_w)[:, None] * K + np.arange(K + 1)[None], len(t) - 1)
+    cut = lambda x: jnp.asarray(x[take])
     s = (t - t[0]) / (t[-1] - t[0])
     first_valid = np.array([np.argmax(tm.valid[i * K:(i + 1) * K]) for i in range(n_w)])
     data = dict(gyro=cut(tm.gyro), R=cut(tm.R), valid=cut(tm.valid.astype(float)), h=cut(tm.wheel_momentum), s=cut(s),
                 R_ref=jnp.asarray(tm.R[np.arange(n_w) * K + first_valid]),
-                scale=jnp.asarray([h, t[-1] - t[0], 1.0 / sigma_g, 1.0 / sigma_st]))
+                scale=jnp.asarray([h, t[-1] - t[0], 1.0 / sigma_g, 1.0 / sigma_st, 0.0]))
     start = np.arange(n_w) * K
     L0 = (tm.gyro[start] - b0) @ J0.T + tm.wheel_momentum[start]
     local0 = np.concatenate([np.zeros((n_w, 3)), L0], axis=1)
     p0 = np.concatenate([inertia.to_params(J0), b0 if bias else np.zeros(0), d0, local0.reshape(-1)])
     static = dict(n_g=n_g, bias=bias, degree=degree)
+    # Windows are joined by the momentum's continuity, each jump weighted by its own
+    # scatter (the disturbance's noise, which the model does not know): a first fit
+    # without the joins, then the joins at the scatter they leave, twice.
     solution = fit.levenberg_marquardt(lambda p: _evaluate(p, data, **static)[:3],
                                        lambda p: _cost(p, data, **static), p0)
+    for _ in range(2):
+        jumps = np.asarray(_jumps(jnp.asarray(solution.p), data, **static))
+        sigma_c = max(float(np.sqrt(np.mean(jumps ** 2))), 1e-12) if len(jumps) else 1.0
+        data["scale"] = data["scale"].at[4].set(1.0 / sigma_c)
+        solution = fit.levenberg_marquardt(lambda p: _evaluate(p, data, **static)[:3],
+                                           lambda p: _cost(p, data, **static), solution.p)
     _, H, _, scores = _evaluate(jnp.asarray(solution.p), data, **static)
     # windows as clusters: the sandwich H^-1 (sum_w s_w s_w^T) H^-1 keeps the disturbance's
     # noise, correlated within a window, from making the estimate look more certain than it is
+    # (with the small-sample factor n_w / (n_w - 1); the scores sum to zero at the minimum)
     H_inv = np.linalg.pinv(np.asarray(H), hermitian=True)
     scores = np.asarray(scores)
-    cov = H_inv @ (scores.T @ scores) @ H_inv
-    r = np.asarray(_residuals(jnp.asarray(solution.p), data, **static)).reshape(n_w * K, 2, 3)
+    cov = H_inv @ (scores.T @ scores) @ H_inv * n_w / max(n_w - 1, 1)
+    r = np.asarray(_residuals(jnp.asarray(solution.p), data, **static)[0]).reshape(n_w * K, 2, 3)
     star = np.where(tm.valid[: n_w * K, None], r[:, 1] * sigma_st, np.nan)
     out = regression._report(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
                              residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
                              residuals={"t": t[: n_w * K], "gyro [rad/s]": r[:, 0] * sigma_g, "star tracker [rad]": star})
-    out.update(sigma_gyro=sigma_g, sigma_star=sigma_st)
+    out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
+    if n_w < 2 * n_g:
+        out["warning"] = (f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
+                          f"understates the uncertainty; a longer record or a shorter --window")
     return out
 
 
 def _window_residual(g, local, w, bias: bool, degree: int):
-    """The weighted residuals (K * 6,) of one window: gyro then star tracker per sample."""
-    h, span, weight_g, weight_a = w["scale"]
+    """The weighted residuals (K * 6,) of one window (gyro then star tracker per sample)
+    and its momentum propagated to the next window's first sample (3,) [N m s]."""
+    h, span, weight_g, weight_a, _ = w["scale"]
     J = inertia.from_params(g[:6])
     J_inv = jnp.linalg.inv(J)
     b = g[6:9] if bias else jnp.zeros(3, g.dtype)
@@ -125,13 +142,14 @@ def _window_residual(g, local, w, bias: bool, degree: int):
 
     R0 = w["R_ref"] @ so3.exp(local[:3])
     _, (Rs, Ls) = jax.lax.scan(step, (R0, local[3:]), jnp.arange(w["gyro"].shape[0] - 1))
-    Rs = jnp.concatenate([R0[None], Rs])
-    Ls = jnp.concatenate([local[3:][None], Ls])
-    Omega = (Ls - w["h"]) @ J_inv.T
-    r_g = (w["gyro"] - Omega - b) * weight_g
-    err = jax.vmap(lambda Rm, Rp: so3.log(Rp.T @ Rm))(w["R"], Rs)
-    r_a = err * weight_a * w["valid"][:, None]
-    return jnp.concatenate([r_g, r_a], axis=1).reshape(-1)
+    L_end = Ls[-1]
+    Rs = jnp.concatenate([R0[None], Rs[:-1]])
+    Ls = jnp.concatenate([local[3:][None], Ls[:-1]])
+    Omega = (Ls - w["h"][:-1]) @ J_inv.T
+    r_g = (w["gyro"][:-1] - Omega - b) * weight_g
+    err = jax.vmap(lambda Rm, Rp: so3.log(Rp.T @ Rm))(w["R"][:-1], Rs)
+    r_a = err * weight_a * w["valid"][:-1, None]
+    return jnp.concatenate([r_g, r_a], axis=1).reshape(-1), L_end
 
 
 def _split(p, n_g):
@@ -144,25 +162,38 @@ def _shared(data):
 
 
 def _residuals(p, data, n_g, bias, degree):
+    """(per-window residuals (n_w, 6 K), each window's momentum at the next one's start (n_w, 3))."""
     g, local = _split(p, n_g)
     per = lambda loc, w: _window_residual(g, loc, {**w, "scale": data["scale"]}, bias, degree)
     return jax.vmap(per)(local, _shared(data))
 
 
 @partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
+def _jumps(p, data, n_g, bias, degree):
+    """L_end of window i - L(0) of window i + 1 (n_w - 1, 3) [N m s]."""
+    _, local = _split(p, n_g)
+    L_end = _residuals(p, data, n_g, bias, degree)[1]
+    return L_end[:-1] - local[1:, 3:]
+
+
+@partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
 def _cost(p, data, n_g, bias, degree):
-    return 0.5 * jnp.sum(_residuals(p, data, n_g, bias, degree) ** 2)
+    r = _residuals(p, data, n_g, bias, degree)[0]
+    c = _jumps(p, data, n_g, bias, degree) * data["scale"][4]
+    return 0.5 * (jnp.sum(r ** 2) + jnp.sum(c ** 2))
 
 
 @partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
 def _evaluate(p, data, n_g, bias, degree):
     """(cost, H = A^T A, A^T r, the windows' scores (n_w, k)), H assembled from each
-    window's Jacobian (global and its own 6 parameters) without forming A."""
+    window's Jacobian (global and its own 6 parameters) and the joins' (window i's
+    parameters and the next window's momentum) without forming A."""
     g, local = _split(p, n_g)
     n_w = local.shape[0]
+    k = n_g + 6 * n_w
     per = lambda gg, loc, w: _window_residual(gg, loc, {**w, "scale": data["scale"]}, bias, degree)
-    r = jax.vmap(per, in_axes=(None, 0, 0))(g, local, _shared(data))
-    Jg, Jl = jax.vmap(jax.jacfwd(per, argnums=(0, 1)), in_axes=(None, 0, 0))(g, local, _shared(data))
+    r, L_end = jax.vmap(per, in_axes=(None, 0, 0))(g, local, _shared(data))
+    (Jg, Jl), (Jgc, Jlc) = jax.vmap(jax.jacfwd(per, argnums=(0, 1)), in_axes=(None, 0, 0))(g, local, _shared(data))
     H_gg = jnp.einsum("wrg,wrh->gh", Jg, Jg)
     H_gl = jnp.einsum("wrg,wrl->gwl", Jg, Jl).reshape(n_g, 6 * n_w)
     H_ll = _block_diag(jnp.einsum("wrl,wrm->wlm", Jl, Jl))
@@ -170,7 +201,20 @@ def _evaluate(p, data, n_g, bias, degree):
     s_g = jnp.einsum("wrg,wr->wg", Jg, r)
     s_l = jnp.einsum("wrl,wr->wl", Jl, r)
     scores = jnp.concatenate([s_g, (jnp.eye(n_w, dtype=r.dtype)[:, :, None] * s_l[None]).reshape(n_w, 6 * n_w)], 1)
-    return 0.5 * jnp.sum(r * r), H, scores.sum(0), scores
+    # the joins c_i = w_c (L_end_i - L(0)_{i+1}), i < n_w - 1, as dense rows of A
+    w_c = data["scale"][4]
+    c = w_c * (L_end[:-1] - local[1:, 3:])
+    A_c = jnp.zeros((n_w - 1, 3, k), r.dtype)
+    A_c = A_c.at[:, :, :n_g].set(w_c * Jgc[:-1])
+    rows = jnp.arange(n_w - 1)
+    own = n_g + 6 * rows[:, None] + jnp.arange(6)[None]  # window i's parameters
+    nxt = n_g + 6 * (rows[:, None] + 1) + 3 + jnp.arange(3)[None]  # window i + 1's momentum
+    A_c = A_c.at[rows[:, None, None], jnp.arange(3)[None, :, None], own[:, None, :]].set(w_c * Jlc[:-1])
+    A_c = A_c.at[rows[:, None], jnp.arange(3)[None, :], nxt].add(-w_c)
+    H = H + jnp.einsum("irk,irl->kl", A_c, A_c)
+    scores = scores.at[:-1].add(jnp.einsum("irk,ir->ik", A_c, c))
+    cost = 0.5 * (jnp.sum(r * r) + jnp.sum(c * c))
+    return cost, H, scores.sum(0), scores
 
 
 def _block_diag(blocks):

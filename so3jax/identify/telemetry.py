@@ -97,6 +97,11 @@ def load(path, wheels: tuple | None = None) -> Telemetry:
         raise ValueError(f"{path}: no such telemetry file") from None
     except (OSError, ValueError) as e:
         raise ValueError(f"{path}: not a telemetry .npz file ({e})") from None
+    return check(data, str(path), wheels)
+
+
+def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> Telemetry:
+    """:class:`Telemetry` of a dict of arrays (the file's fields), checked."""
     missing = [k for k in REQUIRED if k not in data]
     if missing:
         raise ValueError(f"{path}: missing {', '.join(missing)} (a telemetry file has {', '.join(REQUIRED)}; "
@@ -104,11 +109,6 @@ def load(path, wheels: tuple | None = None) -> Telemetry:
     unknown = sorted(set(data) - set(REQUIRED) - set(OPTIONAL))
     if unknown:
         raise ValueError(f"{path}: unknown field(s) {', '.join(unknown)} (known: {', '.join(REQUIRED + OPTIONAL)})")
-    return check(data, str(path), wheels)
-
-
-def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> Telemetry:
-    """:class:`Telemetry` of a dict of arrays (the file's fields), checked."""
     t = _array(data, "t", path, 1)
     N = len(t)
     if N < 3:
