@@ -33,13 +33,13 @@ def test_a_no_figures_run_after_a_figures_run_leaves_no_png(tmp_path, capsys):
     assert "attitude.png" in pngs
     first = manifest(out)
     assert first["command"] == "fly" and first["complete"] is True
-    assert sorted(first["files"]) == sorted(["metrics.json", "trajectory.npz", *pngs])
+    assert sorted(first["files"]) == sorted(["metrics.json", "trajectory.npz", "telemetry/", *pngs])
     assert fly(out, "--no-figures") == 0
     assert not list(out.glob("*.png"))
     second = manifest(out)
-    assert second["complete"] is True and second["files"] == ["metrics.json", "trajectory.npz"]
+    assert second["complete"] is True and sorted(second["files"]) == ["metrics.json", "telemetry/", "trajectory.npz"]
     assert second["settings"]["no_figures"] is True and second["fingerprint"] != first["fingerprint"]
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "metrics.json", "trajectory.npz"]
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "metrics.json", "telemetry", "trajectory.npz"]
     assert warnings_of(capsys.readouterr().err) == []
 
 
@@ -53,7 +53,7 @@ def test_a_users_own_files_are_left_and_named_in_one_line(tmp_path, capsys):
     assert warnings_of(capsys.readouterr().err) == [
         f"so3jax fly: warning: {out} holds files no so3jax run lists, left as they are: notes.txt, old.png"
     ]
-    assert manifest(out)["files"] == ["metrics.json", "trajectory.npz"]
+    assert manifest(out)["files"] == ["metrics.json", "trajectory.npz", "telemetry/"]
 
 
 def test_a_run_interrupted_while_writing_figures_is_marked_and_replaced_by_the_next(tmp_path, capsys, monkeypatch):
@@ -70,7 +70,7 @@ def test_a_run_interrupted_while_writing_figures_is_marked_and_replaced_by_the_n
     assert fly(out) == 130
     partial = manifest(out)
     assert partial["complete"] is False and partial["finished"] is None
-    assert partial["files"] == ["metrics.json", "trajectory.npz", "attitude.png"]
+    assert partial["files"] == ["metrics.json", "trajectory.npz", "telemetry/", "attitude.png"]
     assert not (out / runfolder.LOCK).exists()
     monkeypatch.undo()
     capsys.readouterr()
@@ -94,7 +94,7 @@ def test_a_manifest_left_incomplete_is_seen_and_its_files_removed(tmp_path, caps
     (tmp_path / "outside.txt").write_text("never a run's to remove")
     assert fly(out, "--no-figures") == 0
     assert "holds an interrupted so3jax fly run (started then); replacing it" in capsys.readouterr().err
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "metrics.json", "trajectory.npz"]
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "metrics.json", "telemetry", "trajectory.npz"]
     assert (tmp_path / "outside.txt").exists()
 
 
