@@ -23,12 +23,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
+import os
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main(argv=None) -> int:
@@ -43,6 +46,8 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.throughput import cpu_model
     import so3jax as sj
     from so3jax import mission as missions
     from so3jax.identify import METHODS, inertia, telemetry
@@ -96,7 +101,7 @@ def main(argv=None) -> int:
                 print(json.dumps(row), flush=True)
                 rows.append(row)
     print(json.dumps({"command": "python benchmarks/identify.py " + " ".join(argv or sys.argv[1:]),
-                      "machine": platform.processor() or platform.machine(), "results": rows}))
+                      "machine": f"{cpu_model()}, {len(os.sched_getaffinity(0))} cores", "results": rows}))
     return 0
 
 

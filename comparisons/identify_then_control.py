@@ -29,7 +29,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
+import os
 import sys
 import time
 import warnings
@@ -51,6 +51,8 @@ def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.throughput import cpu_model
     from so3jax import mission as missions
     from so3jax.dispersions import draw_samples
     from so3jax.identify import inertia, regression, telemetry
@@ -111,7 +113,7 @@ def main(argv=None) -> int:
                          "rmse_after_T_id_median": {f"{k:g}": float(np.median(v[ok])) for k, v in after[name].items()}}
         summary[name].update(identification.get(name, {}))
     report = {"command": "python comparisons/identify_then_control.py " + " ".join(argv or sys.argv[1:]),
-              "machine": platform.processor() or platform.machine(), "samples": n, "lengths_s": args.lengths,
+              "machine": f"{cpu_model()}, {len(os.sched_getaffinity(0))} cores", "samples": n, "lengths_s": args.lengths,
               "wall_time_s": time.perf_counter() - started, "cases": summary}
     from so3jax.io import save_npz, write_json
 
