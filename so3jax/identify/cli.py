@@ -84,7 +84,7 @@ def run(args) -> int:
 def _identify_into(args, tm, initial) -> int:
     import time
 
-    from so3jax.identify import METHODS, inertia
+    from so3jax.identify import METHODS
     from so3jax.io import dumps, write_json, write_text
 
     options = dict(bias=not args.no_bias, degree=DISTURBANCE[args.disturbance])

@@ -1,5 +1,5 @@
-"""Levenberg-Marquardt for the identification's least-squares problems, with the
-Gauss-Newton covariance.
+"""Levenberg-Marquardt for the identification's least-squares problems, the Gauss-Newton
+covariance, and the result both methods report (:func:`estimate`).
 
 A problem is ``evaluate(p) -> (cost, H, g)`` with cost = |r(p)|^2 / 2, H = A^T A and
 g = A^T r for the Jacobian A = dr/dp (H may be assembled from blocks without forming A),
@@ -12,7 +12,11 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
+
+from so3jax.identify import inertia
 
 
 class Solution(NamedTuple):
@@ -58,3 +62,21 @@ def covariance(solution: Solution, n_residuals: int) -> np.ndarray:
     k = len(solution.p)
     s2 = 2.0 * solution.cost / max(n_residuals - k, 1)
     return s2 * np.linalg.pinv(solution.H, hermitian=True)
+
+
+def estimate(p, cov_p, bias: bool, degree: int, solution: Solution, **extra) -> dict:
+    """The identification's result from p = (log-Cholesky parameters of J, [gyro bias b],
+    disturbance coefficients d) and its covariance: J, its entries' covariance (6, 6),
+    b and d with theirs, and the solver's outcome; ``extra`` is added as it is."""
+    T = np.asarray(jax.jacfwd(lambda q: inertia.entries(inertia.from_params(q)))(jnp.asarray(p[:6])))
+    n_b = 3 if bias else 0
+    cov = cov_p.copy()
+    cov[:6, :] = T @ cov[:6, :]
+    cov[:, :6] = cov[:, :6] @ T.T
+    out = {"J": np.asarray(inertia.from_params(jnp.asarray(p[:6]))), "theta_cov": cov[:6, :6],
+           "bias": p[6:6 + n_b] if bias else None, "bias_cov": cov[6:6 + n_b, 6:6 + n_b] if bias else None,
+           "disturbance": p[6 + n_b:].reshape(degree + 1, 3) if degree >= 0 else None,
+           "disturbance_cov": cov[6 + n_b:, 6 + n_b:] if degree >= 0 else None,
+           "iterations": solution.iterations, "converged": solution.converged}
+    out.update(extra)
+    return out

@@ -102,7 +102,7 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     structural = X @ np.asarray(_coefficients(jnp.asarray(solution.p), bias)) - y
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
     ends = np.array([tm.t[g[-1]] for g in groups[1:]])
-    return _report(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
+    return fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
                    residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
                    residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
 
@@ -129,19 +129,3 @@ def _evaluate(p, Xh, y, bias):
     residual = lambda q: Xh @ _coefficients(q, bias) - y
     r, A = residual(p), jax.jacfwd(residual)(p)
     return 0.5 * r @ r, A.T @ A, A.T @ r
-
-
-def _report(p, cov_p, bias: bool, degree: int, solution, **extra) -> dict:
-    """J, its entries' covariance, and the other parameters, from p = (log-Cholesky, [b], d)."""
-    T = np.asarray(jax.jacfwd(lambda q: inertia.entries(inertia.from_params(q)))(jnp.asarray(p[:6])))
-    n_b = 3 if bias else 0
-    cov = cov_p.copy()
-    cov[:6, :] = T @ cov[:6, :]
-    cov[:, :6] = cov[:, :6] @ T.T
-    out = {"J": np.asarray(inertia.from_params(jnp.asarray(p[:6]))), "theta_cov": cov[:6, :6],
-           "bias": p[6:6 + n_b] if bias else None, "bias_cov": cov[6:6 + n_b, 6:6 + n_b] if bias else None,
-           "disturbance": p[6 + n_b:].reshape(degree + 1, 3) if degree >= 0 else None,
-           "disturbance_cov": cov[6 + n_b:, 6 + n_b:] if degree >= 0 else None,
-           "iterations": solution.iterations, "converged": solution.converged}
-    out.update(extra)
-    return out

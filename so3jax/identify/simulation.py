@@ -108,7 +108,7 @@ def identify(tm, *, bias: bool = True, degree: int = 1, window: float = 10.0, in
     cov = H_inv @ (scores.T @ scores) @ H_inv * n_w / max(n_w - 1, 1)
     r = np.asarray(_residuals(jnp.asarray(solution.p), data, **static)[0]).reshape(n_w * K, 2, 3)
     star = np.where(tm.valid[: n_w * K, None], r[:, 1] * sigma_st, np.nan)
-    out = regression._report(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
+    out = fit.estimate(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
                              residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
                              residuals={"t": t[: n_w * K], "gyro [rad/s]": r[:, 0] * sigma_g, "star tracker [rad]": star})
     out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
