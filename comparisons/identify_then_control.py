@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     J = draw_samples(sweep.dispersions, sweep.seed, args.samples, sweep.max_draws).params.J2
     seeds = np.arange(args.samples)
     n = len(seeds)
-    w0 = np.zeros((n, 4))  # wheel speeds at the docking [rad/s]
+    w0 = np.zeros((n, post.loop().actuator.count))  # wheel speeds at the docking [rad/s]
     Omega0 = np.broadcast_to(np.asarray(post.scenario().Omega0), (n, 3))
     R0 = np.broadcast_to(np.asarray(post.scenario().R0), (n, 3, 3))
 
