@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-DISTURBANCE = {"none": -1, "constant": 0, "linear": 1, "quadratic": 2}
+DISTURBANCE = {"none": -1, "constant": 0, "linear": 1, "quadratic": 2, "cubic": 3}
+DEFAULT_DISTURBANCE = {"regression": "linear", "simulation": "cubic"}
 
 
 def register(subparsers) -> None:
@@ -25,8 +26,9 @@ def register(subparsers) -> None:
                    help="regression: equation error, momentum-integral form, instrumental variables (default); "
                         "simulation: output error through the simulated plant over short windows")
     p.add_argument("--no-bias", action="store_true", help="take the gyro as unbiased (default: fit a constant bias)")
-    p.add_argument("--disturbance", choices=tuple(DISTURBANCE), default="linear",
-                   help="the body-fixed disturbance torque fitted, a polynomial in time (default linear)")
+    p.add_argument("--disturbance", choices=tuple(DISTURBANCE),
+                   help="the body-fixed disturbance torque fitted, a polynomial in time "
+                        "(default: linear for regression, cubic for simulation)")
     p.add_argument("--interval", type=float, default=5.0, help="regression: averaging block length [s] (default 5)")
     p.add_argument("--window", type=float, default=10.0, help="simulation: window length [s] (default 10)")
     p.add_argument("--initial-inertia", metavar="J",
@@ -87,7 +89,8 @@ def _identify_into(args, tm, initial) -> int:
     from so3jax.identify import METHODS
     from so3jax.io import dumps, write_json, write_text
 
-    options = dict(bias=not args.no_bias, degree=DISTURBANCE[args.disturbance])
+    disturbance = args.disturbance or DEFAULT_DISTURBANCE[args.method]
+    options = dict(bias=not args.no_bias, degree=DISTURBANCE[disturbance])
     if args.method == "regression":
         options["interval"] = args.interval
     else:
@@ -99,7 +102,7 @@ def _identify_into(args, tm, initial) -> int:
     wall = time.perf_counter() - start
     report = summary(fit)
     report["config"] = {"telemetry": str(args.telemetry), "mission": None if args.mission is None else str(args.mission),
-                        "method": args.method, "bias": options["bias"], "disturbance": args.disturbance,
+                        "method": args.method, "bias": options["bias"], "disturbance": disturbance,
                         **({"interval_s": args.interval} if args.method == "regression" else
                            {"window_s": args.window, "initial_inertia": None if initial is None else initial.tolist()}),
                         "samples": len(tm.t), "duration_s": float(tm.t[-1] - tm.t[0]), "wall_time_s": wall}
