@@ -171,8 +171,7 @@ def write_telemetry(out: Path, mission, results: dict) -> str:
     from so3jax.identify import telemetry
     from so3jax.io import save_npz
 
-    sensors = mission.sensors
-    if mission.period_steps is None or "gyro" not in sensors or "star_tracker" not in sensors:
+    if not telemetry.recorded(mission):
         return ""
     for name, r in results.items():
         save_npz(out / "telemetry" / f"{name}.npz", **telemetry.from_run(mission, r.history, mission.seed))

@@ -45,48 +45,60 @@ def blocks(t, valid, interval: float) -> list[np.ndarray]:
     return [g for g in groups if len(g) >= 2]
 
 
-def _rows(tm, sets, degree: int, bias: bool):
-    """(X (3 n, k), y (3 n,)): the momentum equation between consecutive blocks, each
-    block's momentum and disturbance integral averaged over its samples ``sets``."""
+def normalized_time(t):
+    """s = (t - t_0) / (t_N - t_0), the disturbance polynomial's variable."""
+    return (t - t[0]) / (t[-1] - t[0])
+
+
+def _per_sample(tm, degree: int) -> dict:
+    """What the momentum equation averages, at every sample: R M(omega_m) (the regressor
+    of theta), R, R h, and int_{t_0}^{t} R s^p dt (trapezoid over the star-tracker
+    samples; rows without a sample are never read)."""
     valid = np.nonzero(tm.valid)[0]
-    s = (tm.t - tm.t[0]) / (tm.t[-1] - tm.t[0])
-    tv, Rv, sv = tm.t[valid], tm.R[valid], s[valid]
-    where = np.full(len(tm.t), -1)
-    where[valid] = np.arange(len(valid))
-    cum = []  # int_{t_0}^{t} R s^p dt at the star-tracker samples (trapezoid)
+    tv, Rv, sv = tm.t[valid], tm.R[valid], normalized_time(tm.t)[valid]
+    cum = []
     for p in range(degree + 1):
         f = Rv * (sv ** p)[:, None, None]
         seg = 0.5 * (f[1:] + f[:-1]) * np.diff(tv)[:, None, None]
-        cum.append(np.concatenate([np.zeros((1, 3, 3)), np.cumsum(seg, 0)]))
-    RM = np.einsum("nij,njk->nik", tm.R, np.asarray(inertia.rate_matrix(tm.gyro)))
-    Rh = np.einsum("nij,nj->ni", tm.R, tm.wheel_momentum)
+        at_valid = np.concatenate([np.zeros((1, 3, 3)), np.cumsum(seg, 0)])
+        full = np.zeros((len(tm.t), 3, 3))
+        full[valid] = at_valid
+        cum.append(full)
+    return {"RM": np.einsum("nij,njk->nik", tm.R, np.asarray(inertia.rate_matrix(tm.gyro))), "R": tm.R,
+            "Rh": np.einsum("nij,nj->ni", tm.R, tm.wheel_momentum), "cum": cum}
+
+
+def _rows(q: dict, sets, bias: bool):
+    """(X (3 n, k), y (3 n,)): the momentum equation between consecutive blocks, each
+    block's terms (:func:`_per_sample`) averaged over its samples ``sets``."""
     mean = lambda x: np.stack([x[i].mean(0) for i in sets])
     diff = lambda x: x[1:] - x[:-1]
-    parts = [diff(mean(RM))]
+    parts = [diff(mean(q["RM"]))]
     if bias:
-        parts.append(-diff(mean(tm.R)))
-    parts += [-diff(np.stack([c[where[i]].mean(0) for i in sets])) for c in cum]
+        parts.append(-diff(mean(q["R"])))
+    parts += [-diff(mean(c)) for c in q["cum"]]
     X = np.concatenate(parts, axis=2)
-    return X.reshape(-1, X.shape[2]), -diff(mean(Rh)).reshape(-1)
+    return X.reshape(-1, X.shape[2]), -diff(mean(q["Rh"])).reshape(-1)
 
 
 def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, instruments: bool = True) -> dict:
     """The fit: {"J", "theta_cov", "bias", "bias_cov", "disturbance", "disturbance_cov",
     "residual_rms", "residuals" ({"t": s, name: (n, 3)}), "intervals", "iterations",
-    "converged"}; degree: the disturbance
-    polynomial's (-1: no disturbance torque). Each block's even-numbered samples form the
-    equation, its odd-numbered ones the instruments (``instruments=False``: every sample
-    in the equation, ordinary least squares)."""
+    "converged"}; degree: the disturbance polynomial's (-1: no disturbance torque). Each
+    block's even-numbered samples form the equation, its odd-numbered ones the
+    instruments (``instruments=False``: every sample in the equation, ordinary least
+    squares)."""
     groups = blocks(tm.t, tm.valid, interval)
     k = 6 + (3 if bias else 0) + 3 * (degree + 1)
     if len(groups) - 1 < k // 3 + 1:
         raise ValueError(f"the telemetry gives {max(len(groups) - 1, 0)} intervals of {interval:g} s; "
                          f"at least {k // 3 + 1} are needed for {k} unknowns: a longer record or a shorter --interval")
+    q = _per_sample(tm, degree)
     if instruments:
-        X, y = _rows(tm, [g[0::2] for g in groups], degree, bias)
-        Z = _rows(tm, [g[1::2] for g in groups], degree, bias)[0]
+        X, y = _rows(q, [g[0::2] for g in groups], bias)
+        Z = _rows(q, [g[1::2] for g in groups], bias)[0]
     else:
-        X, y = _rows(tm, groups, degree, bias)
+        X, y = _rows(q, groups, bias)
         Z = X
     # two-stage least squares: the regressors projected on the instruments' span
     Q, _ = np.linalg.qr(Z)
@@ -103,8 +115,8 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
     ends = np.array([tm.t[g[-1]] for g in groups[1:]])
     return fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
-                   residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
-                   residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
+                        residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
+                        residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
 
 
 def _coefficients(p, bias: bool):

@@ -81,7 +81,7 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     # each window's K samples and the next window's first (where its momentum must arrive)
     take = np.minimum(np.arange(n_w)[:, None] * K + np.arange(K + 1)[None], len(t) - 1)
     cut = lambda x: jnp.asarray(x[take])
-    s = (t - t[0]) / (t[-1] - t[0])
+    s = regression.normalized_time(t)
     first_valid = np.array([np.argmax(tm.valid[i * K:(i + 1) * K]) for i in range(n_w)])
     data = dict(gyro=cut(tm.gyro), R=cut(tm.R), valid=cut(tm.valid.astype(float)), h=cut(tm.wheel_momentum), s=cut(s),
                 R_ref=jnp.asarray(tm.R[np.arange(n_w) * K + first_valid]),
@@ -112,8 +112,8 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     r = np.asarray(_residuals(jnp.asarray(solution.p), data, **static)[0]).reshape(n_w * K, 2, 3)
     star = np.where(tm.valid[: n_w * K, None], r[:, 1] * sigma_st, np.nan)
     out = fit.estimate(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
-                             residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
-                             residuals={"t": t[: n_w * K], "gyro [rad/s]": r[:, 0] * sigma_g, "star tracker [rad]": star})
+                       residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
+                       residuals={"t": t[: n_w * K], "gyro [rad/s]": r[:, 0] * sigma_g, "star tracker [rad]": star})
     out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
     if n_w < 2 * n_g:
         out["warning"] = (f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
@@ -160,7 +160,7 @@ def _split(p, n_g):
 
 
 def _shared(data):
-    """The per-window arrays with a leading window axis, and the shared scales."""
+    """The per-window arrays (leading window axis): ``data`` without its shared scales."""
     return {k: v for k, v in data.items() if k != "scale"}
 
 
@@ -194,9 +194,13 @@ def _evaluate(p, data, n_g, bias, degree):
     g, local = _split(p, n_g)
     n_w = local.shape[0]
     k = n_g + 6 * n_w
-    per = lambda gg, loc, w: _window_residual(gg, loc, {**w, "scale": data["scale"]}, bias, degree)
-    r, L_end = jax.vmap(per, in_axes=(None, 0, 0))(g, local, _shared(data))
-    (Jg, Jl), (Jgc, Jlc) = jax.vmap(jax.jacfwd(per, argnums=(0, 1)), in_axes=(None, 0, 0))(g, local, _shared(data))
+    def per(gg, loc, w):  # the outputs twice: differentiated, and as they are (one pass)
+        out = _window_residual(gg, loc, {**w, "scale": data["scale"]}, bias, degree)
+        return out, out
+
+    derivatives, (r, L_end) = jax.vmap(jax.jacfwd(per, argnums=(0, 1), has_aux=True),
+                                        in_axes=(None, 0, 0))(g, local, _shared(data))
+    (Jg, Jl), (Jgc, Jlc) = derivatives
     H_gg = jnp.einsum("wrg,wrh->gh", Jg, Jg)
     H_gl = jnp.einsum("wrg,wrl->gwl", Jg, Jl).reshape(n_g, 6 * n_w)
     H_ll = _block_diag(jnp.einsum("wrl,wrm->wlm", Jl, Jl))

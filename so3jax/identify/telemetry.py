@@ -173,16 +173,22 @@ def save(path, t, gyro, R, valid=None, wheel_speed=None, wheel_axes=None, spin_i
     save_npz(Path(path), **arrays)
 
 
+def recorded(mission) -> bool:
+    """Whether a flight of the mission has telemetry: the sampled wiring, a gyro and a star tracker."""
+    sensors = mission.loop().sensors
+    return mission.period is not None and sensors.rate is not None and sensors.attitude is not None
+
+
 def from_run(mission, history, seed) -> dict:
     """The telemetry arrays (the file's fields) of one simulated flight: the sensors' readings
     at the recorded ticks, regenerated from the recorded true state with the run's noise
     (SPEC 8.2's recipe: the same draws the estimator saw), the tachometers' wheel speeds and
     the wheels as the flight software knows them. Needs the sampled wiring with a gyro and
     a star tracker, and a history recorded at ticks."""
+    if not recorded(mission):
+        raise ValueError("telemetry needs the sampled wiring with a gyro and a star tracker")
     loop = mission.loop()
     gyro, tracker = loop.sensors.rate, loop.sensors.attitude
-    if mission.period is None or gyro is None or tracker is None:
-        raise ValueError("telemetry needs the sampled wiring with a gyro and a star tracker")
     t = np.asarray(history.t, float)
     j = np.rint(t / mission.period).astype(np.int64)
     as_array = lambda x: jnp.asarray(np.asarray(x, float))
