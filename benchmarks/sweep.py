@@ -20,8 +20,19 @@ taken by the first free process through a claim file (layout "chunks", the defau
 every chunk over all processes' devices (PxD:mesh). --hog pins process i to core i and
 runs a busy loop on the last core for the whole benchmark: a host slower than the others.
 
-Prints one JSON object: ``runs`` (one per round, layout and controller) and ``full_sweep``
-(per layout: the median rate over rounds and the extrapolation).
+With --numba, each one-process layout's child also times the Numba baseline of the
+dispersed sweep (benchmarks/baselines/numba_dispersed.py: the same closed loop, each
+trajectory with its own scenario, its noise drawn in the kernel) on the same samples,
+right after so3jax's run of them, on as many Numba threads as the layout has devices
+(its compile excluded: a run on a tiny batch first). Each round is one such child, so
+the ratio so3jax / Numba of a round compares runs seconds apart:
+
+    python benchmarks/sweep.py --devices 2 --T 20 --samples 256 --chunk 128 --rounds 2 --numba
+
+Prints one JSON object: ``runs`` (one per round, layout and controller; with --numba, also
+the Numba rate and the ratio), ``full_sweep`` (per layout: the median rate over rounds and
+the extrapolation) and, with --numba, ``numba_head_to_head`` (per layout and controller:
+both rates and the ratio per round, and the ratio's median).
 """
 
 from __future__ import annotations
@@ -37,6 +48,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: the repository root on the path (benchmarks.baselines)
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 FULL = {"samples": 1024, "steps": 400_000}
 
@@ -74,16 +88,24 @@ def _child(spec: dict) -> list:
     n = -(-spec["samples"] // chunk) * chunk
     params = dispersions.draw_samples(config.dispersions, config.seed, n, config.max_draws).params
     key = sweep.mission_key(config.mission)
+    use_numba = spec.get("numba", False) and jax.process_count() == 1
+    if use_numba:  # the parent raised NUMBA_NUM_THREADS to at least the device count
+        import numba
+
+        from benchmarks.baselines.numba_dispersed import simulate_dispersed
+
+        numba.set_num_threads(jax.local_device_count())
     runs = []
     for controller in spec["controllers"]:
         gains = jax.tree.map(np.asarray, config.gains[controller])
+        rmse = {}  # first sample of a chunk -> so3jax's rmse of the chunk
 
-        def run(first, last, controller=controller, gains=gains, claims=None):
+        def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse):
             for start in range(first, last, chunk):
                 if claims is not None and not sweep._take(claims, controller, start):
                     continue
                 part = jax.tree.map(lambda x, start=start: x[start : start + chunk], params)
-                sweep.run_chunk((part, {}), gains, controller, key, mesh)
+                rmse[start] = sweep.run_chunk((part, {}), gains, controller, key, mesh)["rmse"]
             distributed.barrier(f"benchmark: {controller} {first}-{last}")
 
         start = time.perf_counter()
@@ -94,6 +116,23 @@ def _child(spec: dict) -> list:
         start, cpu = time.perf_counter(), time.process_time()
         run(0, n, claims=claims)
         wall, cpu = time.perf_counter() - start, time.process_time() - cpu
+        head_to_head = {}
+        if use_numba:
+            numba_run = lambda p, steps, controller=controller: simulate_dispersed(
+                controller, p, steps, dt=config.dt, gains=config.gains[controller])
+            numba_run(jax.tree.map(lambda x: x[:2], params), 2)  # compile (or cache load), not timed
+            start_n, cpu_n = time.perf_counter(), time.process_time()
+            numba_out = numba_run(params, n_steps)
+            wall_n, cpu_n = time.perf_counter() - start_n, time.process_time() - cpu_n
+            ours = np.concatenate([rmse[s] for s in sorted(rmse)])
+            head_to_head = {
+                "numba_threads": numba.get_num_threads(),
+                "numba_wall_s": wall_n,
+                "numba_cpu_s": cpu_n,
+                "numba_trajectory_steps_per_s": n * n_steps / wall_n,
+                "so3jax_over_numba": wall_n / wall,  # the ratio of the rates
+                "numba_rmse_max_rel_diff": float(np.max(np.abs(numba_out["rmse"] - ours) / np.abs(ours))),
+            }
         runs.append(
             {
                 "devices": jax.device_count(),
@@ -111,6 +150,7 @@ def _child(spec: dict) -> list:
                 "samples_per_s": n / wall,
                 "trajectory_steps_per_s": n * n_steps / wall,
                 "trajectory_steps_per_cpu_s": n * n_steps / cpu,
+                **head_to_head,
             }
         )
     distributed.finish()  # every process meets; process 0 leaves last
@@ -137,6 +177,8 @@ def _run_children(spec: dict, processes: int, devices: int, layout: str, pin: bo
     """The measurements of process 0 of ``processes`` children with ``devices`` each (pinned
     to core i if ``pin`` and several)."""
     env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}")
+    if spec.get("numba") and processes == 1:  # a Numba thread per device, even beyond the cores
+        env["NUMBA_NUM_THREADS"] = str(max(devices, int(env.get("NUMBA_NUM_THREADS", 0)), os.cpu_count() or 1))
     coordinator = f"127.0.0.1:{_free_port()}"
     claims = tempfile.mkdtemp(prefix="so3jax-claims-")
     children = []
@@ -154,6 +196,24 @@ def _run_children(spec: dict, processes: int, devices: int, layout: str, pin: bo
     return json.loads(lines[-1])
 
 
+def _head_to_head(runs: list) -> dict:
+    """{layout: {controller: both rates and so3jax / Numba per round, the ratio's median}}."""
+    out = {}
+    for r in runs:
+        if "so3jax_over_numba" not in r:
+            continue  # a layout of several processes
+        row = out.setdefault(r["name"], {}).setdefault(r["controller"], {
+            "numba_threads": r["numba_threads"], "so3jax_trajectory_steps_per_s": [],
+            "numba_trajectory_steps_per_s": [], "so3jax_over_numba": []})
+        row["so3jax_trajectory_steps_per_s"].append(r["trajectory_steps_per_s"])
+        row["numba_trajectory_steps_per_s"].append(r["numba_trajectory_steps_per_s"])
+        row["so3jax_over_numba"].append(r["so3jax_over_numba"])
+    for rows in out.values():
+        for row in rows.values():
+            row["median_so3jax_over_numba"] = statistics.median(row["so3jax_over_numba"])
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", default="1,2,4",
@@ -166,6 +226,9 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=64, help="samples per chunk (default 64)")
     parser.add_argument("--hog", action="store_true",
                         help="pin process i of several to core i and keep the last core half busy with a busy loop")
+    parser.add_argument("--numba", action="store_true",
+                        help="one-process layouts: also time the Numba dispersed baseline on the same samples, "
+                             "after so3jax in each round, on as many threads as devices")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -180,7 +243,8 @@ def main() -> None:
     try:
         for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
             for name, (processes, devices, layout) in layouts.items():
-                spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "controllers": args.controllers.split(",")}
+                spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk,
+                        "controllers": args.controllers.split(","), "numba": args.numba}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
     finally:
         if hog is not None:
@@ -200,6 +264,8 @@ def main() -> None:
         "runs": runs,
         "full_sweep": {"what": "extrapolated from the compiled rates above (compile excluded)", **FULL, "by_devices": full},
     }
+    if args.numba:
+        report["numba_head_to_head"] = _head_to_head(runs)
     print(json.dumps(report, indent=2))
 
 

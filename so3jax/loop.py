@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import metrics, plant, so3
+from so3jax import metrics, plant, so3, stepped
 from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.actuators import Ideal, uncompensated_momentum
 from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
@@ -143,22 +143,27 @@ def _integrated(state: State, with_controller: bool) -> State:
     return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
 
 
-def _field(scenario: Scenario, loop: Loop, phase, d, law):
+def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
     """The vector field of one step (phase and disturbance held). law(t, x, desired) ->
     (actuator input, controller state rate): the controller in every stage
-    (continuous), or the held input (sampled)."""
+    (continuous), or the held input (sampled). stages: the step's precomputed time terms
+    (:func:`so3jax.stepped.stage_terms`), taken in the order RK4 calls the field; None:
+    each stage evaluates the reference and the inertia at its time."""
+    calls = iter(stepped.STAGE_OF_CALL)
 
     def field(t, x: State):
         Omega = x.Omega
-        wanted = desired(scenario, t, phase, x.R_d.R if isinstance(x.R_d, OnSO3) else None, Omega)
+        terms = stepped.StageTerms(None, None, None) if stages is None else stages[next(calls)]
+        R_d = x.R_d.R if isinstance(x.R_d, OnSO3) else terms.R_d
+        wanted = desired(scenario, t, phase, R_d, Omega)
         held, controller_dot = law(t, x, wanted)
-        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega)
+        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega) if terms.J is None else terms.J
         J_dot = (
             so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
             if scenario.variable_inertia_term
             else None
         )
-        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, d, t, J_dot)
+        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, d, t, J_dot, terms.J_inv)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
         return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
 
@@ -171,16 +176,23 @@ def sample(state: State, tau, wanted: Desired) -> metrics.Sample:
     return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e))
 
 
-def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP):
+def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP,
+         constants=None):
     """Advance over step k with disturbance d_k held (SPEC 5, 8.1): RK4 of the plant and the
     actuator under the actuator's input, the input held since the last tick (sampled
     wiring), or the law and the actuator's command evaluated in every stage on the true
     state, the controller's state integrated too (continuous wiring).
+    constants: :func:`so3jax.stepped.constants` of a batch of per-trajectory scenarios
+    (the time terms then computed once per step), or None.
     Returns (state, phase, metrics sample at t_k), the sample's torque the actuator's
     ``delivered`` at the step start."""
     dtype = scenario.R0.dtype
     t, p = time(scenario, k), phase(scenario, k)
     continuous = loop.continuous
+    stages = None
+    if constants is not None:
+        with_inverse = loop.actuator.stored_momentum(state.actuator) is None and not scenario.variable_inertia_term
+        stages = stepped.stage_terms(scenario, constants, t, p, with_inverse)
 
     def law(t, x, wanted):
         if not continuous:
@@ -189,7 +201,7 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega, h_w), wanted, t)
         return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
 
-    field = _field(scenario, loop, p, d, law)
+    field = _field(scenario, loop, p, d, law, stages)
     x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
     new = state._replace(
         R=x.R.R,

@@ -108,17 +108,21 @@ def angular_acceleration(J, omega, torque, J_dot=None):
     return so3.solve_spd(J, rhs)
 
 
-def derivative(actuator, J, Omega, state, held, d, t, J_dot=None):
+def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
     """(Omega' [rad/s^2], the actuator state's rate) with the actuator's input ``held``:
 
         (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
 
     (SPEC 8.4; SPEC 1 where the actuator stores no momentum, then computed as the
     paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
-    t: the stage time [s] (a fusion boundary, :func:`so3jax._fusion.materialize`)."""
+    t: the stage time [s] (a fusion boundary, :func:`so3jax._fusion.materialize`); J_inv:
+    J^{-1} where it is precomputed (:mod:`so3jax.stepped`; an actuator storing no momentum)."""
     torque = actuator.body_torque(state, held, Omega)
     stored = actuator.stored_momentum(state)
-    if stored is None:
+    if stored is None and J_inv is not None:
+        rhs = materialize(torque + d, t) - so3.cross(Omega, so3.matvec(J, Omega))
+        Omega_dot = so3.matvec(J_inv, rhs)
+    elif stored is None:
         Omega_dot = angular_acceleration(J, Omega, materialize(torque + d, t), J_dot)
     else:
         rhs = torque + d - so3.cross(Omega, so3.matvec(J, Omega) + stored.relative)

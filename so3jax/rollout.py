@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import actuators, flight_metrics, metrics, so3
+from so3jax import actuators, flight_metrics, metrics, so3, stepped
 from so3jax.controllers.base import Controller, Measured, tracking_error
 from so3jax.loop import (
     PAPER_LOOP,
@@ -199,7 +199,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def draw(k0):
         return disturbances(scenario, key, k0, block) if draw_ahead else None
 
-    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop)
+    constants = stepped.constants(scenario) if key.ndim else None  # per-trajectory scenarios of a native batch
+    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants)
     if loop.continuous:
 
         def one_step(carry, d):
@@ -344,7 +345,8 @@ def rollout_batch(
             leaf_axes = _axes_tree(axes_prefix, tree)
         except ValueError as err:
             raise ValueError(f"{arg}_axes must be 0, None or a prefix of {arg}'s tree (0 or None per subtree): {err}") from None
-        for (path, leaf), ax in zip(jax.tree_util.tree_flatten_with_path(tree)[0], jax.tree.leaves(leaf_axes)):
+        for (path, leaf), ax in zip(jax.tree_util.tree_flatten_with_path(tree)[0],
+                                          jax.tree.leaves(leaf_axes, is_leaf=lambda x: x is None)):
             if ax == 0 and (jnp.ndim(leaf) == 0 or jnp.shape(leaf)[0] != seeds.shape[0]):
                 raise ValueError(
                     f"{arg}{jax.tree_util.keystr(path)} must have a leading batch axis of size {seeds.shape[0]} "

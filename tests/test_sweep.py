@@ -423,3 +423,23 @@ def test_the_flight_sweep_file_disperses_the_flight_hardware():
         "actuator.wheels.misalignment", "actuator.wheels.spin_inertia_error"}
     default = sweep.load_config(None)
     assert cfg.dispersions == default.dispersions  # the scenario dispersed as sweeps/default.toml does it
+
+
+def test_results_match_the_recorded_samples(reference):
+    """Every number of samples.csv within 1e-12 relative of tests/data/sweep_reference_samples.csv,
+    recorded by the stage-by-stage evaluation of each sample's reference and inertia (a
+    rollout of one trajectory evaluates them so); the orthogonality error, itself round-off,
+    within 1e-12 absolute."""
+    out, _ = reference
+    read = lambda path: list(csv.DictReader(path.open()))
+    got, recorded = read(out / "samples.csv"), read(ROOT / "tests" / "data" / "sweep_reference_samples.csv")
+    assert len(got) == len(recorded) == 11 and got[0].keys() == recorded[0].keys()
+    for row, want in zip(got, recorded):
+        for key, value in want.items():
+            try:
+                expected = float(value)
+            except ValueError:
+                assert row[key] == value, key
+                continue
+            rtol, atol = (0.0, 1e-12) if key.endswith("orthogonality_error") else (1e-12, 0.0)
+            np.testing.assert_allclose(float(row[key]), expected, rtol=rtol, atol=atol, err_msg=f"{key} of sample {want['index']}")

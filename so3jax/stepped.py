@@ -1,0 +1,119 @@
+"""A step's time terms computed once per step, for a batch whose scenarios differ per trajectory.
+
+The four RK4 stages of step k evaluate the reference and the inertia at t_k, t_k + dt/2
+(twice) and t_k + dt, with the phase p of step k held. When each trajectory of a natively
+batched rollout has its own scenario (a sweep's samples), these are evaluated lane by
+lane, and what is constant per sample and phase is computed once, before the loop:
+
+* reference (:class:`~so3jax.reference.PiecewiseConstantRate`): R_d(t_k) in closed form,
+  then R_d(t_k + c dt) = R_d(t_k) exp(hat(Omega_p) c dt), the step rotations of each phase
+  precomputed (one trigonometric evaluation per step instead of one per stage);
+* inertia (:class:`~so3jax.plant.PaperInertia`, :class:`~so3jax.plant.ConstantInertia`):
+  J and J^{-1} of the constant phases precomputed; in the deployment, the blend
+  w(t_k) = exp(-(t_k - t_deploy)/tau_J) once per step, w(t_k + c dt) = w(t_k) exp(-c dt/tau_J),
+  and J^{-1} by its adjugate at each of the three times. Only the phase's own branch runs.
+
+The values equal the stage-by-stage evaluation's to round-off (~1e-16 relative); a shared
+scenario (one for the whole batch, the paper's mode) never takes this path.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from so3jax import so3
+from so3jax.plant import ConstantInertia, PaperInertia
+from so3jax.reference import PiecewiseConstantRate
+
+STAGE_OF_CALL = (0, 1, 1, 2)  # RK4's four field evaluations -> the step's three times (t, t + dt/2, t + dt)
+
+
+class StageTerms(NamedTuple):
+    """The time terms at one of a step's three stage times; None: evaluated by the field itself."""
+
+    R_d: Any  # (3, 3, B) desired attitude, or None
+    J: Any  # (3, 3, B) inertia [kg m^2], or None
+    J_inv: Any  # (3, 3, B) its inverse [1/(kg m^2)], or None
+
+
+class Constants(NamedTuple):
+    """Per sample and phase, computed before the loop (leaves: trailing batch axis B)."""
+
+    step_rotations: Any  # (P, 2, 3, 3, B): exp(hat(Omega_p) dt/2), exp(hat(Omega_p) dt); or None
+    inertia: Any  # the profile's (see _inertia_constants), or None
+
+
+def _per_trajectory(x, core_ndim: int) -> bool:
+    """Whether x carries a trailing batch axis of more than one trajectory."""
+    return jnp.ndim(x) > core_ndim and jnp.shape(x)[-1] > 1
+
+
+def constants(scenario) -> Constants | None:
+    """The per-sample constants of a natively batched scenario (batch axis last), or None
+    when neither its reference nor its inertia varies per trajectory in a form this
+    module knows."""
+    ref, inertia, dt = scenario.reference, scenario.inertia, scenario.dt
+    rotations = None
+    if isinstance(ref, PiecewiseConstantRate) and _per_trajectory(ref.rates, 2):
+        h = jnp.asarray(dt, ref.rates.dtype)
+        rotations = jnp.stack([jnp.stack([so3.exp(rate * (c * h)) for c in (0.5, 1.0)]) for rate in ref.rates])
+    inertia_constants = _inertia_constants(inertia, dt)
+    if rotations is None and inertia_constants is None:
+        return None
+    return Constants(rotations, inertia_constants)
+
+
+def _inertia_constants(inertia, dt):
+    if isinstance(inertia, PaperInertia) and _per_trajectory(inertia.J0, 2):
+        tau = inertia.tau_J
+        return (inverse(inertia.J0), inverse(inertia.J2), jnp.exp(-0.5 * dt / tau), jnp.exp(-dt / tau))
+    if isinstance(inertia, ConstantInertia) and _per_trajectory(inertia.J, 2):
+        return (inverse(inertia.J),)
+    return None
+
+
+def inverse(J):
+    """J^{-1} (3, 3, ...) of a symmetric positive definite J by its adjugate."""
+    a, d, e = J[0, 0], J[0, 1], J[0, 2]
+    b, f, c = J[1, 1], J[1, 2], J[2, 2]
+    c00, c01, c02 = b * c - f * f, e * f - d * c, d * f - e * b
+    c11, c12, c22 = a * c - e * e, d * e - a * f, a * b - d * d
+    inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
+    return jnp.stack([jnp.stack([c00, c01, c02]), jnp.stack([c01, c11, c12]), jnp.stack([c02, c12, c22])]) * inv_det
+
+
+def stage_terms(scenario, consts: Constants, t, phase, with_inverse: bool) -> tuple[StageTerms, ...]:
+    """The time terms at t, t + dt/2, t + dt of a step starting at t [s] in ``phase``."""
+    R_d = (None,) * 3 if consts.step_rotations is None else _attitudes(scenario.reference, consts.step_rotations, t, phase)
+    J, J_inv = (None,) * 3, (None,) * 3
+    if consts.inertia is not None:
+        J, J_inv = _inertias(scenario.inertia, consts.inertia, t, phase)
+        if not with_inverse:
+            J_inv = (None,) * 3
+    return tuple(StageTerms(*terms) for terms in zip(R_d, J, J_inv))
+
+
+def _attitudes(ref: PiecewiseConstantRate, rotations, t, phase):
+    start = ref.attitude(t, phase)
+    half, full = rotations[phase, 0], rotations[phase, 1]
+    return start, so3.matmul(start, half), so3.matmul(start, full)
+
+
+def _inertias(inertia, consts, t, phase):
+    if isinstance(inertia, ConstantInertia):
+        return (inertia.J,) * 3, (consts[0],) * 3
+    J0_inv, J2_inv, e_half, e_full = consts
+
+    def constant(J, J_inv):
+        return lambda: ((J,) * 3, (J_inv,) * 3)
+
+    def deploying():
+        w = jnp.exp(-(t - inertia.t_deploy) / inertia.tau_J)
+        Js = tuple(inertia.J1 - (inertia.J1 - inertia.J0) * x for x in (w, w * e_half, w * e_full))
+        return Js, tuple(inverse(J) for J in Js)
+
+    branches = (constant(inertia.J0, J0_inv), deploying, constant(inertia.J2, J2_inv))
+    return jax.lax.switch(jnp.clip(phase, 0, 2), branches)
