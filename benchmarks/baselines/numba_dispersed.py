@@ -18,12 +18,21 @@ numba_loop is the scenario: each trajectory b has its own parameters, those of a
 
 Phases switch at steps round(T_GROW/dt), round(T_DOCK/dt) (500 s, 2600 s). So where
 numba_loop tabulates the time terms once per chunk of steps for a whole group of
-trajectories, here each trajectory evaluates its own at every step: R_d(t), R_d Omega_d,
-J(t) and its inverse at the three RK4 stage times t_k, t_k + dt/2, t_k + dt, and its
-disturbance at t_k, as a sweep of so3jax does per sample. Scalar code: the trajectories
-are split into one group per thread (``numba.prange``), each trajectory advanced on local
-scalars, allocating nothing per step. Units: SI (s, rad, rad/s, N m, kg m^2). float64
-only; FMA contraction allowed (no other fast-math).
+trajectories, here each trajectory evaluates its own once per step, as a sweep of so3jax
+does per sample (``so3jax.stepped``), from constants computed before its time loop:
+
+* reference: the step rotations exp(hat(w_p) dt/2), exp(hat(w_p) dt) of each phase; per
+  step, R_d(t_k) in closed form, then R_d(t_k + c dt) = R_d(t_k) exp(hat(w_p) c dt), and
+  R_d Omega_d at each of the three RK4 stage times t_k, t_k + dt/2, t_k + dt;
+* inertia: J0^{-1} and J2^{-1} (by the adjugate) and the decay factors exp(-dt/(2 tau_J)),
+  exp(-dt/tau_J); phases 0 and 2 use J0, J2 and those inverses; in phase 1, per step,
+  w_k = exp(-(t_k - T_GROW)/tau_J), w at the later stage times w_k times a decay factor,
+  J = J1 - (J1 - J0) w and J^{-1} by the adjugate at each of the three times;
+* disturbance: at t_k.
+
+Scalar code: the trajectories are split into one group per thread (``numba.prange``),
+each trajectory advanced on local scalars, allocating nothing per step. Units: SI (s, rad,
+rad/s, N m, kg m^2). float64 only; FMA contraction allowed (no other fast-math).
 
 The result holds the metrics ``so3jax.dispersed.sample_metrics`` returns for the paper's
 mission, under its names and shapes ((B,) or (B, 3) per phase; a phase the horizon never
@@ -83,35 +92,49 @@ def _start_attitudes(w0, w1, w2):
 
 
 @_jit
+def _step_rotations(v0, v1, v2, h):
+    """exp(hat(v) h/2), exp(hat(v) h): a phase's step rotations for its rate v."""
+    c = 0.5 * h
+    return (
+        _plus_identity(_exp_minus_identity(v0 * c, v1 * c, v2 * c)),
+        _plus_identity(_exp_minus_identity(v0 * h, v1 * h, v2 * h)),
+    )
+
+
+@_jit
 def _sym(J):
     """(xx, yy, zz, xy, xz, yz) of a symmetric (3, 3) array."""
     return J[0, 0], J[1, 1], J[2, 2], J[0, 1], J[0, 2], J[1, 2]
 
 
 @_jit
-def _time_terms(t, tp, S, v0, v1, v2, f, Ja, Jb):
-    """One trajectory's time terms at t, in the layout of numba_loop's time table:
-    R_d(t) = S + S (exp(hat(v) (t - tp)) - I) (9), q = R_d v (3), J = Jb - (Jb - Ja) f (6)
-    and J^{-1} (6), symmetric matrices as (xx, yy, zz, xy, xz, yz). v: the phase's
-    Omega_d, tp: its start time, S: R_d(tp); f: the inertia blend (0 outside phase 1)."""
-    dt = t - tp
-    r = _mul_add(S, _exp_minus_identity(v0 * dt, v1 * dt, v2 * dt))
-    q0 = r[0] * v0 + r[1] * v1 + r[2] * v2
-    q1 = r[3] * v0 + r[4] * v1 + r[5] * v2
-    q2 = r[6] * v0 + r[7] * v1 + r[8] * v2
-    jxx = Jb[0] - (Jb[0] - Ja[0]) * f
-    jyy = Jb[1] - (Jb[1] - Ja[1]) * f
-    jzz = Jb[2] - (Jb[2] - Ja[2]) * f
-    jxy = Jb[3] - (Jb[3] - Ja[3]) * f
-    jxz = Jb[4] - (Jb[4] - Ja[4]) * f
-    jyz = Jb[5] - (Jb[5] - Ja[5]) * f
+def _inverse(j):
+    """J^{-1} of a symmetric J by its adjugate, both as (xx, yy, zz, xy, xz, yz)."""
+    jxx, jyy, jzz, jxy, jxz, jyz = j
     cxx, cyy, czz = jyy * jzz - jyz * jyz, jxx * jzz - jxz * jxz, jxx * jyy - jxy * jxy
     cxy, cxz, cyz = jxz * jyz - jxy * jzz, jxy * jyz - jxz * jyy, jxy * jxz - jxx * jyz
     inv_det = 1.0 / (jxx * cxx + jxy * cxy + jxz * cxz)
+    return cxx * inv_det, cyy * inv_det, czz * inv_det, cxy * inv_det, cxz * inv_det, cyz * inv_det
+
+
+@_jit
+def _blend(Ja, Jb, w):
+    """Jb - (Jb - Ja) w, symmetric matrices as (xx, yy, zz, xy, xz, yz)."""
     return (
-        r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], q0, q1, q2,
-        jxx, jyy, jzz, jxy, jxz, jyz,
-        cxx * inv_det, cyy * inv_det, czz * inv_det, cxy * inv_det, cxz * inv_det, cyz * inv_det,
+        Jb[0] - (Jb[0] - Ja[0]) * w, Jb[1] - (Jb[1] - Ja[1]) * w, Jb[2] - (Jb[2] - Ja[2]) * w,
+        Jb[3] - (Jb[3] - Ja[3]) * w, Jb[4] - (Jb[4] - Ja[4]) * w, Jb[5] - (Jb[5] - Ja[5]) * w,
+    )  # fmt: skip
+
+
+@_jit
+def _time_terms(r, v0, v1, v2, J, Ji):
+    """One stage time's terms in the layout of numba_loop's time table: R_d = r (9),
+    q = R_d v (3), J (6) and J^{-1} = Ji (6), symmetric matrices as (xx, yy, zz, xy, xz, yz);
+    v: the phase's Omega_d."""
+    return (
+        r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8],
+        r[0] * v0 + r[1] * v1 + r[2] * v2, r[3] * v0 + r[4] * v1 + r[5] * v2, r[6] * v0 + r[7] * v1 + r[8] * v2,
+        J[0], J[1], J[2], J[3], J[4], J[5], Ji[0], Ji[1], Ji[2], Ji[3], Ji[4], Ji[5],
     )  # fmt: skip
 
 
@@ -123,9 +146,14 @@ def _trajectory(adaptive, key0, key1, n_steps, h, k1, k2, g0, g1, gam, J0, J1, J
     wio (3), th (9, 3) (Theta_hat), updated in place. eta_k is drawn CHUNK steps at a time
     from the key words (key0, key1) into etab (CHUNK, 3) (ubuf (3 CHUNK): scratch); ths, a1,
     a23: (9, 3) scratch (a stage's Theta_hat, stage 1's Theta_hat', stages 2 + 3's)."""
+    # per-trajectory constants (module docstring)
     wd0, wd1, wd2 = n, -10.0 * n, 2.0 * n
     S1, S2 = _start_attitudes(wd0, wd1, wd2)
-    Js = (_sym(J0), _sym(J1), _sym(J2))
+    half01, full01 = _step_rotations(wd0, wd1, wd2, h)  # phases 0 and 1 (rate w)
+    half2, full2 = _step_rotations(0.0, 0.0, 0.0, h)  # phase 2 (rate 0)
+    J0s, J1s, J2s = _sym(J0), _sym(J1), _sym(J2)
+    J0_inv, J2_inv = _inverse(J0s), _inverse(J2s)
+    e_half, e_full = exp(-0.5 * h / tau_J), exp(-h / tau_J)
     R = (Rio[0, 0], Rio[0, 1], Rio[0, 2], Rio[1, 0], Rio[1, 1], Rio[1, 2], Rio[2, 0], Rio[2, 1], Rio[2, 2])
     w0, w1, w2 = wio[0], wio[1], wio[2]
     finite = True
@@ -138,19 +166,28 @@ def _trajectory(adaptive, key0, key1, n_steps, h, k1, k2, g0, g1, gam, J0, J1, J
             k = k0 + i
             t = k * h
             if k < k1:
-                phase, S, tp, v0, v1, v2, Ja, Jb = 0, IDENTITY, 0.0, wd0, wd1, wd2, Js[0], Js[0]
+                phase, S, tp, v0, v1, v2, half, full = 0, IDENTITY, 0.0, wd0, wd1, wd2, half01, full01
             elif k < k2:
-                phase, S, tp, v0, v1, v2, Ja, Jb = 1, S1, T_GROW, wd0, wd1, wd2, Js[0], Js[1]
+                phase, S, tp, v0, v1, v2, half, full = 1, S1, T_GROW, wd0, wd1, wd2, half01, full01
             else:
-                phase, S, tp, v0, v1, v2, Ja, Jb = 2, S2, T_DOCK, 0.0, 0.0, 0.0, Js[2], Js[2]
-            tm, te = t + c, t + h  # the stage times t + dt/2, t + dt
+                phase, S, tp, v0, v1, v2, half, full = 2, S2, T_DOCK, 0.0, 0.0, 0.0, half2, full2
+            ts = t - tp
+            r0 = _mul_add(S, _exp_minus_identity(v0 * ts, v1 * ts, v2 * ts))  # R_d(t_k)
+            r_m, r_e = _matmul(r0, half), _matmul(r0, full)  # R_d(t_k + dt/2), R_d(t_k + dt)
             if phase == 1:
-                f0, fm, fe = exp(-(t - T_GROW) / tau_J), exp(-(tm - T_GROW) / tau_J), exp(-(te - T_GROW) / tau_J)
+                w = exp(-(t - T_GROW) / tau_J)
+                Jt0, Jtm, Jte = _blend(J0s, J1s, w), _blend(J0s, J1s, w * e_half), _blend(J0s, J1s, w * e_full)
+                tt0 = _time_terms(r0, v0, v1, v2, Jt0, _inverse(Jt0))
+                ttm = _time_terms(r_m, v0, v1, v2, Jtm, _inverse(Jtm))
+                tte = _time_terms(r_e, v0, v1, v2, Jte, _inverse(Jte))
+            elif phase == 0:
+                tt0 = _time_terms(r0, v0, v1, v2, J0s, J0_inv)
+                ttm = _time_terms(r_m, v0, v1, v2, J0s, J0_inv)
+                tte = _time_terms(r_e, v0, v1, v2, J0s, J0_inv)
             else:
-                f0 = fm = fe = 0.0
-            tt0 = _time_terms(t, tp, S, v0, v1, v2, f0, Ja, Jb)
-            ttm = _time_terms(tm, tp, S, v0, v1, v2, fm, Ja, Jb)
-            tte = _time_terms(te, tp, S, v0, v1, v2, fe, Ja, Jb)
+                tt0 = _time_terms(r0, v0, v1, v2, J2s, J2_inv)
+                ttm = _time_terms(r_m, v0, v1, v2, J2s, J2_inv)
+                tte = _time_terms(r_e, v0, v1, v2, J2s, J2_inv)
             sw = amp * sin(freq * t)
             d0 = sw + nstd * etab[i, 0]
             d1 = sw + nstd * etab[i, 1]
