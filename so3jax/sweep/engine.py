@@ -7,6 +7,7 @@ import functools
 import operator
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -137,25 +138,35 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
         dynamic_ncols=True,
     )
     start = time.perf_counter()
+
+    def compute(controller, index):
+        gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
+        padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
+        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, key, mesh)
+
+    # In one process, each controller's first chunk starts at once: their programs compile side by side.
+    firsts = {} if processes > 1 else {c: i for i, (c, _) in reversed(list(enumerate(jobs)))}
+    pool = ThreadPoolExecutor(max(1, len(firsts)))
+    early = {i: pool.submit(compute, *jobs[i]) for i in firsts.values()} if len(firsts) > 1 else {}
     with bar:
-        for controller, index in jobs:
-            if share and not _take(claims, controller, int(index[0])):
-                continue  # another process computes it
-            gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
-            padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-            chunk_inputs = jax.tree.map(operator.itemgetter(padded), inputs)
-            with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
-                metrics = run_chunk(chunk_inputs, gains, controller, key, mesh)
-            if distributed.writer() or share:
-                save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
-            if share:  # count every process's saved chunks
-                saved = {path.name for path in (out / "chunks").glob("*.npz")}
-                bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)
-            else:
-                bar.n += len(index)
-            rate = (bar.n - held) / (time.perf_counter() - start)
-            bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
-            bar.refresh()
+        try:
+            for i, (controller, index) in enumerate(jobs):
+                if share and not _take(claims, controller, int(index[0])):
+                    continue  # another process computes it
+                with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
+                    metrics = early.pop(i).result() if i in early else compute(controller, index)
+                if distributed.writer() or share:
+                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
+                if share:  # count every process's saved chunks
+                    saved = {path.name for path in (out / "chunks").glob("*.npz")}
+                    bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)
+                else:
+                    bar.n += len(index)
+                rate = (bar.n - held) / (time.perf_counter() - start)
+                bar.set_postfix_str(f"{controller}, {rate * n_steps / 1e6:.3g} M steps/s", refresh=False)
+                bar.refresh()
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)  # an interrupted run does not wait for another first chunk
     distributed.barrier("sweep: waiting for every process's chunks")
     wall, computed = time.perf_counter() - start, sum(len(index) for _, index in jobs)
     if share and distributed.writer():
