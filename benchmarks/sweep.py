@@ -29,6 +29,15 @@ the ratio so3jax / Numba of a round compares runs seconds apart:
 
     python benchmarks/sweep.py --devices 2 --T 20 --samples 256 --chunk 128 --rounds 2 --numba
 
+--flops adds XLA's count of FLOPs per trajectory-step of the sweep path (one natively
+batched step of 64 samples, the paper's wiring) and the share of the machine's float64
+peak (a numpy matmul on every BLAS thread) that each run's rate reaches.
+
+--config times another sweep file's samples the same way, e.g. the flight mission's
+(sensors, MEKF, wheels, dispersed hardware; no Numba baseline flies that loop):
+
+    python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 400 --samples 128 --chunk 128
+
 Prints one JSON object: ``runs`` (one per round, layout and controller; with --numba, also
 the Numba rate and the ratio), ``full_sweep`` (per layout: the median rate over rounds and
 the extrapolation) and, with --numba, ``numba_head_to_head`` (per layout and controller:
@@ -75,26 +84,32 @@ def _child(spec: dict) -> list:
             process_id=spec["process_id"], timeout=300))
     import numpy as np
 
-    from so3jax import dispersions, distributed, sweep
+    from so3jax import dispersed, distributed, sweep
     from so3jax.scenario import InertiaWarning, steps_for_horizon
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
-        config = sweep.load_config(None, (f"T={spec['T']}",))
+        config = sweep.load_config(spec.get("config"), (f"T={spec['T']}",))
     n_steps = steps_for_horizon(config.T, config.dt)
     layout = spec.get("layout", "chunks")
     mesh = sweep.batch_mesh(layout)
     chunk = sweep.padded_chunk(spec["chunk"], mesh.size)
     n = -(-spec["samples"] // chunk) * chunk
-    params = dispersions.draw_samples(config.dispersions, config.seed, n, config.max_draws).params
+    drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws)
+    params, leaves = dispersed.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
     key = sweep.mission_key(config.mission)
-    use_numba = spec.get("numba", False) and jax.process_count() == 1
+    use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop
     if use_numba:  # the parent raised NUMBA_NUM_THREADS to at least the device count
         import numba
 
         from benchmarks.baselines.numba_dispersed import simulate_dispersed
 
         numba.set_num_threads(jax.local_device_count())
+    peak = None
+    if spec.get("flops"):  # the machine's float64 peak: a numpy matmul on every BLAS thread (best of 3)
+        from benchmarks.throughput import _matmul_peak
+
+        peak = _matmul_peak(2048)
     runs = []
     for controller in spec["controllers"]:
         gains = jax.tree.map(np.asarray, config.gains[controller])
@@ -104,8 +119,8 @@ def _child(spec: dict) -> list:
             for start in range(first, last, chunk):
                 if claims is not None and not sweep._take(claims, controller, start):
                     continue
-                part = jax.tree.map(lambda x, start=start: x[start : start + chunk], params)
-                rmse[start] = sweep.run_chunk((part, {}), gains, controller, key, mesh)["rmse"]
+                part = jax.tree.map(lambda x, start=start: x[start : start + chunk], (params, leaves))
+                rmse[start] = sweep.run_chunk(part, gains, controller, key, mesh)["rmse"]
             distributed.barrier(f"benchmark: {controller} {first}-{last}")
 
         start = time.perf_counter()
@@ -133,6 +148,10 @@ def _child(spec: dict) -> list:
                 "so3jax_over_numba": wall_n / wall,  # the ratio of the rates
                 "numba_rmse_max_rel_diff": float(np.max(np.abs(numba_out["rmse"] - ours) / np.abs(ours))),
             }
+        if spec.get("flops"):
+            flops = _step_flops(config, controller, params)
+            head_to_head |= {"flops_per_trajectory_step": flops, "flops_per_s": flops * n * n_steps / wall,
+                             "share_of_peak": flops * n * n_steps / wall / peak}
         runs.append(
             {
                 "devices": jax.device_count(),
@@ -155,6 +174,35 @@ def _child(spec: dict) -> list:
         )
     distributed.finish()  # every process meets; process 0 leaves last
     return runs
+
+
+def _step_flops(config, controller: str, params, batch: int = 64) -> float:
+    """XLA's count of FLOPs per trajectory-step of the sweep path: one natively batched
+    step (``so3jax.loop.step`` with the per-sample constants of ``so3jax.stepped``, and the
+    disturbance draw) of ``batch`` samples, per trajectory. The paper's (continuous) wiring."""
+    import jax
+    import jax.numpy as jnp
+
+    from so3jax import dispersed, stepped
+    from so3jax.loop import initial_state, step
+    from so3jax.rollout import _batch_last, _keys, disturbance_at
+
+    mission = config.mission
+    law = mission.controller(controller)[0]
+    gains = jax.tree.map(lambda g: jnp.asarray(g)[..., None], config.gains[controller])  # shared: a unit axis
+    part = jax.tree.map(lambda x: x[:batch], params)
+    scenario = _batch_last(jax.vmap(lambda p: dispersed.scenario(mission, p))(part), 0)
+    loop = mission.loop(jnp.float64)
+    key = _keys(part.seed)
+    state = initial_state(scenario, law, gains, (batch,), loop)
+
+    def one(scenario, constants, key, state):
+        k = jnp.int32(0)
+        return step(scenario, law, gains, disturbance_at(scenario, key, k), state, k, loop, constants)
+
+    cost = jax.jit(one).lower(scenario, stepped.constants(scenario), key, state).compile().cost_analysis()
+    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
+    return float(cost["flops"]) / batch
 
 
 def _layout(text: str) -> tuple[int, int, str]:
@@ -226,9 +274,13 @@ def main() -> None:
     parser.add_argument("--chunk", type=int, default=64, help="samples per chunk (default 64)")
     parser.add_argument("--hog", action="store_true",
                         help="pin process i of several to core i and keep the last core half busy with a busy loop")
+    parser.add_argument("--config", help="sweep file (default: the built-in default sweep, sweeps/default.toml)")
     parser.add_argument("--numba", action="store_true",
                         help="one-process layouts: also time the Numba dispersed baseline on the same samples, "
                              "after so3jax in each round, on as many threads as devices")
+    parser.add_argument("--flops", action="store_true",
+                        help="also XLA's FLOPs per trajectory-step of the sweep path (paper's wiring) and the share "
+                             "of the machine's float64 matmul peak reached")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -243,8 +295,9 @@ def main() -> None:
     try:
         for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
             for name, (processes, devices, layout) in layouts.items():
-                spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk,
-                        "controllers": args.controllers.split(","), "numba": args.numba}
+                spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "config": args.config,
+                        "controllers": args.controllers.split(","), "numba": args.numba,
+                        "flops": args.flops}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
     finally:
         if hog is not None:

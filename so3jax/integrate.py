@@ -27,7 +27,8 @@ def lie_rk4_step(field, t, dt, rotations, vectors):
     """Advance (rotations, vectors) from t to t + dt.
 
     field(t, rotations, vectors) -> (body_rates, vectors_dot, aux), with body_rates a
-    tuple of (3,) arrays, one per rotation (R' = R hat(w)). Returns
+    tuple of (3,) arrays, one per rotation (R' = R hat(w)), called four times, in stage
+    order, at t, t + dt/2, t + dt/2, t + dt (:data:`so3jax.stepped.STAGE_OF_CALL`). Returns
     (rotations, vectors, aux of the first stage).
     """
 

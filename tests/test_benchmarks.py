@@ -195,10 +195,22 @@ def test_flight_benchmark_runs_as_committed():
 
 
 def test_sweep_benchmark_runs_as_committed():
+    """benchmarks/sweep.py at a tiny size, with the Numba head-to-head and the FLOP count."""
+    pytest.importorskip("numba")
     report = _run_benchmark("benchmarks.sweep", "--devices", "1", "--controllers", "pd", "--T", "0.2", "--samples",
-                            "8", "--chunk", "8", "--rounds", "1")
-    assert report["runs"][0]["trajectory_steps_per_s"] > 0
+                            "8", "--chunk", "8", "--rounds", "1", "--numba", "--flops")
+    run = report["runs"][0]
+    assert run["trajectory_steps_per_s"] > 0 and run["numba_trajectory_steps_per_s"] > 0
+    assert run["numba_rmse_max_rel_diff"] < 1e-12  # the two computed the same samples
+    assert 1e3 < run["flops_per_trajectory_step"] < 1e5 and 0 < run["share_of_peak"] < 1
     assert report["full_sweep"]["by_devices"]["1"]["median_trajectory_steps_per_s"]["pd"] > 0
+
+
+@pytest.mark.slow
+def test_sweep_profile_runs_as_committed():
+    report = _run_benchmark("benchmarks.sweep_profile", "--batch", "8", "--T", "0.05", "--rounds", "1",
+                            "--controllers", "pd")
+    assert len(report["rows"]) == 7 and all(r["trajectory_steps_per_s"] > 0 for r in report["rows"])
 
 
 @pytest.mark.parametrize("mission", [(), pytest.param(("--mission", "missions/flight.toml"), marks=pytest.mark.slow)],
