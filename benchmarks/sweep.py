@@ -190,6 +190,7 @@ def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     mission = config.mission
     law = mission.controller(controller)[0]
     gains = jax.tree.map(lambda g: jnp.asarray(g)[..., None], config.gains[controller])  # shared: a unit axis
+    batch = min(batch, len(params.seed))
     part = jax.tree.map(lambda x: x[:batch], params)
     scenario = _batch_last(jax.vmap(lambda p: dispersed.scenario(mission, p))(part), 0)
     loop = mission.loop(jnp.float64)
