@@ -11,7 +11,8 @@ lane, and what is constant per sample and phase is computed once, before the loo
 * inertia (:class:`~so3jax.plant.PaperInertia`, :class:`~so3jax.plant.ConstantInertia`):
   J and J^{-1} of the constant phases precomputed; in the deployment, the blend
   w(t_k) = exp(-(t_k - t_deploy)/tau_J) once per step, w(t_k + c dt) = w(t_k) exp(-c dt/tau_J),
-  and J^{-1} by its adjugate at each of the three times. Only the phase's own branch runs.
+  and J^{-1} by its adjugate at each of the three times. On CPU only the phase's own
+  branch runs.
 
 The values equal the stage-by-stage evaluation's to round-off (~1e-16 relative); a shared
 scenario (one for the whole batch, the paper's mode) never takes this path.
@@ -116,4 +117,10 @@ def _inertias(inertia, consts, t, phase):
         return Js, tuple(inverse(J) for J in Js)
 
     branches = (constant(inertia.J0, J0_inv), deploying, constant(inertia.J2, J2_inv))
-    return jax.lax.switch(jnp.clip(phase, 0, 2), branches)
+    index = jnp.clip(phase, 0, 2)
+
+    def every_branch():  # selected elementwise: on a GPU, a branch per step costs more than it saves
+        values = [branch() for branch in branches]
+        return jax.tree.map(lambda *xs: jnp.select([index == i for i in range(len(xs))], xs), *values)
+
+    return jax.lax.platform_dependent(cpu=lambda: jax.lax.switch(index, branches), default=every_branch)
