@@ -116,10 +116,11 @@ def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
     (SPEC 8.4; SPEC 1 where the actuator stores no momentum, then computed as the
     paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
     t: the stage time [s] (a fusion boundary, :func:`so3jax._fusion.materialize`); J_inv:
-    J^{-1} where it is precomputed (:mod:`so3jax.stepped`; an actuator storing no momentum)."""
+    J^{-1} where it is precomputed (:mod:`so3jax.stepped`; used for an actuator storing no
+    momentum and no J' term)."""
     torque = actuator.body_torque(state, held, Omega)
     stored = actuator.stored_momentum(state)
-    if stored is None and J_inv is not None:
+    if stored is None and J_inv is not None and J_dot is None:
         rhs = materialize(torque + d, t) - so3.cross(Omega, so3.matvec(J, Omega))
         Omega_dot = so3.matvec(J_inv, rhs)
     elif stored is None:

@@ -72,20 +72,10 @@ def constants(scenario) -> Constants | None:
 def _inertia_constants(inertia, dt):
     if isinstance(inertia, PaperInertia) and _per_trajectory(inertia.J0, 2):
         tau = inertia.tau_J
-        return (inverse(inertia.J0), inverse(inertia.J2), jnp.exp(-0.5 * dt / tau), jnp.exp(-dt / tau))
+        return (so3.inv_spd(inertia.J0), so3.inv_spd(inertia.J2), jnp.exp(-0.5 * dt / tau), jnp.exp(-dt / tau))
     if isinstance(inertia, ConstantInertia) and _per_trajectory(inertia.J, 2):
-        return (inverse(inertia.J),)
+        return (so3.inv_spd(inertia.J),)
     return None
-
-
-def inverse(J):
-    """J^{-1} (3, 3, ...) of a symmetric positive definite J by its adjugate."""
-    a, d, e = J[0, 0], J[0, 1], J[0, 2]
-    b, f, c = J[1, 1], J[1, 2], J[2, 2]
-    c00, c01, c02 = b * c - f * f, e * f - d * c, d * f - e * b
-    c11, c12, c22 = a * c - e * e, d * e - a * f, a * b - d * d
-    inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
-    return jnp.stack([jnp.stack([c00, c01, c02]), jnp.stack([c01, c11, c12]), jnp.stack([c02, c12, c22])]) * inv_det
 
 
 def stage_terms(scenario, consts: Constants, t, phase, with_inverse: bool) -> tuple[StageTerms, ...]:
@@ -93,9 +83,7 @@ def stage_terms(scenario, consts: Constants, t, phase, with_inverse: bool) -> tu
     R_d = (None,) * 3 if consts.step_rotations is None else _attitudes(scenario.reference, consts.step_rotations, t, phase)
     J, J_inv = (None,) * 3, (None,) * 3
     if consts.inertia is not None:
-        J, J_inv = _inertias(scenario.inertia, consts.inertia, t, phase)
-        if not with_inverse:
-            J_inv = (None,) * 3
+        J, J_inv = _inertias(scenario.inertia, consts.inertia, t, phase, with_inverse)
     return tuple(StageTerms(*terms) for terms in zip(R_d, J, J_inv))
 
 
@@ -105,18 +93,20 @@ def _attitudes(ref: PiecewiseConstantRate, rotations, t, phase):
     return start, so3.matmul(start, half), so3.matmul(start, full)
 
 
-def _inertias(inertia, consts, t, phase):
+def _inertias(inertia, consts, t, phase, with_inverse: bool):
+    """(J, J^{-1}) at the step's three times; J^{-1} (None,) * 3 unless ``with_inverse``."""
+    inverses = (lambda Js: tuple(so3.inv_spd(J) for J in Js)) if with_inverse else (lambda Js: (None,) * 3)
     if isinstance(inertia, ConstantInertia):
-        return (inertia.J,) * 3, (consts[0],) * 3
+        return (inertia.J,) * 3, (consts[0] if with_inverse else None,) * 3
     J0_inv, J2_inv, e_half, e_full = consts
 
     def constant(J, J_inv):
-        return lambda: ((J,) * 3, (J_inv,) * 3)
+        return lambda: ((J,) * 3, (J_inv if with_inverse else None,) * 3)
 
     def deploying():
         w = jnp.exp(-(t - inertia.t_deploy) / inertia.tau_J)
         Js = tuple(inertia.J1 - (inertia.J1 - inertia.J0) * x for x in (w, w * e_half, w * e_full))
-        return Js, tuple(inverse(J) for J in Js)
+        return Js, inverses(Js)
 
     branches = (constant(inertia.J0, J0_inv), deploying, constant(inertia.J2, J2_inv))
     index = jnp.clip(phase, 0, 2)
