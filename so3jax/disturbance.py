@@ -1,4 +1,4 @@
-"""Disturbance torque d_k, held constant over a step (SPEC 4, paper eq. 20)."""
+"""Disturbance torque d_k, held constant over a step (docs/model.md §4, paper eq. 20)."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax import _trig
 from so3jax._erfinv import erf_inv
 from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass
@@ -17,7 +18,7 @@ class SinusoidPlusNoise:
     """d_k = amplitude sin(frequency t_k) [1, 1, 1] + noise_std eta_k  [N m].
 
     eta_k = normal(fold_in(key(seed), k), (3,)) in the simulation's dtype, so a seed
-    gives the same noise in any implementation that follows SPEC 4.
+    gives the same noise in any implementation that follows docs/model.md §4 (§14).
     """
 
     amplitude: jax.Array  # N m
@@ -31,7 +32,8 @@ class SinusoidPlusNoise:
     def components(self, key, k, t_k):
         """d_k as its three axes (x, y, z), each of the key's batch shape [N m]: a block of
         steps drawn this way is three loops over the batch, not one that interleaves axes."""
-        sinusoid = self.amplitude * jnp.sin(self.frequency * t_k)
+        sine = _trig.sin if jnp.size(self.frequency) > 1 else jnp.sin  # a frequency per trajectory: vectorized
+        sinusoid = self.amplitude * sine(self.frequency * t_k)
         return tuple(sinusoid + self.noise_std * eta for eta in noise_components(key, k, jnp.result_type(t_k)))
 
 

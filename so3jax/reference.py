@@ -1,4 +1,4 @@
-"""Reference trajectories R_d(t), Omega_d(t), Omega_d'(t) (SPEC 2).
+"""Reference trajectories R_d(t), Omega_d(t), Omega_d'(t) (docs/model.md §2).
 
 A reference is a pytree with ``rate(t, phase)`` [rad/s], ``rate_dot(t, phase)``
 [rad/s^2] and ``attitude(t, phase)`` -> R_d (3, 3), or ``None`` when R_d has no closed
@@ -35,10 +35,11 @@ class PiecewiseConstantRate:
     def rate_dot(self, t, phase):
         return jnp.zeros_like(self.rates[0])
 
-    def attitude(self, t, phase):
+    def attitude(self, t, phase, sin=jnp.sin):
+        """R_d(t); sin: the sine of so3.expm1."""
         rate = self.rates[phase]
         start = self.start_attitudes[phase]
-        return start + so3.matmul(start, so3.expm1(rate * (t - self.phase_times[phase])))
+        return start + so3.matmul(start, so3.expm1(rate * (t - self.phase_times[phase]), sin))
 
 
 def piecewise_constant_rate(rates, phase_times) -> PiecewiseConstantRate:

@@ -150,7 +150,7 @@ def vee(m):
 
 
 def skew_vee(m):
-    """vee of the skew part, (M - M^T)^vee / 2 (SPEC 3.1: e_R for M = R_e)."""
+    """vee of the skew part, (M - M^T)^vee / 2 (docs/model.md §3.1: e_R for M = R_e)."""
     return 0.5 * jnp.stack([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
 
 
@@ -177,22 +177,23 @@ def _exp_series(s):
     return 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0)), 0.5 - s / 24.0 * (1.0 - s / 30.0 * (1.0 - s / 56.0))
 
 
-def _exp_coefficients(theta2):
+def _exp_coefficients(theta2, sin=jnp.sin):
     """(sin t / t, (1 - cos t) / t^2) for t^2 = theta2, finite with gradients at 0."""
     small = theta2 < _SMALL_ANGLE2
 
     def trigonometric(theta2):
         half = 0.5 * jnp.sqrt(jnp.where(small, 1.0, theta2))  # keeps the unselected branch finite
-        sinc_half = jnp.sin(half) / half
-        return jnp.sin(2.0 * half) / (2.0 * half), 0.5 * sinc_half * sinc_half
+        sinc_half = sin(half) / half
+        return sin(2.0 * half) / (2.0 * half), 0.5 * sinc_half * sinc_half
 
     return _branch(small, _exp_series, trigonometric, theta2)
 
 
-def expm1(v):
-    """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (SPEC 5)."""
+def expm1(v, sin=jnp.sin):
+    """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (docs/model.md (9.1)).
+    sin: the sine used beyond the series (``so3jax._trig.sin``: vectorized in float64)."""
     theta2 = dot(v, v)
-    a, b = _exp_coefficients(theta2)
+    a, b = _exp_coefficients(theta2, sin)
     return a * hat(v) + b * (outer(v, v) - theta2 * eye_like(v))
 
 
@@ -269,7 +270,7 @@ def _first_max_indicator(v):
 
 
 def jr_inv_coefficient(theta2):
-    """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (SPEC 3.2).
+    """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (docs/model.md §3.2).
 
     The closed form cancels for small theta; below theta^2 = 0.05 the Bernoulli series
     (truncation < 2e-16) is used instead.
@@ -288,7 +289,7 @@ def jr_inv_coefficient(theta2):
 
 
 def jr_inv_apply(e, w):
-    """J_r^{-1}(e) w = w + e x w / 2 + gamma(|e|) e x (e x w)  (SPEC 3.2)."""
+    """J_r^{-1}(e) w = w + e x w / 2 + gamma(|e|) e x (e x w)  (docs/model.md §3.2)."""
     theta2 = dot(e, e)
     gamma = jr_inv_coefficient(theta2)
     return w + 0.5 * cross(e, w) + gamma * (e * dot(e, w) - theta2 * w)

@@ -7,7 +7,8 @@ lane, and what is constant per sample and phase is computed once, before the loo
 
 * reference (:class:`~so3jax.reference.PiecewiseConstantRate`): R_d(t_k) in closed form,
   then R_d(t_k + c dt) = R_d(t_k) exp(hat(Omega_p) c dt), the step rotations of each phase
-  precomputed (one trigonometric evaluation per step instead of one per stage);
+  precomputed (one trigonometric evaluation per step instead of one per stage, by the
+  vectorized sine of :mod:`so3jax._trig`);
 * inertia (:class:`~so3jax.plant.PaperInertia`, :class:`~so3jax.plant.ConstantInertia`):
   J and J^{-1} of the constant phases precomputed; in the deployment, the blend
   w(t_k) = exp(-(t_k - t_deploy)/tau_J) once per step, w(t_k + c dt) = w(t_k) exp(-c dt/tau_J),
@@ -27,7 +28,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax import so3
+from so3jax import _trig, so3
 from so3jax.plant import ConstantInertia, PaperInertia
 from so3jax.reference import PiecewiseConstantRate
 
@@ -88,7 +89,7 @@ def stage_terms(scenario, consts: Constants, t, phase, with_inverse: bool) -> tu
 
 
 def _attitudes(ref: PiecewiseConstantRate, rotations, t, phase):
-    start = ref.attitude(t, phase)
+    start = ref.attitude(t, phase, _trig.sin)
     half, full = rotations[phase, 0], rotations[phase, 1]
     return start, so3.matmul(start, half), so3.matmul(start, full)
 
