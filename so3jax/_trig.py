@@ -1,16 +1,20 @@
-"""float64 sine and cosine written so XLA:CPU vectorizes them.
+"""float64 sine, cosine and arctangent written so XLA:CPU vectorizes them.
 
-XLA:CPU computes a float64 ``sin`` or ``cos`` by a scalar call per element (~9 ns on the
-2-core Intel Xeon of benchmarks/results/, against ~1 ns for a vectorized ``exp``). Here
-they are elementwise arithmetic: the argument reduced by multiples of pi/2 (Cody and
-Waite, pi/2 in three 33-bit parts, exact products for |n| < 2^20), then fdlibm's kernels
-(``__kernel_sin``, ``__kernel_cos``: degree-13 and degree-14 polynomials on
-[-pi/4, pi/4], error < 1 ulp) and the quadrant selected per element. Against NumPy's:
-within 2 ulp of the larger of |value| and 2^-52 (tests/test_trig.py).
+XLA:CPU computes a float64 ``sin``, ``cos`` or ``atan2`` by a scalar call per element
+(~8-11 ns on the 2-core Intel Xeon of benchmarks/results/, against ~1 ns for a vectorized
+``exp``). Here they are elementwise arithmetic, after fdlibm:
 
-Used where a batch evaluates a sine per trajectory and step (a sweep's per-sample
-reference and disturbance). Other dtypes, and arguments beyond 2^19 pi/2 (where the
-reduction would lose bits), take ``jnp.sin`` / ``jnp.cos``.
+* sin, cos: the argument reduced by multiples of pi/2 (Cody and Waite: pi/2 in three
+  33-bit parts and a tail, exact products for |n| < 2^19), ``__kernel_sin`` and
+  ``__kernel_cos`` (polynomials of degree 13 and 14 on [-pi/4, pi/4]), the quadrant
+  selected per element;
+* atan2(y, x) for y >= 0: ``s_atan``'s five argument ranges (atan of 0, 1/2, 1, 3/2, inf
+  plus a degree-22 odd polynomial), the half plane x < 0 by pi - atan.
+
+Against NumPy's: within 2 ulp of the larger of |value| and 2^-52 (tests/test_trig.py).
+Used where a batch evaluates these per trajectory and step (a sweep's per-sample
+reference, disturbance and attitude error). Other dtypes, and sine arguments beyond
+2^19 pi/2 (where the reduction would lose bits), take the library's functions.
 """
 
 from __future__ import annotations
@@ -73,3 +77,40 @@ def sincos(x):
 def sin(x):
     """sin x elementwise [x in rad] (see :func:`sincos`)."""
     return sincos(x)[0]
+
+
+_ATAN_HI = (4.63647609000806093515e-01, 7.85398163397448278999e-01, 9.82793723247329054082e-01, 1.57079632679489655800e00)
+_ATAN_LO = (2.26987774529616870924e-17, 3.06161699786838301793e-17, 1.39033110312309984516e-17, 6.12323399573676603587e-17)
+_AT_ODD = (3.33333333333329318027e-01, 1.42857142725034663711e-01, 9.09088713343650656196e-02,
+           6.66107313738753120669e-02, 4.97687799461593236017e-02, 1.62858201153657823623e-02)  # fmt: skip
+_AT_EVEN = (-1.99999999998764832476e-01, -1.11111104054623557880e-01, -7.69187620504482999495e-02,
+            -5.83357013379057348645e-02, -3.65315727442169155270e-02)  # fmt: skip
+_PI_LO = 1.2246467991473531772e-16  # pi - fl(pi)
+
+
+def _atan_nonnegative(a):
+    """atan(a) for a >= 0 (a = inf included) [rad]."""
+    ranges = (a >= 7.0 / 16.0, a >= 11.0 / 16.0, a >= 19.0 / 16.0, a >= 39.0 / 16.0)
+    safe = jnp.where(ranges[3], a, 1.0)  # keeps the unselected -1/a finite at a = 0
+    x = jnp.where(ranges[3], -1.0 / safe,
+                  jnp.where(ranges[2], (a - 1.5) / (1.0 + 1.5 * a),
+                            jnp.where(ranges[1], (a - 1.0) / (a + 1.0),
+                                      jnp.where(ranges[0], (2.0 * a - 1.0) / (2.0 + a), a))))  # fmt: skip
+    z = x * x
+    w = z * z
+    tail = x * (z * _horner(_AT_ODD, w) + w * _horner(_AT_EVEN, w))
+    hi = jnp.where(ranges[3], _ATAN_HI[3], jnp.where(ranges[2], _ATAN_HI[2], jnp.where(ranges[1], _ATAN_HI[1], _ATAN_HI[0])))
+    lo = jnp.where(ranges[3], _ATAN_LO[3], jnp.where(ranges[2], _ATAN_LO[2], jnp.where(ranges[1], _ATAN_LO[1], _ATAN_LO[0])))
+    return jnp.where(ranges[0], hi - ((tail - lo) - x), x - tail)
+
+
+def atan2(y, x):
+    """atan2(y, x) in [0, pi] for y >= 0 [rad], elementwise; vectorizable arithmetic in float64."""
+    y, x = jnp.asarray(y), jnp.asarray(x)
+    if jnp.result_type(y, x) != jnp.float64:
+        return jnp.arctan2(y, x)
+    ax = jnp.abs(x)
+    zero = ax == 0.0
+    a = _atan_nonnegative(jnp.where(zero, jnp.inf, y / jnp.where(zero, 1.0, ax)))
+    angle = jnp.where(x < 0.0, jnp.pi - (a - _PI_LO), a)
+    return jnp.where(y == 0.0, jnp.where(x < 0.0, jnp.pi, 0.0), angle)

@@ -1,4 +1,4 @@
-"""The closed loop as a wiring of components (SPEC 1-6, 8).
+"""The closed loop as a wiring of components (docs/model.md §1-§6, §8).
 
     true state --sensors--> measurements --estimator--> estimate --controller--> command
         ^                                                                          |
@@ -10,11 +10,11 @@ the law from a :class:`~so3jax.controllers.Controller`. Each component owns a fi
 :class:`State`. The plant (:func:`so3jax.plant.derivative`) integrates the rigid body
 and the actuator's state under the actuator's input; one :func:`step` serves two wirings:
 
-* sampled (``period_steps=m``, SPEC 8.1): at every m-th step a :func:`tick` runs
+* sampled (``period_steps=m``, docs/model.md §8.1): at every m-th step a :func:`tick` runs
   sensors -> estimator -> controller -> actuator once (the controller's state by its
   ``update``, else forward Euler over the period), and the plant's RK4 steps see the
   actuator's input held over the period;
-* continuous (``period_steps=None``, the paper's mode, SPEC 5): the same step with the
+* continuous (``period_steps=None``, the paper's mode, docs/model.md §5): the same step with the
   law and the actuator's command evaluated in every RK4 stage on the true state, the
   controller's state integrated with the plant (``truth`` and no sensors).
 
@@ -30,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import metrics, plant, so3, stepped
+from so3jax import _trig, metrics, plant, so3, stepped
 from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.actuators import Ideal, uncompensated_momentum
 from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
@@ -45,7 +45,7 @@ from so3jax.sensors import Sensors
 class Loop:
     """The components between the true state and the torque on the body.
 
-    period_steps: control period in plant steps (Delta_c = m dt, SPEC 8.1); None for
+    period_steps: control period in plant steps (Delta_c = m dt, docs/model.md §8.1); None for
     the continuous-time controller of the paper's mode. The components' parameters have
     no batch axes: a batch of trajectories shares them (``so3.batch_like``).
     """
@@ -68,7 +68,7 @@ class State(NamedTuple):
 
     R: jax.Array  # (3, 3) plant attitude, body -> inertial
     Omega: jax.Array  # (3,) plant body rate, rad/s
-    controller: Any  # the law's internal state (SPEC 3)
+    controller: Any  # the law's internal state (docs/model.md §3)
     R_d: Any  # (3, 3) reference attitude when it is integrated, else ()
     actuator: Any = ()  # the actuator's state (wheels: speeds (N,) rad/s), or ()
     sensors: Any = ()  # gyro bias (3,) rad/s, or ()
@@ -77,7 +77,7 @@ class State(NamedTuple):
 
 
 class Tick(NamedTuple):
-    """What a control tick computed (SPEC 8.1), at t_j."""
+    """What a control tick computed (docs/model.md §8.1), at t_j."""
 
     t: jax.Array  # s
     desired: Desired
@@ -170,15 +170,15 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
     return field
 
 
-def sample(state: State, tau, wanted: Desired) -> metrics.Sample:
-    """The SPEC 6 metrics' sample of a step start (true state; tau: the control torque delivered)."""
+def sample(state: State, tau, wanted: Desired, atan2=jnp.arctan2) -> metrics.Sample:
+    """The docs/model.md §6 metrics' sample of a step start (true state; tau: the control torque delivered)."""
     err = tracking_error(Measured(state.R, state.Omega), wanted)
-    return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e))
+    return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e, atan2))
 
 
 def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP,
          constants=None):
-    """Advance over step k with disturbance d_k held (SPEC 5, 8.1): RK4 of the plant and the
+    """Advance over step k with disturbance d_k held (docs/model.md §5, §8.1): RK4 of the plant and the
     actuator under the actuator's input, the input held since the last tick (sampled
     wiring), or the law and the actuator's command evaluated in every stage on the true
     state, the controller's state integrated too (continuous wiring).
@@ -210,7 +210,8 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
         actuator=x.actuator,
     )
-    return new, p, sample(state, loop.actuator.delivered(state.actuator, held, state.Omega), wanted)
+    atan2 = jnp.arctan2 if constants is None else _trig.atan2  # a batch of per-trajectory scenarios: vectorized
+    return new, p, sample(state, loop.actuator.delivered(state.actuator, held, state.Omega), wanted, atan2)
 
 
 class Observation(NamedTuple):
@@ -247,7 +248,7 @@ def period(scenario: Scenario, loop: Loop):
 
 
 def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j):
-    """Control tick j at step k = j m (SPEC 8.1): sensors sample the true state, the
+    """Control tick j at step k = j m (docs/model.md §8.1): sensors sample the true state, the
     estimator updates, the controller commands from the estimate (its state advanced by
     its ``update``, else by forward Euler over the period), the actuator turns the
     command into the held input."""
@@ -278,7 +279,7 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
 
 def check_loop(loop: Loop, inertias: dict) -> None:
     """One-line ValueErrors, before compilation: the control period, each component's
-    own checks, and the wiring (SPEC 8). inertias: name -> J (3, 3) the plant will use.
+    own checks, and the wiring (docs/model.md §8). inertias: name -> J (3, 3) the plant will use.
     Values are read only where concrete (NumPy on the host), so a rollout under jit,
     vmap or grad is checked by shape and static data alone."""
     m = loop.period_steps

@@ -219,16 +219,17 @@ def _axis_terms(r):
     return s, c, s2, (s2 < _SERIES_SIN2) & (c > 0)
 
 
-def _arctan_angle(s, c):
+def _arctan_angle(s, c, atan2=jnp.arctan2):
     """theta = atan2(|s|, c) in [0, pi], for s, c of _axis_terms."""
-    return jnp.arctan2(safe_norm(s), c)
+    return atan2(safe_norm(s), c)
 
 
-def angle(r):
+def angle(r, atan2=jnp.arctan2):
     """Rotation angle |log(R)^vee| in [0, pi] [rad]: atan2(|s|, c), or |s| times the
-    series for theta / sin(theta) below 10 degrees (no arctangent when all are small)."""
+    series for theta / sin(theta) below 10 degrees (no arctangent when all are small).
+    atan2: the arctangent (``so3jax._trig.atan2``: vectorized in float64)."""
     s, c, s2, small = _axis_terms(r)
-    return _branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2), lambda _: _arctan_angle(s, c), r)
+    return _branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2), lambda _: _arctan_angle(s, c, atan2), r)
 
 
 def log(r):

@@ -53,3 +53,22 @@ def test_other_dtypes_are_the_library_functions(dtype):
     assert s.dtype == dtype
     np.testing.assert_array_equal(s, jnp.sin(x))
     np.testing.assert_array_equal(c, jnp.cos(x))
+
+
+def test_atan2_within_two_ulp_of_numpy():
+    rng = np.random.default_rng(1)
+    y = np.concatenate([np.abs(rng.standard_normal(40000)) * 10.0 ** rng.uniform(-8, 8, 40000), [0.0, 0.0, 0.0, 1.0, 1.0]])
+    x = np.concatenate([rng.standard_normal(40000) * 10.0 ** rng.uniform(-8, 8, 40000), [1.0, -1.0, 0.0, 0.0, -0.0]])
+    boundaries = np.array([7, 11, 19, 39]) / 16.0  # fdlibm's argument ranges, and either side
+    y = np.concatenate([y, boundaries, np.nextafter(boundaries, 0), np.nextafter(boundaries, 9)])
+    x = np.concatenate([x, np.ones(12)])
+    got = jax.jit(_trig.atan2)(jnp.asarray(y), jnp.asarray(x))
+    assert _ulps(got, np.arctan2(y, x)).max() <= 2.0
+
+
+def test_atan2_derivatives():
+    y, x = jnp.linspace(0.1, 3.0, 50), jnp.linspace(-2.0, 2.0, 50)
+    dy, dx = jax.vmap(jax.grad(_trig.atan2, argnums=(0, 1)))(y, x)
+    r2 = y * y + x * x
+    np.testing.assert_allclose(dy, x / r2, rtol=1e-14, atol=1e-15)
+    np.testing.assert_allclose(dx, -y / r2, rtol=1e-14, atol=1e-15)
