@@ -70,7 +70,7 @@ def mission_for(name: str, T: float):
 
 
 def fly_one(name: str, T: float) -> dict:
-    """One run: the history's estimate, errors and the SPEC 6 metrics as NumPy arrays."""
+    """One run: the history's estimate, errors and the docs/model.md §6 metrics as NumPy arrays."""
     import jax
     import jax.numpy as jnp
     import numpy as np

@@ -2,7 +2,7 @@
 source tree (e.g. the previous commit), all on every core of this machine.
 
 * ``rates``: trajectory-steps/s of ``rollout_batch`` for the paper's mode (continuous
-  wiring) and the flight mission of SPEC 8.5 (sampled wiring: gyro, star tracker, MEKF,
+  wiring) and the flight mission of docs/model.md §8.5 (sampled wiring: gyro, star tracker, MEKF,
   four wheels, Delta_c = 10 dt), each controller, batch split evenly over one XLA host
   device per core and dispatched together (as ``so3jax sweep`` does), timed in rounds
   that alternate the two wirings; the median of the per-round ratios flight / paper.

@@ -1,4 +1,4 @@
-"""Gradients of the SPEC 6 tuning cost through whole rollouts: time and memory.
+"""Gradients of the docs/model.md §6 tuning cost through whole rollouts: time and memory.
 
 For each controller and horizon N (steps of dt = 0.01 s) this measures, on a batch of B
 scenarios (inertia scales x disturbance seeds, vmapped, one XLA CPU device), float64:

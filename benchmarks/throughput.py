@@ -450,7 +450,7 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
 
 
 def prng_cost(dtype: str) -> dict:
-    """XLA's count for the disturbance draw alone (SPEC 4's fold_in + normal, as so3jax draws
+    """XLA's count for the disturbance draw alone (the fold_in + normal of docs/model.md §4, as so3jax draws
     it), part of every step."""
     import jax
 

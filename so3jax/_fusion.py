@@ -2,7 +2,7 @@
 
 XLA:CPU fuses chains of cheap elementwise operations into each of their consumers,
 recomputing them there: in the adaptive law, every element of the 9x3 outer product
-Phi z^T recomputed z and Phi from the attitude. A floating-point division counts as
+Phi z^T would recompute z and Phi from the attitude. A floating-point division counts as
 expensive and is never duplicated, so dividing by a 1 that XLA cannot fold makes a
 value the output of one fusion, computed once. x / 1 == x exactly, and the derivative
 is 1. Other platforms (GPU) fuse by a cost model and get the value unchanged.

@@ -13,11 +13,12 @@ import os
 # kernels; loops whose cost-analysis footprint is below this threshold are instead
 # compiled into one function. The default (1 kB) excludes every rollout. Raising it
 # is what makes a scan of RK4 steps cheap on CPU: one trajectory of the paper's
-# scenario goes from ~9 to ~1.3 us/step (PD), benchmarks/throughput.py.
-# Flattening the call graph after fusion (inlining the computations the loop body
-# calls, as TORAX does on CPU) makes the batched step another 10-15 % faster: both
-# cores, batch 4096, float64, interleaved with Numba: PD 1.73-1.93x -> 2.07-2.24x,
-# adaptive 1.76-1.84x -> 2.07-2.13x; one trajectory unchanged, compile ~10 % longer.
+# scenario runs at ~1.3 us/step (PD) with it, ~9 without (benchmarks/throughput.py,
+# 2-core AMD EPYC). Flattening the call graph after fusion (inlining the computations
+# the loop body calls, as TORAX does on CPU) makes the batched step 10-15 % faster:
+# both cores, batch 4096, float64, interleaved with Numba, so3jax / Numba is PD
+# 2.07-2.24x with it and 1.73-1.93x without, adaptive 2.07-2.13x and 1.76-1.84x; one
+# trajectory runs at the same speed, and compilations take ~10 % longer.
 BACKEND_OPTIONS_FLAG = (
     "--xla_backend_extra_options="
     "xla_cpu_small_while_loop_byte_threshold=1000000000,xla_cpu_flatten_after_fusion=true"

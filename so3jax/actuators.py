@@ -1,4 +1,4 @@
-"""Actuators: the controller's command tau_c in, the torque on the body out (SPEC 8.4).
+"""Actuators: the controller's command tau_c in, the torque on the body out (docs/model.md §8.4).
 
 The plant (:func:`so3jax.plant.derivative`) owns the rigid body; an actuator is a pytree
 that reports what it does to it, from its own state and the input held over a period:
@@ -11,7 +11,7 @@ that reports what it does to it, from its own state and the input held over a pe
 * ``stored_momentum(state)``: None, or (J_locked (3, 3) [kg m^2], h_rel (3, *b) [N m s]):
   it stores J_locked Omega + h_rel of angular momentum, body frame (wheels: G_s J_s G_s^T
   and G_s J_s Omega_w); the plant then solves (J - J_locked) Omega' = -Omega x (J Omega
-  + h_rel) + tau_body + d [- J' Omega] (SPEC 8.4);
+  + h_rel) + tau_body + d [- J' Omega] (docs/model.md §8.4);
 * ``derivative(state, held, Omega, Omega_dot)``: its state's rate given the body's (() without state);
 * ``delivered(state, held, Omega)``: the control torque the command became (3, *b) [N m]:
   tau_c where no limit binds; the metrics' torque sample at every step start in both
@@ -80,7 +80,7 @@ def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool
 
 
 class StoredMomentum(NamedTuple):
-    """Angular momentum an actuator stores, J_locked Omega + h_rel, body frame (SPEC 8.4)."""
+    """Angular momentum an actuator stores, J_locked Omega + h_rel, body frame (docs/model.md §8.4)."""
 
     locked_inertia: jax.Array  # J_locked (3, 3) kg m^2: the part of J that spins with the body's rate
     relative: jax.Array  # h_rel (3, *b) N m s: the momentum of its motion relative to the body
@@ -140,7 +140,7 @@ def momentum(actuator, state, Omega):
 
 @pytree_dataclass
 class Ideal(Actuator):
-    """tau = tau_c (SPEC 8.4 ``ideal``)."""
+    """tau = tau_c (docs/model.md §8.4 ``ideal``)."""
 
     def command(self, state, tau_c, omega_hat):
         return tau_c
@@ -148,7 +148,7 @@ class Ideal(Actuator):
 
 @pytree_dataclass
 class Saturated(Actuator):
-    """tau_i = clip(tau_c,i, -max_torque_i, max_torque_i) per body axis (SPEC 8.4 ``saturated``).
+    """tau_i = clip(tau_c,i, -max_torque_i, max_torque_i) per body axis (docs/model.md §8.4 ``saturated``).
 
     max_torque: (3,) or a scalar for every axis, N m.
     """
@@ -198,7 +198,7 @@ def _weighted_gram(G, w):
 
 
 class WheelCommand(NamedTuple):
-    """What the wheels hold over a control period (SPEC 8.4), computed at the tick."""
+    """What the wheels hold over a control period (docs/model.md §8.4), computed at the tick."""
 
     u: jax.Array  # (N, *b) motor torques, N m (the body receives -G_s u)
     compensation: jax.Array  # (3, *b) omega_hat x h_w_hat included in u, N m (zeros without)
@@ -206,7 +206,7 @@ class WheelCommand(NamedTuple):
 
 @pytree_dataclass
 class Wheels(Actuator):
-    """N reaction wheels (SPEC 8.4 ``wheels``).
+    """N reaction wheels (docs/model.md §8.4 ``wheels``).
 
     axes: G_s (3, N), unit spin axes g_i as columns; spin_inertia: J_s (N,) kg m^2;
     max_torque: u_max (N,) N m; max_speed: Omega_max (N,) rad/s; initial_speed:
@@ -270,32 +270,32 @@ class Wheels(Actuator):
         return (G * J_s) @ G.T
 
     def locked_wheel_inertia(self, J):
-        """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (SPEC 8.4): the body without
+        """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (docs/model.md §8.4): the body without
         the wheels' spin inertia."""
         J = jnp.asarray(J)
         return J - self._spin_inertia_matrix(J.dtype).reshape((3, 3) + (1,) * (J.ndim - 2))
 
     def momentum(self, state, Omega):
-        """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (SPEC 8.4), as the flight
+        """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (docs/model.md §8.4), as the flight
         software models it (the momentum compensation's h_w_hat)."""
         G = self._axes(Omega)
         return _spin_sum(G, _per_wheel(self.spin_inertia, Omega) * (so3.rmatvec(G, Omega) + state))
 
     def stored_momentum(self, state):
-        """(G_s J_s G_s^T, G_s J_s Omega_w): h_w = G_s J_s G_s^T Omega + G_s J_s Omega_w (SPEC 8.4),
+        """(G_s J_s G_s^T, G_s J_s Omega_w): h_w = G_s J_s G_s^T Omega + G_s J_s Omega_w (docs/model.md §8.4),
         of the wheels the body carries."""
         relative = _spin_sum(self._axes(state, plant=True), _per_wheel(self._plant_spin_inertia(), state) * state)
         return StoredMomentum(self._spin_inertia_matrix(state.dtype), relative)
 
     def distribute(self, tau):
         """Minimum-norm motor torques u = -G_s^T (G_s G_s^T)^{-1} tau (N, *b) [N m], so that
-        -G_s u = tau (SPEC 8.4), before any limit."""
+        -G_s u = tau (docs/model.md §8.4), before any limit."""
         G = jnp.asarray(self.axes).astype(tau.dtype)
         gram = so3.batch_like(_weighted_gram(G, jnp.ones(self.count, tau.dtype)), 2, tau)
         return -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
 
     def command(self, state, tau_c, omega_hat):
-        """The motor torques u (N, *b) [N m] held over the period (SPEC 8.4): the command
+        """The motor torques u (N, *b) [N m] held over the period (docs/model.md §8.4): the command
         (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
         tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
         wheel at its speed limit that it would spin faster; with the compensation they include."""
@@ -330,7 +330,7 @@ class Wheels(Actuator):
         return self.body_torque(state, held, Omega) - held.compensation
 
     def derivative(self, state, held, Omega, Omega_dot):
-        """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (SPEC 8.4)."""
+        """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (docs/model.md §8.4)."""
         return held.u / _per_wheel(self._plant_spin_inertia(), Omega) - so3.rmatvec(self._axes(Omega, plant=True), Omega_dot)
 
     def effort(self, held):
@@ -389,7 +389,7 @@ class Wheels(Actuator):
 
 def pyramid_axes(n: int = 4, elevation_deg: float = 54.74, azimuth0_deg: float = 0.0) -> np.ndarray:
     """(3, n) unit spin axes at ``elevation_deg`` from the body z axis, 360/n degrees apart
-    in azimuth from ``azimuth0_deg`` (SPEC 8.5: four wheels at 54.74 deg, 90 deg apart)."""
+    in azimuth from ``azimuth0_deg`` (docs/model.md §8.5: four wheels at 54.74 deg, 90 deg apart)."""
     elevation = math.radians(elevation_deg)
     azimuth = np.radians(azimuth0_deg + 360.0 / n * np.arange(n))
     return np.stack([math.sin(elevation) * np.cos(azimuth), math.sin(elevation) * np.sin(azimuth),
@@ -494,5 +494,5 @@ components.register(components.ComponentSpec(
     figures=_wheel_figures,
     effort_label="motor effort",
     build=_wheels,
-    doc="N reaction wheels (SPEC 8.4)",
+    doc="N reaction wheels (docs/model.md §8.4)",
 ))

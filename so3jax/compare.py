@@ -69,9 +69,9 @@ class CompareConfig:
     candidates: dict  # name -> Candidate
     sweep_table: dict  # mission tables, [sweep], [dispersions]
     base_dir: Path
-    reference: str
-    bootstrap: int = 2000
-    seed: int = 0
+    reference: str  # the candidate the others are paired with (default: the first)
+    bootstrap: int = 2000  # resamples of each 95 % percentile-bootstrap interval
+    seed: int = 0  # the resampling seed
     given: dict | None = None  # the [compare.candidates] table as given (None: the mission's laws)
 
     @property
@@ -400,11 +400,12 @@ def _command(args) -> int:
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_precision_argument
+    from so3jax.cli import add_precision_argument, registered
 
     parser = subparsers.add_parser(
         "compare", help="tune control laws to one effort budget, then pair them over a dispersed sweep",
-        description="Control laws side by side: each tuned to one effort budget, judged on held-out seeds and a sweep.")
+        description="Control laws side by side: each tuned to one effort budget, judged on held-out seeds and a sweep.",
+        epilog=registered(tunable=True))
     parser.add_argument("config", help="comparison file (TOML): a mission whose controllers are compared, [tune], "
                         "[sweep], [dispersions], [compare]; e.g. comparisons/paper.toml")
     parser.add_argument("--out", help="run folder (default results/compare/NAME for NAME.toml)")

@@ -228,7 +228,7 @@ def mission_key(mission: Mission) -> str:
 
 def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None, estimator=None) -> dict:
     """{metric: values} of a batch of samples of the mission named by ``mission`` (see
-    :func:`mission_key`) flown by the controller ``law`` at ``gains``: the SPEC 6 metrics, and the
+    :func:`mission_key`) flown by the controller ``law`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
     parameter: values}), leading batch axis. The samples share the mission's loop and run
     natively batched (:func:`so3jax.rollout.rollout_batch`, the values of a vmap of
@@ -254,7 +254,7 @@ def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None
 
 
 def _results(result) -> dict:
-    """A rollout's SPEC 6 metrics and, in the sampled wiring, its flight metrics, by name."""
+    """A rollout's docs/model.md §6 metrics and, in the sampled wiring, its flight metrics, by name."""
     flight = {} if result.flight == () else result.flight._asdict()
     return {**result.metrics._asdict(), **flight}
 

@@ -1,4 +1,4 @@
-"""Monte Carlo dispersions of the paper's mission (SPEC 4): what varies from sample to
+"""Monte Carlo dispersions of the paper's mission (docs/model.md §4, §15): what varies from sample to
 sample, by which distribution, and the sampler.
 
 Sample k's values depend only on (seed, k): its random words are
@@ -144,7 +144,7 @@ INERTIA_DOMAINS = {"scale": (0.0, True), "axis_scale": (0.0, True)}  # InertiaDi
 
 def check(d: Dispersions, *, warn: bool = True) -> None:
     """Every dispersed quantity's distribution in its domain (:func:`check_domain`), and
-    the nominal inertias (SPEC 6; an InertiaWarning for one that breaks the triangle
+    the nominal inertias (docs/model.md §6; an InertiaWarning for one that breaks the triangle
     inequality, if ``warn``), before anything is drawn or compiled."""
     from so3jax.scenario import check_inertia
 

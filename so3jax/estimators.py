@@ -1,5 +1,5 @@
 """Estimators: measurements in, attitude and rate estimates out, once per control tick
-(SPEC 8.3): ``truth``, ``raw`` and a multiplicative EKF on attitude and gyro bias.
+(docs/model.md §8.3): ``truth``, ``raw`` and a multiplicative EKF on attitude and gyro bias.
 
 Each is a pytree with ``init(R0, batch_shape, dtype)`` -> state, ``update(state,
 measured, period, truth)`` -> (state for the next tick, :class:`Estimate`), ``check()``
@@ -112,7 +112,7 @@ def _diag(M):
 
 @pytree_dataclass
 class MEKF:
-    """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (SPEC 8.3):
+    """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (docs/model.md §8.3):
     star-tracker update (Joseph form), output omega_hat = omega_m - b_hat, then
     propagation to the next tick with w = omega_hat."""
 
@@ -141,7 +141,7 @@ class MEKF:
         dc = jnp.asarray(period, dtype)
         R_hat, b_hat, (A, B, C) = state
         eye = so3.eye_like(Omega)
-        # measurement update (SPEC 8.3), where a star-tracker sample exists
+        # measurement update (docs/model.md §8.3), where a star-tracker sample exists
         s2 = param(self.sigma_st) ** 2
         r = so3.log(so3.rmatmul(R_hat, measured.R_m))
         S = A + s2 * eye
@@ -186,7 +186,7 @@ class MEKF:
 
 
 def _believed(v: dict, ctx, name: str, sensor_key: str):
-    """The filter's assumed noise level: its own value, else the sensors' (SPEC 8.3)."""
+    """The filter's assumed noise level: its own value, else the sensors' (docs/model.md §8.3)."""
     value = v[name] if v[name] is not None else ctx.sensor_noise.get(sensor_key)
     if value is None:
         raise ValueError(f"estimator 'mekf': estimator.mekf.{name} is not given and no sensor reports it")
@@ -214,5 +214,5 @@ components.register(components.ComponentSpec(
     build=lambda v, ctx: MEKF(ctx.as_array(v["sigma_theta0"]), ctx.as_array(v["sigma_b0"]), ctx.as_array(v["theta0"]),
                               _believed(v, ctx, "arw", "arw"), _believed(v, ctx, "rrw", "rrw"),
                               _believed(v, ctx, "sigma_st", "sigma_st")),
-    doc="multiplicative EKF on attitude and gyro bias (SPEC 8.3)",
+    doc="multiplicative EKF on attitude and gyro bias (docs/model.md §8.3)",
 ))

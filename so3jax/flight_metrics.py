@@ -1,5 +1,5 @@
-"""Metrics of the sampled-data loop (SPEC 8.3, 8.4), accumulated at control ticks inside
-the scan, beside the SPEC 6 metrics of :mod:`so3jax.metrics`."""
+"""Metrics of the sampled-data loop (docs/model.md §13), accumulated at control ticks inside
+the scan, beside the §6 metrics of :mod:`so3jax.metrics`."""
 
 from __future__ import annotations
 

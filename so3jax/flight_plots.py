@@ -1,4 +1,4 @@
-"""Figures of the flight loop (SPEC 8): estimation, torques, wheels, momentum.
+"""Figures of the flight loop (docs/model.md §8): estimation, torques, wheels, momentum.
 
 Each takes {controller name: History of the sampled wiring with NumPy leaves}, the phase start times [s]
 and the horizon T [s]; it returns a matplotlib figure.

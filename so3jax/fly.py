@@ -1,4 +1,4 @@
-"""``so3jax fly``: a mission flown by the closed loop of SPEC 8 (sensors, estimator,
+"""``so3jax fly``: a mission flown by the closed loop of docs/model.md §8 (sensors, estimator,
 sampled-data control, actuators), each controller on the same mission and seed."""
 
 from __future__ import annotations
@@ -26,14 +26,18 @@ TRAJECTORY = ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_memory_argument, add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument, controllers_help, registered
 
-    p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels")
+    p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels",
+                              description="A mission flown by each of its controllers through the mission's loop "
+                              "(sensors, estimator, sampled control, actuator): a table per controller, "
+                              "metrics.json, trajectory.npz, telemetry/ and the figures.",
+                              epilog=registered())
     p.add_argument("mission", nargs="?", type=Path,
                    help="mission file (TOML); default: the flight mission (missions/flight.toml)")
     p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
     p.add_argument("--seed", type=int, help="disturbance and sensor-noise seed (default: the mission's)")
-    p.add_argument("--controllers", help="comma-separated controllers (default: the mission's)")
+    p.add_argument("--controllers", help=controllers_help("the mission's"))
     p.add_argument("--record-every", type=int, help="trajectory sampling [steps] (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a mission entry, e.g. --set control.period=0.05 (repeatable)")
@@ -81,7 +85,7 @@ def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
 
 
 def report(mission, result) -> dict:
-    """SPEC 6 metrics (phases the horizon never reached omitted) and the flight metrics, as
+    """The metrics of docs/model.md §6 (phases the horizon never reached omitted) and the flight metrics, as
     JSON-ready data: every metric of a diverged run None (null), the run flagged diverged."""
     from so3jax.io import to_builtin
     from so3jax.metrics import reached_phases, reported

@@ -1,4 +1,4 @@
-"""One fourth-order Runge-Kutta step that keeps rotations on SO(3) (SPEC 5).
+"""One fourth-order Runge-Kutta step that keeps rotations on SO(3) (docs/model.md §5).
 
 Rotations are advanced in local coordinates, R = R_k exp(hat(psi)) with
 psi' = J_r^{-1}(psi) w and psi(0) = 0 (Munthe-Kaas RK4), and the result is formed as

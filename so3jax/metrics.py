@@ -1,4 +1,4 @@
-"""Tracking metrics accumulated step by step inside the scan (SPEC 6).
+"""Tracking metrics accumulated step by step inside the scan (docs/model.md §6).
 
 Every quantity is sampled at step starts k = 0 .. N-1 and summed per mission phase,
 so a full mission needs no stored trajectory.
@@ -78,7 +78,7 @@ def safe_sqrt(x):
 
 
 def finalize(acc: Accumulator, steps_per_phase, dt, final_R) -> Metrics:
-    """Turn the sums into SPEC 6 metrics. steps_per_phase: static tuple of ints."""
+    """Turn the sums into the metrics of docs/model.md §6. steps_per_phase: static tuple of ints."""
     n_phase = jnp.asarray(steps_per_phase, acc.sq_torque.dtype).reshape((-1,) + (1,) * (acc.sq_torque.ndim - 1))
     n_safe = jnp.maximum(n_phase, 1.0)
     n = float(sum(steps_per_phase))

@@ -1,6 +1,6 @@
 """A mission: the scenario (inertia profile, reference, disturbance, horizon, initial
 state), the loop (sensors, estimator, actuator, control period) and the controllers with
-their gains and options (SPEC 4, 8). Parsed once from TOML tables plus ``--set``
+their gains and options (docs/model.md §4, §8). Parsed once from TOML tables plus ``--set``
 overrides into validated plain data, then built into a :class:`~so3jax.scenario.Scenario`,
 a :class:`~so3jax.loop.Loop` and controllers.
 
@@ -8,7 +8,7 @@ The loop's components are read through their registrations (:mod:`so3jax.compone
 :mod:`so3jax.controllers.registry`): ``[sensors.NAME]`` (a table, or false to leave a
 sensor out), ``[estimator] kind`` with ``[estimator.NAME]``, ``[actuator] kind`` with
 ``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]``. Without a
-file, the flight mission of SPEC 8.5 (``missions/flight.toml`` spells it out).
+file, the flight mission of docs/model.md §8.5 (``missions/flight.toml`` spells it out).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ from so3jax.sensors import Sensors
 
 CONTROL_MODES = ("sampled", "continuous")
 
-# SPEC 8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
+# docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
 # The components' own values are their registrations' defaults.
 FLIGHT = {
     "T": 4000.0,
@@ -60,7 +60,7 @@ FLIGHT = {
     "gains": {},
 }
 
-# SPEC 4-5: the paper's experiment in the same schema: the controller reads the true state
+# docs/model.md §4-§5: the paper's experiment in the same schema: the controller reads the true state
 # in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
 PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"}, actuator={"kind": "ideal"})
 
@@ -383,5 +383,5 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
 
 
 def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
-    """The mission of a TOML file (or ``base``: the flight mission of SPEC 8.5), with KEY=VALUE overrides."""
+    """The mission of a TOML file (or ``base``: the flight mission of docs/model.md §8.5), with KEY=VALUE overrides."""
     return from_dict(cfg.load(path, overrides), base)

@@ -1,5 +1,5 @@
 """``so3jax paper``: the paper's capture-and-detumble mission with both controllers
-(SPEC 4), its Table II and Figs. 1-5."""
+(docs/model.md §4), its Table II and Figs. 1-5."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 
 from so3jax.metrics import UNREACHED, cell
 
-# Table II of the paper (effort in N^2 m^2 s; see SPEC 7.5).
+# Table II of the paper (effort in N^2 m^2 s; see docs/model.md §7.5).
 PAPER_TABLE = {"pd": {"rmse": 4.024e-3, "effort": 155.61}, "adaptive": {"rmse": 2.776e-3, "effort": 143.10}}
 CONTROLLERS = ("pd", "adaptive")  # the paper's experiment (registry names)
 METRIC_NAMES = (
@@ -28,9 +28,13 @@ METRIC_NAMES = (
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_memory_argument, add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument, registered
 
-    p = subparsers.add_parser("paper", help="reproduce the paper's mission with both controllers (table + figures)")
+    p = subparsers.add_parser("paper", help="reproduce the paper's mission with both controllers (table + figures)",
+                              description="The paper's capture-and-detumble mission (missions/paper.toml) flown by "
+                              "the pd and adaptive controllers: Table II beside the paper's values, metrics.json "
+                              "and the figures.",
+                              epilog=registered())
     p.add_argument("--T", type=float, help="horizon [s] (default 4000)")
     p.add_argument("--dt", type=float, help="step [s] (default 0.01)")
     p.add_argument("--seed", type=int, help="disturbance seed (default 0)")
@@ -72,7 +76,7 @@ def load_mission(args):
 
 
 def metrics_dict(result, steps_per_phase=None) -> dict:
-    """SPEC 6 metrics of one rollout: every value NaN when it diverged; per-phase values
+    """The metrics of docs/model.md §6 of one rollout: every value NaN when it diverged; per-phase values
     None for the phases the horizon never reached (all reached when steps_per_phase is None)."""
     from so3jax.metrics import phase_values, reported
 
@@ -97,7 +101,7 @@ def _relative(ours, theirs) -> str:
 
 
 def format_table(metrics: dict) -> str:
-    """Our Table II beside the paper's; relative differences computed (SPEC 7.5). A
+    """Our Table II beside the paper's; relative differences computed (docs/model.md §7.5). A
     diverged controller's cells read "diverged" and it enters no comparison; a phase
     never reached reads "—"."""
     pd, ad = metrics["pd"], metrics["adaptive"]

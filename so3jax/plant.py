@@ -1,4 +1,4 @@
-"""Rigid-body attitude dynamics (SPEC 1, 8.4) and inertia profiles J(t).
+"""Rigid-body attitude dynamics (docs/model.md §1, §8.4) and inertia profiles J(t).
 
 The plant owns the rigid body: :func:`derivative` gives Omega' from J(t), the torque the
 actuator puts on the body, the disturbance and the momentum the actuator stores
@@ -6,7 +6,7 @@ actuator puts on the body, the disturbance and the momentum the actuator stores
 
 An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
 ``phase`` is the index of the mission phase that holds at the start of the current
-step (SPEC 5), so a profile may switch laws without straddling a step.
+step (docs/model.md §5), so a profile may switch laws without straddling a step.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class ConstantInertia:
 
 @pytree_dataclass
 class PaperInertia:
-    """The paper's capture profile (SPEC 4, corrected eq. 18).
+    """The paper's capture profile (docs/model.md §4, corrected eq. 18).
 
     phase 0: J0; phase 1 (deployment from t_deploy): J1 - (J1 - J0) exp(-(t - t_deploy)/tau_J);
     phase >= 2 (docking): J2.
@@ -101,7 +101,7 @@ def inertia_rate(profile, t, phase):
 
 
 def angular_acceleration(J, omega, torque, J_dot=None):
-    """Omega' from J Omega' = -Omega x J Omega + torque [- J' Omega] (SPEC 1). rad/s^2."""
+    """Omega' from J Omega' = -Omega x J Omega + torque [- J' Omega] (docs/model.md §1). rad/s^2."""
     rhs = torque - so3.cross(omega, so3.matvec(J, omega))
     if J_dot is not None:
         rhs = rhs - so3.matvec(J_dot, omega)
@@ -113,7 +113,7 @@ def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
 
         (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
 
-    (SPEC 8.4; SPEC 1 where the actuator stores no momentum, then computed as the
+    (docs/model.md §8.4; §1 where the actuator stores no momentum, then computed as the
     paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
     t: the stage time [s] (a fusion boundary, :func:`so3jax._fusion.materialize`); J_inv:
     J^{-1} where it is precomputed (:mod:`so3jax.stepped`; used for an actuator storing no

@@ -119,7 +119,7 @@ def block_steps(n_steps: int, record_every: int | None, period_steps: int | None
 def check_inputs(
     scenario, controller, gains, loop, record_every, *, seed=0, batch_last=False, gains_batch_axes=0
 ) -> None:
-    """SPEC 6's checks of a rollout's inputs, before tracing: types and shapes always,
+    """The checks of docs/model.md §6 on a rollout's inputs, before tracing: types and shapes always,
     values where concrete (so jit, vmap and grad of a rollout keep working).
     batch_last: the scenario's leaves carry a trailing batch axis (see :func:`rollout`)."""
     seed_dtype = seed.dtype if hasattr(seed, "dtype") else np.asarray(seed).dtype
@@ -157,7 +157,7 @@ def rollout(
     record_every: int | None = None,
     unroll: int = 1,
 ) -> Result:
-    """Simulate the closed loop over scenario.n_steps steps (SPEC 1-6; SPEC 8 for a
+    """Simulate the closed loop over scenario.n_steps steps (docs/model.md §1-§6; §8 for a
     sampled ``loop``). Pure; its inputs are checked first (:func:`check_inputs`: values
     only where concrete, so it composes with jit, vmap and grad).
 
@@ -401,7 +401,7 @@ def _simulate_jit(scenario, controller, gains, seed, loop, record_every, unroll)
 def simulate(
     scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
 ) -> Result:
-    """Validate the inputs (SPEC 6, :func:`check_inputs`), then run the jitted rollout."""
+    """Validate the inputs (docs/model.md §6, :func:`check_inputs`), then run the jitted rollout."""
     check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
     as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
     return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)

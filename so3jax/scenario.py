@@ -1,5 +1,5 @@
-"""Scenarios (plant + reference + disturbance + horizon), the paper's defaults (SPEC 4),
-and input validation (SPEC 6)."""
+"""Scenarios (plant + reference + disturbance + horizon), the paper's defaults (docs/model.md §4),
+and input validation (docs/model.md §6)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ PAPER_DOCK_TIME = 2600.0  # s
 
 class InertiaWarning(UserWarning):
     """A positive definite inertia that no rigid body can have (triangle inequality):
-    accepted (SPEC 4 and 6: the paper's J0 is one), with this warning."""
+    accepted (docs/model.md §4 and §6: the paper's J0 is one), with this warning."""
 
 
 @pytree_dataclass
@@ -36,7 +36,7 @@ class Scenario:
     disturbances, initial states); dt, n_steps and the phase switch times are static.
 
     phase_times: start times [s] of the phases after the first; each is moved to the
-    step boundary round(t / dt) (SPEC 5).
+    step boundary round(t / dt) (docs/model.md §5).
     """
 
     inertia: Any  # profile, see so3jax.plant
@@ -64,7 +64,7 @@ class Scenario:
 
 
 def steps_for_horizon(T: float, dt: float) -> int:
-    """N = T / dt, which must be a whole number (SPEC 6)."""
+    """N = T / dt, which must be a whole number (docs/model.md §6)."""
     if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
         raise ValueError(f"dt must be a positive finite number of seconds, got {dt!r}")
     if not (isinstance(T, (int, float)) and math.isfinite(T) and T > 0):
@@ -95,7 +95,7 @@ def paper_scenario(
     variable_inertia_term: bool = False,
     dtype=None,
 ) -> Scenario:
-    """The capture-and-detumble mission of SPEC 4 (J1 = 2 J0 unless given)."""
+    """The capture-and-detumble mission of docs/model.md §4 (J1 = 2 J0 unless given)."""
     dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
     n_steps = steps_for_horizon(T, dt)
     n = orbital_rate() if n is None else n
@@ -124,7 +124,7 @@ def paper_scenario(
     return scenario
 
 
-# --- validation (SPEC 6) -------------------------------------------------------------
+# --- validation (docs/model.md §6) -------------------------------------------------------------
 
 
 def _real_dtype(x, what: str) -> None:
@@ -149,7 +149,7 @@ TRIANGLE_ADVICE = "the run goes on; if it is meant to be a real body, check the 
 
 def is_paper_inertia(J) -> bool:
     """Whether J (3, 3), or every matrix of a stack (..., 3, 3), is one the paper gives
-    (SPEC 4: J0, J1 = 2 J0, J2), to 1e-12 relative. The paper's J0 and J1 break the
+    (docs/model.md §4: J0, J1 = 2 J0, J2), to 1e-12 relative. The paper's J0 and J1 break the
     triangle inequality; runs of the paper's mission use them as the paper does, without
     a warning."""
     J = np.asarray(J, dtype=np.float64)
@@ -288,7 +288,7 @@ def check_gains(gains, *, batch_axes: int = 0) -> None:
 
 
 def check_scenario(scenario: Scenario, *, batch_last: bool = False) -> None:
-    """The checks of SPEC 6 that concern the scenario (shapes always, values where
+    """The checks of docs/model.md §6 that concern the scenario (shapes always, values where
     concrete). batch_last: the leaves carry a trailing batch axis (B or 1)."""
     if not isinstance(scenario, Scenario):
         raise TypeError(f"scenario must be a so3jax.Scenario, got {type(scenario).__name__}")

@@ -1,4 +1,4 @@
-"""Sensors: the true state in, measurements out, sampled at the control ticks (SPEC 8.2).
+"""Sensors: the true state in, measurements out, sampled at the control ticks (docs/model.md §8.2).
 
 Noise: eta_{s,j} = jax.random.normal(fold_in(fold_in(K_sens, s), j), (3,), dtype) with
 K_sens = fold_in(key(seed), 2^32 - 1), stream s = 1 (gyro white noise), 2 (gyro bias walk),
@@ -21,13 +21,13 @@ from so3jax._pytree import pytree_dataclass, static_field
 from so3jax.components import Param
 from so3jax.disturbance import noise_components
 
-GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (SPEC 8.2)
+GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (docs/model.md §8.2)
 SENSOR_ROOT = np.uint32(2**32 - 1)  # K_sens = fold_in(key(seed), SENSOR_ROOT): a step never reached
 
 
 def sensor_noise(key, stream: int, j, dtype):
     """eta_{s,j} (3, *key.shape): normal(fold_in(fold_in(K_sens, s), j), (3,), dtype),
-    K_sens = fold_in(key, 2^32 - 1) (SPEC 8.2)."""
+    K_sens = fold_in(key, 2^32 - 1) (docs/model.md §8.2)."""
     fold = lambda k: jax.random.fold_in(jax.random.fold_in(k, SENSOR_ROOT), stream)
     folded = fold(key) if key.ndim == 0 else jax.vmap(fold)(key.reshape(-1)).reshape(key.shape)
     return jnp.stack(noise_components(folded, j, dtype))
@@ -51,7 +51,7 @@ def _check(name: str, x, shape=()) -> None:
 
 @pytree_dataclass
 class Gyro:
-    """Rate gyro, Farrenkopf model at the ticks (SPEC 8.2):
+    """Rate gyro, Farrenkopf model at the ticks (docs/model.md §8.2):
     omega_m,j = Omega(t_j) + b_j + (arw / sqrt(Delta_c)) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j."""
 
     arw: jax.Array  # sigma_v, angle random walk [rad/sqrt(s)]
@@ -84,7 +84,7 @@ class Gyro:
 
 @pytree_dataclass
 class StarTracker:
-    """R_m,j = R(t_j) exp(hat(sigma eta_3,j)), a sample every ``every`` ticks (SPEC 8.2)."""
+    """R_m,j = R(t_j) exp(hat(sigma eta_3,j)), a sample every ``every`` ticks (docs/model.md §8.2)."""
 
     sigma: jax.Array  # per axis [rad]
     every: int = static_field(default=1)
@@ -159,7 +159,7 @@ components.register(components.ComponentSpec(
     ),
     build=lambda v, ctx: Gyro(ctx.as_array(v["arw"]), ctx.as_array(v["rrw"]), ctx.as_array(v["bias0"])),
     noise=lambda v: {"arw": v["arw"], "rrw": v["rrw"]},
-    doc="rate gyro, Farrenkopf model (SPEC 8.2)",
+    doc="rate gyro, Farrenkopf model (docs/model.md §8.2)",
 ))
 
 components.register(components.ComponentSpec(
@@ -170,5 +170,5 @@ components.register(components.ComponentSpec(
     ),
     build=lambda v, ctx: StarTracker(ctx.as_array(v["sigma"]), int(v["every"])),
     noise=lambda v: {"sigma_st": v["sigma"]},
-    doc="star tracker: R_m = R exp(hat(sigma eta)) (SPEC 8.2)",
+    doc="star tracker: R_m = R exp(hat(sigma eta)) (docs/model.md §8.2)",
 ))

@@ -90,7 +90,7 @@ def test_a_first_order_lag_flies_in_both_wirings(lag_runs):
 
 
 def test_lag_effort_agrees_between_wirings_to_first_order_in_the_period(lag_runs):
-    """SPEC 6's effort counts the delivered torque at every step start, read from the
+    """The effort of docs/model.md §6 counts the delivered torque at every step start, read from the
     actuator's state in both wirings: the sampled wiring's effort tends to the continuous
     one's as O(Delta_c), while the command's effort stays apart (the lag delays it)."""
     continuous, sampled = lag_runs
@@ -109,7 +109,7 @@ def _hat(v):
 
 def test_wheels_in_the_loop_match_an_independent_integration():
     """Wheels flown in the sampled loop (truth estimator, momentum compensation) against
-    SPEC 8.4 integrated by DOP853 over each control period from the recorded tick state,
+    docs/model.md §8.4 integrated by DOP853 over each control period from the recorded tick state,
     with the motor torques the tick held (recomputed from the recorded command)."""
     G = pyramid_axes(4)
     spin, m = np.array([0.16, 0.12, 0.2, 0.16]), 10

@@ -1,4 +1,4 @@
-"""Actuators (SPEC 8.4): the reaction-wheel plant against scipy and closed forms, the
+"""Actuators (docs/model.md §8.4): the reaction-wheel plant against scipy and closed forms, the
 command's distribution and limits, the paper's ideal torque bit for bit, checks, and
 jit / vmap / grad."""
 
@@ -39,7 +39,7 @@ def hat(v):
 
 
 def reference_rhs(J, G, spin, u):
-    """SPEC 8.4's plant in numpy on y = (R flattened, Omega, Omega_w)."""
+    """docs/model.md §8.4's plant in numpy on y = (R flattened, Omega, Omega_w)."""
     J_B = J - G @ np.diag(spin) @ G.T
 
     def rhs(t, y):
@@ -159,7 +159,7 @@ def test_motor_torque_is_clipped_at_u_max():
 
 
 def test_speed_limit_stops_a_wheel_spinning_faster_but_not_slower():
-    """u_i = 0 where |Omega_w,i| >= Omega_max,i and u_i Omega_w,i > 0 (SPEC 8.4)."""
+    """u_i = 0 where |Omega_w,i| >= Omega_max,i and u_i Omega_w,i > 0 (docs/model.md §8.4)."""
     limit = 600.0
     actuator = wheels(speed=limit, compensation=False)
     tau = jnp.asarray([0.05, -0.08, 0.03])

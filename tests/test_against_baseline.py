@@ -1,4 +1,4 @@
-"""so3jax against the independent NumPy implementation of SPEC 3-6 (benchmarks/baselines)."""
+"""so3jax against the independent NumPy implementation of docs/model.md §3-§6 (benchmarks/baselines)."""
 
 import warnings
 

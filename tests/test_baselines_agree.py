@@ -1,9 +1,9 @@
 """The two benchmark baselines (NumPy loop, Numba scalar) compute the same closed loop.
 
-Both implement SPEC §3-§6 independently; here they must agree to 1e-10 (relative) at
+Both implement docs/model.md §3-§6 independently; here they must agree to 1e-10 (relative) at
 the paper's dt, and across both phase switches at a coarse dt. The Numba baseline is
 also checked alone at the paper's dt across the first switch (t = 500 s) and over the
-full mission for the SO(3) drift bound of SPEC §5.
+full mission for the SO(3) drift bound of docs/model.md §5.
 """
 
 import jax
@@ -86,7 +86,7 @@ def test_numba_across_first_switch_at_paper_dt(numba_loop, controller):
 
 @pytest.mark.parametrize("controller", CONTROLLERS)
 def test_numba_full_mission_stays_on_so3(numba_loop, controller):
-    """SPEC §5: ||R^T R - I||_F < 1e-12 after N = 400 000 steps in float64."""
+    """docs/model.md §5: ||R^T R - I||_F < 1e-12 after N = 400 000 steps in float64."""
     r = numba_loop.simulate(controller, 400_000, [0])
     R = r["R"][0]
     assert np.linalg.norm(R.T @ R - np.eye(3)) < 1e-12

@@ -48,7 +48,7 @@ def test_pd_torque_closed_form_at_rest_on_reference():
 
 
 def lyapunov(gains, J, history):
-    """V = K_r |e|^2 / 2 + z^T J z / 2 + tr(dTheta^T Gamma^-1 dTheta) / 2 along a history (SPEC 3.2)."""
+    """V = K_r |e|^2 / 2 + z^T J z / 2 + tr(dTheta^T Gamma^-1 dTheta) / 2 along a history (docs/model.md §3.2)."""
     Theta = regressor_parameters(J)
 
     def one(R, Omega, R_d, Omega_d, Omega_d_dot, Theta_hat):

@@ -1,8 +1,8 @@
-"""Estimators (SPEC 8.3): truth, raw and the MEKF.
+"""Estimators (docs/model.md §8.3): truth, raw and the MEKF.
 
 The MEKF is checked for statistical consistency by Monte Carlo on a case with a closed
 form truth (a constant body rate, R(t) = R0 exp(hat(Omega t))): its sensors (Sensors.measure
-with the SPEC 8.2 gyro and star tracker) and the filter run in one jitted scan over the
+with the docs/model.md §8.2 gyro and star tracker) and the filter run in one jitted scan over the
 ticks for a batch of keys, and the normalized estimation error squared (NEES)
 e^T P^-1 e, e = (log(R_hat^T R)^vee, b - b_hat), averaged over the runs, must follow
 chi^2(6 N) / N. The filter's model matches the simulated truth up to terms ~1e-6 of the
@@ -261,7 +261,7 @@ def test_mekf_init():
 
 
 def test_mekf_single_update_is_the_spec():
-    """One update and propagation against SPEC 8.3's formulas written with 6 x 6 matrices
+    """One update and propagation against docs/model.md §8.3's formulas written with 6 x 6 matrices
     (numpy, Joseph form), from a correlated prior P."""
     rng = np.random.default_rng(4)
     L = rng.normal(size=(6, 6)) * np.array([1e-3] * 3 + [1e-4] * 3)[:, None]

@@ -1,4 +1,4 @@
-"""Gradients through the flight loop where the wheels' torque limits bind (SPEC 8.1, 8.4):
+"""Gradients through the flight loop where the wheels' torque limits bind (docs/model.md §8.1, §8.4):
 forward and reverse mode against central differences when the limits bind part of the
 time, and what the gradient sees while they bind: nothing (a clipped motor torque does
 not depend on the gains), exactly zero when every wheel is clipped at every tick."""

@@ -1,4 +1,4 @@
-"""Gradients of the SPEC 6 tuning cost through whole rollouts, against central finite
+"""Gradients of the docs/model.md §6 tuning cost through whole rollouts, against central finite
 differences in float64, in both differentiation modes.
 
 Short horizons (T = 20 s) keep the default run fast; the shapes match tests/test_tune.py

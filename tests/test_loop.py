@@ -1,4 +1,4 @@
-"""The closed loop as a wiring of components (SPEC 8): the paper's wiring unchanged, the
+"""The closed loop as a wiring of components (docs/model.md §8): the paper's wiring unchanged, the
 sampled-data wiring converging to it, sensors that leave the disturbance alone, wheels
 that conserve momentum, gradients through the flight loop."""
 
@@ -87,7 +87,7 @@ def _final_error(a, b):
 @pytest.mark.parametrize("refine", ["dt, m = 1", "m, dt fixed"])
 def test_sampled_loop_converges_to_the_continuous_one_at_first_order(refine):
     """truth + ideal + zero-order hold at Delta_c = m dt -> the paper's mode as Delta_c -> 0,
-    with an error proportional to Delta_c (SPEC 8.1): m = 1 with dt halved, or dt fixed
+    with an error proportional to Delta_c (docs/model.md §8.1): m = 1 with dt halved, or dt fixed
     with m halved."""
     T, Omega0 = 8.0, (0.02, -0.01, 0.03)
     reference = sj.simulate(custom_scenario(T, 0.00125, Omega0=Omega0), sj.geometric_pd(), PD)

@@ -1,4 +1,4 @@
-"""Mission files (SPEC 8.5): the shipped missions, and one clear error per bad entry."""
+"""Mission files (docs/model.md §8.5): the shipped missions, and one clear error per bad entry."""
 
 import json
 from pathlib import Path
@@ -183,7 +183,7 @@ def test_two_sensors_of_one_quantity_are_refused():
 
 def test_the_history_records_the_filter_covariance_and_the_disturbance():
     """P's diagonal is the recorded 1-sigma squared; the recorded d_k is the scenario's
-    disturbance at the recorded step k (its sinusoid plus noise, SPEC 4)."""
+    disturbance at the recorded step k (its sinusoid plus noise, docs/model.md §4)."""
     import jax
 
     from so3jax import fly

@@ -21,7 +21,7 @@ STEPS = [0, 1, 7, 2**20, 2**31 - 1, 2**32 - 1]
 
 
 def jax_eta(seed, k):
-    """SPEC §4's eta_k, drawn as benchmarks/baselines/noise.py draws it."""
+    """docs/model.md §4's eta_k, drawn as benchmarks/baselines/noise.py draws it."""
     with jax.enable_x64(True):
         key = jax.random.fold_in(jax.random.key(seed), np.uint32(k))
         return np.asarray(jax.random.normal(key, (3,), np.float64))

@@ -22,7 +22,7 @@ SHORT = sj.paper_scenario(T=20.0)
 
 
 def test_disturbance_follows_the_fold_in_recipe():
-    """d_k = 0.1 sin(0.001 t_k) [1,1,1] + 0.025 normal(fold_in(key(seed), k)) (SPEC 4)."""
+    """d_k = 0.1 sin(0.001 t_k) [1,1,1] + 0.025 normal(fold_in(key(seed), k)) (docs/model.md §4)."""
     d = SHORT.disturbance
     for k in (0, 1, 12345):
         t = k * 0.01
@@ -111,7 +111,7 @@ def test_disturbance_reaches_the_plant():
 
 
 def test_in_scan_metrics_match_the_recorded_trajectory():
-    """With record_every=1 the history holds every step start: recompute SPEC 6 from it."""
+    """With record_every=1 the history holds every step start: recompute docs/model.md §6 from it."""
     scenario = sj.paper_scenario(T=30.0)
     controller, gains = sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS
     r = sj.simulate(scenario, controller, gains, 2, record_every=1)

@@ -1,4 +1,4 @@
-"""Sensors (SPEC 8.2): the noise recipe bit for bit, the Farrenkopf gyro and the star
+"""Sensors (docs/model.md §8.2): the noise recipe bit for bit, the Farrenkopf gyro and the star
 tracker by their statistics over many keys, the perfect (absent) sensors, the checks.
 
 The statistical tests use fixed keys, so they are deterministic; their bounds are the
@@ -38,7 +38,7 @@ def keys(n, offset=0):
 
 
 def reference_noise(key, stream, j, dtype=F64):
-    """SPEC 8.2's recipe as written: normal(fold_in(fold_in(K_sens, s), j), (3,), dtype) with
+    """docs/model.md §8.2's recipe as written: normal(fold_in(fold_in(K_sens, s), j), (3,), dtype) with
     K_sens = fold_in(key, 2^32 - 1)."""
     k_sens = jax.random.fold_in(key, np.uint32(4294967295))
     return jax.random.normal(jax.random.fold_in(jax.random.fold_in(k_sens, stream), j), (3,), dtype)

@@ -68,7 +68,7 @@ def without_wall_time(rows):
     return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
 
 
-# --- cost modes (SPEC 6) -------------------------------------------------------------
+# --- cost modes (docs/model.md §6) -------------------------------------------------------------
 
 
 def fake_metrics(rmse, effort):

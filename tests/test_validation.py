@@ -1,4 +1,4 @@
-"""Bad input gets a clear ValueError naming the field, before anything compiles (SPEC 6)."""
+"""Bad input gets a clear ValueError naming the field, before anything compiles (docs/model.md §6)."""
 
 import dataclasses
 import importlib

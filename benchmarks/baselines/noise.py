@@ -1,4 +1,4 @@
-"""The paper scenario's disturbance noise, drawn exactly as SPEC §4 prescribes.
+"""The paper scenario's disturbance noise, drawn exactly as docs/model.md §4 prescribes.
 
     eta_k = jax.random.normal(jax.random.fold_in(jax.random.key(seed), k), (3,), dtype)
 
@@ -31,7 +31,7 @@ def _drawer(n_steps: int, dtype_name: str):
 
 
 def paper_noise_batch(seeds: Sequence[int], n_steps: int, dtype=np.float64) -> np.ndarray:
-    """eta (len(seeds), n_steps, 3) for several seeds (SPEC §4, disturbance row)."""
+    """eta (len(seeds), n_steps, 3) for several seeds (docs/model.md §4, disturbance row)."""
     import jax
 
     dtype = np.dtype(dtype)
@@ -45,5 +45,5 @@ def paper_noise_batch(seeds: Sequence[int], n_steps: int, dtype=np.float64) -> n
 
 
 def paper_noise(seed: int, n_steps: int, dtype=np.float64) -> np.ndarray:
-    """eta (n_steps, 3) for one seed (SPEC §4, disturbance row)."""
+    """eta (n_steps, 3) for one seed (docs/model.md §4, disturbance row)."""
     return paper_noise_batch([seed], n_steps, dtype)[0]

@@ -1,6 +1,6 @@
 """Numba baseline of the dispersed Monte Carlo sweep (``so3jax sweep``): every trajectory flies its own scenario.
 
-The closed loop is :mod:`numba_loop`'s (SPEC §3-§6: the paper's PD or adaptive law with
+The closed loop is :mod:`numba_loop`'s (docs/model.md §3-§6: the paper's PD or adaptive law with
 J_hat = I, RK4 in local coordinates on SO(3), the law evaluated in every stage), and its
 stage arithmetic is imported from there (``_stage``, ``_exp_minus_identity``, ``_mul_add``);
 the noise eta_k is drawn inside the kernel from each trajectory's seed, CHUNK steps at a
@@ -141,8 +141,8 @@ def _time_terms(r, v0, v1, v2, J, Ji):
 @_jit
 def _trajectory(adaptive, key0, key1, n_steps, h, k1, k2, g0, g1, gam, J0, J1, J2, tau_J, n, amp, freq, nstd,
                 etab, ubuf, Rio, wio, th, ths, a1, a23, sums):  # fmt: skip
-    """Advance one trajectory over steps 0 .. n_steps-1 with RK4 (SPEC §5) in its own
-    scenario (module docstring), adding its metrics to sums (SPEC §6). State: Rio (3, 3),
+    """Advance one trajectory over steps 0 .. n_steps-1 with RK4 (docs/model.md §5) in its own
+    scenario (module docstring), adding its metrics to sums (docs/model.md §6). State: Rio (3, 3),
     wio (3), th (9, 3) (Theta_hat), updated in place. eta_k is drawn CHUNK steps at a time
     from the key words (key0, key1) into etab (CHUNK, 3) (ubuf (3 CHUNK): scratch); ths, a1,
     a23: (9, 3) scratch (a stage's Theta_hat, stage 1's Theta_hat', stages 2 + 3's)."""
@@ -218,7 +218,7 @@ def _trajectory(adaptive, key0, key1, n_steps, h, k1, k2, g0, g1, gam, J0, J1, J
             o4 = _stage(adaptive, False, g0, g1, gam, R, h * o3[0], h * o3[1], h * o3[2],
                         w0 + h * o3[3], w1 + h * o3[4], w2 + h * o3[5], ths, tte, 1.0, d0, d1, d2)  # fmt: skip
 
-            # metrics at the step start (stage 1), SPEC §6; Omega - Omega_d with the phase's Omega_d
+            # metrics at the step start (stage 1), docs/model.md §6; Omega - Omega_d with the phase's Omega_d
             tau_sq = o1[6] * o1[6] + o1[7] * o1[7] + o1[8] * o1[8]
             we_sq = o1[9] * o1[9] + o1[10] * o1[10] + o1[11] * o1[11]
             u0, u1, u2 = w0 - v0, w1 - v1, w2 - v2
@@ -324,7 +324,7 @@ def simulate_dispersed(controller: str, samples, n_steps: int, *, dt: float = 0.
 
 
 def _metrics(sums, setup, R) -> dict:
-    """SPEC §6's metrics from the per-trajectory sums, as so3jax.metrics.finalize forms them."""
+    """The metrics of docs/model.md §6 from the per-trajectory sums, as so3jax.metrics.finalize forms them."""
     n = setup.n_steps
     counts = np.array([min(n, setup.k1), max(0, min(n, setup.k2) - setup.k1), max(0, n - setup.k2)], np.float64)
     per_step = np.maximum(counts, 1.0)

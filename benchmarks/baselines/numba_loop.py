@@ -1,11 +1,11 @@
-"""Numba baseline of the paper's closed loop (SPEC §1-§6): scalar code, prange over the batch.
+"""Numba baseline of the paper's closed loop (docs/model.md §1-§6): scalar code, prange over the batch.
 
 Each trajectory advances with explicit component arithmetic on local scalars (3x3
 matrices are row-major 9-tuples), so a step allocates nothing; the batch is split
 into one group per thread with ``numba.prange``. What depends only on time (R_d(t),
 J(t) and its inverse at the three stage times, the sinusoidal disturbance) is
 tabulated once per chunk of CHUNK steps and shared by the trajectories of a group.
-The integrator is RK4 in local coordinates (SPEC §5): R = R_k exp(hat psi),
+The integrator is RK4 in local coordinates (docs/model.md §5): R = R_k exp(hat psi),
 psi' = J_r^{-1}(psi) Omega, with Omega and Theta_hat integrated alongside and the
 controller evaluated at every stage. Units: SI (s, rad, rad/s, N m, kg m^2). float64
 only; compiled with FMA contraction allowed (no other fast-math).
@@ -86,7 +86,7 @@ def _exp_minus_identity(p0, p1, p2):
 
 @_jit
 def _jr_inv_apply(e0, e1, e2, w0, w1, w2):
-    """J_r^{-1}(e) w = w + e x w / 2 + g e x (e x w), g = 1/t^2 - cot(t/2)/(2t), t = |e| (SPEC §3.2)."""
+    """J_r^{-1}(e) w = w + e x w / 2 + g e x (e x w), g = 1/t^2 - cot(t/2)/(2t), t = |e| (docs/model.md §3.2)."""
     t2 = e0 * e0 + e1 * e1 + e2 * e2
     if t2 < SMALL2:
         g = 1.0 / 12.0 + t2 / 720.0 + t2 * t2 / 30240.0
@@ -100,7 +100,7 @@ def _jr_inv_apply(e0, e1, e2, w0, w1, w2):
 
 @_jit
 def _mul_add(x, y):
-    """x + (x y) for row-major 9-tuples: R_k + R_k (exp(hat psi) - I), the small term summed first (SPEC §5)."""
+    """x + (x y) for row-major 9-tuples: R_k + R_k (exp(hat psi) - I), the small term summed first (docs/model.md §5)."""
     return (
         x[0] + (x[0] * y[0] + x[1] * y[3] + x[2] * y[6]),
         x[1] + (x[0] * y[1] + x[1] * y[4] + x[2] * y[7]),
@@ -155,7 +155,7 @@ def _stage(adaptive, first, g0, g1, gam, Rk, p0, p1, p2, w0, w1, w2, th, tt, s, 
     """One RK4 stage: controller at R = R_k exp(hat p), Omega = w, Theta_hat = th; plant at tt.
 
     first: the stage at the step start, where p = 0 (so R = R_k, psi' = Omega) and where
-    the metrics sample. g0, g1 = (K_r, K_w) for the adaptive law (SPEC §3.2), (k_R, k_Omega)
+    the metrics sample. g0, g1 = (K_r, K_w) for the adaptive law (docs/model.md §3.2), (k_R, k_Omega)
     for PD (§3.1), both with J_hat = I and Omega_d' = 0; tt: a row of the time table;
     s: inertia scale. Returns psi' (3), Omega' (3), tau (3), Omega_e (3), the attitude-error
     angle (computed only when first or when the adaptive law needs it, else 0), and
@@ -235,7 +235,7 @@ def _stage(adaptive, first, g0, g1, gam, Rk, p0, p1, p2, w0, w1, w2, th, tt, s, 
 @_jit
 def _fill_table(k0, nk, h, k1, k2, wd, table, dist):
     """table[i, c] = time terms at t_k + (0, h/2, h)[c] and dist[i] = 0.1 sin(0.001 t_k) [N m],
-    for k = k0 + i (SPEC §4)."""
+    for k = k0 + i (docs/model.md §4)."""
     for i in range(nk):
         k = k0 + i
         phase = 0 if k < k1 else (1 if k < k2 else 2)
@@ -253,7 +253,7 @@ def _fill_table(k0, nk, h, k1, k2, wd, table, dist):
 def _advance(adaptive, draw, key, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, etab, ubuf, table, dist, Rio, wio,
              th, ths, acc, sums):  # fmt: skip
     """Advance one trajectory (state Rio (3, 3), wio (3), th (9, 3), updated in place) over
-    steps k0 .. k0+nk-1 with RK4 (SPEC §5), adding its metrics to sums (SPEC §6).
+    steps k0 .. k0+nk-1 with RK4 (docs/model.md §5), adding its metrics to sums (§6).
     eta_k: noise[k] or, if draw, drawn here for the chunk from the key words key (2,) of
     its seed into etab (CHUNK, 3) (ubuf (3 CHUNK): scratch). ths, acc: (9, 3) scratch for
     the stage value and the RK4 sum of Theta_hat'."""
@@ -298,7 +298,7 @@ def _advance(adaptive, draw, key, k0, nk, h, k1, k2, g0, g1, gam, wd, s, noise, 
         o4 = _stage(adaptive, False, g0, g1, gam, R, h * o3[0], h * o3[1], h * o3[2],
                     w0 + h * o3[3], w1 + h * o3[4], w2 + h * o3[5], ths, table[i, 2], s, d0, d1, d2)  # fmt: skip
 
-        # metrics at the step start (stage 1), SPEC §6
+        # metrics at the step start (stage 1), docs/model.md §6
         tau_sq = o1[6] * o1[6] + o1[7] * o1[7] + o1[8] * o1[8]
         we_sq = o1[9] * o1[9] + o1[10] * o1[10] + o1[11] * o1[11]
         if phase < 2:
@@ -360,7 +360,7 @@ def simulate(
     dtype=np.float64,
     noise: np.ndarray | str | None = None,
 ) -> dict:
-    """Run the paper's scenario (SPEC §4) for a batch of len(seeds) trajectories.
+    """Run the paper's scenario (docs/model.md §4) for a batch of len(seeds) trajectories.
 
     Same signature and result as :func:`benchmarks.baselines.numpy_loop.simulate`
     (see there); dtype must be float64. One more choice for noise: "draw" draws eta_k

@@ -2,7 +2,7 @@
 
     eta_k = jax.random.normal(jax.random.fold_in(jax.random.key(seed), k), (3,), float64)
 
-(SPEC §4; :mod:`benchmarks.baselines.noise` draws it with JAX before a run) written out
+(docs/model.md §4; :mod:`benchmarks.baselines.noise` draws it with JAX before a run) written out
 in Numba functions, so a compiled loop can draw eta_k itself, as so3jax does inside its
 timed loop: :func:`paper_eta` for one step, :func:`fill_eta` for a run of steps (what
 numba_loop uses; vectorized where the arithmetic allows). The recipe, read off JAX 0.10
@@ -178,7 +178,7 @@ def _uniforms(seed_key0, seed_key1, k):
 @_jit
 def paper_eta(seed_key0, seed_key1, k):
     """eta_k (3 float64) at step k for the key words (seed_key0, seed_key1) of key(seed)
-    (:func:`key_words`): SPEC §4's normal(fold_in(key(seed), k), (3,), float64), bit for bit."""
+    (:func:`key_words`): docs/model.md §4's normal(fold_in(key(seed), k), (3,), float64), bit for bit."""
     u0, u1, u2 = _uniforms(seed_key0, seed_key1, k)
     return SQRT2 * erfinv(u0), SQRT2 * erfinv(u1), SQRT2 * erfinv(u2)
 

@@ -1,8 +1,8 @@
-"""Plain NumPy baseline of the paper's closed loop (SPEC §1-§6).
+"""Plain NumPy baseline of the paper's closed loop (docs/model.md §1-§6).
 
 A Python loop over time steps; every operation inside a step is vectorized over a
 batch axis B (R: (B, 3, 3), Omega: (B, 3), Theta_hat: (B, 9, 3)). The integrator is
-RK4 in local coordinates (SPEC §5): R = R_k exp(hat psi), psi' = J_r^{-1}(psi) Omega,
+RK4 in local coordinates (docs/model.md §5): R = R_k exp(hat psi), psi' = J_r^{-1}(psi) Omega,
 with Omega and Theta_hat integrated alongside and the controller evaluated at every
 stage. Units: SI (s, rad, rad/s, N m, kg m^2).
 
@@ -20,7 +20,7 @@ import numpy as np
 
 from benchmarks.baselines.noise import paper_noise_batch
 
-# --- The paper's scenario (SPEC §4) -------------------------------------------------
+# --- The paper's scenario (docs/model.md §4) -------------------------------------------------
 
 MU_EARTH = 3.986004418e14  # m^3 / s^2
 ORBIT_RADIUS = 6378137.0 + 500000.0  # m
@@ -58,7 +58,7 @@ class Setup(NamedTuple):
 
 
 def prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise, allow_draw=False) -> Setup:
-    """Check the arguments of ``simulate`` and fill in defaults (SPEC §4). allow_draw: the
+    """Check the arguments of ``simulate`` and fill in defaults (docs/model.md §4). allow_draw: the
     caller draws eta itself when noise == "draw" (numba_loop)."""
     if controller not in PAPER_GAINS:
         raise ValueError(f"controller must be 'pd' or 'adaptive', got {controller!r}")
@@ -106,12 +106,12 @@ def prepare(controller, n_steps, seeds, dt, gains, inertia_scale, dtype, noise, 
 
 
 def phase_of(k: int, k1: int, k2: int) -> int:
-    """Phase of step k: 0 before the growth, 1 during it, 2 after docking (SPEC §5)."""
+    """Phase of step k: 0 before the growth, 1 during it, 2 after docking (docs/model.md §5)."""
     return 0 if k < k1 else (1 if k < k2 else 2)
 
 
 def finalize(setup: Setup, sums: dict, R, Omega, Theta) -> dict:
-    """Metrics of SPEC §6 from per-phase sums over the step starts k = 0..N-1.
+    """Metrics of docs/model.md §6 from per-phase sums over the step starts k = 0..N-1.
 
     ``sums`` holds (B, 3) arrays per phase: ``we2`` = sum |Omega_e|^2, ``tau2`` = sum
     |tau|^2, ``ang2`` = sum theta^2, ``tau_max``, ``ang_max``; and (B,) ``wu2`` = sum
@@ -199,7 +199,7 @@ def log_vee(R):
 
 
 def jr_inv_apply(e, w):
-    """J_r^{-1}(e) w = w + e x w / 2 + g(theta) e x (e x w), g = 1/theta^2 - cot(theta/2)/(2 theta) (SPEC §3.2)."""
+    """J_r^{-1}(e) w = w + e x w / 2 + g(theta) e x (e x w), g = 1/theta^2 - cot(theta/2)/(2 theta) (docs/model.md §3.2)."""
     t2 = np.sum(e * e, axis=-1)
     small = t2 < SMALL_ANGLE**2
     t = np.sqrt(np.where(small, 1.0, t2))
@@ -208,7 +208,7 @@ def jr_inv_apply(e, w):
     return w + 0.5 * exw + g[..., None] * cross(e, exw)
 
 
-# --- The scenario's time laws (SPEC §2, §4) -----------------------------------------
+# --- The scenario's time laws (docs/model.md §2, §4) -----------------------------------------
 
 
 def desired_attitude(t: float) -> np.ndarray:
@@ -217,7 +217,7 @@ def desired_attitude(t: float) -> np.ndarray:
 
 
 def inertia(t: float, phase: int) -> np.ndarray:
-    """True inertia J(t) (3, 3) [kg m^2] under the law of ``phase`` (SPEC §4)."""
+    """True inertia J(t) (3, 3) [kg m^2] under the law of ``phase`` (docs/model.md §4)."""
     if phase == 0:
         return J0
     if phase == 1:
@@ -232,7 +232,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
     """Derivatives (psi', Omega', Theta_hat') at one RK4 stage, and the signals metrics need.
 
     The controller sees R = R_k exp(hat psi) and the stage time t; the plant uses
-    J(t) (SPEC §1) through a 3x3 solve. Returns (dpsi, dOmega, dTheta, tau, Omega_e, theta_e).
+    J(t) (docs/model.md §1) through a 3x3 solve. Returns (dpsi, dOmega, dTheta, tau, Omega_e, theta_e).
     """
     dtype = Omega.dtype
     g = setup.gains
@@ -243,7 +243,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
     Omega_r = np.einsum("bji,j->bi", R, R_d @ Omega_d)  # R^T R_d Omega_d
     Omega_e = Omega - Omega_r
     Omega_x_Omega_r = cross(Omega, Omega_r)
-    if setup.adaptive:  # SPEC §3.2 with J_hat = I and Omega_d' = 0
+    if setup.adaptive:  # docs/model.md §3.2 with J_hat = I and Omega_d' = 0
         e, theta_e = log_vee(R_e)
         z = Omega - (-g["K_r"] * e + Omega_r)
         beta_dot = -g["K_r"] * jr_inv_apply(e, Omega_e) - Omega_x_Omega_r
@@ -251,7 +251,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
         Phi = np.concatenate([np.stack([y * w, w * x, x * y, x * x, y * y, w * w], -1), beta_dot], -1)
         tau = -g["K_r"] * e - g["K_w"] * z + np.einsum("bij,bi->bj", Theta, Phi)
         dTheta = -(g["Gamma"].astype(dtype) * Phi)[:, :, None] * z[:, None, :]
-    else:  # SPEC §3.1 with J_hat = I (Omega x J_hat Omega = 0) and Omega_d' = 0
+    else:  # docs/model.md §3.1 with J_hat = I (Omega x J_hat Omega = 0) and Omega_d' = 0
         theta_e = log_vee(R_e)[1]
         tau = -g["k_R"] * skew_vee(R_e) - g["k_Omega"] * Omega_e - Omega_x_Omega_r
         dTheta = None
@@ -263,7 +263,7 @@ def _stage(setup, R_k, psi, Omega, Theta, t, phase, d):
 
 
 def _step(setup, k, R, Omega, Theta, sums):
-    """One RK4 step from t_k = k dt (SPEC §5), adding the step-start metrics to sums (SPEC §6).
+    """One RK4 step from t_k = k dt (docs/model.md §5), adding the step-start metrics to sums (§6).
 
     Returns (R, Omega, Theta) at t_{k+1}; Theta is None for PD.
     """
@@ -312,7 +312,7 @@ def simulate(
     dtype=np.float64,
     noise: np.ndarray | None = None,
 ) -> dict:
-    """Run the paper's scenario (SPEC §4) for a batch of len(seeds) trajectories.
+    """Run the paper's scenario (docs/model.md §4) for a batch of len(seeds) trajectories.
 
     controller: "pd" (gains k_R, k_Omega) or "adaptive" (K_r, K_w, Gamma scalar or
     (9,) diagonal); missing gains take the paper's values. dt [s]; n_steps steps from

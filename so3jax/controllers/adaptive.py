@@ -1,4 +1,4 @@
-"""Adaptive backstepping on SO(3) (the paper's controller, corrected; SPEC 3.2), with two
+"""Adaptive backstepping on SO(3) (the paper's controller, corrected; docs/model.md §3.2), with two
 optional robustness modifications of its update law against parameter drift.
 
 Units (rad dimensionless): Phi [1/s^2], Theta [kg m^2], z [1/s], so Gamma [kg m^2 s^2]
@@ -60,7 +60,7 @@ GAMMA_SHAPES = ((), (9,), (9, 9))  # scalar, diagonal, full
 
 
 def regressor_parameters(J):
-    """Theta(J) (9, 3, ...) with Theta^T Phi = Omega x J Omega + J beta' (SPEC 3.2)."""
+    """Theta(J) (9, 3, ...) with Theta^T Phi = Omega x J Omega + J beta' (docs/model.md §3.2)."""
     a, b, c = J[0, 0], J[1, 1], J[2, 2]
     d, e, f = J[0, 1], J[0, 2], J[1, 2]
     zero = jnp.zeros_like(a)
@@ -77,7 +77,7 @@ def regressor_parameters(J):
 
 
 def regressor(Omega, beta_dot):
-    """Phi = [yz, zx, xy, x^2, y^2, z^2, beta'] (9, ...) for Omega = (x, y, z) (SPEC 3.2)."""
+    """Phi = [yz, zx, xy, x^2, y^2, z^2, beta'] (9, ...) for Omega = (x, y, z) (docs/model.md §3.2)."""
     x, y, z = Omega[0], Omega[1], Omega[2]
     monomials = jnp.stack([y * z, z * x, x * y, x * x, y * y, z * z])
     return jnp.concatenate([monomials, beta_dot], 0)
@@ -175,7 +175,7 @@ def _checked(name: str, value, unit: str, zero: bool = False) -> float | None:
 def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: str | None = None,
                           sigma: float | None = None, theta_bound: float | None = None,
                           projection_bound: float | None = None, projection_eps: float | None = None) -> Controller:
-    """tau = -K_r e - K_w z + Theta_hat^T Phi,  Theta_hat' = -Gamma Phi z^T  (SPEC 3.2).
+    """tau = -K_r e - K_w z + Theta_hat^T Phi,  Theta_hat' = -Gamma Phi z^T  (docs/model.md §3.2).
 
     J_hat: nominal inertia for the initial estimate Theta_hat(0) = Theta_0 = Theta(J_hat)
     (identity by default). log_derivative: "exact" (e' = J_r^{-1}(e) Omega_e) or
@@ -255,7 +255,7 @@ register(
         check=check_gains,
         shapes={"Gamma": GAMMA_SHAPES},
         # the robustness options default to None (absent unless given): a mission that does
-        # not set them describes, fingerprints and flies as before
+        # not set them describes, fingerprints and flies as one without these options
         options=(J_HAT, Param("log_derivative", "exact", choices=LOG_DERIVATIVES,
                               doc="exact: e' = J_r^-1(e) Omega_e; paper: e' = Omega_e"),
                  Param("leakage", None, choices=LEAKAGES,

@@ -6,12 +6,12 @@ A controller is ``Controller(init, torque)``:
   ``()`` for a static law);
 * ``torque(gains, state, measured, desired, t) -> (tau, state_dot)``: the control
   torque [N m] and the time derivative of the internal state, which the continuous
-  wiring integrates with the plant (SPEC 5). The true inertia is never passed in;
+  wiring integrates with the plant (docs/model.md §5). The true inertia is never passed in;
 * ``gains_type`` (optional): the NamedTuple of gains it takes, checked before a run;
 * ``update`` (optional): ``update(gains, state, measured, desired, t, period) -> state``,
   the state's discrete update at a control tick of the sampled wiring (t: the tick's
   time [s], period: Delta_c [s]), as flight software computes it. Without it the tick
-  applies forward Euler, ``state + period * state_dot`` (SPEC 8.1).
+  applies forward Euler, ``state + period * state_dot`` (docs/model.md §8.1).
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ class Controller(NamedTuple):
 
 
 class TrackingError(NamedTuple):
-    """R_e = R_d^T R, Omega_r = R^T R_d Omega_d, Omega_e = Omega - Omega_r (SPEC 2)."""
+    """R_e = R_d^T R, Omega_r = R^T R_d Omega_d, Omega_e = Omega - Omega_r (docs/model.md §2)."""
 
     R_e: jax.Array
     Omega_r: jax.Array
@@ -68,6 +68,6 @@ def nominal_inertia(J_hat):
 
 def inertial_terms(nominal, Omega, err: TrackingError, extra=None):
     """(Omega x J_hat Omega, J_hat (Omega x Omega_r - R^T R_d Omega_d' [+ extra])) [N m], the
-    rigid body's terms a law with a nominal inertia cancels (SPEC 3.1); nominal: v -> J_hat v."""
+    rigid body's terms a law with a nominal inertia cancels (docs/model.md §3.1); nominal: v -> J_hat v."""
     rate = so3.cross(Omega, err.Omega_r) - err.feedforward_dot
     return so3.cross(Omega, nominal(Omega)), nominal(rate if extra is None else rate + extra)

@@ -6,7 +6,7 @@ identification manoeuvres).
 A constant torque, plus a square wave per body axis (amplitude 0 by default). With
 different periods per axis the body's rate sweeps directions and magnitudes that excite
 every inertia entry (``missions/identify.toml``). With wheels, the actuator distributes
-it to per-wheel motor torques (minimum norm, SPEC 8.4) and clips each wheel; a square
+it to per-wheel motor torques (minimum norm, docs/model.md §8.4) and clips each wheel; a square
 wave of period P moves a wheel's speed by at most u P / (4 J_s) around its mean.
 """
 

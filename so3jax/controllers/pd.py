@@ -1,4 +1,4 @@
-"""Geometric PD with feedforward (Lee, Leok, McClamroch 2010; SPEC 3.1)."""
+"""Geometric PD with feedforward (Lee, Leok, McClamroch 2010; docs/model.md §3.1)."""
 
 from __future__ import annotations
 

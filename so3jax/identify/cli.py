@@ -17,7 +17,9 @@ DEFAULT_DISTURBANCE = {"regression": "linear", "simulation": "cubic"}
 def register(subparsers) -> None:
     from so3jax.cli import add_precision_argument
 
-    p = subparsers.add_parser("identify", help="identify the inertia from telemetry (gyro, star tracker, wheel speeds)")
+    p = subparsers.add_parser("identify", help="identify the inertia from telemetry (gyro, star tracker, wheel speeds)",
+                              description="The inertia, a constant gyro bias and a body-fixed disturbance torque "
+                              "estimated from a telemetry file: identification.json, J_hat.toml and residuals.png.")
     p.add_argument("telemetry", type=Path, help="telemetry file (.npz; `so3jax fly` writes OUT/telemetry/NAME.npz)")
     p.add_argument("--mission", type=Path,
                    help="mission file whose [actuator.wheels] gives the wheels' geometry where the telemetry has none "

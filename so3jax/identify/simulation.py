@@ -1,7 +1,7 @@
 """The output-error method: the inertia fitted by Gauss-Newton through a simulation of
 the flown spacecraft, over short windows (multiple shooting).
 
-Between star-tracker samples the body follows the plant of SPEC 8.4 in momentum form:
+Between star-tracker samples the body follows the plant of docs/model.md §8.4 in momentum form (§17.4):
 with L = J Omega + h the body's angular momentum in the body frame and h = G_s J_s Omega_w
 the wheels' momentum relative to the body (read by the tachometers, linear between samples),
 

@@ -182,7 +182,7 @@ def recorded(mission) -> bool:
 def from_run(mission, history, seed) -> dict:
     """The telemetry arrays (the file's fields) of one simulated flight: the sensors' readings
     at the recorded ticks, regenerated from the recorded true state with the run's noise
-    (SPEC 8.2's recipe: the same draws the estimator saw), the tachometers' wheel speeds and
+    (docs/model.md §8.2's recipe: the same draws the estimator saw), the tachometers' wheel speeds and
     the wheels as the flight software knows them. Needs the sampled wiring with a gyro and
     a star tracker, and a history recorded at ticks."""
     if not recorded(mission):

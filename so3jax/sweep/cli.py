@@ -9,24 +9,24 @@ from pathlib import Path
 
 from so3jax import distributed
 from so3jax.scenario import InertiaWarning
-from so3jax.controllers import registry
 from so3jax.sweep.config import load_config
 from so3jax.sweep.engine import LAYOUTS, run_sweep
 from so3jax.sweep.summary import format_summary
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_memory_argument, add_precision_argument
+    from so3jax.cli import add_memory_argument, add_precision_argument, controllers_help, registered
 
     p = subparsers.add_parser(
         "sweep",
         help="Monte Carlo robustness sweep of a mission (sharded over all devices)",
         description="Monte Carlo robustness sweep: a mission dispersed on its own leaves x its controllers, paired by sample.",
+        epilog=registered(),
     )
     p.add_argument("config", nargs="?", type=Path,
                    help="sweep file: a mission, [sweep] and [dispersions] (default: the built-in one, = sweeps/default.toml)")
     p.add_argument("--samples", type=int, help="number of samples")
     p.add_argument("--T", type=float, help="horizon [s] (the mission's T)")
-    p.add_argument("--controllers", help="comma-separated controllers (the mission's), among: " + ", ".join(registry.names()))
+    p.add_argument("--controllers", help=controllers_help("the mission's"))
     p.add_argument("--chunk", type=int, help="samples per batch (at least 8 per device, a multiple of the device count)")
     p.add_argument("--seed", type=int, help="sampling seed")
     p.add_argument(

@@ -1,4 +1,4 @@
-"""Gain tuning through the simulator: SPEC 6 costs, an optax loop with resumable
+"""Gain tuning through the simulator: docs/model.md §6 costs, an optax loop with resumable
 checkpoints, a gradient-free baseline, and the ``so3jax tune`` command.
 
 A campaign file is a mission (``mission = "PATH"`` relative to the file, and/or mission
@@ -8,7 +8,7 @@ actuator, control period) with the mission's controller options.
 
 Gains are tuned in log space (p = log g, so every gain stays positive). The cost of
 gains g over a batch of B training scenarios (inertia scale x seed, see
-:mod:`so3jax.gradients`) is the batch mean of (SPEC 6)
+:mod:`so3jax.gradients`) is the batch mean of (docs/model.md §6)
 
     weighted:      RMSE / RMSE_ref + lambda * Effort / Effort_ref
     equal_effort:  RMSE / RMSE_ref + mu * max(0, Effort / Effort_budget - 1)^2
@@ -29,7 +29,7 @@ result; a resume under another mission, [tune] table or precision is refused),
 and tuned gains on held-out seeds).
 
 Modules: config (TuneConfig, parsing, checks, the campaign's description), gains (the
-mission's controllers, gains and log-gains), cost (SPEC 6 cost and gradient over a
+mission's controllers, gains and log-gains), cost (docs/model.md §6 cost and gradient over a
 device mesh), optimizers (optax step, ES), problem (the mission's scenario and loop,
 batches on devices, evaluations, normalizers), storage (checkpoint, history, best
 gains), campaign (the loop, resume), validation (held-out report, markdown), plots

@@ -36,9 +36,13 @@ def _command(args) -> int:
 
 
 def register(subparsers) -> None:
-    from so3jax.cli import add_precision_argument
+    from so3jax.cli import add_precision_argument, registered
 
-    parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator")
+    parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator",
+                                   description="A tuning campaign: one controller's gains (and optionally the "
+                                   "estimator's noise levels) tuned through the mission's rollouts, checkpointed "
+                                   "every iteration, validated on held-out scenarios.",
+                                   epilog=registered(tunable=True))
     parser.add_argument("config", help="campaign file (TOML): a mission and a [tune] table, "
                         "e.g. tuning/adaptive_equal_effort.toml")
     parser.add_argument("--iterations", type=int, help="number of iterations (overrides tune.iterations)")

@@ -32,17 +32,17 @@ class ScenarioSet:
     ``samples`` dispersed missions drawn with the one sampling seed ``seeds[0]`` (training:
     a fresh batch every iteration; validation: one held-out batch)."""
 
-    seeds: tuple[int, ...]
-    inertia_scales: tuple[float, ...] = (1.0,)
-    samples: int | None = None
+    seeds: tuple[int, ...]  # disturbance and sensor-noise seeds (with dispersions: the one sampling seed)
+    inertia_scales: tuple[float, ...] = (1.0,)  # factors on every inertia matrix [-]
+    samples: int | None = None  # dispersed missions per batch (with [tune.dispersions])
 
 
 @dataclasses.dataclass(frozen=True)
 class CostConfig:
-    """SPEC 6 tuning cost. weight is lambda (weighted) or mu (equal_effort)."""
+    """The tuning cost of docs/model.md §6. weight is lambda (weighted) or mu (equal_effort)."""
 
-    mode: str = "weighted"
-    weight: float = 1.0
+    mode: str = "weighted"  # weighted: + lambda Effort/Effort_ref; equal_effort: + mu max(0, Effort/budget - 1)^2
+    weight: float = 1.0  # lambda (weighted) or mu (equal_effort)
     rmse_ref: float | None = None  # rad/s; None: the initial gains' batch mean
     effort_ref: float | None = None  # N^2 m^2 s, weighted mode; None: initial gains' batch mean
     budget: float | None = None  # N^2 m^2 s, equal_effort mode (or budget_controller)
@@ -55,21 +55,21 @@ class OptimizerConfig:
     """optax.<name>(schedule or learning_rate, **options), clipped by global norm, guarded
     by optax.apply_if_finite. schedule: optax.<schedule>(learning_rate, **schedule_options)."""
 
-    name: str = "adam"
+    name: str = "adam"  # an optax optimizer taking learning_rate first (adam, sgd, ...)
     learning_rate: float = 0.05  # in log-gain units per step
-    options: dict = dataclasses.field(default_factory=dict)
-    schedule: str | None = None
-    schedule_options: dict = dataclasses.field(default_factory=dict)
-    clip_norm: float = 1.0
+    options: dict = dataclasses.field(default_factory=dict)  # its other keyword arguments
+    schedule: str | None = None  # an optax schedule of the learning rate, e.g. cosine_decay_schedule
+    schedule_options: dict = dataclasses.field(default_factory=dict)  # the schedule's keyword arguments
+    clip_norm: float = 1.0  # the gradient's global norm is clipped to this
 
 
 @dataclasses.dataclass(frozen=True)
 class ESConfig:
     """Gradient-free baseline: elitist (1+lambda)-ES in log-gain space, 1/5th success rule."""
 
-    population: int = 8
+    population: int = 8  # lambda: candidates per iteration
     sigma: float = 0.2  # initial step, log-gain units
-    seed: int = 0
+    seed: int = 0  # the candidates' sampling seed
 
 
 @dataclasses.dataclass(frozen=True)
@@ -78,13 +78,13 @@ class TuneConfig:
     scenario, loop, controller options and gains; None: the paper's mission)."""
 
     controller: str  # a tunable registered controller
-    iterations: int
-    train: ScenarioSet
+    iterations: int  # optimizer steps (ES: generations)
+    train: ScenarioSet  # the training scenarios
     validation: ScenarioSet  # held-out seeds
     initial_gains: Any = "mission"  # "mission", "paper", a table of gains, or a best_gains.json path
     cost: CostConfig = CostConfig()
     optimizer: OptimizerConfig = OptimizerConfig()
-    method: str = "gradient"
+    method: str = "gradient"  # gradient: the optax optimizer; es: the (1+lambda)-ES baseline
     gradient: str = "forward"  # differentiation mode, see so3jax.gradients
     record_every: int | None = None  # checkpoint block of the rollout [steps] (reverse mode memory)
     diagonal_gamma: bool = False  # tune each entry of a gain that may be a diagonal (the adaptive Gamma: 9)
@@ -210,7 +210,7 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
 
 
 def validate(config: TuneConfig) -> None:
-    """Every check that can run before compilation (SPEC 6 style: a clear ValueError)."""
+    """Every check that can run before compilation (docs/model.md §6 style: a clear ValueError)."""
     _choice("controller", config.controller, tuple(CONTROLLERS))
     _choice("method", config.method, METHODS)
     _choice("gradient", config.gradient, MODES)

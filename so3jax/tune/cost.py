@@ -1,4 +1,4 @@
-"""The SPEC 6 tuning cost of log-gains over a batch of scenarios (its mean, or its CVaR),
+"""The tuning cost of docs/model.md §6 over a batch of scenarios (its mean, or its CVaR, §16.4),
 its gradient, and a population's costs, with the batch split over a device mesh."""
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class CostRefs(NamedTuple):
 
 
 def scenario_costs(metrics, refs: CostRefs, mode: str):
-    """SPEC 6 cost of each scenario (shape of metrics.rmse)."""
+    """The docs/model.md §6 cost of each scenario (shape of metrics.rmse)."""
     ratio = metrics.effort / refs.effort
     if mode == "weighted":
         return metrics.rmse / refs.rmse + refs.weight * ratio

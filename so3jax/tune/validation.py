@@ -41,7 +41,7 @@ def _metrics_table(metrics, valid=None) -> dict:
 
 
 def _mean_cost(metrics, refs, mode, objective="mean", alpha=0.9, valid=None):
-    """The objective (mean or CVaR) of the SPEC 6 costs over the scenarios, None when a
+    """The objective (mean or CVaR) of the docs/model.md §6 costs over the scenarios, None when a
     scenario diverged (its cost is not a number)."""
     cost = float(_summary(metrics, refs, mode, objective, alpha, valid).cost)
     counted = np.asarray(metrics.diverged, bool) & (True if valid is None else np.asarray(valid, bool))
