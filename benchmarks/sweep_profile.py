@@ -5,12 +5,14 @@ natively batched rollout (``so3jax.rollout.rollout_batch``, no history, one host
 with every part of the scenario per sample (the sweep path), with each part in turn
 shared by the whole batch (the first sample's: the reference, the inertia, the
 disturbance, the initial state), with the same scenario repeated per sample, and with one
-scenario for the batch (the paper's batches). The gap between a row and "dispersed" is
-what evaluating that part per sample costs. Rounds interleave the variants; the best
+scenario for the batch (the paper's batches), and with XLA's scalar float64 sin and atan2
+in place of so3jax._trig's vectorized ones ("library trigonometry"). The gap between a
+row and "dispersed" is what evaluating that part per sample costs. Rounds interleave the variants; the best
 round counts. Prints one JSON object.
 
     python benchmarks/sweep_profile.py                        # B = 64, T = 4000 s
     python benchmarks/sweep_profile.py --batch 64 --T 500 --rounds 3
+    python benchmarks/sweep_profile.py --T 500 --rounds 4 --variants dispersed,"library trigonometry"
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ def main() -> None:
     parser.add_argument("--T", type=float, default=4000.0, help="horizon [s] (default 4000: every phase)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--controllers", default="pd,adaptive")
+    parser.add_argument("--variants", default=None, help="comma-separated subset of the variants (default: all)")
     args = parser.parse_args()
     os.environ["XLA_FLAGS"] = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=1"
     from so3jax import configure_xla
@@ -43,7 +46,7 @@ def main() -> None:
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks.*, run as a script too
     from benchmarks.throughput import cpu_model
-    from so3jax import dispersed, sweep
+    from so3jax import _trig, dispersed, sweep
     from so3jax.rollout import rollout_batch
     from so3jax.scenario import InertiaWarning
 
@@ -69,7 +72,12 @@ def main() -> None:
         "initial state shared": sharing(R0=True, Omega0=True),
         "one scenario repeated per sample": (jax.tree.map(lambda x: jax.numpy.broadcast_to(x[0], x.shape), per_sample), 0),
         "one scenario for the batch": (first, None),
+        "library trigonometry": (per_sample, 0),
     }
+    if args.variants:
+        variants = {name: variants[name] for name in args.variants.split(",")}
+    vectorized = {"sin": _trig.sin, "atan2": _trig.atan2}
+    library = {"sin": jnp.sin, "atan2": jnp.arctan2}
     n_steps = round(args.T / config.dt)
     rows = []
     for controller in args.controllers.split(","):
@@ -79,8 +87,12 @@ def main() -> None:
         for name, (scenario, scenario_axes) in variants.items():
             run = jax.jit(lambda s, g, seeds, a=scenario_axes: rollout_batch(
                 s, law, g, seeds, scenario_axes=a, record_every=n_steps).metrics.rmse)
+            for fn, impl in (library if name == "library trigonometry" else vectorized).items():
+                setattr(_trig, fn, impl)  # read when the rollout is traced, at its first call
             start = time.perf_counter()
             jax.block_until_ready(run(scenario, gains, params.seed))
+            for fn, impl in vectorized.items():
+                setattr(_trig, fn, impl)
             runs[name] = (run, scenario, time.perf_counter() - start, [])
         for _ in range(args.rounds):
             for run, scenario, _, times in runs.values():
