@@ -210,7 +210,8 @@ def test_sweep_benchmark_runs_as_committed():
 def test_sweep_profile_runs_as_committed():
     report = _run_benchmark("benchmarks.sweep_profile", "--batch", "8", "--T", "0.05", "--rounds", "1",
                             "--controllers", "pd")
-    assert len(report["rows"]) == 7 and all(r["trajectory_steps_per_s"] > 0 for r in report["rows"])
+    assert len(report["rows"]) == 8 and all(r["trajectory_steps_per_s"] > 0 for r in report["rows"])
+    assert {r["variant"] for r in report["rows"]} >= {"dispersed", "library trigonometry"}
 
 
 @pytest.mark.parametrize("mission", [(), pytest.param(("--mission", "missions/flight.toml"), marks=pytest.mark.slow)],
