@@ -19,24 +19,20 @@ reference, disturbance and attitude error). Other dtypes, and sine arguments bey
 
 from __future__ import annotations
 
-import jax
 import jax.numpy as jnp
+
+from so3jax._erfinv import _horner  # coefficients highest degree first
+from so3jax.so3 import _branch
 
 _TWO_OVER_PI = 6.36619772367581382433e-01
 # pi/2 = sum of these: three parts of 33 bits and the rest
 _PIO2 = (1.57079632673412561417e00, 6.07710050630396597660e-11, 2.02226624871116645580e-21, 8.47842766036889956997e-32)
 _LIMIT = 8.2e5  # < 2^19 pi/2: n < 2^19, every n * _PIO2[i] exact
-_S = (-1.66666666666666324348e-01, 8.33333333332248946124e-03, -1.98412698298579493134e-04,
-      2.75573137070700676789e-06, -2.50507602534068634195e-08, 1.58969099521155010221e-10)  # fmt: skip
-_C = (4.16666666666666019037e-02, -1.38888888888741095749e-03, 2.48015872894767294178e-05,
-      -2.75573143513906633035e-07, 2.08757232129817482790e-09, -1.13596475577881948265e-11)  # fmt: skip
-
-
-def _horner(coefficients, z):
-    acc = coefficients[-1]
-    for c in coefficients[-2::-1]:
-        acc = c + z * acc
-    return acc
+# the kernels' polynomials in z = r^2, highest degree first
+_S = (1.58969099521155010221e-10, -2.50507602534068634195e-08, 2.75573137070700676789e-06,
+      -1.98412698298579493134e-04, 8.33333333332248946124e-03, -1.66666666666666324348e-01)  # fmt: skip
+_C = (-1.13596475577881948265e-11, 2.08757232129817482790e-09, -2.75573143513906633035e-07,
+      2.48015872894767294178e-05, -1.38888888888741095749e-03, 4.16666666666666019037e-02)  # fmt: skip
 
 
 def _kernels(r):
@@ -65,13 +61,9 @@ def sincos(x):
     x = jnp.asarray(x)
     if x.dtype != jnp.float64:
         return jnp.sin(x), jnp.cos(x)
-    in_range = jnp.abs(x) < _LIMIT
-
-    def mixed(x):  # out of range, or not finite: the library's
-        s, c = _reduced(jnp.where(in_range, x, 0.0))
-        return jnp.where(in_range, s, jnp.sin(x)), jnp.where(in_range, c, jnp.cos(x))
-
-    return jax.lax.cond(jnp.all(in_range), _reduced, mixed, x)
+    in_range = jnp.abs(x) < _LIMIT  # else (or not finite): the library's
+    reduced = lambda x: _reduced(jnp.where(in_range, x, 0.0))
+    return _branch(in_range, reduced, lambda x: (jnp.sin(x), jnp.cos(x)), x)
 
 
 def sin(x):
@@ -81,10 +73,11 @@ def sin(x):
 
 _ATAN_HI = (4.63647609000806093515e-01, 7.85398163397448278999e-01, 9.82793723247329054082e-01, 1.57079632679489655800e00)
 _ATAN_LO = (2.26987774529616870924e-17, 3.06161699786838301793e-17, 1.39033110312309984516e-17, 6.12323399573676603587e-17)
-_AT_ODD = (3.33333333333329318027e-01, 1.42857142725034663711e-01, 9.09088713343650656196e-02,
-           6.66107313738753120669e-02, 4.97687799461593236017e-02, 1.62858201153657823623e-02)  # fmt: skip
-_AT_EVEN = (-1.99999999998764832476e-01, -1.11111104054623557880e-01, -7.69187620504482999495e-02,
-            -5.83357013379057348645e-02, -3.65315727442169155270e-02)  # fmt: skip
+# atan's odd and even parts in w = x^4, highest degree first
+_AT_ODD = (1.62858201153657823623e-02, 4.97687799461593236017e-02, 6.66107313738753120669e-02,
+           9.09088713343650656196e-02, 1.42857142725034663711e-01, 3.33333333333329318027e-01)  # fmt: skip
+_AT_EVEN = (-3.65315727442169155270e-02, -5.83357013379057348645e-02, -7.69187620504482999495e-02,
+            -1.11111104054623557880e-01, -1.99999999998764832476e-01)  # fmt: skip
 _PI_LO = 1.2246467991473531772e-16  # pi - fl(pi)
 
 

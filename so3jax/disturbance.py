@@ -6,7 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax import _trig
+from so3jax import _trig, stepped
 from so3jax._erfinv import erf_inv
 from so3jax._fusion import materialize
 from so3jax._pytree import pytree_dataclass
@@ -32,7 +32,7 @@ class SinusoidPlusNoise:
     def components(self, key, k, t_k):
         """d_k as its three axes (x, y, z), each of the key's batch shape [N m]: a block of
         steps drawn this way is three loops over the batch, not one that interleaves axes."""
-        sine = _trig.sin if jnp.size(self.frequency) > 1 else jnp.sin  # a frequency per trajectory: vectorized
+        sine = _trig.sin if stepped.per_trajectory(self.frequency, 0) else jnp.sin  # vectorized across a sweep's samples
         sinusoid = self.amplitude * sine(self.frequency * t_k)
         return tuple(sinusoid + self.noise_std * eta for eta in noise_components(key, k, jnp.result_type(t_k)))
 

@@ -50,7 +50,7 @@ class Constants(NamedTuple):
     inertia: Any  # the profile's (see _inertia_constants), or None
 
 
-def _per_trajectory(x, core_ndim: int) -> bool:
+def per_trajectory(x, core_ndim: int) -> bool:
     """Whether x carries a trailing batch axis of more than one trajectory."""
     return jnp.ndim(x) > core_ndim and jnp.shape(x)[-1] > 1
 
@@ -61,7 +61,7 @@ def constants(scenario) -> Constants | None:
     module knows."""
     ref, inertia, dt = scenario.reference, scenario.inertia, scenario.dt
     rotations = None
-    if isinstance(ref, PiecewiseConstantRate) and _per_trajectory(ref.rates, 2):
+    if isinstance(ref, PiecewiseConstantRate) and per_trajectory(ref.rates, 2):
         h = jnp.asarray(dt, ref.rates.dtype)
         rotations = jnp.stack([jnp.stack([so3.exp(rate * (c * h)) for c in (0.5, 1.0)]) for rate in ref.rates])
     inertia_constants = _inertia_constants(inertia, dt)
@@ -71,10 +71,10 @@ def constants(scenario) -> Constants | None:
 
 
 def _inertia_constants(inertia, dt):
-    if isinstance(inertia, PaperInertia) and _per_trajectory(inertia.J0, 2):
+    if isinstance(inertia, PaperInertia) and per_trajectory(inertia.J0, 2):
         tau = inertia.tau_J
         return (so3.inv_spd(inertia.J0), so3.inv_spd(inertia.J2), jnp.exp(-0.5 * dt / tau), jnp.exp(-dt / tau))
-    if isinstance(inertia, ConstantInertia) and _per_trajectory(inertia.J, 2):
+    if isinstance(inertia, ConstantInertia) and per_trajectory(inertia.J, 2):
         return (so3.inv_spd(inertia.J),)
     return None
 
