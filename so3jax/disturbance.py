@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.ad_checkpoint import checkpoint_name
 
 from so3jax import _trig, stepped
 from so3jax._erfinv import erf_inv
@@ -61,7 +62,7 @@ def noise_components(key, k, dtype):
     if str(jax.random.key_impl(key)) != "threefry2x32" or dtype.itemsize not in (4, 8):
         draw = lambda one: jax.random.normal(jax.random.fold_in(one, k), (3,), dtype)
         eta = draw(key) if key.ndim == 0 else jax.vmap(draw)(key.reshape(-1)).T.reshape((3,) + key.shape)
-        return tuple(eta)
+        return tuple(_named(e) for e in eta)
     data = jax.random.key_data(key)
     zero = jnp.zeros(key.shape, jnp.uint32)
     # fold_in: the key hashed with the counter (0, k); the (3,) draw: counters (0, i).
@@ -73,7 +74,16 @@ def noise_components(key, k, dtype):
         # each uniform is computed once, not its hash in every loop (materialize needs a
         # traced scalar: a word of the key).
         uniforms = materialize(uniforms, data.reshape(-1)[-1].astype(dtype))
-    return tuple(np.array(np.sqrt(2), dtype) * inverse(u) for u in uniforms)
+    return tuple(_named(np.array(np.sqrt(2), dtype) * inverse(u)) for u in uniforms)
+
+
+NOISE = "noise"
+
+
+def _named(eta):
+    """eta marked NOISE: a checkpoint whose policy saves that name keeps it for the
+    backward pass instead of drawing it again (no value changes)."""
+    return checkpoint_name(eta, NOISE)
 
 
 def _threefry(k1, k2, x1, x2):

@@ -97,11 +97,6 @@ class MEKFState(NamedTuple):
     P: Covariance
 
 
-def _columns(fn, M):
-    """(fn(M[:, 0]), fn(M[:, 1]), fn(M[:, 2])) stacked as the columns of a (3, 3, *b) matrix."""
-    return jnp.stack([fn(M[:, j]) for j in range(3)], axis=1)
-
-
 def _sym(M):
     return 0.5 * (M + so3.transpose(M))
 
@@ -142,17 +137,18 @@ class MEKF:
         R_hat, b_hat, (A, B, C) = state
         eye = so3.eye_like(Omega)
         # measurement update (docs/model.md §8.3), where a star-tracker sample exists
+        mm = so3.matmul_compact  # the covariance algebra
         s2 = param(self.sigma_st) ** 2
         r = so3.log(so3.rmatmul(R_hat, measured.R_m))
-        S = A + s2 * eye
-        K1 = so3.transpose(_columns(lambda a: so3.solve_spd(S, a), A))  # A S^-1
-        K2 = so3.transpose(_columns(lambda b: so3.solve_spd(S, b), B))  # B^T S^-1
+        S_inv = so3.inv_spd(A + s2 * eye)  # S = A + s2 I
+        K1, K2 = mm(A, S_inv), mm(so3.transpose(B), S_inv)  # A S^-1, B^T S^-1
         I_K1 = eye - K1
-        M11, M12 = so3.matmul(I_K1, A), so3.matmul(I_K1, B)
-        M21, M22 = so3.transpose(B) - so3.matmul(K2, A), C - so3.matmul(K2, B)
-        A_u = _sym(so3.matmul(M11, so3.transpose(I_K1)) + s2 * so3.matmul(K1, so3.transpose(K1)))
-        B_u = M12 - so3.matmul(M11, so3.transpose(K2)) + s2 * so3.matmul(K1, so3.transpose(K2))
-        C_u = _sym(M22 - so3.matmul(M21, so3.transpose(K2)) + s2 * so3.matmul(K2, so3.transpose(K2)))
+        M11, M12 = mm(I_K1, A), mm(I_K1, B)
+        M21, M22 = so3.transpose(B) - mm(K2, A), C - mm(K2, B)
+        K1T, K2T = so3.transpose(K1), so3.transpose(K2)
+        A_u = _sym(mm(M11, so3.transpose(I_K1)) + s2 * mm(K1, K1T))
+        B_u = M12 - mm(M11, K2T) + s2 * mm(K1, K2T)
+        C_u = _sym(M22 - mm(M21, K2T) + s2 * mm(K2, K2T))
         updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r))), b_hat + so3.matvec(K2, r),
                             Covariance(A_u, B_u, C_u))
         R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
@@ -161,9 +157,9 @@ class MEKF:
         estimate = Estimate(R_hat, omega_hat, b_hat, std, Covariance(A, B, C).matrix())
         # propagation to the next tick with w = omega_hat
         E = so3.exp(-omega_hat * dc)  # exp(-hat(w) Delta_c)
-        EB = so3.matmul(E, B)
+        EB = mm(E, B)
         qv, qu = param(self.arw) ** 2, param(self.rrw) ** 2
-        A_p = _sym(so3.matmul(so3.matmul(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
+        A_p = _sym(mm(mm(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
                    + (qv * dc + qu * dc**3 / 3.0) * eye)
         B_p = EB - dc * C - (qu * dc**2 / 2.0) * eye
         C_p = C + qu * dc * eye

@@ -6,7 +6,9 @@ validated entry point.
 
 The scan is nested: an outer scan over blocks of ``record_every`` steps records the
 state at each block start (the histories), and each block is ``jax.checkpoint``-ed, so
-reverse-mode memory grows like N / record_every + record_every rather than N.
+reverse-mode memory grows like N / record_every + record_every rather than N. In the
+sampled wiring each step is checkpointed as well, and a block keeps its noise draws
+(:data:`so3jax.disturbance.NOISE`) instead of drawing them again in the backward pass.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from so3jax.loop import (
     tick,
     time,
 )
+from so3jax.disturbance import NOISE
 from so3jax.scenario import Scenario, check_gains, check_scenario
 
 
@@ -99,6 +102,10 @@ def _keys(seed):
     return jax.vmap(jax.random.key)(seed.reshape(-1)).reshape(seed.shape)
 
 
+# A sampled wiring's block keeps its noise draws for the backward pass (its recomputation
+# then draws nothing): a tick's draws and its period's disturbance, ~40 numbers per
+# trajectory and tick, about as much as the block's starting state.
+_SAVE_NOISE = jax.checkpoint_policies.save_only_these_names(NOISE)
 _MAX_DRAWN_AHEAD = 1 << 22  # elements of disturbance drawn ahead per block (32 MiB in float64)
 
 
@@ -230,6 +237,12 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     m = loop.period_steps
     ticks = block // m
 
+    # Each step of a period is checkpointed too: a backward pass stores the loop state at
+    # each step and recomputes the step, rather than storing the RK4 stages' intermediates.
+    @functools.partial(jax.checkpoint, prevent_cse=False)
+    def one_step(carry, d):
+        return advance(*carry, d, take_step), None
+
     def one_tick(carry, ds):
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
@@ -238,11 +251,10 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         flight = flight_metrics.update(flight, sample, k < n, share)
         if masked:
             new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
-        one_step = lambda carry, d: (advance(*carry, d, take_step), None)
         new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
         return (new, k, acc, flight), record
 
-    @functools.partial(jax.checkpoint, prevent_cse=False)
+    @functools.partial(jax.checkpoint, prevent_cse=False, policy=_SAVE_NOISE)
     def run_block(carry):
         ds = draw(carry[1])
         ds = None if ds is None else tuple(x.reshape((ticks, m) + x.shape[1:]) for x in ds)
