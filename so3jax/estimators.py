@@ -139,7 +139,7 @@ class MEKF:
         # measurement update (docs/model.md §8.3), where a star-tracker sample exists
         mm = so3.matmul_compact  # the covariance algebra
         s2 = param(self.sigma_st) ** 2
-        r = so3.log(so3.rmatmul(R_hat, measured.R_m))
+        r = so3.log(so3.rmatmul(R_hat, measured.R_m), select=True)
         S_inv = so3.inv_spd(A + s2 * eye)  # S = A + s2 I
         K1, K2 = mm(A, S_inv), mm(so3.transpose(B), S_inv)  # A S^-1, B^T S^-1
         I_K1 = eye - K1
@@ -149,21 +149,21 @@ class MEKF:
         A_u = _sym(mm(M11, so3.transpose(I_K1)) + s2 * mm(K1, K1T))
         B_u = M12 - mm(M11, K2T) + s2 * mm(K1, K2T)
         C_u = _sym(M22 - mm(M21, K2T) + s2 * mm(K2, K2T))
-        updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r))), b_hat + so3.matvec(K2, r),
+        updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r), select=True)), b_hat + so3.matvec(K2, r),
                             Covariance(A_u, B_u, C_u))
         R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
         omega_hat = measured.omega_m - b_hat
         std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
         estimate = Estimate(R_hat, omega_hat, b_hat, std, Covariance(A, B, C).matrix())
         # propagation to the next tick with w = omega_hat
-        E = so3.exp(-omega_hat * dc)  # exp(-hat(w) Delta_c)
+        E = so3.exp(-omega_hat * dc, select=True)  # exp(-hat(w) Delta_c)
         EB = mm(E, B)
         qv, qu = param(self.arw) ** 2, param(self.rrw) ** 2
         A_p = _sym(mm(mm(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
                    + (qv * dc + qu * dc**3 / 3.0) * eye)
         B_p = EB - dc * C - (qu * dc**2 / 2.0) * eye
         C_p = C + qu * dc * eye
-        R_next = so3.matmul(R_hat, so3.exp(omega_hat * dc))
+        R_next = so3.matmul(R_hat, so3.exp(omega_hat * dc, select=True))
         return MEKFState(R_next, b_hat, Covariance(A_p, B_p, C_p)), estimate
 
     def check(self) -> None:

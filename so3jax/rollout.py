@@ -258,6 +258,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def run_block(carry):
         ds = draw(carry[1])
         ds = None if ds is None else tuple(x.reshape((ticks, m) + x.shape[1:]) for x in ds)
+        if ticks == 1:  # one period per block (reverse mode): no loop over the block's ticks
+            return one_tick(carry, None if ds is None else tuple(x[0] for x in ds))
         carry, records = jax.lax.scan(one_tick, carry, ds, length=ticks)
         return carry, jax.tree.map(lambda x: x[0], records)
 

@@ -96,7 +96,7 @@ class StarTracker:
         """((), (R_m (3, 3, *b), whether tick j has a sample))."""
         eta = sensor_noise(key, STAR_TRACKER, j, R.dtype)
         error = _like(self.sigma, eta) * eta
-        return state, (so3.matmul(R, so3.exp(error)), (j % self.every) == 0)
+        return state, (so3.matmul(R, so3.exp(error, select=True)), (j % self.every) == 0)
 
     def check(self) -> None:
         _check("sensors.star_tracker.sigma [rad]", self.sigma)

@@ -169,13 +169,17 @@ def trace(m):
 # --- exp, log, right Jacobian ------------------------------------------------------
 
 
-def _branch(small, series, general, x):
+def _branch(small, series, general, x, select=False):
     """series(x) where ``small``, general(x) elsewhere (general must be finite, with finite
     gradients, everywhere). On CPU, when every element is small -- the common case inside
     an RK4 step, for one trajectory or a natively batched step -- only the series is
     computed (under vmap, and on GPUs, where a branch costs more than it saves, both are
-    computed and selected elementwise)."""
+    computed and selected elementwise). ``select``: both computed and selected on every
+    device, for code that runs once per control tick: there the branch saves little, and
+    without it the loop's reverse pass is a smaller program (no branch residuals)."""
     mixed = lambda x: jax.tree.map(lambda a, b: jnp.where(small, a, b), series(x), general(x))
+    if select:
+        return mixed(x)
     on_cpu = lambda x: jax.lax.cond(jnp.all(small), series, mixed, x)
     return jax.lax.platform_dependent(x, cpu=on_cpu, default=mixed)
 
@@ -185,7 +189,7 @@ def _exp_series(s):
     return 1.0 - s / 6.0 * (1.0 - s / 20.0 * (1.0 - s / 42.0)), 0.5 - s / 24.0 * (1.0 - s / 30.0 * (1.0 - s / 56.0))
 
 
-def _exp_coefficients(theta2, sin=jnp.sin):
+def _exp_coefficients(theta2, sin=jnp.sin, select=False):
     """(sin t / t, (1 - cos t) / t^2) for t^2 = theta2, finite with gradients at 0."""
     small = theta2 < _SMALL_ANGLE2
 
@@ -194,20 +198,21 @@ def _exp_coefficients(theta2, sin=jnp.sin):
         sinc_half = sin(half) / half
         return sin(2.0 * half) / (2.0 * half), 0.5 * sinc_half * sinc_half
 
-    return _branch(small, _exp_series, trigonometric, theta2)
+    return _branch(small, _exp_series, trigonometric, theta2, select)
 
 
-def expm1(v, sin=jnp.sin):
+def expm1(v, sin=jnp.sin, select=False):
     """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (docs/model.md (9.1)).
-    sin: the sine used beyond the series (``so3jax._trig.sin``: vectorized in float64)."""
+    sin: the sine used beyond the series (``so3jax._trig.sin``: vectorized in float64);
+    select: see :func:`_branch`."""
     theta2 = dot(v, v)
-    a, b = _exp_coefficients(theta2, sin)
+    a, b = _exp_coefficients(theta2, sin, select)
     return a * hat(v) + b * (outer(v, v) - theta2 * eye_like(v))
 
 
-def exp(v):
-    """Rotation matrix exp(hat(v)) of a rotation vector v [rad]."""
-    return eye_like(v) + expm1(v)
+def exp(v, select=False):
+    """Rotation matrix exp(hat(v)) of a rotation vector v [rad]. select: see :func:`_branch`."""
+    return eye_like(v) + expm1(v, select=select)
 
 
 def _asin_ratio_series(s2):
@@ -240,13 +245,13 @@ def angle(r, atan2=jnp.arctan2):
     return _branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2), lambda _: _arctan_angle(s, c, atan2), r)
 
 
-def log(r):
+def log(r, select=False):
     """Rotation vector log(R)^vee, |log| = theta in [0, pi].
 
     theta = atan2(|s|, c) with s = (R - R^T)^vee / 2 = sin(theta) axis and
     c = (tr R - 1) / 2; below 10 degrees, the series for theta / sin(theta) instead
     (no arctangent); near a half turn the axis comes from the symmetric part
-    R + R^T = 2c I + 2(1 - c) axis axis^T.
+    R + R^T = 2c I + 2(1 - c) axis axis^T. select: see :func:`_branch`.
     """
     s, c, s2, small = _axis_terms(r)
     near_pi = c < _NEAR_PI_COS
@@ -267,7 +272,7 @@ def log(r):
         sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
         return (sign * _arctan_angle(s, c)) * axis
 
-    return _branch(small, series, lambda r: _branch(~near_pi, generic, half_turn, r), r)
+    return _branch(small, series, lambda r: _branch(~near_pi, generic, half_turn, r, select), r, select)
 
 
 def _first_max_indicator(v):
