@@ -221,3 +221,35 @@ def test_gradients_benchmark_runs_as_committed(mission):
                             "--modes", "forward", "--fd-horizon", "0", *mission)
     rows = [r for r in report["runs"] if r.get("what") == "forward"]
     assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows) and not any("error" in r for r in report["runs"])
+
+
+def test_limit_surrogate_clip_is_the_clip_smoothed_over_its_width():
+    """benchmarks/limit_surrogate.py's smoothed motor torque limit: within w log 2 of the
+    clip everywhere, equal to it (to e^-10 w) more than 10 w inside or outside the limits."""
+    import jax.numpy as jnp
+
+    from benchmarks.limit_surrogate import _smooth_wheels
+    from so3jax.actuators import Wheels, pyramid_axes
+
+    wheels = Wheels(jnp.asarray(pyramid_axes(4), float), jnp.full(4, 0.16), jnp.full(4, 0.05), jnp.full(4, 628.0),
+                    jnp.zeros(4), momentum_compensation=False)
+    smooth = _smooth_wheels(wheels, 0.1)
+    rng = np.random.default_rng(0)
+    tau = jnp.asarray(rng.normal(scale=0.06, size=(3, 4000)))
+    state, omega = jnp.zeros((4, 4000)), jnp.zeros((3, 4000))
+    exact, smoothed = wheels.command(state, tau, omega).u, smooth.command(state, tau, omega).u
+    wanted = np.asarray(wheels.distribute(tau))
+    w = 0.1 * 0.05
+    gap = np.abs(np.asarray(smoothed - exact))
+    assert gap.max() <= w * np.log(2) * (1 + 1e-12) and gap.max() > 0.5 * w * np.log(2)  # the corner is reached
+    far = np.abs(np.abs(wanted) - 0.05) > 10 * w
+    assert far.any() and (~far).any() and gap[far].max() <= np.exp(-10) * w
+
+
+@pytest.mark.slow
+def test_limit_surrogate_benchmark_runs_as_committed():
+    report = _run_benchmark("benchmarks.limit_surrogate", "--T", "2", "--iterations", "1", "--laws", "pd",
+                            "--seeds", "1")
+    runs = report["laws"]["pd"]
+    assert runs["exact"][0]["exact_train"] == runs["surrogate"][0]["exact_train"] == pytest.approx(2.0, rel=1e-12)
+    assert all(np.isfinite(r["exact_held_out"]) for rows in runs.values() for r in rows)
