@@ -6,9 +6,10 @@ validated entry point.
 
 The scan is nested: an outer scan over blocks of ``record_every`` steps records the
 state at each block start (the histories), and each block is ``jax.checkpoint``-ed, so
-reverse-mode memory grows like N / record_every + record_every rather than N. In the
-sampled wiring each step is checkpointed as well, and a block keeps its noise draws
-(:data:`so3jax.disturbance.NOISE`) instead of drawing them again in the backward pass.
+reverse-mode memory grows like N / record_every + record_every rather than N. Each step
+inside a block is checkpointed as well (the backward pass stores one loop state per step,
+not the RK4 stages' intermediates), and in the sampled wiring a block keeps its noise
+draws (:data:`so3jax.disturbance.NOISE`) instead of drawing them again.
 """
 
 from __future__ import annotations
@@ -208,10 +209,14 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
     constants = stepped.constants(scenario) if key.ndim else None  # per-trajectory scenarios of a native batch
     take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants)
-    if loop.continuous:
+    # Each step is checkpointed inside its block: a backward pass stores the loop state at
+    # each step of a block and recomputes the step, rather than storing the RK4 stages'
+    # intermediates (a much smaller program to compile; no effect without differentiation).
+    @functools.partial(jax.checkpoint, prevent_cse=False)
+    def one_step(carry, d):
+        return advance(*carry, d, take_step), None
 
-        def one_step(carry, d):
-            return advance(*carry, d, take_step), None
+    if loop.continuous:
 
         @functools.partial(jax.checkpoint, prevent_cse=False)
         def run_block(carry):
@@ -236,12 +241,6 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
     m = loop.period_steps
     ticks = block // m
-
-    # Each step of a period is checkpointed too: a backward pass stores the loop state at
-    # each step and recomputes the step, rather than storing the RK4 stages' intermediates.
-    @functools.partial(jax.checkpoint, prevent_cse=False)
-    def one_step(carry, d):
-        return advance(*carry, d, take_step), None
 
     def one_tick(carry, ds):
         state, k, acc, flight = carry
