@@ -225,3 +225,21 @@ def test_sum_leading_is_a_sum_over_the_component_axes():
     x = jnp.asarray(np.random.default_rng(0).normal(size=(3, 3, 5)))
     np.testing.assert_allclose(so3.sum_leading(x, 2), jnp.sum(x, axis=(0, 1)), rtol=1e-14)
     np.testing.assert_allclose(so3.sum_leading(x), jnp.sum(x, axis=0), rtol=1e-14)
+
+
+def test_matmul_compact_is_the_matrix_product():
+    a, b = RNG.normal(size=(16, 3, 3)), RNG.normal(size=(16, 3, 3))
+    np.testing.assert_allclose(first(so3.matmul_compact(last(a), last(b))), a @ b, rtol=1e-14, atol=1e-15)
+    np.testing.assert_array_equal(so3.matmul_compact(last(a), last(b)), so3.matmul(last(a), last(b)))
+
+
+def test_select_computes_the_branches_values_with_finite_gradients():
+    """exp and log with ``select=True`` (every branch computed, selected elementwise): the
+    values of the branching forms on a batch spanning the series, the closed form and a
+    half turn, and finite gradients at zero rotation."""
+    v = rotvecs_at(ANGLES)
+    R = np.asarray(Rotation.from_rotvec(v).as_matrix())
+    np.testing.assert_allclose(so3.exp(last(v), select=True), so3.exp(last(v)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(so3.log(last(R), select=True), so3.log(last(R)), rtol=0, atol=1e-15)
+    grads = jax.grad(lambda x: jnp.sum(so3.log(so3.exp(x, select=True), select=True) ** 2))(jnp.zeros(3))
+    assert np.all(np.isfinite(np.asarray(grads)))
