@@ -13,10 +13,10 @@ Two ways to differentiate a scalar function of the gains:
   with a diagonal one).
 * ``"reverse"``: ``jax.value_and_grad``. Time does not depend on the number of
   parameters; memory is bounded by the rollout's two-level checkpointing (the state at
-  each of the N / record_every block starts, plus one block of record_every steps
-  recomputed during the backward pass): O(N / record_every + record_every), smallest at
-  record_every = sqrt(N), the rollout's default. Through a sampled loop the block is one
-  control period (:func:`checkpoint_steps`).
+  each of the N / record_every block starts, plus the state at each step of the one block
+  whose backward pass runs, each step recomputed from it): O(N / record_every +
+  record_every), smallest at record_every = sqrt(N), the rollout's default. Through a
+  sampled loop the block is one control period (:func:`checkpoint_steps`).
 
 ``benchmarks/gradients.py`` measures which is faster for which controller.
 """
