@@ -37,21 +37,15 @@ ROOT = Path(__file__).resolve().parent.parent
 def _smooth_wheels(wheels, width: float):
     """The mission's wheels with the motor torque clip smoothed over width * u_max."""
     import jax
-    import jax.numpy as jnp
 
     from so3jax._pytree import pytree_dataclass
-    from so3jax.actuators import WheelCommand, Wheels, _per_wheel
+    from so3jax.actuators import Wheels
 
     @pytree_dataclass
     class SmoothWheels(Wheels):
-        def command(self, state, tau_c, omega_hat):
-            compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
-            wanted = self.distribute(tau_c + compensation)
-            u_max = _per_wheel(self.max_torque, tau_c)
+        def torque_limited(self, u, u_max):
             w = width * u_max
-            u = wanted - w * jax.nn.softplus((wanted - u_max) / w) + w * jax.nn.softplus((-wanted - u_max) / w)
-            faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau_c)) & (u * state > 0)
-            return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
+            return u - w * jax.nn.softplus((u - u_max) / w) + w * jax.nn.softplus((-u - u_max) / w)
 
     return SmoothWheels(**{f.name: getattr(wheels, f.name) for f in dataclasses.fields(wheels)})
 

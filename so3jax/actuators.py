@@ -306,10 +306,13 @@ class Wheels(Actuator):
             compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
             wanted = self.distribute(tau_c + compensation)
         tau = tau_c + compensation
-        u_max = _per_wheel(self.max_torque, tau)
-        u = jnp.clip(wanted, -u_max, u_max)
+        u = self.torque_limited(wanted, _per_wheel(self.max_torque, tau))
         faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
         return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
+
+    def torque_limited(self, u, u_max):
+        """The motor torques u (N, *b) clipped to +-u_max (N, *b) [N m]."""
+        return jnp.clip(u, -u_max, u_max)
 
     def body_torque(self, state, held, Omega):
         """-G_s u (3, *b) [N m], along the axes the body carries."""
