@@ -62,7 +62,7 @@ def log(*parts) -> None:
 
 
 def mission_for(name: str, T: float):
-    from so3jax import mission
+    from so3jax.missions import mission
 
     overrides = [f"T={T!r}", 'controllers=["adaptive"]', "record_every=1000", 'actuator.kind="ideal"',
                  f"sensors.gyro.arw={ARW!r}", f"gains.adaptive.Gamma={GAMMA!r}", *RUNS[name]]
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     import numpy as np
 
     import so3jax as sj
-    from so3jax import devices
+    from so3jax.parallel import devices
     from so3jax.controllers import regressor_parameters
 
     # the paper's J0 and J1 = 2 J0 break the triangle inequality (so3jax fly reports it once)

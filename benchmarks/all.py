@@ -81,7 +81,7 @@ def _slug(text: str) -> str:
 
 
 def _usable_cores() -> int:
-    """so3jax._xla_flags.usable_cores, without importing so3jax (and JAX) in this parent process."""
+    """so3jax.parallel.xla_flags.usable_cores, without importing so3jax (and JAX) in this parent process."""
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 

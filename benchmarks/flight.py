@@ -53,7 +53,7 @@ def _programs(wiring: str, controller: str, batch: int, n_steps: int):
     import numpy as np
 
     import so3jax as sj
-    from so3jax.rollout import rollout_batch
+    from so3jax.sim.rollout import rollout_batch
 
     dt = 0.01
     kwargs = {}
@@ -61,7 +61,7 @@ def _programs(wiring: str, controller: str, batch: int, n_steps: int):
         warnings.simplefilter("ignore", sj.InertiaWarning)
         scenario = sj.paper_scenario(T=n_steps * dt, dt=dt)
         if wiring == "flight":
-            from so3jax import mission
+            from so3jax.missions import mission
 
             m = mission.load(None, [f"T={n_steps * dt!r}"])
             scenario, kwargs = m.scenario(), {"loop": m.loop()}
@@ -88,7 +88,7 @@ def _single(wiring: str, controller: str, n_steps: int) -> float:
         warnings.simplefilter("ignore", sj.InertiaWarning)
         scenario, kwargs = sj.paper_scenario(T=n_steps * 0.01, dt=0.01), {}
         if wiring == "flight":
-            from so3jax import mission
+            from so3jax.missions import mission
 
             m = mission.load(None, [f"T={n_steps * 0.01!r}"])
             scenario, kwargs = m.scenario(), {"loop": m.loop()}

@@ -60,15 +60,17 @@ def _child(spec: dict) -> dict:
     import numpy as np
     from jax.flatten_util import ravel_pytree
 
-    from so3jax import gradients, tune
-    from so3jax.scenario import InertiaWarning, paper_scenario
+    from so3jax.sim import gradients
+
+    from so3jax.jobs import tune
+    from so3jax.dynamics.scenario import InertiaWarning, paper_scenario
 
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     diagonal = spec.get("diagonal_gamma", False)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
         if spec.get("mission"):  # the mission's scenario and loop, B seeds, its gains
-            from so3jax import mission as missions
+            from so3jax.missions import mission as missions
 
             flown = missions.load(spec["mission"], [f"T={spec['N'] * 0.01!r}"])
             scenario, loop = flown.scenario(jnp.float64), flown.loop(jnp.float64)

@@ -49,8 +49,8 @@ def main(argv=None) -> int:
     sys.path.insert(0, str(ROOT))
     from benchmarks.throughput import cpu_model
     import so3jax as sj
-    from so3jax import mission as missions
-    from so3jax.identify import METHODS, inertia, telemetry
+    from so3jax.missions import mission as missions
+    from so3jax.jobs.identify import METHODS, inertia, telemetry
 
     rows = []
     for length in args.lengths:

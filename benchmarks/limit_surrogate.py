@@ -38,8 +38,8 @@ def _smooth_wheels(wheels, width: float):
     """The mission's wheels with the motor torque clip smoothed over width * u_max."""
     import jax
 
-    from so3jax._pytree import pytree_dataclass
-    from so3jax.actuators import Wheels
+    from so3jax.core.pytree import pytree_dataclass
+    from so3jax.components.actuators import Wheels
 
     @pytree_dataclass
     class SmoothWheels(Wheels):
@@ -71,9 +71,11 @@ def main() -> None:
     import numpy as np
     import optax
 
-    from so3jax import gradients, tune
-    from so3jax import mission as missions
-    from so3jax.scenario import InertiaWarning
+    from so3jax.sim import gradients
+
+    from so3jax.jobs import tune
+    from so3jax.missions import mission as missions
+    from so3jax.dynamics.scenario import InertiaWarning
 
     warnings.simplefilter("ignore", InertiaWarning)
     flown = missions.load(str(ROOT / "missions/flight.toml"), [f"T={args.T!r}", f"actuator.wheels.max_torque={args.max_torque!r}"])

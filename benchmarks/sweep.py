@@ -3,7 +3,7 @@
 For each number of forced XLA host devices (each in its own subprocess, since the flag
 must precede JAX) and each controller, this draws the default sweep's samples (the
 paper's mission, dispersed as in sweeps/default.toml) over a horizon of T seconds at
-dt = 0.01 s, and times ``so3jax.sweep.run_chunk`` -- the sweep's own chunk runner --
+dt = 0.01 s, and times ``so3jax.jobs.sweep.run_chunk`` -- the sweep's own chunk runner --
 on --samples samples in chunks of --chunk: the first chunk (compile included) and then
 the whole set again (compiled). Steps/s counts steps of single trajectories summed over
 the batch; steps per CPU second (process time) is the rate that other load on a shared
@@ -77,15 +77,19 @@ def _child(spec: dict) -> list:
         os.sched_setaffinity(0, {spec["pin"]})
     jax.config.update("jax_enable_x64", True)
     if spec.get("processes", 1) > 1:  # one of several processes on JAX's runtime
-        from so3jax import distributed
+        from so3jax.parallel import distributed
 
         distributed.initialize(argparse.Namespace(
             distributed=True, coordinator=spec["coordinator"], num_processes=spec["processes"],
             process_id=spec["process_id"], timeout=300))
     import numpy as np
 
-    from so3jax import dispersed, distributed, sweep
-    from so3jax.scenario import InertiaWarning, steps_for_horizon
+    from so3jax.missions import dispersed
+
+    from so3jax.parallel import distributed
+
+    from so3jax.jobs import sweep
+    from so3jax.dynamics.scenario import InertiaWarning, steps_for_horizon
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -178,14 +182,16 @@ def _child(spec: dict) -> list:
 
 def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     """XLA's count of FLOPs per trajectory-step of the sweep path: one natively batched
-    step (``so3jax.loop.step`` with the per-sample constants of ``so3jax.stepped``, and the
+    step (``so3jax.sim.loop.step`` with the per-sample constants of ``so3jax.dynamics.stepped``, and the
     disturbance draw) of ``batch`` samples, per trajectory. The paper's (continuous) wiring."""
     import jax
     import jax.numpy as jnp
 
-    from so3jax import dispersed, stepped
-    from so3jax.loop import initial_state, step
-    from so3jax.rollout import _batch_last, _keys, disturbance_at
+    from so3jax.missions import dispersed
+
+    from so3jax.dynamics import stepped
+    from so3jax.sim.loop import initial_state, step
+    from so3jax.sim.rollout import _batch_last, _keys, disturbance_at
 
     mission = config.mission
     law = mission.controller(controller)[0]

@@ -1,12 +1,12 @@
 """Where the sweep path's time goes: the per-sample scenario, one part at a time.
 
 Draws B samples of the default sweep (sweeps/default.toml, horizon T) and times their
-natively batched rollout (``so3jax.rollout.rollout_batch``, no history, one host device)
+natively batched rollout (``so3jax.sim.rollout.rollout_batch``, no history, one host device)
 with every part of the scenario per sample (the sweep path), with each part in turn
 shared by the whole batch (the first sample's: the reference, the inertia, the
 disturbance, the initial state), with the same scenario repeated per sample, and with one
 scenario for the batch (the paper's batches), and with XLA's scalar float64 sin and atan2
-in place of so3jax._trig's vectorized ones ("library trigonometry"). The gap between a
+in place of so3jax.core._trig's vectorized ones ("library trigonometry"). The gap between a
 row and "dispersed" is what evaluating that part per sample costs. Rounds interleave the variants; the best
 round counts. Prints one JSON object.
 
@@ -46,9 +46,11 @@ def main() -> None:
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks.*, run as a script too
     from benchmarks.throughput import cpu_model
-    from so3jax import _trig, dispersed, sweep
-    from so3jax.rollout import rollout_batch
-    from so3jax.scenario import InertiaWarning
+    from so3jax.core import _trig
+    from so3jax.missions import dispersed
+    from so3jax.jobs import sweep
+    from so3jax.sim.rollout import rollout_batch
+    from so3jax.dynamics.scenario import InertiaWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)

@@ -122,7 +122,7 @@ def _batched_fn(controller: str, dtype: str, n_steps: int, dt: float = 0.01, ful
     """jit(seeds -> metrics (and the final state if full)) of rollout_batch; AOT-compiled."""
     import jax
 
-    from so3jax.rollout import rollout_batch
+    from so3jax.sim.rollout import rollout_batch
 
     scenario, ctrl, gains = _setup(controller, dtype, n_steps, dt)
 
@@ -150,7 +150,7 @@ def so3jax_batched(controller, dtype, sizes, repeats) -> list[dict]:
     timed one by one."""
     import jax.numpy as jnp
 
-    from so3jax._xla_flags import usable_cores
+    from so3jax.parallel.xla_flags import usable_cores
 
     seeds = [jnp.arange(batch, dtype=jnp.int32) for batch, _ in sizes]
     lowered = [_timed_call(_batched_fn(controller, dtype, n_steps).lower, s) for (_, n_steps), s in zip(sizes, seeds)]
@@ -171,7 +171,7 @@ def so3jax_single(controller, dtype, n_steps, repeats) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.rollout import rollout
+    from so3jax.sim.rollout import rollout
 
     scenario, ctrl, gains = _setup(controller, dtype, n_steps)
     fn = jax.jit(lambda seed: rollout(scenario, ctrl, gains, seed, record_every=n_steps).metrics)
@@ -414,7 +414,7 @@ def float32_deviation(controllers=CONTROLLERS, n_steps: int = 300) -> dict:
 
 
 def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
-    """XLA's cost analysis of one closed-loop step (``so3jax.rollout.step``).
+    """XLA's cost analysis of one closed-loop step (``so3jax.sim.rollout.step``).
 
     batch None: one trajectory; else a natively batched step over ``batch`` seeds
     (scenario and gains shared: a trailing unit axis), reported per trajectory.
@@ -422,7 +422,7 @@ def step_cost(controller: str, dtype: str, batch: int | None) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.rollout import disturbance_at, initial_state, step
+    from so3jax.sim.rollout import disturbance_at, initial_state, step
 
     scenario, ctrl, gains = _setup(controller, dtype, 10)
     if batch is None:
@@ -454,7 +454,7 @@ def prng_cost(dtype: str) -> dict:
     it), part of every step."""
     import jax
 
-    from so3jax.disturbance import noise
+    from so3jax.dynamics.disturbance import noise
 
     def draw(key, k):
         return noise(key, k, dtype)
@@ -542,7 +542,7 @@ def paper_wall_time(timeout: float) -> dict:
     """``so3jax paper --no-figures --json`` in a subprocess (its default: one host device per
     core), cold: the CLI's persistent compilation cache is turned off, so compile is included."""
     with tempfile.TemporaryDirectory() as out:
-        cmd = [sys.executable, "-m", "so3jax.cli", "paper", "--no-figures", "--json", "--out", out]
+        cmd = [sys.executable, "-m", "so3jax.commands", "paper", "--no-figures", "--json", "--out", out]
         env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
         env["SO3JAX_CACHE_DIR"] = ""  # no cached compilations
         start = time.perf_counter()
@@ -739,7 +739,7 @@ def main(argv=None) -> int:
     import jax
 
     from so3jax import configure_xla
-    from so3jax._xla_flags import usable_cores
+    from so3jax.parallel.xla_flags import usable_cores
 
     configure_xla()  # before JAX starts its backend
 
@@ -874,7 +874,7 @@ def main(argv=None) -> int:
     report["throughput"] = rows
     report["ratios"] = ratios(rows)
     report["step_cost"] = {
-        "what": "XLA cost_analysis of so3jax.rollout.step (one RK4 step, PRNG included); "
+        "what": "XLA cost_analysis of so3jax.sim.rollout.step (one RK4 step, PRNG included); "
         "batched: per trajectory in a batch of 256",
         **costs,
     }

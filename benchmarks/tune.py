@@ -1,6 +1,6 @@
 """One tuning step on every host device beside one device.
 
-A tuning step is ``so3jax.tune.cost_and_grad`` (what ``so3jax tune`` runs every
+A tuning step is ``so3jax.jobs.tune.cost_and_grad`` (what ``so3jax tune`` runs every
 iteration of a gradient campaign): the cost and its gradient over the tuning batch, the
 batch split over a Mesh of the host devices as ``tune.build_problem`` chooses (at least
 ``tune.MIN_SHARD`` rollouts per device: a campaign's batch of 2 stays on one device; the
@@ -65,7 +65,9 @@ class _Step:
         import jax
         import jax.numpy as jnp
 
-        from so3jax import devices, tune
+        from so3jax.parallel import devices
+
+        from so3jax.jobs import tune
 
         config = tune.load_config(spec["campaign"], [("T", spec["T"])])
         if batch:
@@ -98,7 +100,8 @@ class _Step:
         self.jax = jax
 
     def compile(self) -> float:
-        from so3jax import devices, tune
+        from so3jax.parallel import devices
+        from so3jax.jobs import tune
 
         params, scenario, batch, refs, loop = self.args
         start = time.perf_counter()
@@ -157,7 +160,7 @@ def _child(spec: dict) -> None:
 
 class _Process:
     def __init__(self, devices: int, spec: dict):
-        from so3jax import _xla_flags
+        from so3jax.parallel import xla_flags as _xla_flags
 
         env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_COMPILATION_CACHE_DIR")}
         env["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"

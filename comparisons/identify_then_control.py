@@ -53,10 +53,10 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(ROOT))
     from benchmarks.throughput import cpu_model
-    from so3jax import mission as missions
-    from so3jax.dispersions import draw_samples
-    from so3jax.identify import inertia, regression, telemetry
-    from so3jax.sweep.config import load_config
+    from so3jax.missions import mission as missions
+    from so3jax.missions.dispersions import draw_samples
+    from so3jax.jobs.identify import inertia, regression, telemetry
+    from so3jax.jobs.sweep.config import load_config
 
     started = time.perf_counter()
     post = missions.load(ROOT / "missions" / "post_docking.toml")
@@ -115,7 +115,7 @@ def main(argv=None) -> int:
     report = {"command": "python comparisons/identify_then_control.py " + " ".join(argv or sys.argv[1:]),
               "machine": f"{cpu_model()}, {len(os.sched_getaffinity(0))} cores", "samples": n, "lengths_s": args.lengths,
               "wall_time_s": time.perf_counter() - started, "cases": summary}
-    from so3jax.io import save_npz, write_json
+    from so3jax.results.io import save_npz, write_json
 
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "results.json", report)
@@ -134,8 +134,8 @@ def fly(mission, law, J, J_hat, R0, Omega0, wheels0, seeds, chunk, history=False
     import jax
 
     from so3jax.controllers import registry
-    from so3jax.plant import ConstantInertia
-    from so3jax.rollout import rollout
+    from so3jax.dynamics.plant import ConstantInertia
+    from so3jax.sim.rollout import rollout
 
     scenario, loop = mission.scenario(), mission.loop()
     spec, options, gains = registry.get(law), dict(mission.options.get(law, {})), mission.gains[law]
@@ -180,7 +180,7 @@ def figure(path, summary, cases, after, lengths):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from so3jax.io import save_figure
+    from so3jax.results.io import save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
     L = np.asarray(lengths)

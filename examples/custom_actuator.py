@@ -5,7 +5,7 @@
 (tau_a: the actuator's state, integrated by RK4 with the plant), registered as a mission
 component and flown with the PD through the flight mission (missions/flight.toml: gyro,
 star tracker, MEKF, Delta_c = 0.1 s) beside the ideal actuator. The interface is the
-docstring of so3jax/actuators.py (docs/model.md §11.1); `Actuator` gives the defaults
+docstring of so3jax/components/actuators.py (docs/model.md §11.1); `Actuator` gives the defaults
 (no stored momentum, no limits).
 
 Run: python examples/custom_actuator.py [--T 4000] [--set KEY=VALUE ...]   (horizon T [s];
@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax import components
-from so3jax.actuators import Actuator
-from so3jax.components import ComponentSpec, Param
+from so3jax.components import registry as components
+from so3jax.components.actuators import Actuator
+from so3jax.components.registry import ComponentSpec, Param
 
 NAME = "example_lag"  # the mission's actuator.kind
 FLIGHT = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"

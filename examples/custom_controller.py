@@ -19,10 +19,10 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax.components import Param
+from so3jax.components.registry import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import tracking_error
-from so3jax.fly import fly
+from so3jax.jobs.fly import fly
 
 NAME = "example_saturated_pd"  # the registry's name: what a mission's `controllers` lists
 PAPER = Path(__file__).resolve().parents[1] / "missions" / "paper.toml"

@@ -2,7 +2,7 @@
 missions/identify.toml (the docked spacecraft, J = the paper's J2, driven by an open-loop
 square-wave torque through four reaction wheels, read by a gyro and a star tracker) is
 flown, its telemetry regenerated from the flight (the readings the filter saw, the wheel
-speeds), and the inertia fitted by the equation-error regression of so3jax.identify
+speeds), and the inertia fitted by the equation-error regression of so3jax.jobs.identify
 (docs/model.md §17.3; log-Cholesky parameters, §17.2: the estimate is always a physical
 inertia). Prints the estimate beside the truth with its 1-sigma.
 
@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 import so3jax as sj
-from so3jax.identify import inertia, regression, telemetry
+from so3jax.jobs.identify import inertia, regression, telemetry
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "identify.toml"
 

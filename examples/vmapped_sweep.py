@@ -1,7 +1,7 @@
 """A small Monte Carlo sweep from Python: the paper's mission (docs/model.md §4) with
 dispersed inertias (J0 and J2 scaled by U(0.8, 1.2), J0's principal moments by U(0.9, 1.1)
 and its axes rotated up to 10 deg; J1 = 2 J0; docs/model.md §15.3) and a disturbance seed
-per sample, drawn by so3jax.dispersions and flown by jax.vmap over so3jax.rollout, one
+per sample, drawn by so3jax.missions.dispersions and flown by jax.vmap over so3jax.sim.rollout, one
 compiled program per control law. Prints each law's mean and worst RMSE over the samples.
 
 `so3jax sweep` does the same at scale (chunks, resume, several devices);
@@ -19,8 +19,8 @@ import jax
 import numpy as np
 
 import so3jax as sj
-from so3jax.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
-from so3jax.scenario import PAPER_J0, PAPER_J2
+from so3jax.missions.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
+from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2
 
 
 def main(T: float, samples: int, seed: int = 0) -> dict:

@@ -1,9 +1,9 @@
 """Markdown tables of the configuration schema, for the documentation site.
 
 Every table is read from the objects the parsers check against, so the pages cannot drift
-from the code: the components' and controllers' :class:`~so3jax.components.Param`
+from the code: the components' and controllers' :class:`~so3jax.components.registry.Param`
 declarations, the gains NamedTuples and the campaign dataclasses (defaults, and the units
-in their fields' comments), the mission's and the sweep's value checks (the ``so3jax.config``
+in their fields' comments), the mission's and the sweep's value checks (the ``so3jax.missions.config``
 calls of their parsers: the label names the key, its meaning and unit, the arguments its
 domain), the default missions and sweep, and the commands' argparse parsers.
 
@@ -24,7 +24,7 @@ import re
 import textwrap
 import tokenize
 
-_CHECKS = ("number", "array", "choice", "names", "boolean")  # so3jax.config's value checks
+_CHECKS = ("number", "array", "choice", "names", "boolean")  # so3jax.missions.config's value checks
 _POSITIONAL = {"number": ("low", "high", "integer"), "array": ("shape", "low"), "choice": ("choices",),
                "names": ("choices",), "boolean": ()}
 
@@ -283,7 +283,7 @@ _HEADER = ("key", "unit", "domain", "default", "meaning")
 def mission_table(base: str = "flight") -> str:
     """The mission's own keys (scenario, loop timing, controllers), with the defaults of the
     flight mission or of the paper's (``base``)."""
-    from so3jax import mission
+    from so3jax.missions import mission
 
     tree = {"flight": mission.FLIGHT, "paper": mission.PAPER}[base]
     order = mission._TOP + mission._TABLES
@@ -300,7 +300,7 @@ def mission_table(base: str = "flight") -> str:
 
 def mission_keys() -> tuple:
     """The keys :func:`mission_table` lists."""
-    from so3jax import mission
+    from so3jax.missions import mission
 
     return tuple(checked_keys(mission))
 
@@ -308,7 +308,7 @@ def mission_keys() -> tuple:
 def components_table(kind: str, heading: str = "###") -> str:
     """One section per registered component of ``kind`` (sensor, estimator, actuator): what
     it is, and a row per parameter (``[sensors.NAME]``, ``[estimator.NAME]``, ``[actuator.NAME]``)."""
-    from so3jax import components
+    from so3jax.components import registry as components
 
     table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator"}[kind]
     out = []
@@ -399,7 +399,7 @@ def _annotation(annotation) -> str:
 
 def tune_table() -> str:
     """The ``[tune]`` table of a campaign (``TuneConfig`` and its sections)."""
-    from so3jax.tune import config
+    from so3jax.jobs.tune import config
 
     domains = _tune_domains()
     rows_table = dataclass_table(config.TuneConfig, "tune.", nested=config._SECTIONS)
@@ -416,7 +416,7 @@ def tune_table() -> str:
 def _tune_domains() -> dict:
     """{tune key: domain} of the campaign's ``_choice(KEY, value, CHOICES)`` and
     ``_positive(KEY, value[, integer])`` checks."""
-    from so3jax.tune import config
+    from so3jax.jobs.tune import config
 
     tree = ast.parse(inspect.getsource(config.validate))
     out = {}
@@ -440,7 +440,7 @@ def _tune_domains() -> dict:
 
 def sweep_table() -> str:
     """The ``[sweep]`` table: the default sweep's values and the parser's domains."""
-    from so3jax.sweep import config
+    from so3jax.jobs.sweep import config
 
     checks = checked_keys(config)
     comments = {k.removeprefix("sweep."): v for k, v in toml_comments(_shipped("sweeps/default.toml")).items()}
@@ -454,7 +454,7 @@ def sweep_table() -> str:
 
 def distributions_table() -> str:
     """The distributions a ``[dispersions]`` leaf takes."""
-    from so3jax import dispersions
+    from so3jax.missions import dispersions
 
     rows = [("a number", "—", "fixed at that value")]
     for name, cls in dispersions.DISTRIBUTIONS.items():
@@ -465,7 +465,7 @@ def distributions_table() -> str:
 
 def default_dispersions_table() -> str:
     """The default sweep's ``[dispersions]``, leaf by leaf."""
-    from so3jax.sweep import config
+    from so3jax.jobs.sweep import config
 
     def flatten(table, prefix=""):
         for key, value in table.items():
@@ -481,7 +481,7 @@ def default_dispersions_table() -> str:
 
 def inertia_dispersion_table() -> str:
     """The structured dispersion of an inertia leaf (``inertia.J0``, ``J1``, ``J2``)."""
-    from so3jax import dispersed, dispersions
+    from so3jax.missions import dispersed, dispersions
 
     doc = inspect.getdoc(dispersions.InertiaDispersion) or ""
     rows = []
@@ -493,7 +493,7 @@ def inertia_dispersion_table() -> str:
 
 def compare_table() -> str:
     """The ``[compare]`` table's keys and domains (its parser's checks)."""
-    from so3jax import compare
+    from so3jax.jobs import compare
 
     checks = {k: v for k, v in checked_keys(compare).items() if k.startswith("compare.")}
     comments = field_comments(compare.CompareConfig)
@@ -509,7 +509,7 @@ def compare_table() -> str:
 
 def options_table(command: str) -> str:
     """The options of ``so3jax COMMAND`` from its argparse parser."""
-    from so3jax import cli
+    from so3jax import commands as cli
 
     parser = cli.build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -528,7 +528,7 @@ def options_table(command: str) -> str:
 
 
 def leaves(tree: dict, prefix: str = "") -> list:
-    """The dotted keys of a nested table's leaves (e.g. of ``so3jax.mission.default_tree()``)."""
+    """The dotted keys of a nested table's leaves (e.g. of ``so3jax.missions.mission.default_tree()``)."""
     out = []
     for key, value in tree.items():
         if isinstance(value, dict) and value:
@@ -540,7 +540,7 @@ def leaves(tree: dict, prefix: str = "") -> list:
 
 def registered_names() -> dict:
     """{kind: registered names} of controllers, sensors, estimators and actuators."""
-    from so3jax import components
+    from so3jax.components import registry as components
     from so3jax.controllers import registry
 
     return {"controller": registry.names(), **{kind: components.names(kind) for kind in components.KINDS}}

@@ -12,9 +12,9 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import so3jax as sj
-from so3jax.actuators import Wheels, pyramid_axes
+from so3jax.components.actuators import Wheels, pyramid_axes
 from so3jax.controllers import Controller
-from so3jax.loop import Loop
+from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
 
 PD = jax.tree.map(jnp.asarray, sj.PAPER_PD_GAINS)
@@ -24,7 +24,7 @@ OMEGA0 = (0.02, -0.01, 0.03)  # rad/s
 
 class FirstOrderLag(NamedTuple):
     """tau_a' = (tau_c - tau_a) / T_lag: the body receives tau_a, the actuator's state; no
-    stored momentum, no limits (the actuator interface of so3jax.actuators, written out)."""
+    stored momentum, no limits (the actuator interface of so3jax.components.actuators, written out)."""
 
     time_constant: jax.Array  # T_lag, s
 

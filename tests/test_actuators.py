@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from so3jax import plant, so3
-from so3jax._fusion import materialize
-from so3jax.actuators import Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
-from so3jax.integrate import lie_rk4_step
-from so3jax.plant import angular_acceleration
+from so3jax.dynamics import plant
+
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.components.actuators import Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
+from so3jax.core.integrate import lie_rk4_step
+from so3jax.dynamics.plant import angular_acceleration
 
 J_SC = np.array([[12.0, 0.6, -0.4], [0.6, 10.0, 0.8], [-0.4, 0.8, 8.0]])  # kg m^2, wheels locked
 SPIN = np.array([0.16, 0.12, 0.2, 0.16])  # kg m^2
@@ -52,7 +54,7 @@ def reference_rhs(J, G, spin, u):
 
 @partial(jax.jit, static_argnums=(6,))
 def integrate_held(actuator, J, u, R0, Omega0, speed0, n_steps, dt):
-    """n_steps of lie_rk4_step of the plant (so3jax.plant.derivative) with the motor torques
+    """n_steps of lie_rk4_step of the plant (so3jax.dynamics.plant.derivative) with the motor torques
     u (N,) or the wheels' command held and d = 0. Returns the final
     (R, Omega, Omega_w) and, at every step start and the end, the total angular momentum
     in the inertial frame R (J Omega + G_s J_s Omega_w) and the rotational kinetic energy."""
@@ -213,7 +215,7 @@ def test_saturated_clips_per_axis_and_ideal_is_the_identity():
     assert not np.any(np.asarray(ideal.limits((), tau, tau)))
     assert ideal.stored_momentum(()) is None and sat.stored_momentum(()) is None
     np.testing.assert_array_equal(np.asarray(momentum(ideal, (), tau)), np.zeros((3, 2)))
-    from so3jax import components
+    from so3jax.components import registry as components
 
     assert components.names("actuator") == ("ideal", "saturated", "wheels")
     assert isinstance(components.get("actuator", "wheels").build(
@@ -353,9 +355,9 @@ def test_a_per_wheel_motor_torque_command_clips_each_wheel_on_its_own():
     the others nothing; every wheel then obeys Omega_w,i(t) = u_i t / J_s - g_i^T (Omega(t) - Omega(0))."""
     import warnings
 
-    from so3jax import fly
-    from so3jax import mission as missions
-    from so3jax.scenario import InertiaWarning
+    from so3jax.jobs import fly
+    from so3jax.missions import mission as missions
+    from so3jax.dynamics.scenario import InertiaWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -379,7 +381,7 @@ def test_misaligned_wheels_act_along_the_plant_s_axes_while_the_command_uses_the
     J_s (1 + error)."""
     from scipy.spatial.transform import Rotation
 
-    from so3jax import mission
+    from so3jax.missions import mission
 
     theta = np.array([[0.01, -0.02, 0.005], [0.0, 0.03, 0.0], [-0.01, 0.0, 0.02], [0.004, 0.004, -0.004]])  # rad
     error = np.array([0.05, -0.1, 0.0, 0.2])

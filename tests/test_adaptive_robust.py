@@ -9,10 +9,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax import mission, so3
+from so3jax.missions import mission
+from so3jax.core import so3
 from so3jax.controllers import Desired, Measured, regressor_parameters
 from so3jax.controllers.adaptive import _apply_gamma, adaptive_terms, leakage_rate, project
-from so3jax.loop import Loop
+from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
 
 B = 6  # batch of random inputs (trailing axis)
@@ -359,7 +360,7 @@ def test_gradients_are_finite_with_each_modification(name):
 
 @pytest.mark.slow
 def test_library_rollout_gradient():
-    """jax.grad through so3jax.rollout (RK4, the paper's disturbance) with the switching sigma
+    """jax.grad through so3jax.sim.rollout (RK4, the paper's disturbance) with the switching sigma
     and the projection both on and active, against central differences."""
     law = sj.adaptive_backstepping(leakage="switching", sigma=1e-5, theta_bound=5.0, projection_bound=20.0,
                                    projection_eps=0.5)

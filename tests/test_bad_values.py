@@ -1,10 +1,10 @@
 """Bad values of every config entry, generated from the schemas: the default mission's
-tree (so3jax.mission.default_tree(): the flight mission with every registered component, option and gain), the sweep
+tree (so3jax.missions.mission.default_tree(): the flight mission with every registered component, option and gain), the sweep
 defaults (sweep.config_to_dict(sweep.load_config())) and a shipped tune campaign with its
 dataclass defaults. For every leaf: a wrong-type value (a string for a number, a bool for
 a number, a number for a string, a table for a leaf, ...), and for every array a
 wrong-shape one. Each must be a ValueError from the parser, one line, naming the key:
-parser level, nothing compiled. A few checks through so3jax.cli.main close the file."""
+parser level, nothing compiled. A few checks through so3jax.commands.main close the file."""
 
 from __future__ import annotations
 
@@ -16,10 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from so3jax import cli, mission, sweep, tune
-from so3jax import config as cfg
+from so3jax import commands as cli
+
+from so3jax.missions import mission
+
+from so3jax.jobs import sweep, tune
+from so3jax.missions import config as cfg
 from so3jax.controllers import registry
-from so3jax.loop import check_loop
+from so3jax.sim.loop import check_loop
 
 ROOT = Path(__file__).resolve().parents[1]
 TUNE_FILE = ROOT / "tuning" / "pd_equal_effort.toml"
@@ -160,7 +164,7 @@ def nothing_compiled(monkeypatch):
     def compiled(*args, **kwargs):
         raise AssertionError("reached a rollout")
 
-    monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "_rollout", compiled)
+    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
 
 
 # --- generated: parser level --------------------------------------------------------------
@@ -302,7 +306,7 @@ def test_cross_field_limits_are_inclusive():
 
 
 def test_library_wheels_refuse_an_initial_speed_over_the_limit():
-    from so3jax.actuators import Wheels, pyramid_axes
+    from so3jax.components.actuators import Wheels, pyramid_axes
 
     wheels = Wheels(pyramid_axes(), np.full(4, 0.16), np.full(4, 0.25), np.full(4, 100.0), np.r_[0.0, 150.0, 0.0, 0.0])
     message = r"wheel initial_speed .* must not exceed max_speed .*\(wheel 2: 150 against 100\)"

@@ -229,7 +229,7 @@ def test_limit_surrogate_clip_is_the_clip_smoothed_over_its_width():
     import jax.numpy as jnp
 
     from benchmarks.limit_surrogate import _smooth_wheels
-    from so3jax.actuators import Wheels, pyramid_axes
+    from so3jax.components.actuators import Wheels, pyramid_axes
 
     wheels = Wheels(jnp.asarray(pyramid_axes(4), float), jnp.full(4, 0.16), jnp.full(4, 0.05), jnp.full(4, 628.0),
                     jnp.zeros(4), momentum_compensation=False)

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from so3jax import cli
+from so3jax import commands as cli
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -18,7 +18,7 @@ def run_cli(*args, cwd, **env_vars):
     """``so3jax ARGS`` in a fresh interpreter (works installed or from the source tree)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]), **env_vars}
     return subprocess.run(
-        [sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
+        [sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, capture_output=True, text=True, timeout=600, env=env
     )
 
 
@@ -90,7 +90,7 @@ def in_process(monkeypatch, tmp_path):
 
     import importlib
 
-    monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "_rollout", compiled)
+    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
     return tmp_path
 
 

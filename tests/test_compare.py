@@ -9,7 +9,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from so3jax import compare, io, runfolder
+from so3jax.jobs import compare
+
+from so3jax.results import io, runfolder
 from tests.test_cli import run_cli
 
 ROOT = Path(__file__).parents[1]
@@ -170,7 +172,7 @@ def test_tuning_over_the_sweep_s_dispersions_keeps_its_samples_out():
     with pytest.raises(ValueError, match="would tune pd on the missions that judge it"):
         compare.parse(table, ROOT / "comparisons")
     table["sweep"]["seed"] = 0
-    from so3jax.sweep.config import DEFAULT
+    from so3jax.jobs.sweep.config import DEFAULT
 
     assert compare.parse(table, ROOT / "comparisons").campaigns["pd"].dispersions == DEFAULT["dispersions"]
 

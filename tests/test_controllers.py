@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import so3
+from so3jax.core import so3
 from so3jax.controllers import Desired, Measured, regressor, regressor_parameters
 from so3jax.controllers.adaptive import adaptive_terms
 from tests.helpers import J_BODY, custom_scenario

@@ -1,4 +1,4 @@
-"""The device strategy (so3jax.devices): a batch split over a mesh gives the values and
+"""The device strategy (so3jax.parallel.devices): a batch split over a mesh gives the values and
 the gradients of the whole batch on one device, padding included; programs side by side
 run each on its own device; replicated placement; how many devices a batch gets. The
 several-device cases run in a child process with 3 forced host devices (the device count
@@ -14,13 +14,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
-from so3jax import devices
+from so3jax.parallel import devices
 
 THREE_DEVICES = r"""
 import json
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
-from so3jax import devices
+from so3jax.parallel import devices
 
 def fn(x, w):
     # a loop whose carry starts from the shared w and becomes per-device (as a rollout's)

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from so3jax import dispersed, mission
-from so3jax import dispersions as disp
-from so3jax.scenario import InertiaWarning
+from so3jax.missions import dispersed, mission
+from so3jax.missions import dispersions as disp
+from so3jax.dynamics.scenario import InertiaWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {
@@ -86,7 +86,7 @@ def test_bad_dispersions_are_one_line_errors(flight, table, message):
 def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
     """sweeps/default.toml's dispersions on missions/paper.toml draw the samples that
     sweeps/default/samples.csv records, within 1e-12 relative."""
-    from so3jax import config as cfg
+    from so3jax.missions import config as cfg
 
     table = cfg.read_toml(ROOT / "sweeps" / "default.toml")["dispersions"]
     d, leaves = dispersed.parse(table, mission.load(ROOT / "missions" / "paper.toml"))
@@ -126,8 +126,8 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
     misalignment, spin-inertia errors) and an inertia leaf: each sample's metrics and
     flight metrics equal those of the mission written with that sample's values and flown
     on its own (the filter assuming the nominal gyro), and differ between samples."""
-    from so3jax import fly, sweep
-    from so3jax.io import to_builtin
+    from so3jax.jobs import fly, sweep
+    from so3jax.results.io import to_builtin
 
     cfg = sweep.config_from_dict(FLIGHT_SWEEP)
     sweep.run_sweep(cfg, tmp_path / "out", progress=False)
@@ -157,7 +157,7 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
 
 
 def _with(tables: dict, overrides: list) -> dict:
-    from so3jax import config as cfg
+    from so3jax.missions import config as cfg
 
     d = cfg.read_toml(tables["mission"])
     d = mission._merge(d, {k: v for k, v in tables.items() if k != "mission"})

@@ -20,7 +20,7 @@ import time
 import numpy as np
 import pytest
 
-from so3jax import distributed
+from so3jax.parallel import distributed
 
 SWEEP = ("sweep", "--samples", "24", "--T", "100", "--chunk", "8", "--set", "dt=0.5")
 LIMIT_S = 400
@@ -34,7 +34,7 @@ def _port() -> int:
 
 def _start(args, cwd, devices=1, **popen):
     env = {**os.environ, "SO3JAX_CACHE_DIR": "", "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
-    return subprocess.Popen([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, env=env, text=True,
+    return subprocess.Popen([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, **popen)
 
 

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import io, metrics, paper
-from so3jax.rollout import History
+from so3jax.results import io
+from so3jax.sim import metrics
+from so3jax.jobs import paper
+from so3jax.sim.rollout import History
 from tests.test_cli import run_cli
 
 
@@ -112,7 +114,7 @@ def test_paper_figures_end_at_the_horizon(monkeypatch, T):
 
 
 def test_fly_continuous_figures_end_at_the_horizon():
-    from so3jax import plots
+    from so3jax.viz import plots
 
     phases = sj.paper_scenario(20.0, 0.5).phase_times
     histories = {"pd": _history(20.0)}

@@ -8,7 +8,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 import so3jax as sj
-from so3jax import so3
+from so3jax.core import so3
 from tests.helpers import J_BODY, custom_scenario, zero_torque
 
 

@@ -24,8 +24,8 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import components
-from so3jax import mission as missions
+from so3jax.components import registry as components
+from so3jax.missions import mission as missions
 from so3jax.controllers import registry
 
 TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]

@@ -18,9 +18,9 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from so3jax import so3
-from so3jax.estimators import MEKF, Covariance, Estimate, MEKFState, Raw, Truth
-from so3jax.sensors import Gyro, Measurements, Sensors, StarTracker
+from so3jax.core import so3
+from so3jax.components.estimators import MEKF, Covariance, Estimate, MEKFState, Raw, Truth
+from so3jax.components.sensors import Gyro, Measurements, Sensors, StarTracker
 
 F64 = jnp.float64
 
@@ -314,7 +314,7 @@ def test_mekf_single_update_is_the_spec():
 def test_mekf_valid_parameters_pass_check():
     mission_mekf().check()
     MEKF(0.0, 0.0, np.zeros(3), 0.0, 0.0, 1e-5).check()
-    from so3jax import components
+    from so3jax.components import registry as components
 
     assert components.names("estimator") == ("truth", "raw", "mekf")
     assert Truth.reads_truth and not Raw.reads_truth and not MEKF.reads_truth

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from so3jax import components
+from so3jax.components import registry as components
 from so3jax.controllers import registry
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
@@ -85,7 +85,7 @@ def test_vmapped_sweep(example):
 
 def test_identify_inertia(example):
     """120 s of the noisy manoeuvre identify J2 to 1 %, each entry within 4 sigma."""
-    from so3jax.identify import inertia
+    from so3jax.jobs.identify import inertia
 
     r = example("identify_inertia", T=120.0)
     assert r["relative_error"] < 0.01, r["relative_error"]

@@ -11,13 +11,17 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax import components, fly, mission
-from so3jax._pytree import pytree_dataclass
-from so3jax.components import ComponentSpec, Param
+from so3jax.components import registry as components
+
+from so3jax.jobs import fly
+
+from so3jax.missions import mission
+from so3jax.core.pytree import pytree_dataclass
+from so3jax.components.registry import ComponentSpec, Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
-from so3jax.estimators import Estimate
-from so3jax.sensors import sensor_noise
+from so3jax.components.estimators import Estimate
+from so3jax.components.sensors import sensor_noise
 from tests.test_actuator_interface import FirstOrderLag
 
 # --- a sensor: a rate gyro with a scale-factor error ---------------------------------------

@@ -4,7 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from so3jax import flight_plots
+from so3jax.viz import flight as flight_plots
 
 
 def _history(t, value):

@@ -1,4 +1,4 @@
-"""Mass-property identification (``so3jax.identify``): the log-Cholesky map and the
+"""Mass-property identification (``so3jax.jobs.identify``): the log-Cholesky map and the
 principal axes with their 1-sigma, the quaternion conversion of the telemetry file, the
 file's checks, the telemetry of a simulated flight, and both fits (regression and
 simulation) on the identification manoeuvre (``missions/identify.toml``): exact on
@@ -20,9 +20,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax import mission as missions
-from so3jax.identify import inertia, regression, simulation, telemetry
-from so3jax.scenario import PAPER_J0, PAPER_J2
+from so3jax.missions import mission as missions
+from so3jax.jobs.identify import inertia, regression, simulation, telemetry
+from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "identify.toml"
 T = 120.0  # s: the square waves switch several times, the rate sweeps several directions

@@ -12,13 +12,13 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import so3
-from so3jax.actuators import Ideal, Saturated, Wheels, pyramid_axes
-from so3jax.estimators import MEKF, Truth
-from so3jax.gradients import checkpoint_steps
-from so3jax.loop import Loop
-from so3jax.rollout import rollout_batch
-from so3jax.sensors import Gyro, Sensors, StarTracker
+from so3jax.core import so3
+from so3jax.components.actuators import Ideal, Saturated, Wheels, pyramid_axes
+from so3jax.components.estimators import MEKF, Truth
+from so3jax.sim.gradients import checkpoint_steps
+from so3jax.sim.loop import Loop
+from so3jax.sim.rollout import rollout_batch
+from so3jax.components.sensors import Gyro, Sensors, StarTracker
 from tests.helpers import J_BODY, custom_scenario
 from tests.test_cli import run_cli
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import memory
+from so3jax.sim import memory
 
 
 @pytest.mark.parametrize(("text", "expected"), [("512", 512), ("4K", 4096), ("1.5G", 3 << 29), ("2GiB", 2 << 30), ("3mb", 3 << 20)])
@@ -55,7 +55,7 @@ def test_the_check_refuses_above_the_limit_and_reports_both():
 )
 def test_a_run_that_cannot_fit_is_refused_before_compiling(tmp_path, args):
     env = {**os.environ, "JAX_LOG_COMPILES": "1"}  # logged when lowered, so also for a persistent-cache hit
-    proc = subprocess.run([sys.executable, "-m", "so3jax.cli", *args, "--out", str(tmp_path / "out")],
+    proc = subprocess.run([sys.executable, "-m", "so3jax.commands", *args, "--out", str(tmp_path / "out")],
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     compiled = [line for line in proc.stderr.splitlines() if line.startswith("Compiling ")]

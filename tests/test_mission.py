@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from so3jax import mission as missions
+from so3jax.missions import mission as missions
 from tests.test_cli import run_cli
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -169,7 +169,7 @@ def test_controller_options_reach_the_law():
 
 
 def test_two_sensors_of_one_quantity_are_refused():
-    from so3jax import components
+    from so3jax.components import registry as components
 
     spec = components.get("sensor", "gyro")
     import dataclasses
@@ -186,8 +186,8 @@ def test_the_history_records_the_filter_covariance_and_the_disturbance():
     disturbance at the recorded step k (its sinusoid plus noise, docs/model.md §4)."""
     import jax
 
-    from so3jax import fly
-    from so3jax.rollout import disturbance_at
+    from so3jax.jobs import fly
+    from so3jax.sim.rollout import disturbance_at
 
     m = missions.load(None, ["T=2.0", "controllers=pd", "record_every=50"])
     h = fly.fly(m)[0]["pd"].history

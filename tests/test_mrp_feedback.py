@@ -10,11 +10,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax.actuators import Wheels, pyramid_axes
+from so3jax.components.actuators import Wheels, pyramid_axes
 from so3jax.controllers import Desired, Measured, registry
 from so3jax.controllers.mrp_feedback import MRPFeedbackGains, mrp, mrp_feedback
-from so3jax.loop import Loop
-from so3jax.scenario import check_gains
+from so3jax.sim.loop import Loop
+from so3jax.dynamics.scenario import check_gains
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(8)
@@ -187,8 +187,8 @@ def test_tuner_parameterizes_a_nonnegative_gain_by_projection():
     gains stay log-gains."""
     import optax
 
-    from so3jax import tune
-    from so3jax.tune.optimizers import GradientState, _optax_step
+    from so3jax.jobs import tune
+    from so3jax.jobs.tune.optimizers import GradientState, _optax_step
 
     gains = jax.tree.map(jnp.asarray, registry.get("mrp_feedback").defaults)
     params = tune.to_params(gains)

@@ -1,14 +1,18 @@
 """A result is one run's: an output folder never mixes runs (an earlier run's files are
 replaced as a set, the user's own files are kept and named), a partial run is marked as
 such in its manifest and seen by the next run, and a refused run writes nothing. In
-process, through so3jax.cli.main, with tiny horizons (one fly compilation, shared)."""
+process, through so3jax.commands.main, with tiny horizons (one fly compilation, shared)."""
 
 import json
 from pathlib import Path
 
 import pytest
 
-from so3jax import cli, io, runfolder, tune
+from so3jax import commands as cli
+
+from so3jax.results import io, runfolder
+
+from so3jax.jobs import tune
 
 ROOT = Path(__file__).resolve().parents[1]
 FLY = ("fly", "--T", "1", "--controllers", "pd", "--record-every", "10", "--json")

@@ -11,9 +11,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import metrics, so3
-from so3jax.loop import initial_state
-from so3jax.rollout import disturbance_at, disturbances, observe, rollout, step
+from so3jax.sim import metrics
+from so3jax.core import so3
+from so3jax.sim.loop import initial_state
+from so3jax.sim.rollout import disturbance_at, disturbances, observe, rollout, step
 from tests.helpers import custom_scenario, sinusoidal_rate
 
 warnings.filterwarnings("ignore", category=sj.InertiaWarning)
@@ -38,7 +39,7 @@ def test_noise_is_jax_random_normal(dtype):
     float32 and for a single key; for a batch of keys in float64 (its own vectorized
     inverse error function) within 3 ulp and the same double in nearly all draws. A batch
     of keys, a block of steps (the rollout's vmap over k), large k."""
-    from so3jax.disturbance import noise
+    from so3jax.dynamics.disturbance import noise
 
     seeds = jnp.array([0, 1, 7, 2**31 - 1, 123456], jnp.int32)
     keys = jax.vmap(jax.random.key)(seeds)
@@ -62,11 +63,11 @@ def test_noise_is_jax_random_normal(dtype):
 
 
 def test_erf_inv_matches_xla_and_scipy():
-    """so3jax._erfinv.erf_inv (no scalar log calls) against jax.lax.erf_inv (<= 2 ulp) over
+    """so3jax.core._erfinv.erf_inv (no scalar log calls) against jax.lax.erf_inv (<= 2 ulp) over
     (-1, 1) and into each tail branch (w >= 6.25, w >= 16), and scipy.special.erfinv."""
     from scipy.special import erfinv
 
-    from so3jax._erfinv import erf_inv
+    from so3jax.core._erfinv import erf_inv
 
     rng = np.random.default_rng(0)
     x = np.concatenate([
@@ -291,7 +292,7 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
     also with an unrolled scan over blocks of an odd number of steps (a property of the scan:
     checked with the PD law alone)."""
-    from so3jax.rollout import rollout_batch
+    from so3jax.sim.rollout import rollout_batch
 
     scales = jnp.array([1.0, 1.3, 0.8])
     inertia = TINY.inertia
@@ -307,7 +308,7 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
     axes = _tiny_axes()
     seeds = jnp.array([0, 5, 9])
     if sub_batch:  # on CPU: sub-batches of 2, the last one padded
-        monkeypatch.setattr(importlib.import_module("so3jax.rollout"), "CPU_SUB_BATCH", sub_batch)
+        monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "CPU_SUB_BATCH", sub_batch)
     for controller, gains in LAWS if unroll == 1 else LAWS[:1]:
         gains = jax.tree.map(jnp.asarray, gains)
         native = jax.jit(  # traced here, so under this test's CPU_SUB_BATCH

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from so3jax import runfolder, tune
+from so3jax.results import runfolder
+
+from so3jax.jobs import tune
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep') as run:\n"
@@ -20,7 +22,7 @@ HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sy
 
 def cli(*args, cwd):
     """``so3jax ARGS`` in a child process (the session's compilation cache: tests/conftest.py)."""
-    return subprocess.run([sys.executable, "-m", "so3jax.cli", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
 
 
 @pytest.fixture
@@ -78,7 +80,7 @@ def test_checking_a_new_folder_creates_nothing_and_a_block_that_writes_nothing_l
 
 
 def test_the_first_file_makes_the_folder_and_the_manifest_says_complete_only_at_the_end(tmp_path):
-    from so3jax.io import write_text
+    from so3jax.results.io import write_text
 
     out = tmp_path / "out"
     with runfolder.claim(out, "fly", {"T": 2.0, "out": out}):
@@ -94,7 +96,7 @@ def test_the_first_file_makes_the_folder_and_the_manifest_says_complete_only_at_
 
 
 def test_a_run_replaces_the_earlier_runs_files_and_a_resumed_run_keeps_them(tmp_path, capsys):
-    from so3jax.io import write_text
+    from so3jax.results.io import write_text
 
     with runfolder.claim(tmp_path, "sweep"):
         for name in ("a.txt", "chunks/c.npz"):
@@ -112,7 +114,7 @@ def test_a_run_replaces_the_earlier_runs_files_and_a_resumed_run_keeps_them(tmp_
 
 
 def test_another_commands_run_or_an_unreadable_manifest_is_refused_before_anything_is_written(tmp_path):
-    from so3jax.io import write_text
+    from so3jax.results.io import write_text
 
     with runfolder.claim(tmp_path, "tune"):
         write_text(tmp_path / "history.csv", "x")

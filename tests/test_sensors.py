@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from so3jax import so3
-from so3jax.disturbance import noise as disturbance_noise
-from so3jax.sensors import (
+from so3jax.core import so3
+from so3jax.dynamics.disturbance import noise as disturbance_noise
+from so3jax.components.sensors import (
     GYRO_BIAS_WALK,
     GYRO_WHITE,
     STAR_TRACKER,

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 import so3jax as sj
 from so3jax.controllers import Desired, Measured, registry
 from so3jax.controllers.sliding_mode import SlidingModeGains, attitude_error_rate_matrix, sliding_mode
-from so3jax.scenario import check_gains
+from so3jax.dynamics.scenario import check_gains
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(11)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from so3jax import so3
+from so3jax.core import so3
 
 RNG = np.random.default_rng(0)
 

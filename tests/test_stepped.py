@@ -1,4 +1,4 @@
-"""The time terms a natively batched step computes once per step (so3jax.stepped) against
+"""The time terms a natively batched step computes once per step (so3jax.dynamics.stepped) against
 the reference and inertia evaluated at each stage time, in every phase."""
 
 import warnings
@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import dispersed, stepped, sweep
-from so3jax.plant import ConstantInertia
-from so3jax.rollout import _batch_last
+from so3jax.missions import dispersed
+from so3jax.dynamics import stepped
+from so3jax.jobs import sweep
+from so3jax.dynamics.plant import ConstantInertia
+from so3jax.sim.rollout import _batch_last
 
 
 @pytest.fixture(scope="module")

@@ -19,9 +19,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax import dispersed, sweep
-from so3jax import dispersions as disp
-from so3jax.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
+from so3jax.missions import dispersed
+from so3jax.jobs import sweep
+from so3jax.missions import dispersions as disp
+from so3jax.jobs.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("sweep.samples=11", "T=2700.0", "dt=0.5", "sweep.chunk=8")
@@ -216,7 +217,7 @@ def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_pa
     """4 forced host devices with 10 samples per device, against 1 device with 8 (equal to
     round-off): in a subprocess (XLA flags must precede JAX), through the command line."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
-    args = [sys.executable, "-m", "so3jax.cli", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40", "--controllers", "pd"]
+    args = [sys.executable, "-m", "so3jax.commands", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40", "--controllers", "pd"]
     proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "on 4 device(s)" in proc.stderr and "| pd | mission |" in proc.stdout
@@ -378,7 +379,7 @@ def test_flight_metrics_are_summarized_and_samples_at_a_limit_flagged():
     """Made-up flight results (no rollout), T = 10 s, limit_share 0.05 (0.5 s): a sample is
     flagged where its time at either limit exceeds 0.5 s; flight statistics skip diverged
     samples; paired differences are in the metrics' units."""
-    from so3jax.flight_metrics import FlightMetrics
+    from so3jax.sim.flight_metrics import FlightMetrics
 
     cfg = config("sweep.samples=4", 'controllers=["pd", "adaptive"]', "T=10.0", "sweep.limit_share=0.05")
     samples = disp.draw_samples(cfg.dispersions, 0, 4, 20)

@@ -1,11 +1,11 @@
-"""so3jax._trig: the vectorizable float64 sine and cosine against NumPy's."""
+"""so3jax.core._trig: the vectorizable float64 sine and cosine against NumPy's."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax import _trig
+from so3jax.core import _trig
 
 _sincos = jax.jit(_trig.sincos)
 

@@ -18,9 +18,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax import cli, tune
-from so3jax.metrics import Metrics
-from so3jax.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
+from so3jax import commands as cli
+
+from so3jax.jobs import tune
+from so3jax.sim.metrics import Metrics
+from so3jax.jobs.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
 
 ROOT = Path(__file__).parents[1]
 BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
@@ -35,7 +37,7 @@ BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
     },
 }
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.scenario.InertiaWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
 
 
 def table(mission=None, **changes):
@@ -273,7 +275,7 @@ TWO_DEVICE_RUN = """
 import json, sys, tempfile, warnings
 import jax
 jax.config.update("jax_enable_x64", True)
-from so3jax import tune
+from so3jax.jobs import tune
 warnings.simplefilter("ignore")
 config = tune.parse_config(json.loads(sys.argv[1]))
 problem = tune.build_problem(config)
@@ -409,8 +411,8 @@ def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
     import jax
 
     from so3jax.controllers import registry
-    from so3jax.loop import PAPER_LOOP
-    from so3jax.scenario import paper_scenario
+    from so3jax.sim.loop import PAPER_LOOP
+    from so3jax.dynamics.scenario import paper_scenario
 
     assert {p.stem for p in (ROOT / "tuning").glob("*.toml")} == set(SHIPPED)
     cfg = tune.load_config(ROOT / "tuning" / f"{name}.toml")
@@ -426,7 +428,7 @@ def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
         gains = tune.resolve_gains(controller, "mission", jnp.float64, mission=cfg.mission)
         assert tune.gains_table(gains) == tune.gains_table(registry.get(controller).defaults)
     # the recorded run's checkpoint belongs to this campaign: --resume --iterations N extends it
-    from so3jax import io, runfolder
+    from so3jax.results import io, runfolder
 
     description = io.to_builtin(tune.describe(dataclasses.replace(cfg, iterations=0)))
     tune.check_fingerprint(ROOT / "tuning" / name / tune.CHECKPOINT, runfolder.fingerprint(description), description)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.scenario import check_inertia, check_scenario, is_paper_inertia
+from so3jax.dynamics.scenario import check_inertia, check_scenario, is_paper_inertia
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.scenario.InertiaWarning")
-rollout_module = importlib.import_module("so3jax.rollout")  # the package re-exports a function of that name
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
+rollout_module = importlib.import_module("so3jax.sim.rollout")  # the package re-exports a function of that name
 GOOD = sj.paper_scenario(T=1.0)
 
 
@@ -269,7 +269,7 @@ def test_checks_compose_with_jit_vmap_and_grad():
     ],
 )
 def test_impossible_dispersions_are_errors(override, match):
-    from so3jax import sweep
+    from so3jax.jobs import sweep
 
     with pytest.raises(ValueError, match=match):
         sweep.load_config(None, ("sweep.samples=8", override))
@@ -277,14 +277,14 @@ def test_impossible_dispersions_are_errors(override, match):
 
 def test_possible_dispersions_are_accepted():
     """A normal's tails below the domain are redrawn or rejected sample by sample."""
-    from so3jax import sweep
+    from so3jax.jobs import sweep
 
     sweep.load_config(None, ('dispersions.deployment.tau_J={dist="normal", mean=300.0, std=200.0}',
                              "dispersions.inertia.J0.scale=1.0", 'dispersions.orbit.n={dist="lognormal", median=1e-3, sigma=0.1}'))
 
 
 def test_draw_samples_checks_its_dispersions():
-    from so3jax import dispersions as disp
+    from so3jax.missions import dispersions as disp
 
     bad = dataclasses.replace(disp.Dispersions(), tau_J=disp.Fixed(0.0))
     with pytest.raises(ValueError, match="deployment.tau_J \\[s\\] must be > 0"):
@@ -294,7 +294,7 @@ def test_draw_samples_checks_its_dispersions():
 
 
 def test_tune_checks_its_mission_values():
-    from so3jax import tune
+    from so3jax.jobs import tune
 
     campaign = {"tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}}
     with pytest.raises(ValueError, match=r"deployment\.tau_J \[s\] must be positive"):

@@ -1,6 +1,6 @@
 """The XLA:CPU settings so3jax adds to XLA_FLAGS: added once, never over the user's."""
 
-from so3jax import _xla_flags
+from so3jax.parallel import xla_flags as _xla_flags
 
 
 def test_flags_are_added_once(monkeypatch):

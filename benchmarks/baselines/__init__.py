@@ -6,5 +6,5 @@ signature and result; ``numba_dispersed.simulate_dispersed`` (Numba) flies every
 trajectory of a batch in its own scenario, as a sweep's samples; ``noise.paper_noise``
 draws the disturbance noise of docs/model.md §4. Their loops do not call ``so3jax``'s
 (``numba_noise`` takes the inverse error function's coefficients from
-``so3jax._erfinv``).
+``so3jax.core._erfinv``).
 """

@@ -6,7 +6,7 @@ stage arithmetic is imported from there (``_stage``, ``_exp_minus_identity``, ``
 the noise eta_k is drawn inside the kernel from each trajectory's seed, CHUNK steps at a
 time, bit for bit as JAX draws it (:func:`numba_noise.fill_eta`). What differs from
 numba_loop is the scenario: each trajectory b has its own parameters, those of a sample of
-``so3jax.dispersed`` (the fields of ``so3jax.dispersions.RolloutParams``):
+``so3jax.missions.dispersed`` (the fields of ``so3jax.missions.dispersions.RolloutParams``):
 
 * inertias J0, J1, J2 (3, 3) [kg m^2] and the deployment time constant tau_J [s]:
   J(t) = J0 in phase 0, J1 - (J1 - J0) exp(-(t - T_GROW)/tau_J) in phase 1, J2 in phase 2;
@@ -19,7 +19,7 @@ numba_loop is the scenario: each trajectory b has its own parameters, those of a
 Phases switch at steps round(T_GROW/dt), round(T_DOCK/dt) (500 s, 2600 s). So where
 numba_loop tabulates the time terms once per chunk of steps for a whole group of
 trajectories, here each trajectory evaluates its own once per step, as a sweep of so3jax
-does per sample (``so3jax.stepped``), from constants computed before its time loop:
+does per sample (``so3jax.dynamics.stepped``), from constants computed before its time loop:
 
 * reference: the step rotations exp(hat(w_p) dt/2), exp(hat(w_p) dt) of each phase; per
   step, R_d(t_k) in closed form, then R_d(t_k + c dt) = R_d(t_k) exp(hat(w_p) c dt), and
@@ -34,7 +34,7 @@ Scalar code: the trajectories are split into one group per thread (``numba.prang
 each trajectory advanced on local scalars, allocating nothing per step. Units: SI (s, rad,
 rad/s, N m, kg m^2). float64 only; FMA contraction allowed (no other fast-math).
 
-The result holds the metrics ``so3jax.dispersed.sample_metrics`` returns for the paper's
+The result holds the metrics ``so3jax.missions.dispersed.sample_metrics`` returns for the paper's
 mission, under its names and shapes ((B,) or (B, 3) per phase; a phase the horizon never
 reaches has 0, as there); ``diverged`` flags a trajectory whose state was non-finite after
 any step.
@@ -292,7 +292,7 @@ def simulate_dispersed(controller: str, samples, n_steps: int, *, dt: float = 0.
     amplitude [N m], frequency [rad/s], noise_std [N m], seed (B,); R0 (B, 3, 3), Omega0
     (B, 3) [rad/s].
 
-    Returns numpy arrays under ``so3jax.dispersed.sample_metrics``' names: rmse,
+    Returns numpy arrays under ``so3jax.missions.dispersed.sample_metrics``' names: rmse,
     rmse_unrotated [rad/s], effort [N^2 m^2 s], max_torque [N m], orthogonality_error
     (|R^T R - I|_F at the end), diverged (bool) (B,); rmse_phase, effort_phase,
     max_torque_phase, rms_angle_phase, max_angle_phase [rad] (B, 3).
@@ -324,7 +324,7 @@ def simulate_dispersed(controller: str, samples, n_steps: int, *, dt: float = 0.
 
 
 def _metrics(sums, setup, R) -> dict:
-    """The metrics of docs/model.md §6 from the per-trajectory sums, as so3jax.metrics.finalize forms them."""
+    """The metrics of docs/model.md §6 from the per-trajectory sums, as so3jax.sim.metrics.finalize forms them."""
     n = setup.n_steps
     counts = np.array([min(n, setup.k1), max(0, min(n, setup.k2) - setup.k1), max(0, n - setup.k2)], np.float64)
     per_step = np.maximum(counts, 1.0)

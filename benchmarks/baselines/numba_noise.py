@@ -37,7 +37,7 @@ from math import log, sqrt
 
 import numpy as np
 
-from so3jax import _erfinv
+from so3jax.core import _erfinv
 
 try:
     import numba

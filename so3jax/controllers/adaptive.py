@@ -38,13 +38,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax import so3
-from so3jax._fusion import materialize
-from so3jax.components import Param
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.components.registry import Param
 from so3jax.controllers.base import Controller, tracking_error
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.scenario import check_gains
+from so3jax.dynamics.scenario import check_gains
 
 
 class AdaptiveGains(NamedTuple):
@@ -105,7 +105,7 @@ class AdaptiveTerms(NamedTuple):
 
 def adaptive_terms(gains, measured, desired, log_derivative="exact", t=None) -> AdaptiveTerms:
     """e, z, Phi of the law. t (the time, traced), when given, marks the tracking error
-    and the terms for XLA:CPU to compute once (:mod:`so3jax._fusion`); values unchanged."""
+    and the terms for XLA:CPU to compute once (:mod:`so3jax.core._fusion`); values unchanged."""
     once = (lambda x: x) if t is None else (lambda x: materialize(x, t))
     err = once(tracking_error(measured, desired))
     Omega = measured.Omega

@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 
 import jax
 
-from so3jax import so3
+from so3jax.core import so3
 
 
 class Measured(NamedTuple):

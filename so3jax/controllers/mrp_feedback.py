@@ -23,7 +23,7 @@ integral is integrated with the plant, held where a component sits at its limit 
 sigma would push it further out (conditional integration).
 
 The wheels' momentum is the one the actuator does not compensate itself
-(:meth:`so3jax.actuators.Actuator.uncompensated_momentum`, in ``Measured.wheel_momentum``):
+(:meth:`so3jax.components.actuators.Actuator.uncompensated_momentum`, in ``Measured.wheel_momentum``):
 with the wheels' momentum compensation on (the default) the actuator adds
 omega_hat x h_w_hat to the command, which is the law_type 1 term; for the module's
 wiring with law_type 0, set ``[actuator.wheels] momentum_compensation = false``.
@@ -36,13 +36,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax import so3
-from so3jax._fusion import materialize
-from so3jax.components import Param
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.components.registry import Param
 from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.scenario import Nonnegative, check_gains
+from so3jax.dynamics.scenario import Nonnegative, check_gains
 
 
 class MRPFeedbackGains(NamedTuple):

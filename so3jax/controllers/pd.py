@@ -6,12 +6,12 @@ from typing import NamedTuple
 
 import jax
 
-from so3jax import so3
-from so3jax._fusion import materialize
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
 from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
-from so3jax.components import Param
+from so3jax.components.registry import Param
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.scenario import check_gains
+from so3jax.dynamics.scenario import check_gains
 
 J_HAT = Param("J_hat", None, "kg m^2", shapes=((3, 3),), doc="nominal inertia (default: the identity)")
 

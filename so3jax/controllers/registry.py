@@ -28,7 +28,7 @@ class ControllerSpec:
     shapes: the shapes a gain may take, {field: ((), (9,), ...)}, for the fields that
     take more than their default's shape; every other gain has its default's shape
     (:meth:`gain_shapes`). The config parser checks gains read from files against them.
-    options: the factory's keywords as :class:`so3jax.components.Param` (a mission's
+    options: the factory's keywords as :class:`so3jax.components.registry.Param` (a mission's
     ``[controller.NAME]`` table); a None default is left to the factory.
     """
 
@@ -79,7 +79,7 @@ def style(name: str) -> dict:
 def parse_options(name: str, given: dict) -> dict:
     """The factory keywords of a mission's ``[controller.NAME]`` table, checked against
     the registration's options (a None default is left out)."""
-    from so3jax.components import parse_params
+    from so3jax.components.registry import parse_params
 
     values = parse_params(get(name).options, given, f"controller.{name}")
     return {k: v for k, v in values.items() if v is not None}

@@ -34,13 +34,13 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax import so3
-from so3jax._fusion import materialize
-from so3jax.components import Param
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.components.registry import Param
 from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.scenario import check_gains
+from so3jax.dynamics.scenario import check_gains
 
 
 class SlidingModeGains(NamedTuple):

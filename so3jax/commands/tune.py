@@ -1,0 +1,62 @@
+"""``so3jax tune``: the subcommand's arguments, and the campaign they run."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from so3jax.missions import config as cfg
+from so3jax.parallel import distributed
+from so3jax.jobs.tune.campaign import tune
+from so3jax.jobs.tune.config import load_config
+from so3jax.jobs.tune.optimizers import NonFiniteGradientError
+from so3jax.jobs.tune.validation import markdown_table
+
+DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
+
+
+def _command(args) -> int:
+    distributed.initialize(args)  # before anything touches JAX's backend
+    overrides = [cfg.parse_override(text) for text in args.set]
+    if args.iterations is not None:
+        overrides.append(("tune.iterations", args.iterations))
+    if args.T is not None:
+        overrides.append(("T", args.T))
+    config = load_config(args.config, overrides)
+    out = Path(args.out) if args.out else DEFAULT_OUT / Path(args.config).stem
+    try:
+        report = tune(config, out, resume=args.resume)
+    except NonFiniteGradientError as err:
+        print(f"so3jax tune: {err}", file=sys.stderr)
+        return 1
+    if distributed.writer():
+        print(markdown_table([report]))
+        print(f"results in {out}/")
+    return 0
+
+
+def register(subparsers) -> None:
+    from so3jax.commands import add_precision_argument, registered
+
+    parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator",
+                                   description="A tuning campaign: one controller's gains (and optionally the "
+                                   "estimator's noise levels) tuned through the mission's rollouts, checkpointed "
+                                   "every iteration, validated on held-out scenarios.",
+                                   epilog=registered(tunable=True))
+    parser.add_argument("config", help="campaign file (TOML): a mission and a [tune] table, "
+                        "e.g. tuning/adaptive_equal_effort.toml")
+    parser.add_argument("--iterations", type=int, help="number of iterations (overrides tune.iterations)")
+    parser.add_argument("--T", type=float, help="horizon [s] (overrides the mission's T)")
+    parser.add_argument("--out", help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
+    parser.add_argument("--resume", action="store_true", help="continue the run saved in the run folder")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override an entry with a TOML value: a mission key (T=100.0, gains.pd.k_R=1.0) "
+        "or a tune key (tune.optimizer.learning_rate=0.1)",
+    )
+    distributed.add_arguments(parser)
+    add_precision_argument(parser)
+    parser.set_defaults(func=_command)

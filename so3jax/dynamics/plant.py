@@ -1,0 +1,134 @@
+"""Rigid-body attitude dynamics (docs/model.md §1, §8.4) and inertia profiles J(t).
+
+The plant owns the rigid body: :func:`derivative` gives Omega' from J(t), the torque the
+actuator puts on the body, the disturbance and the momentum the actuator stores
+(:mod:`so3jax.components.actuators`), and the actuator's state rate given Omega'.
+
+An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
+``phase`` is the index of the mission phase that holds at the start of the current
+step (docs/model.md §5), so a profile may switch laws without straddling a step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.core.pytree import pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class ConstantInertia:
+    """J(t) = J."""
+
+    J: jax.Array
+    convex_phases = True  # constant: checking J checks every J(t)
+
+    def __call__(self, t, phase):
+        return self.J
+
+    def matrices(self):
+        return {"J": self.J}
+
+
+@pytree_dataclass
+class PaperInertia:
+    """The paper's capture profile (docs/model.md §4, corrected eq. 18).
+
+    phase 0: J0; phase 1 (deployment from t_deploy): J1 - (J1 - J0) exp(-(t - t_deploy)/tau_J);
+    phase >= 2 (docking): J2.
+
+    In phase 1, J(t) = (1 - w) J1 + w J0 with w = exp(-(t - t_deploy)/tau_J), which
+    decreases from its value w_s at the phase's first step towards 0 (tau_J > 0), so every
+    J(t) of the phase lies on the segment from J1 to J(t_s). Symmetric positive definite
+    matrices form a convex set, and so do those whose principal moments satisfy the
+    triangle inequality (2 lambda_max(J) <= tr J, lambda_max being convex): checking J0,
+    J1, J2 and J at each phase's first step (``convex_phases``) checks every J(t).
+    """
+
+    J0: jax.Array
+    J1: jax.Array
+    J2: jax.Array
+    t_deploy: jax.Array
+    tau_J: jax.Array
+    convex_phases = True
+
+    def check(self):
+        """tau_J > 0 and t_deploy finite (ValueError), where the values are concrete."""
+        leaves = (self.tau_J, self.t_deploy)
+        if any(isinstance(x, jax.core.Tracer) for x in leaves):
+            return
+        tau_J, t_deploy = (np.asarray(x, dtype=np.float64) for x in leaves)
+        if not np.all(np.isfinite(tau_J) & (tau_J > 0)):
+            raise ValueError(f"tau_J (deployment time constant) must be a positive number of seconds, got {tau_J}")
+        if not np.all(np.isfinite(t_deploy)):
+            raise ValueError(f"t_deploy must be finite, got {t_deploy}")
+
+    def __call__(self, t, phase):
+        blend = jnp.exp(-(t - self.t_deploy) / self.tau_J)
+        deploying = self.J1 - (self.J1 - self.J0) * blend
+        return jnp.where(phase == 0, self.J0, jnp.where(phase == 1, deploying, self.J2))
+
+    def matrices(self):
+        return {"J0": self.J0, "J1": self.J1, "J2": self.J2}
+
+
+@pytree_dataclass
+class InertiaFunction:
+    """A user law J(t) (a JAX-traceable function of time [s]), the same in every phase.
+
+    Checked before a run (symmetric positive definite, triangle inequality) at sample
+    times spread over each phase of the horizon (:func:`so3jax.dynamics.scenario.check_scenario`).
+    """
+
+    fn: Callable = static_field()
+
+    def __call__(self, t, phase):
+        return self.fn(t)
+
+    def matrices(self):
+        return {}
+
+
+def inertia_rate(profile, t, phase):
+    """J'(t) by forward-mode differentiation of the profile in time."""
+    return jax.jvp(lambda s: profile(s, phase), (t,), (jnp.ones_like(t),))[1]
+
+
+def angular_acceleration(J, omega, torque, J_dot=None):
+    """Omega' from J Omega' = -Omega x J Omega + torque [- J' Omega] (docs/model.md §1). rad/s^2."""
+    rhs = torque - so3.cross(omega, so3.matvec(J, omega))
+    if J_dot is not None:
+        rhs = rhs - so3.matvec(J_dot, omega)
+    return so3.solve_spd(J, rhs)
+
+
+def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
+    """(Omega' [rad/s^2], the actuator state's rate) with the actuator's input ``held``:
+
+        (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
+
+    (docs/model.md §8.4; §1 where the actuator stores no momentum, then computed as the
+    paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
+    t: the stage time [s] (a fusion boundary, :func:`so3jax.core._fusion.materialize`); J_inv:
+    J^{-1} where it is precomputed (:mod:`so3jax.dynamics.stepped`; used for an actuator storing no
+    momentum and no J' term)."""
+    torque = actuator.body_torque(state, held, Omega)
+    stored = actuator.stored_momentum(state)
+    if stored is None and J_inv is not None and J_dot is None:
+        rhs = materialize(torque + d, t) - so3.cross(Omega, so3.matvec(J, Omega))
+        Omega_dot = so3.matvec(J_inv, rhs)
+    elif stored is None:
+        Omega_dot = angular_acceleration(J, Omega, materialize(torque + d, t), J_dot)
+    else:
+        rhs = torque + d - so3.cross(Omega, so3.matvec(J, Omega) + stored.relative)
+        if J_dot is not None:
+            rhs = rhs - so3.matvec(J_dot, Omega)
+        J_body = J - so3.batch_like(stored.locked_inertia, 2, Omega)
+        Omega_dot = so3.solve_spd(J_body, materialize(rhs, t))
+    return Omega_dot, actuator.derivative(state, held, Omega, Omega_dot)

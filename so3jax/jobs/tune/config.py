@@ -1,0 +1,388 @@
+"""A tuning campaign's configuration (one TOML file, tuning/*.toml): a mission (``mission =
+"PATH"`` and/or mission tables inline; default the paper's) and a ``[tune]`` table,
+parsed into a TuneConfig, with every check that can run before compilation."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import json
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from so3jax.missions import config as cfg
+from so3jax.missions import mission as missions
+from so3jax.sim.gradients import MODES
+from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
+
+TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
+COST_MODES = ("weighted", "equal_effort")
+METHODS = ("gradient", "es")
+OBJECTIVES = ("mean", "cvar")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioSet:
+    """Scenarios = inertia_scales x seeds: the mission with every inertia matrix scaled
+    [-], flown with each seed in place of the mission's. With [tune.dispersions]:
+    ``samples`` dispersed missions drawn with the one sampling seed ``seeds[0]`` (training:
+    a fresh batch every iteration; validation: one held-out batch)."""
+
+    seeds: tuple[int, ...]  # disturbance and sensor-noise seeds (with dispersions: the one sampling seed)
+    inertia_scales: tuple[float, ...] = (1.0,)  # factors on every inertia matrix [-]
+    samples: int | None = None  # dispersed missions per batch (with [tune.dispersions])
+
+
+@dataclasses.dataclass(frozen=True)
+class CostConfig:
+    """The tuning cost of docs/model.md §6. weight is lambda (weighted) or mu (equal_effort)."""
+
+    mode: str = "weighted"  # weighted: + lambda Effort/Effort_ref; equal_effort: + mu max(0, Effort/budget - 1)^2
+    weight: float = 1.0  # lambda (weighted) or mu (equal_effort)
+    rmse_ref: float | None = None  # rad/s; None: the initial gains' batch mean
+    effort_ref: float | None = None  # N^2 m^2 s, weighted mode; None: initial gains' batch mean
+    budget: float | None = None  # N^2 m^2 s, equal_effort mode (or budget_controller)
+    budget_controller: str | None = None  # effort budget = this controller's effort, per scenario
+    budget_gains: Any = "mission"  # its gains: "mission", "paper", a table, or a best_gains.json path
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizerConfig:
+    """optax.<name>(schedule or learning_rate, **options), clipped by global norm, guarded
+    by optax.apply_if_finite. schedule: optax.<schedule>(learning_rate, **schedule_options)."""
+
+    name: str = "adam"  # an optax optimizer taking learning_rate first (adam, sgd, ...)
+    learning_rate: float = 0.05  # in log-gain units per step
+    options: dict = dataclasses.field(default_factory=dict)  # its other keyword arguments
+    schedule: str | None = None  # an optax schedule of the learning rate, e.g. cosine_decay_schedule
+    schedule_options: dict = dataclasses.field(default_factory=dict)  # the schedule's keyword arguments
+    clip_norm: float = 1.0  # the gradient's global norm is clipped to this
+
+
+@dataclasses.dataclass(frozen=True)
+class ESConfig:
+    """Gradient-free baseline: elitist (1+lambda)-ES in log-gain space, 1/5th success rule."""
+
+    population: int = 8  # lambda: candidates per iteration
+    sigma: float = 0.2  # initial step, log-gain units
+    seed: int = 0  # the candidates' sampling seed
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneConfig:
+    """A tuning campaign: the ``[tune]`` table's fields and the mission it tunes (its
+    scenario, loop, controller options and gains; None: the paper's mission)."""
+
+    controller: str  # a tunable registered controller
+    iterations: int  # optimizer steps (ES: generations)
+    train: ScenarioSet  # the training scenarios
+    validation: ScenarioSet  # held-out seeds
+    initial_gains: Any = "mission"  # "mission", "paper", a table of gains, or a best_gains.json path
+    cost: CostConfig = CostConfig()
+    optimizer: OptimizerConfig = OptimizerConfig()
+    method: str = "gradient"  # gradient: the optax optimizer; es: the (1+lambda)-ES baseline
+    gradient: str = "forward"  # differentiation mode, see so3jax.sim.gradients
+    record_every: int | None = None  # checkpoint block of the rollout [steps] (reverse mode memory)
+    diagonal_gamma: bool = False  # tune each entry of a gain that may be a diagonal (the adaptive Gamma: 9)
+    es: ESConfig = ESConfig()
+    objective: str = "mean"  # over the batch's scenario costs: "mean", or "cvar" (the worst 1 - alpha share's mean)
+    alpha: float = 0.9  # the CVaR level
+    dispersions: dict | None = None  # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
+    estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
+    mission: Any = None  # so3jax.missions.mission.Mission
+
+    def __post_init__(self):
+        if self.mission is None:
+            object.__setattr__(self, "mission", missions.from_dict({}, missions.PAPER))
+
+
+_SECTIONS = {
+    "train": ScenarioSet,
+    "validation": ScenarioSet,
+    "cost": CostConfig,
+    "optimizer": OptimizerConfig,
+    "es": ESConfig,
+}
+
+
+def _key(name: str) -> str:
+    return f"{TUNE}.{name}"
+
+
+def _build(cls, table: dict, prefix: str, **extra):
+    """cls(**table, **extra), with a ValueError naming any unknown or missing key of table."""
+    if not isinstance(table, dict):
+        raise ValueError(f"config key {prefix.rstrip('.')!r} must be a table, got {cfg.short(table)}")  # noqa: TRY004
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "mission"}
+    for key in table:
+        if key not in fields:
+            raise ValueError(f"unknown config key '{prefix}{key}' (known: {', '.join(fields)})")
+    for name, f in fields.items():
+        if name not in table and f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+            raise ValueError(f"missing config key '{prefix}{name}'")
+    values = {}
+    for key, value in table.items():
+        if key in _SECTIONS and cls is TuneConfig:
+            value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
+        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator"):
+            value = tuple(value)
+        elif key in ("seeds", "inertia_scales"):
+            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg.short(value)}")
+        elif key == "estimator":
+            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, got {cfg.short(value)}")
+        values[key] = value
+    return cls(**values, **extra)
+
+
+def _positive(name, value, integer=False):
+    ok = isinstance(value, int) if integer else isinstance(value, (int, float))
+    if isinstance(value, bool) or not ok or not cfg.finite(value) or value <= 0:
+        kind = "a positive integer" if integer else "a positive finite number"
+        raise ValueError(f"config key {_key(name)!r} must be {kind}, got {cfg.short(value)}")
+
+
+def _choice(name, value, choices):
+    if not isinstance(value, str) or value not in choices:
+        raise ValueError(f"config key {_key(name)!r} must be one of {choices}, got {cfg.short(value)}")
+
+
+def _check_kwargs(fn, options, where: str) -> None:
+    """The keyword options of an optax function, each of the type of its default (a
+    number, true or false) where it has one, a number where it is annotated int or float.
+    A table is required; options without a typed default are left to the call."""
+    where = _key(where)
+    if not isinstance(options, dict):
+        got = cfg.short(options)
+        raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {got}")  # noqa: TRY004
+    parameters = inspect.signature(fn).parameters
+    for key, value in options.items():
+        p = parameters.get(key)
+        if p is None:
+            continue  # the call names it
+        default = p.default
+        if isinstance(default, bool) or p.annotation in (bool, "bool"):
+            cfg.boolean(value, f"config key '{where}.{key}'")
+        elif (isinstance(default, (int, float)) or p.annotation in (int, float, "int", "float")) and (
+            isinstance(value, bool) or not isinstance(value, (int, float))
+        ):
+            raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg.short(value)}")
+
+
+def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
+    """apply_if_finite(chain(clip_by_global_norm, optax.<name>(schedule, **options)))."""
+    _positive("optimizer.learning_rate", config.learning_rate)
+    _positive("optimizer.clip_norm", config.clip_norm)
+    name_key = _key("optimizer.name")
+    factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
+    if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
+        raise ValueError(f"config key {name_key!r}: {cfg.short(config.name)} is not an optax optimizer "
+                         "(e.g. adam, sgd)")
+    _check_kwargs(factory, config.options, "optimizer.options")
+    learning_rate = config.learning_rate
+    if config.schedule is not None:
+        schedule = getattr(optax, config.schedule, None) if isinstance(config.schedule, str) else None
+        if not callable(schedule):
+            raise ValueError(f"config key {_key('optimizer.schedule')!r}: {cfg.short(config.schedule)} "
+                             "is not an optax schedule")
+        _check_kwargs(schedule, config.schedule_options, "optimizer.schedule_options")
+        try:
+            learning_rate = schedule(config.learning_rate, **config.schedule_options)
+            learning_rate(0)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"config key {_key('optimizer.schedule_options')!r}: {err}") from err
+    try:
+        inner = factory(learning_rate, **config.options)
+    except TypeError as err:
+        raise ValueError(f"config key {_key('optimizer.options')!r}: {err}") from err
+    # Large enough never to give up: the loop stops at the first non-finite gradient.
+    tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30)
+    try:  # an optimizer that needs more than (grad, value), e.g. lbfgs's value_fn
+        probe = jnp.zeros(2)
+        with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
+            tx.update(probe, tx.init(probe), probe, value=jnp.zeros(()))
+    except Exception as err:  # any failure on a trivial update disqualifies it
+        raise ValueError(f"config key {name_key!r}: optax.{config.name} cannot be used here: {err}") from err
+    return tx
+
+
+def validate(config: TuneConfig) -> None:
+    """Every check that can run before compilation (docs/model.md §6 style: a clear ValueError)."""
+    _choice("controller", config.controller, tuple(CONTROLLERS))
+    _choice("method", config.method, METHODS)
+    _choice("gradient", config.gradient, MODES)
+    _choice("cost.mode", config.cost.mode, COST_MODES)
+    _choice("objective", config.objective, OBJECTIVES)
+    cfg.number(config.alpha, f"config key {_key('alpha')!r}", low=0.0, high=1.0)
+    if not 0.0 < config.alpha < 1.0:
+        raise ValueError(f"config key {_key('alpha')!r} must lie strictly between 0 and 1, got {config.alpha}")
+    _positive("iterations", config.iterations, integer=True)
+    if config.record_every is not None:
+        _positive("record_every", config.record_every, integer=True)
+    for section in ("train", "validation"):
+        scenarios = getattr(config, section)
+        if not scenarios.seeds or not all(
+            isinstance(s, int) and not isinstance(s, bool) and 0 <= s < 2**31 for s in scenarios.seeds
+        ):
+            raise ValueError(f"config key {_key(section + '.seeds')!r} must be a non-empty list of integers "
+                             "in [0, 2^31)")
+        if not scenarios.inertia_scales:
+            raise ValueError(f"config key {_key(section + '.inertia_scales')!r} must be a non-empty list")
+        for scale in scenarios.inertia_scales:
+            _positive(f"{section}.inertia_scales", scale)
+    _check_dispersions(config)
+    _check_estimator(config)
+    held_out = set(config.train.seeds) & set(config.validation.seeds)
+    if held_out:
+        raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
+                         f"both have {sorted(held_out)}")
+    cost = config.cost
+    _positive("cost.weight", cost.weight)
+    for key in ("rmse_ref", "effort_ref", "budget"):
+        if getattr(cost, key) is not None:
+            _positive(f"cost.{key}", getattr(cost, key))
+    if cost.mode == "equal_effort" and (cost.budget is None) == (cost.budget_controller is None):
+        raise ValueError(f"equal_effort cost needs exactly one of config keys {_key('cost.budget')!r}, "
+                         f"{_key('cost.budget_controller')!r}")
+    if cost.budget_controller is not None:
+        _choice("cost.budget_controller", cost.budget_controller, tuple(CONTROLLERS))
+    cfg.boolean(config.diagonal_gamma, f"config key {_key('diagonal_gamma')!r}")
+    if config.diagonal_gamma and not diagonals(config.controller):
+        raise ValueError(f"config key {_key('diagonal_gamma')!r}: no gain of the {config.controller} controller "
+                         "may be a diagonal")
+    if not isinstance(config.mission, missions.Mission):
+        got = cfg.short(config.mission)
+        raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
+    for key, controller, spec in (
+        ("initial_gains", config.controller, config.initial_gains),
+        ("cost.budget_gains", cost.budget_controller, cost.budget_gains),
+    ):
+        if controller is not None:
+            try:
+                diagonal = config.diagonal_gamma and key == "initial_gains"
+                resolve_gains(controller, spec, jnp.result_type(float), diagonal, config.mission)
+            except (OSError, ValueError) as err:
+                raise ValueError(f"config key {_key(key)!r}: {err}") from None
+    make_optimizer(config.optimizer)
+    _positive("es.population", config.es.population, integer=True)
+    _positive("es.sigma", config.es.sigma)
+    cfg.number(config.es.seed, f"config key {_key('es.seed')!r}", low=0, high=2**32 - 1, integer=True)
+
+
+def _check_dispersions(config: TuneConfig) -> None:
+    """[tune.dispersions]: parsed against the mission; then each scenario set names one
+    sampling seed and its sample count, with no inertia scales, and the method is the
+    gradient's (the ES's elitist selection would compare costs across batches)."""
+    from so3jax.missions import dispersed
+
+    for section in ("train", "validation"):
+        s = getattr(config, section)
+        if config.dispersions is None:
+            if s.samples is not None:
+                raise ValueError(f"config key {_key(section + '.samples')!r} draws dispersed missions: "
+                                 f"it needs a [{TUNE}.dispersions] table")
+            continue
+        _positive(f"{section}.samples", s.samples, integer=True)
+        if len(s.seeds) != 1 or tuple(s.inertia_scales) != (1.0,):
+            raise ValueError(f"with [{TUNE}.dispersions], {_key(section + '.seeds')} holds one sampling seed and "
+                             f"{_key(section + '.inertia_scales')} is not given (the dispersions scale the inertias)")
+    if config.dispersions is None:
+        return
+    if not isinstance(config.dispersions, dict):
+        raise ValueError(f"config key {_key('dispersions')!r} must be a table, got {cfg.short(config.dispersions)}")
+    if config.method != "gradient":
+        raise ValueError(f"config key {_key('dispersions')!r} needs {_key('method')} = \"gradient\": a fresh batch "
+                         "every iteration, where the ES's elitist selection would compare costs of different batches")
+    try:
+        dispersed.parse(config.dispersions, config.mission)
+    except ValueError as err:
+        raise ValueError(f"{_key('dispersions')}: {err}") from None
+
+
+def tunable_estimator(mission) -> tuple:
+    """The parameters of the mission's estimator that can be tuned: positive real numbers."""
+    from so3jax.components import registry as components
+
+    kind = mission.estimator["kind"]
+    return tuple(p.name for p in components.get("estimator", kind).params
+                 if p.shapes == ((),) and p.low >= 0.0 and not (p.integer or p.boolean or p.choices))
+
+
+def _check_estimator(config: TuneConfig) -> None:
+    """tune.estimator: distinct tunable parameters of the mission's estimator, each positive
+    as the loop builds it (their logarithms are tuned)."""
+    names = config.estimator
+    if not names:
+        return
+    where = _key("estimator")
+    kind = config.mission.estimator["kind"]
+    tunable = tunable_estimator(config.mission)
+    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+        raise ValueError(f"config key {where!r} must list distinct parameter names, got {cfg.short(list(names))}")
+    for name in names:
+        if name not in tunable:
+            raise ValueError(f"config key {where!r}: the mission's estimator {kind!r} has no tunable parameter "
+                             f"{name!r} (tunable: {', '.join(tunable) or 'none'})")
+    estimator = config.mission.loop(jnp.result_type(float)).estimator
+    for name in names:
+        if not float(getattr(estimator, name)) > 0.0:
+            raise ValueError(f"config key {where!r}: {name} is 0 in the mission; its logarithm is tuned, so it "
+                             "must start positive")
+
+
+def tune_table(config: TuneConfig) -> dict:
+    """The ``[tune]`` table of a config, every field (defaults included) but those of a
+    feature the campaign does not use (no dispersions: their table and sample counts; the
+    mean objective: alpha), which change nothing it computes."""
+    table = {f.name: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
+             for f in dataclasses.fields(config) if f.name != "mission" for v in [getattr(config, f.name)]}
+    if config.dispersions is None:
+        del table["dispersions"]
+        for section in ("train", "validation"):
+            del table[section]["samples"]
+    if config.objective == "mean":
+        del table["objective"], table["alpha"]
+    if not config.estimator:
+        del table["estimator"]
+    return table
+
+
+def describe(config: TuneConfig) -> dict:
+    """What fixes a campaign's results: its mission (less the trajectory sampling, which
+    no tuning rollout records), its [tune] table and the precision of the run."""
+    mission = {k: v for k, v in config.mission.describe().items() if k != "record_every"}
+    return {"mission": mission, TUNE: tune_table(config), "precision": str(jnp.dtype(jnp.result_type(float)))}
+
+
+def parse_config(table: dict, base_dir=".", base: dict = missions.PAPER) -> TuneConfig:
+    """A validated TuneConfig from a campaign's tables: ``mission`` (a mission file relative
+    to base_dir) and/or mission tables over ``base``, and ``[tune]``; gain-file paths
+    relative to base_dir."""
+    if not isinstance(table, dict):
+        raise ValueError(f"a campaign must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+    table = json.loads(json.dumps(table))  # a deep copy
+    mission, jobs = missions.load_job(table, base_dir, (TUNE,), base)
+    if TUNE not in jobs:
+        raise ValueError(f"a campaign needs a [{TUNE}] table: controller, iterations, "
+                         f"[{TUNE}.train] seeds, [{TUNE}.validation] seeds, ...")
+    tune = jobs[TUNE]
+    cost = tune.get("cost") if isinstance(tune, dict) else None
+    for holder, key in ((tune, "initial_gains"), (cost, "budget_gains")):
+        value = holder.get(key) if isinstance(holder, dict) else None
+        if isinstance(value, str) and value.endswith(".json"):
+            holder[key] = str((Path(base_dir) / value).resolve())
+    config = _build(TuneConfig, tune, f"{TUNE}.", mission=mission)
+    validate(config)
+    return config
+
+
+def load_config(path, overrides=()) -> TuneConfig:
+    """Read a TOML campaign file and apply (dotted key, value) overrides: mission keys
+    (``T``, ``gains.pd.k_R``) or ``tune.*`` keys."""
+    table = cfg.read_toml(path)
+    for key, value in overrides:
+        cfg.set_dotted(table, key, value)
+    return parse_config(table, Path(path).parent)

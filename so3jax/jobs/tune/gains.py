@@ -1,0 +1,167 @@
+"""Tunable controllers and their gains: the laws a mission configures, reading gains
+("mission", "paper", a table, a best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
+gains as tables and columns."""
+
+from __future__ import annotations
+
+import collections
+import json
+import warnings
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.missions import config as cfg
+from so3jax.results import runfolder
+from so3jax.controllers import registry
+from so3jax.dynamics.scenario import gain_domain
+
+# One instance per controller with its default options, so that jit caches hit across runs.
+CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
+GAIN_TYPES = {n: registry.get(n).gains_type for n in CONTROLLERS}
+PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
+
+_LAWS: dict = {}  # (name, options' fingerprint) -> Controller: one instance per configuration
+
+
+def law(mission, name: str):
+    """The controller ``name`` with the mission's options ([controller.NAME]: J_hat, ...);
+    the same instance for the same options (a static jit argument)."""
+    options = mission.options.get(name, {}) if mission is not None else {}
+    key = (name, runfolder.fingerprint(options))
+    if key not in _LAWS:
+        _LAWS[key] = registry.get(name).factory(**options)
+    return _LAWS[key]
+
+
+def diagonals(controller: str) -> dict:
+    """{gain: (n,)} of the gains that may be a diagonal of n entries (the adaptive law's Gamma)."""
+    spec = registry.get(controller)
+    return {f: s for f, shapes in spec.gain_shapes().items() for s in shapes if len(s) == 1}
+
+
+def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=None):
+    """Gains from "mission" (the mission's [gains.NAME]), "paper" (the registered defaults),
+    a table {name: value}, or a best_gains.json path; checked by the registration. Each
+    gain a number or a diagonal (no matrix); ``diagonal_gamma``: every gain that may be a
+    diagonal broadcast to one."""
+    registered = registry.get(controller)
+    cls = registered.gains_type
+    if spec == "mission":
+        if mission is None or controller not in mission.gains:
+            flown = ", ".join(mission.controllers) if mission is not None else "none"
+            raise ValueError(f"'mission' gains: the mission flies no {controller!r} controller (controllers: {flown}); "
+                             f"add it to the mission's controllers or give the gains")
+        table = {k: np.asarray(v).tolist() for k, v in mission.gains[controller]._asdict().items()}
+    elif spec == "paper":
+        table = registered.defaults._asdict()
+    elif isinstance(spec, str):
+        saved = json.loads(Path(spec).read_text())
+        if runfolder.incomplete(Path(spec).parent):
+            warnings.warn(f"gains file {spec} is from a so3jax run that did not finish (its manifest says incomplete)")
+        held = saved.get("controller") if isinstance(saved, dict) else None
+        if held != controller or not isinstance(saved.get("gains"), dict):
+            raise ValueError(f"gains file {spec} holds no table of {controller!r} gains ({held!r} gains)")
+        table = saved["gains"]
+    elif isinstance(spec, dict):
+        table = spec
+    else:
+        raise ValueError(f"gains must be 'mission', 'paper', a table or a .json path, got {cfg.short(spec)}")
+    for name in table:
+        if name not in cls._fields:
+            raise ValueError(f"unknown gain {name!r} for the {controller} controller ({', '.join(cls._fields)})")
+    missing = [name for name in cls._fields if name not in table]
+    if missing:
+        raise ValueError(f"missing gain {missing[0]!r} for the {controller} controller")
+    shapes = {name: tuple(s for s in allowed if len(s) < 2) for name, allowed in registered.gain_shapes().items()}
+    table = cfg.gains(table, registered.defaults, shapes, "gains")._asdict()
+    gains = cls(**{name: jnp.asarray(table[name], dtype) for name in cls._fields})
+    if diagonal_gamma:
+        gains = gains._replace(**{f: jnp.broadcast_to(getattr(gains, f), s) for f, s in diagonals(controller).items()})
+    try:
+        registered.check(gains)
+    except TypeError as err:
+        raise ValueError(str(err)) from None
+    return gains
+
+
+def _fieldwise(gains, positive, nonnegative):
+    """positive(value) on each positive gain, nonnegative(value, scale) on each gain its
+    type declares Nonnegative(scale) (scenario.gain_domain)."""
+    def one(name, value):
+        domain = gain_domain(gains, name)
+        return positive(value) if domain is None else nonnegative(value, domain.scale)
+
+    return type(gains)(**{name: one(name, value) for name, value in gains._asdict().items()})
+
+
+def to_params(gains):
+    """The tuned parameters: p = log g of a positive gain, p = g / scale of a nonnegative one."""
+    return _fieldwise(gains, jnp.log, lambda g, scale: g / scale)
+
+
+def to_gains(params):
+    """g = exp p, or scale max(p, 0) for a nonnegative gain."""
+    return _fieldwise(params, jnp.exp, lambda p, scale: scale * jnp.maximum(p, 0.0))
+
+
+def project(params):
+    """Parameters on their domain: a nonnegative gain's p clipped at 0 after each step
+    (projected gradient), so that a gain at 0 keeps a derivative that can move it."""
+    return _fieldwise(params, lambda p: p, lambda p, scale: jnp.maximum(p, 0.0))
+
+
+# --- the estimator's assumed noise levels, tuned beside the gains --------------------------
+
+ESTIMATOR = "estimator_"  # the prefix of an estimator parameter among the tuned ones
+_TUNED: dict = {}  # (gains type, estimator names) -> the NamedTuple type of both
+
+
+def with_estimator(gains, values: dict):
+    """The tuned parameters: the law's gains and the estimator's parameters {name: value}
+    (each positive, e.g. the noise levels the filter assumes) as one NamedTuple, fields
+    ``estimator_NAME`` after the gains', so that the optimizer, the history and the
+    checkpoints treat them as gains; the gains themselves where values is empty."""
+    if not values:
+        return gains
+    base = type(gains)
+    key = (base, tuple(values))
+    if key not in _TUNED:
+        tuned = collections.namedtuple(f"{base.__name__}AndEstimator", base._fields + tuple(ESTIMATOR + n for n in values))
+        tuned.domains, tuned.law_gains = getattr(base, "domains", {}), base
+        _TUNED[key] = tuned
+    return _TUNED[key](*gains, *values.values())
+
+
+def split(tuned) -> tuple:
+    """(the law's gains, {estimator parameter: value}) of tuned parameters."""
+    base = getattr(type(tuned), "law_gains", None)
+    if base is None:
+        return tuned, {}
+    n = len(base._fields)
+    return base(*tuned[:n]), {f[len(ESTIMATOR):]: v for f, v in zip(tuned._fields[n:], tuned[n:])}
+
+
+def gains_table(gains) -> dict:
+    """{gain: value} of the law's gains (an estimator's tuned parameters left out)."""
+    return {name: np.asarray(value).tolist() for name, value in split(gains)[0]._asdict().items()}
+
+
+def tables(tuned) -> dict:
+    """{"gains": the law's gains, "estimator": its tuned parameters (where any)}."""
+    believed = split(tuned)[1]
+    return {"gains": gains_table(tuned), **({"estimator": {k: float(v) for k, v in believed.items()}} if believed else {})}
+
+
+def gain_columns(gains) -> dict:
+    """Flat {column: value}: Gamma_0 .. Gamma_8 for a diagonal Gamma."""
+    columns = {}
+    for name, value in gains._asdict().items():
+        value = np.asarray(value)
+        if value.ndim == 0:
+            columns[name] = float(value)
+        else:
+            columns.update({f"{name}_{i}": float(v) for i, v in enumerate(value)})
+    return columns

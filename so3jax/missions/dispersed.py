@@ -1,0 +1,289 @@
+"""A mission's ``[dispersions]`` table: which of the mission's own leaves vary from
+sample to sample, and each sample's scenario and loop.
+
+Keys are the mission's leaves (``deployment.tau_J``, ``sensors.gyro.arw``,
+``actuator.wheels.max_torque``, ...), values a number (fixed) or a distribution
+(:func:`so3jax.missions.dispersions.parse_distribution`). A few leaves take structured
+distributions and keep :mod:`so3jax.missions.dispersions`' variate layout:
+
+* ``inertia.J0``, ``inertia.J1``, ``inertia.J2``: ``{scale, axis_scale, rotation_deg,
+  products}`` (:class:`~so3jax.missions.dispersions.InertiaDispersion`; J1's is applied to the
+  sample's J0 when the mission gives J1 as a scale of J0);
+* ``initial.attitude``: ``{max_angle_deg}``, R(0) = R_mission(0) exp(hat(v)), v uniform
+  on SO(3) up to that angle; ``initial.rate``: ``{norm}``, |Omega(0)| drawn from the
+  distribution ``norm`` [rad/s], its direction uniform on the sphere;
+* ``seed``: ``"random"``, a disturbance and sensor-noise seed per sample, or ``"mission"``
+  (the default), the mission's seed for every sample.
+
+Every other leaf is a parameter of a flown sensor, estimator or actuator: each element
+of its value is drawn independently from its own variates, ``fold_in(fold_in(key(seed),
+k), crc32(leaf))``, so adding or removing a dispersion moves no other. A sample with a
+value outside the parameter's declared domain is rejected (never simulated). The
+estimator keeps the noise levels the mission's nominal sensors report: the hardware is
+dispersed, not what the filter assumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import zlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.components import registry as components
+from so3jax.missions import config as cfg
+from so3jax.missions import dispersions as disp
+from so3jax.missions.mission import Mission, _build_loop, _rotation
+from so3jax.dynamics.plant import ConstantInertia
+from so3jax.dynamics.scenario import Scenario, paper_scenario
+
+STRUCTURED = {
+    ("deployment", "tau_J"): "tau_J",
+    ("orbit", "n"): "n",
+    ("disturbance", "amplitude"): "amplitude",
+    ("disturbance", "frequency"): "frequency",
+    ("disturbance", "noise_std"): "noise_std",
+}
+_INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products")
+_LOOP_TABLES = ("sensors", "estimator", "actuator")
+
+
+@dataclasses.dataclass(frozen=True)
+class Leaf:
+    """A dispersed component parameter: its dotted key, distribution, the shape of the
+    mission's value, and the parameter's domain [low, high]."""
+
+    key: str
+    dist: disp.Distribution
+    shape: tuple
+    low: float
+    high: float
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    """{dotted key: value} down to numbers, strings and distribution tables (with 'dist',
+    or an inertia / initial-state table)."""
+    out = {}
+    for key, value in table.items():
+        path = f"{prefix}{key}"
+        structured = path in ("inertia.J0", "inertia.J1", "inertia.J2", "initial.attitude", "initial.rate")
+        if isinstance(value, dict) and "dist" not in value and not structured:
+            out.update(_flatten(value, path + "."))
+        else:
+            out[path] = value
+    return out
+
+
+def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, ...]]:
+    """(structured dispersions, component leaves) of a ``[dispersions]`` table on ``mission``;
+    one-line ValueErrors naming the key."""
+    if not isinstance(table, dict):
+        raise ValueError(f"[dispersions] must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+    fields = {
+        "J0": disp.InertiaDispersion(nominal=_matrix(mission.J0)),
+        "J1": disp.InertiaDispersion(nominal=None if mission.J1_scale is not None else _matrix(mission.J1),
+                                     scale=disp.Fixed(1.0 if mission.J1_scale is None else mission.J1_scale)),
+        "J2": disp.InertiaDispersion(nominal=_matrix(mission.J2)),
+        "tau_J": disp.Fixed(mission.tau_J),
+        "n": disp.Fixed(mission.n),
+        **{name: disp.Fixed(mission.disturbance[name]) for name in ("amplitude", "frequency", "noise_std")},
+        "disturbance_seed": mission.seed,
+    }
+    leaves = []
+    for key, value in _flatten(table).items():
+        path = tuple(key.split("."))
+        where = f"dispersions.{key}"
+        if key == "seed":
+            choice = cfg.choice(value, f"{where} (random: a seed per sample; mission: the mission's seed for all)",
+                                ("random", "mission"))
+            fields["disturbance_seed"] = None if choice == "random" else mission.seed
+        elif path[0] == "inertia" and len(path) == 2 and path[1] in ("J0", "J1", "J2"):
+            if mission.constant_inertia and path[1] != "J0":
+                raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")
+            fields[path[1]] = _inertia(value, where, fields[path[1]])
+        elif key == "initial.attitude":
+            t = cfg.table({"t": value}, "t", ("max_angle_deg",), where)
+            fields["initial_angle_deg"] = cfg.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg", 0.0, 180.0)
+        elif key == "initial.rate":
+            t = cfg.table({"t": value}, "t", ("norm",), where)
+            fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
+        elif path in STRUCTURED:
+            fields[STRUCTURED[path]] = _distribution(value, where)
+        elif path[0] in _LOOP_TABLES:
+            leaves.append(_leaf(path, value, where, mission))
+        else:
+            raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, orbit.n, "
+                             "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
+                             "parameters of the mission's sensors, estimator and actuator")
+    if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
+        fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
+        fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
+    dispersions = disp.Dispersions(**fields)
+    disp.check(dispersions, warn=False)
+    return dispersions, tuple(leaves)
+
+
+def _matrix(J) -> tuple:
+    return tuple(map(tuple, np.asarray(J, float).tolist()))
+
+
+def _distribution(value, where: str) -> disp.Distribution:
+    if isinstance(value, dict) and "dist" in value and not isinstance(value["dist"], str):
+        cfg.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
+    return disp.parse_distribution(value, where)
+
+
+def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
+    t = cfg.table({"t": value}, "t", _INERTIA_KEYS, where)
+    changes = {name: _distribution(t[name], f"{where}.{name}") for name in ("scale", "axis_scale", "products") if name in t}
+    if "rotation_deg" in t:
+        changes["rotation_deg"] = cfg.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
+    return dataclasses.replace(default, **changes)
+
+
+def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A component parameter of the mission: flown, numeric, not an integer."""
+    table, name, param = path[0], path[1] if len(path) > 1 else "", path[2] if len(path) > 2 else ""
+    if len(path) != 3:
+        raise ValueError(f"{where} must name a component parameter, e.g. dispersions.{table}.NAME.PARAMETER")
+    if table == "sensors":
+        flown = mission.sensors
+    else:
+        chosen = getattr(mission, table)  # {"kind": name, name: values}
+        flown = {chosen["kind"]: chosen[chosen["kind"]]}
+    if name not in flown:
+        raise ValueError(f"{where}: the mission flies no {table} {name!r} (flown: {', '.join(flown) or 'none'})")
+    kind = "sensor" if table == "sensors" else table
+    spec = next((p for p in components.get(kind, name).params if p.name == param), None)
+    if spec is None:
+        raise ValueError(f"{where}: {table} {name!r} has no parameter {param!r}")
+    current = flown[name][param]
+    if spec.integer or spec.boolean or spec.choices or current is None:
+        raise ValueError(f"{where}: only real-valued parameters are dispersed ({param} is "
+                         f"{'not set in the mission' if current is None else 'not a real number'})")
+    dist = _distribution(value, where)
+    disp.check_domain(dist, where, spec.low, strict=False)
+    return Leaf(".".join(path), dist, np.shape(current), spec.low, spec.high)
+
+
+# --- drawing ---------------------------------------------------------------------------------
+
+
+@functools.partial(jax.jit, static_argnames="n_words")
+def _leaf_words(seed, indices, salt, n_words: int):
+    base = jax.random.key(seed)
+    draw = lambda k: jax.random.bits(jax.random.fold_in(jax.random.fold_in(base, k), salt), (n_words,), jnp.uint32)
+    return jax.vmap(draw)(indices)
+
+
+def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tuple[dict, np.ndarray]:
+    """({key: values (N, *shape)}, valid (N,)): each leaf's values for samples first ..
+    first + N - 1, in float64, and whether every value lies in its parameter's domain."""
+    values, valid = {}, np.ones(n_samples, bool)
+    for leaf in leaves:
+        size = int(np.prod(leaf.shape))
+        words = np.asarray(_leaf_words(np.uint32(seed), np.arange(first, first + n_samples, dtype=np.uint32),
+                                       np.uint32(zlib.crc32(leaf.key.encode())), 2 * max(size, 1)))
+        v = disp._variates(words)
+        u, z = v.take(max(size, 1))
+        x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))
+        values[leaf.key] = x
+        valid &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
+    return values, valid
+
+
+def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int, max_draws: int,
+         first: int = 0) -> disp.Samples:
+    """Samples first .. first + n_samples - 1 with their dispersed component values
+    (``leaves``); valid: a positive definite inertia within max_draws and every component
+    value in its domain."""
+    samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
+    values, in_domain = draw_leaves(leaves, seed, n_samples, first)
+    return samples._replace(valid=samples.valid & in_domain, leaves=values)
+
+
+def inputs(samples: disp.Samples, dtype) -> tuple:
+    """(RolloutParams, {leaf: values}) of the samples, reals in dtype: :func:`sample_metrics`' inputs."""
+    as_dtype = lambda x: x.astype(dtype) if x.dtype.kind == "f" else x
+    return jax.tree.map(as_dtype, samples.params), {k: as_dtype(v) for k, v in samples.leaves.items()}
+
+
+# --- a sample's scenario and loop ------------------------------------------------------------
+
+
+MISSIONS: dict = {}  # fingerprint -> Mission: the static key that names a mission to sample_metrics
+
+
+def mission_key(mission: Mission) -> str:
+    """A hashable name of the mission (its fingerprint), for :func:`sample_metrics`' ``mission``."""
+    from so3jax.results import runfolder
+
+    key = runfolder.fingerprint(mission.describe())
+    MISSIONS[key] = mission
+    return key
+
+
+def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None, estimator=None) -> dict:
+    """{metric: values} of a batch of samples of the mission named by ``mission`` (see
+    :func:`mission_key`) flown by the controller ``law`` at ``gains``: the docs/model.md §6 metrics, and the
+    flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
+    parameter: values}), leading batch axis. The samples share the mission's loop and run
+    natively batched (:func:`so3jax.sim.rollout.rollout_batch`, the values of a vmap of
+    rollouts); with dispersed component parameters, each sample's loop is its own (a vmap
+    of rollouts). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
+    memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
+    estimator that every sample shares (the noise levels the filter assumes, tuned).
+    Pure: jit, grad and :func:`so3jax.parallel.devices.split` compose with it."""
+    from so3jax.sim.rollout import rollout, rollout_batch
+
+    params, leaves = inputs
+    m, dtype = MISSIONS[mission], params.J0.dtype
+    scenarios = jax.vmap(lambda p: scenario(m, p))(params)
+    shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
+    if not leaves:
+        shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
+        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=shared_loop, record_every=record_every))
+
+    def one(s, seed, values):
+        return _results(rollout(s, law, gains, seed, loop=loop(m, {**shared, **values}, dtype), record_every=record_every))
+
+    return jax.vmap(one)(scenarios, params.seed, leaves)
+
+
+def _results(result) -> dict:
+    """A rollout's docs/model.md §6 metrics and, in the sampled wiring, its flight metrics, by name."""
+    flight = {} if result.flight == () else result.flight._asdict()
+    return {**result.metrics._asdict(), **flight}
+
+
+def scenario(mission: Mission, p: disp.RolloutParams) -> Scenario:
+    """The mission's scenario with one sample's parameters (traceable: vmap over samples)."""
+    s = paper_scenario(mission.T, mission.dt, tau_J=p.tau_J, n=p.n, J0=p.J0, J1=p.J1, J2=p.J2,
+                       disturbance_amplitude=p.amplitude, disturbance_frequency=p.frequency, noise_std=p.noise_std,
+                       dtype=p.J0.dtype)
+    R0 = p.R0
+    if np.any(mission.initial["attitude"]):
+        R0 = jnp.asarray(_rotation(mission.initial["attitude"]), p.R0.dtype) @ R0
+    Omega0 = p.Omega0
+    if np.any(mission.initial["rate"]):
+        Omega0 = Omega0 + jnp.asarray(mission.initial["rate"], p.Omega0.dtype)
+    changes = {"R0": R0, "Omega0": Omega0}
+    if mission.constant_inertia:
+        changes["inertia"] = ConstantInertia(p.J0)
+    return dataclasses.replace(s, **changes)
+
+
+def loop(mission: Mission, values: dict, dtype):
+    """The mission's loop with component leaves {key: value} replaced (traceable); the
+    estimator assumes the nominal sensors' noise levels."""
+    tables = {"sensors": {k: dict(v) for k, v in mission.sensors.items()},
+              "estimator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.estimator.items()},
+              "actuator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.actuator.items()}}
+    for key, value in values.items():
+        table, name, param = key.split(".")
+        tables[table][name][param] = value
+    changed = dataclasses.replace(mission, **tables)
+    return _build_loop(changed, lambda x: jnp.asarray(x, dtype), noise_of=mission)

@@ -1,0 +1,369 @@
+"""Monte Carlo dispersions of the paper's mission (docs/model.md §4, §15): what varies from sample to
+sample, by which distribution, and the sampler.
+
+Sample k's values depend only on (seed, k): its random words are
+``jax.random.bits(fold_in(key(seed), k), (L,), uint32)`` (threefry, partitionable, so
+word i depends only on the key and i). Word 0 is its disturbance seed; then two words
+per variate, first those of the quantities drawn once per sample, then those of each
+attempt at the physical parameters (inertias, tau_J). Each quantity reads its own
+variates, so adding a dispersion (appended last) moves no other. The words become
+uniform and normal variates and then parameters on the host, in float64 NumPy.
+
+An attempt whose J0, J1 or J2 is not positive definite, or whose tau_J is not positive,
+is drawn again from the next attempt's variates, up to ``max_draws`` attempts; then the
+sample is rejected: never simulated. A distribution that cannot draw its quantity's
+domain (a fixed tau_J <= 0, a uniform scale reaching 0, ...) is a ValueError
+(:func:`check`), before anything is drawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2, orbital_rate
+
+BLOCK = 512  # samples per call of the (compiled) word generator
+OTHER_VARIATES = 12  # n, amplitude, frequency, noise_std, initial attitude (4) and rate (4)
+PHYSICAL_VARIATES = 3 * 11 + 1  # per attempt: J0, J1, J2 (11 each), tau_J
+
+
+# --- distributions ----------------------------------------------------------------------
+# Each maps a variate (u uniform on (0, 1), z standard normal) to a value.
+
+
+@dataclasses.dataclass(frozen=True)
+class Fixed:
+    """Always ``value``."""
+
+    value: float
+
+    def sample(self, u, z):
+        return np.full_like(u, self.value)
+
+
+@dataclasses.dataclass(frozen=True)
+class Uniform:
+    """Uniform on [low, high]."""
+
+    low: float
+    high: float
+
+    def sample(self, u, z):
+        return self.low + (self.high - self.low) * u
+
+
+@dataclasses.dataclass(frozen=True)
+class Normal:
+    """Gaussian with mean ``mean`` and standard deviation ``std``."""
+
+    mean: float
+    std: float
+
+    def sample(self, u, z):
+        return self.mean + self.std * z
+
+
+@dataclasses.dataclass(frozen=True)
+class LogNormal:
+    """exp(N(log median, sigma^2)): positive, median ``median``, log-space std ``sigma``."""
+
+    median: float
+    sigma: float
+
+    def sample(self, u, z):
+        return self.median * np.exp(self.sigma * z)
+
+
+DISTRIBUTIONS = {"fixed": Fixed, "uniform": Uniform, "normal": Normal, "lognormal": LogNormal}
+Distribution = Fixed | Uniform | Normal | LogNormal
+
+
+def parse_distribution(value, where: str) -> Distribution:
+    """A number (fixed) or a table ``{dist = "uniform", low = .., high = ..}`` -> distribution."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return _checked(Fixed(float(value)), where)
+    if not isinstance(value, dict) or "dist" not in value:
+        raise ValueError(f"{where}: expected a number or a table with 'dist' ({', '.join(DISTRIBUTIONS)}), got {value!r}")
+    kind = DISTRIBUTIONS.get(value["dist"])
+    if kind is None:
+        raise ValueError(f"{where}: unknown distribution {value['dist']!r}; choose one of {', '.join(DISTRIBUTIONS)}")
+    params = {k: v for k, v in value.items() if k != "dist"}
+    names = [f.name for f in dataclasses.fields(kind)]
+    if sorted(params) != sorted(names):
+        raise ValueError(f"{where}: distribution {value['dist']!r} takes exactly {names}, got {sorted(params)}")
+    for name, v in params.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ValueError(f"{where}.{name} must be a number, got {v!r}")  # noqa: TRY004
+    return _checked(kind(**{k: float(v) for k, v in params.items()}), where)
+
+
+def _checked(dist: Distribution, where: str) -> Distribution:
+    values = dataclasses.astuple(dist)
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{where}: parameters must be finite, got {dist}")
+    if isinstance(dist, Uniform) and dist.low > dist.high:
+        raise ValueError(f"{where}: uniform needs low <= high, got {dist}")
+    if isinstance(dist, Normal) and dist.std < 0 or isinstance(dist, LogNormal) and (dist.sigma < 0 or dist.median <= 0):
+        raise ValueError(f"{where}: needs std / sigma >= 0 and median > 0, got {dist}")
+    return dist
+
+
+def check_domain(dist: Distribution, where: str, low: float = 0.0, strict: bool = True) -> Distribution:
+    """ValueError unless ``dist`` draws values of its quantity's domain, x > low (x >= low
+    where not ``strict``): a fixed value, or a uniform's whole range (its upper end above
+    ``low`` where strict), in the domain; a normal's mean in it (its tails beyond ``low``
+    are drawn again or, after max_draws, reject the sample, for the physical parameters);
+    a lognormal for low <= 0 (it is positive)."""
+    ok = {
+        Fixed: lambda d: d.value > low if strict else d.value >= low,
+        Uniform: lambda d: d.low >= low and (d.high > low if strict else True),
+        Normal: lambda d: d.mean > low if strict else d.mean >= low,
+        LogNormal: lambda d: low <= 0.0,
+    }[type(dist)](dist)
+    if not ok:
+        raise ValueError(f"{where} must be {'>' if strict else '>='} {low:g}: {describe(dist)} is outside that domain")
+    return dist
+
+
+# The domain of each dispersed quantity (Dispersions field: config name, low, strict).
+DOMAINS = {
+    "tau_J": ("deployment.tau_J [s]", 0.0, True),
+    "n": ("orbit.n [rad/s]", 0.0, False),
+    "noise_std": ("disturbance.noise_std [N m]", 0.0, False),
+    "initial_rate": ("initial.rate [rad/s]", 0.0, False),
+}
+INERTIA_DOMAINS = {"scale": (0.0, True), "axis_scale": (0.0, True)}  # InertiaDispersion field: low, strict
+
+
+def check(d: Dispersions, *, warn: bool = True) -> None:
+    """Every dispersed quantity's distribution in its domain (:func:`check_domain`), and
+    the nominal inertias (docs/model.md §6; an InertiaWarning for one that breaks the triangle
+    inequality, if ``warn``), before anything is drawn or compiled."""
+    from so3jax.dynamics.scenario import check_inertia
+
+    for name, (where, low, strict) in DOMAINS.items():
+        check_domain(getattr(d, name), where, low, strict)
+    for J in ("J0", "J1", "J2"):
+        inertia = getattr(d, J)
+        for field, (low, strict) in INERTIA_DOMAINS.items():
+            check_domain(getattr(inertia, field), f"inertia.{J}.{field}", low, strict)
+        if not 0.0 <= inertia.rotation_deg <= 180.0:
+            raise ValueError(f"inertia.{J}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
+        if inertia.nominal is not None:
+            check_inertia(f"{J} (inertia.{J}.nominal)", np.asarray(inertia.nominal, dtype=float), warn=warn)
+    if not 0.0 <= d.initial_angle_deg <= 180.0:
+        raise ValueError(f"initial.max_angle_deg must be in [0, 180], got {d.initial_angle_deg}")
+
+
+def describe(dist: Distribution) -> Any:
+    """The TOML form of a distribution (a number when fixed)."""
+    if isinstance(dist, Fixed):
+        return dist.value
+    name = next(k for k, v in DISTRIBUTIONS.items() if isinstance(dist, v))
+    return {"dist": name, **dataclasses.asdict(dist)}
+
+
+# --- what is dispersed ------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class InertiaDispersion:
+    """J = scale * Q (D J_nom D) Q^T + P  [kg m^2].
+
+    scale: overall factor; axis_scale: a_i (three independent draws) on the moment about
+    body axis i, D = diag(sqrt(a)) (so J_ij -> sqrt(a_i a_j) J_ij; a_i <= 0 is redrawn);
+    rotation_deg: Q uniform on SO(3) up to this angle [deg], the principal axes rotated;
+    products: P symmetric, zero diagonal, its xy, xz, yz entries three independent draws.
+    nominal: J_nom (3x3); None for J1, whose nominal is the sample's J0 (so scale is the
+    deployment growth J1/J0, 2 in the paper).
+    """
+
+    nominal: tuple | None = None
+    scale: Distribution = Fixed(1.0)
+    axis_scale: Distribution = Fixed(1.0)
+    rotation_deg: float = 0.0
+    products: Distribution = Fixed(0.0)
+
+    def apply(self, variates: _Variates, J_nom):
+        """(J, scale) from 11 variates, vectorized over leading axes."""
+        s = self.scale.sample(*variates.take(1))[..., 0]
+        root = np.sqrt(self.axis_scale.sample(*variates.take(3)))
+        Q = rotation_matrix(rotation_vector(*variates.take(4), math.radians(self.rotation_deg)))
+        p = self.products.sample(*variates.take(3))
+        P = np.zeros(p.shape[:-1] + (3, 3))
+        P[..., [0, 1, 0, 2, 1, 2], [1, 0, 2, 0, 2, 1]] = p[..., [0, 0, 1, 1, 2, 2]]
+        J = s[..., None, None] * (Q @ (root[..., :, None] * J_nom * root[..., None, :]) @ np.swapaxes(Q, -1, -2)) + P
+        return 0.5 * (J + np.swapaxes(J, -1, -2)), s
+
+
+@dataclasses.dataclass(frozen=True)
+class Dispersions:
+    """Every dispersed quantity of the mission; defaults are the paper's fixed values.
+
+    tau_J [s] deployment time constant; n [rad/s] orbital rate; disturbance_seed: None
+    (a random seed per sample) or one seed for all; amplitude [N m], frequency [rad/s],
+    noise_std [N m] of the disturbance; initial attitude error uniform on SO(3) up to
+    initial_angle_deg [deg]; initial rate: magnitude initial_rate [rad/s], direction
+    uniform on the sphere.
+    """
+
+    J0: InertiaDispersion = InertiaDispersion(nominal=PAPER_J0)
+    J1: InertiaDispersion = InertiaDispersion(scale=Fixed(2.0))
+    J2: InertiaDispersion = InertiaDispersion(nominal=PAPER_J2)
+    tau_J: Distribution = Fixed(300.0)
+    n: Distribution = Fixed(orbital_rate())
+    disturbance_seed: int | None = None
+    amplitude: Distribution = Fixed(0.1)
+    frequency: Distribution = Fixed(1e-3)
+    noise_std: Distribution = Fixed(0.025)
+    initial_angle_deg: float = 0.0
+    initial_rate: Distribution = Fixed(0.0)
+
+
+class RolloutParams(NamedTuple):
+    """What the rollout of one sample needs (numpy, with a leading batch axis)."""
+
+    J0: np.ndarray  # (3, 3) kg m^2
+    J1: np.ndarray  # (3, 3) kg m^2
+    J2: np.ndarray  # (3, 3) kg m^2
+    tau_J: np.ndarray  # s
+    n: np.ndarray  # rad/s
+    amplitude: np.ndarray  # N m
+    frequency: np.ndarray  # rad/s
+    noise_std: np.ndarray  # N m
+    R0: np.ndarray  # (3, 3)
+    Omega0: np.ndarray  # (3,) rad/s
+    seed: np.ndarray  # int32, disturbance noise seed
+
+
+class Samples(NamedTuple):
+    """The drawn samples (numpy, leading axis N): rollout parameters and how they came about."""
+
+    params: RolloutParams
+    valid: np.ndarray  # bool: positive definite within max_draws; the others are never simulated
+    draws: np.ndarray  # draws used (max_draws for a rejected sample, whose values are its last draw)
+    scale: np.ndarray  # (N, 3) overall scale factors drawn for J0, J1, J2
+    attitude_error: np.ndarray  # (N, 3) rotation vector of R0 (R_d(0) = I), rad
+    leaves: dict = {}  # dispersed component parameters {key: (N, *shape)} (so3jax.missions.dispersed)
+
+
+# --- sampling ---------------------------------------------------------------------------
+
+
+class _Variates:
+    """Hands out consecutive variates (u, z) along the last axis."""
+
+    def __init__(self, u, z):
+        self.u, self.z, self.used = u, z, 0
+
+    def take(self, n: int):
+        if self.used + n > self.u.shape[-1]:
+            raise IndexError("more variates taken than drawn")
+        self.used += n
+        return self.u[..., self.used - n : self.used], self.z[..., self.used - n : self.used]
+
+
+def _variates(words) -> _Variates:
+    """Two uint32 words per variate -> u uniform on (0, 1) and z standard normal (Box-Muller)."""
+    u, v = ((words[..., i::2].astype(np.float64) + 0.5) / 2.0**32 for i in range(2))
+    return _Variates(u, np.sqrt(-2.0 * np.log(u)) * np.cos(2.0 * np.pi * v))
+
+
+def _angle_cdf(theta):
+    """theta - sin(theta) (the Haar angle CDF on SO(3), unnormalized), by series where it cancels."""
+    t2 = theta * theta
+    series = theta * t2 / 6.0 * (1.0 - t2 / 20.0 * (1.0 - t2 / 42.0 * (1.0 - t2 / 72.0 * (1.0 - t2 / 110.0))))
+    return np.where(theta < 0.1, series, theta - np.sin(theta))
+
+
+def rotation_vector(u, z, max_angle: float):
+    """Rotation vectors (..., 3) of rotations uniform (Haar) on SO(3) up to angle max_angle [rad].
+
+    From 4 variates: the axis is the direction of 3 normals; the angle theta, with density
+    proportional to 1 - cos(theta) on [0, max_angle], inverts theta - sin(theta) = c by
+    Newton steps from (6 c)^(1/3), which lies below the root (convex side).
+    """
+    if max_angle <= 0.0:
+        return np.zeros(u.shape[:-1] + (3,))
+    max_angle = min(max_angle, math.pi)
+    axis = z[..., :3] / np.linalg.norm(z[..., :3], axis=-1, keepdims=True)
+    c = u[..., 3] * _angle_cdf(max_angle)
+    theta = np.cbrt(6.0 * c)
+    for _ in range(8):
+        slope = 2.0 * np.sin(0.5 * theta) ** 2
+        theta = theta - (_angle_cdf(theta) - c) / np.where(slope > 0, slope, 1.0)
+    return np.clip(theta, 0.0, max_angle)[..., None] * axis
+
+
+def rotation_matrix(v):
+    """exp(hat(v)) for rotation vectors (..., 3) (Rodrigues)."""
+    theta = np.linalg.norm(v, axis=-1)[..., None, None]
+    axis = v / np.where(theta[..., 0] > 0, theta[..., 0], 1.0)
+    K = np.zeros(v.shape[:-1] + (3, 3))
+    K[..., [2, 0, 1], [1, 2, 0]] = axis
+    K = K - np.swapaxes(K, -1, -2)
+    return np.eye(3) + np.sin(theta) * K + (1.0 - np.cos(theta)) * (K @ K)
+
+
+def is_positive_definite(J):
+    """Sylvester's criterion on symmetric (..., 3, 3) matrices (False for non-finite entries)."""
+    minor2 = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] ** 2
+    return (J[..., 0, 0] > 0) & (minor2 > 0) & (np.linalg.det(J) > 0)
+
+
+@functools.partial(jax.jit, static_argnames="n_words")
+def _words(seed, indices, n_words: int):
+    base = jax.random.key(seed)
+    return jax.vmap(lambda k: jax.random.bits(jax.random.fold_in(base, k), (n_words,), jnp.uint32))(indices)
+
+
+def _draw_block(d: Dispersions, words, max_draws: int):
+    """Parameters of a block of samples from their words (B, L)."""
+    other = _variates(words[:, 1 : 1 + 2 * OTHER_VARIATES])
+    attempts = _variates(words[:, 1 + 2 * OTHER_VARIATES :].reshape(len(words), max_draws, 2 * PHYSICAL_VARIATES))
+    J0, s0 = d.J0.apply(attempts, np.asarray(d.J0.nominal))
+    J1, s1 = d.J1.apply(attempts, J0)
+    J2, s2 = d.J2.apply(attempts, np.asarray(d.J2.nominal))
+    tau_J = d.tau_J.sample(*attempts.take(1))[..., 0]
+    ok = is_positive_definite(J0) & is_positive_definite(J1) & is_positive_definite(J2) & (tau_J > 0)
+    valid = ok.any(axis=1)
+    first = np.where(valid, ok.argmax(axis=1), max_draws - 1)
+
+    def pick(x):
+        return x[np.arange(len(x)), first]
+
+    n, amplitude, frequency, noise_std = (dist.sample(*other.take(1))[:, 0] for dist in (d.n, d.amplitude, d.frequency, d.noise_std))
+    attitude_error = rotation_vector(*other.take(4), math.radians(d.initial_angle_deg))
+    R0 = rotation_matrix(attitude_error)
+    rate_u, rate_z = other.take(4)
+    Omega0 = d.initial_rate.sample(rate_u[:, :1], rate_z[:, :1]) * rate_z[:, 1:] / np.linalg.norm(rate_z[:, 1:], axis=-1, keepdims=True)
+    if d.disturbance_seed is None:
+        seed = (words[:, 0] >> 1).astype(np.int32)
+    else:
+        seed = np.full(len(words), d.disturbance_seed, np.int32)
+    params = RolloutParams(pick(J0), pick(J1), pick(J2), pick(tau_J), n, amplitude, frequency, noise_std, R0, Omega0, seed)
+    scale = np.stack([pick(s0), pick(s1), pick(s2)], -1)
+    return Samples(params, valid, (first + 1).astype(np.int32), scale, attitude_error)
+
+
+def draw_samples(dispersions: Dispersions, seed: int, n_samples: int, max_draws: int, first: int = 0) -> Samples:
+    """Samples first .. first + n_samples - 1, in float64. Sample k depends only on (seed, k)."""
+    check(dispersions, warn=False)
+    if isinstance(n_samples, bool) or not isinstance(n_samples, int) or n_samples < 1:
+        raise ValueError(f"n_samples must be a positive integer, got {n_samples!r}")
+    if isinstance(max_draws, bool) or not isinstance(max_draws, int) or max_draws < 1:
+        raise ValueError(f"max_draws must be a positive integer, got {max_draws!r}")
+    n_words = 1 + 2 * (OTHER_VARIATES + max_draws * PHYSICAL_VARIATES)
+    blocks = []
+    for start in range(0, n_samples, BLOCK):
+        indices = np.arange(first + start, first + start + BLOCK, dtype=np.uint32)
+        words = np.asarray(_words(np.uint32(seed), indices, n_words))
+        blocks.append(_draw_block(dispersions, words[: n_samples - start], max_draws))
+    return jax.tree.map(lambda *xs: np.concatenate(xs), *blocks)

@@ -1,0 +1,387 @@
+"""A mission: the scenario (inertia profile, reference, disturbance, horizon, initial
+state), the loop (sensors, estimator, actuator, control period) and the controllers with
+their gains and options (docs/model.md §4, §8). Parsed once from TOML tables plus ``--set``
+overrides into validated plain data, then built into a :class:`~so3jax.dynamics.scenario.Scenario`,
+a :class:`~so3jax.sim.loop.Loop` and controllers.
+
+The loop's components are read through their registrations (:mod:`so3jax.components.registry`,
+:mod:`so3jax.controllers.registry`): ``[sensors.NAME]`` (a table, or false to leave a
+sensor out), ``[estimator] kind`` with ``[estimator.NAME]``, ``[actuator] kind`` with
+``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]``. Without a
+file, the flight mission of docs/model.md §8.5 (``missions/flight.toml`` spells it out).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.components import registry as components
+from so3jax.missions import config as cfg
+from so3jax.controllers import registry
+from so3jax.results.io import to_builtin
+from so3jax.sim.loop import Loop, check_loop
+from so3jax.dynamics.plant import ConstantInertia
+from so3jax.dynamics.scenario import (
+    PAPER_J0,
+    PAPER_J2,
+    Scenario,
+    check_inertia,
+    check_scenario,
+    paper_scenario,
+    steps_for_horizon,
+)
+from so3jax.components.sensors import Sensors
+
+CONTROL_MODES = ("sampled", "continuous")
+
+# docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
+# The components' own values are their registrations' defaults.
+FLIGHT = {
+    "T": 4000.0,
+    "dt": 0.01,
+    "seed": 0,
+    "controllers": ["pd", "adaptive"],
+    "record_every": 100,
+    "control": {"mode": "sampled", "period": 0.1},
+    "inertia": {"J0": {"nominal": [list(r) for r in PAPER_J0]}, "J1": {"scale": 2.0},
+                "J2": {"nominal": [list(r) for r in PAPER_J2]}},
+    "deployment": {"tau_J": 300.0},
+    "orbit": {"n": 0.0011067834463349404},  # orbital_rate(): 500 km circular
+    "disturbance": {"amplitude": 0.1, "frequency": 1e-3, "noise_std": 0.025},
+    "initial": {"attitude": [0.0, 0.0, 0.0], "rate": [0.0, 0.0, 0.0]},
+    "sensors": {"gyro": {}, "star_tracker": {}},
+    "estimator": {"kind": "mekf"},
+    "actuator": {"kind": "wheels"},
+    "controller": {},
+    "gains": {},
+}
+
+# docs/model.md §4-§5: the paper's experiment in the same schema: the controller reads the true state
+# in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
+PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"}, actuator={"kind": "ideal"})
+
+_TOP = ("T", "dt", "seed", "controllers", "record_every")
+_TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "initial", "sensors", "estimator", "actuator",
+           "controller", "gains")
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class Mission:
+    """A validated mission: plain numbers, strings and NumPy arrays (nothing compiled).
+
+    sensors: {name: values} of the sensors flown; estimator, actuator: {"kind": name,
+    name: values}; options: {controller: factory keywords}; gains: {controller: gains}.
+    constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile.
+    initial: {"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}.
+    """
+
+    T: float
+    dt: float
+    seed: int
+    controllers: tuple
+    record_every: int
+    period_steps: int | None  # None: continuous-time controller (the paper's mode)
+    J0: np.ndarray
+    J1: np.ndarray
+    J2: np.ndarray
+    J1_scale: float | None  # J1 = J1_scale J0 when the mission gives the deployment's growth, else None
+    constant_inertia: bool
+    tau_J: float
+    n: float
+    disturbance: dict  # amplitude, frequency, noise_std
+    initial: dict
+    sensors: dict
+    estimator: dict
+    actuator: dict
+    options: dict
+    gains: dict
+
+    @property
+    def period(self) -> float | None:
+        return None if self.period_steps is None else self.period_steps * self.dt
+
+    def scenario(self, dtype=None) -> Scenario:
+        s = paper_scenario(self.T, self.dt, tau_J=self.tau_J, n=self.n, J0=self.J0, J1=self.J1, J2=self.J2,
+                           disturbance_amplitude=self.disturbance["amplitude"],
+                           disturbance_frequency=self.disturbance["frequency"],
+                           noise_std=self.disturbance["noise_std"], dtype=dtype)
+        changes = {}
+        if self.constant_inertia:
+            changes["inertia"] = ConstantInertia(jnp.asarray(self.J0, s.R0.dtype))
+        if np.any(self.initial["attitude"]):
+            changes["R0"] = jnp.asarray(_rotation(self.initial["attitude"]), s.R0.dtype)
+        if np.any(self.initial["rate"]):
+            changes["Omega0"] = jnp.asarray(self.initial["rate"], s.R0.dtype)
+        return dataclasses.replace(s, **changes) if changes else s
+
+    def loop(self, dtype=None) -> Loop:
+        dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
+        return _build_loop(self, lambda x: jnp.asarray(x, dtype))
+
+    def controller(self, name: str):
+        """(Controller, gains) of a controller named in the mission."""
+        return registry.get(name).factory(**self.options.get(name, {})), self.gains[name]
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, Mission) and self.describe() == other.describe()
+
+    __hash__ = None
+
+    def describe(self) -> dict:
+        """The mission as JSON-ready plain data (the ``config`` of results)."""
+        d = dataclasses.asdict(self)
+        # options fix results only for the laws flown and where given: a law registered
+        # or left at its defaults elsewhere does not change what a mission is
+        d["options"] = {name: values for name, values in d["options"].items()
+                        if name in self.controllers or to_builtin(values) != to_builtin(registry.parse_options(name, {}))}
+        d["gains"] = {k: {f: np.asarray(v).tolist() for f, v in g._asdict().items()} for k, g in self.gains.items()}
+        return to_builtin(d)
+
+
+def default_tree() -> dict:
+    """The flight mission as TOML tables with every registered component's and
+    controller's parameters at their defaults (None defaults left out): the whole schema."""
+    def values(params):
+        return {p.name: p.default for p in params if p.default is not None}
+
+    tree = {k: v for k, v in FLIGHT.items()}
+    tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
+    for kind in ("estimator", "actuator"):
+        tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
+    tree["controller"] = {n: values(registry.get(n).options) for n in registry.names()}
+    tree["gains"] = {n: {f: np.asarray(v).tolist() for f, v in registry.get(n).defaults._asdict().items()}
+                     for n in registry.names()}
+    return tree
+
+
+def _rotation(rotvec) -> np.ndarray:
+    """exp(hat(rotvec)) (3, 3), Rodrigues' formula in float64."""
+    v = np.asarray(rotvec, float)
+    angle = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
+    """The loop's components built from their registrations; an estimator assumes the
+    noise levels of the sensors of ``noise_of`` (default: m's own)."""
+    noise = {}
+    for name, values in (m if noise_of is None else noise_of).sensors.items():
+        spec = components.get("sensor", name)
+        noise.update(spec.noise(values) if spec.noise else {})
+    ctx = components.BuildContext(as_array, noise)
+    slots = {}
+    for name, values in m.sensors.items():
+        slots[components.get("sensor", name).provides] = components.get("sensor", name).build(values, ctx)
+    estimator = components.get("estimator", m.estimator["kind"]).build(m.estimator[m.estimator["kind"]], ctx)
+    actuator = components.get("actuator", m.actuator["kind"]).build(m.actuator[m.actuator["kind"]], ctx)
+    return Loop(Sensors(**slots), estimator, actuator, m.period_steps)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """base updated by over, table by table (over's keys win)."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
+    return out
+
+
+def _sensors(given: dict, default: dict) -> dict:
+    """{name: values} of the sensors flown: the base mission's (``default``), each merged
+    with its given table (false: left out), plus any other registered sensor given a table."""
+    given = cfg.table({"sensors": given}, "sensors", components.names("sensor"))
+    out = {}
+    for name in components.names("sensor"):
+        table = given.get(name, {} if name in default else False)
+        if table is False:
+            continue
+        if not isinstance(table, dict):
+            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {cfg.short(table)}")
+        out[name] = components.get("sensor", name).parse(table, f"sensors.{name}")
+    providers = {}
+    for name in out:
+        quantity = components.get("sensor", name).provides
+        if quantity in providers:
+            raise ValueError(f"sensors.{providers[quantity]} and sensors.{name} both measure the {quantity}: "
+                             f"leave one out (sensors.{providers[quantity]}=false)")
+        providers[quantity] = name
+    return out
+
+
+def _chosen(d: dict, kind: str, table: str, base: dict) -> dict:
+    """{"kind": name, name: values} of ``[table] kind`` and its ``[table.NAME]`` subtable
+    (every other registered name's subtable is checked too, so a typo is never ignored)."""
+    t = cfg.table(d, table, ("kind",) + components.names(kind))
+    name = cfg.choice(t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
+    out = {"kind": name}
+    for other in components.names(kind):
+        if other in t or other == name:
+            values = components.get(kind, other).parse(t.get(other, {}), f"{table}.{other}")
+            if other == name:
+                out[name] = values
+    return out
+
+
+def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
+    """A Mission from the TOML tables (missing entries: ``base``'s, the flight mission or
+    :data:`PAPER`); ValueError on bad input."""
+    if not isinstance(d, dict):
+        raise ValueError(f"a mission must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
+    unknown = set(d) - set(_TOP) - set(_TABLES)
+    if unknown:
+        raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")
+    for t in _TABLES:
+        if t in d and not isinstance(d[t], dict):
+            raise ValueError(f"[{t}] must be a table")
+    full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
+
+    T = cfg.number(full["T"], "T (horizon) [s]")  # a number here; positive and a multiple of dt below
+    dt = cfg.number(full["dt"], "dt (step) [s]")
+    n_steps = steps_for_horizon(T, dt)
+    seed = cfg.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
+    record_every = cfg.number(full["record_every"], "record_every", low=1, integer=True)
+    controllers = cfg.names(full["controllers"], "controllers", registry.names())
+    period_steps = _period_steps(cfg.table(full, "control", ("mode", "period")), T, dt, n_steps)
+
+    J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
+    tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]")
+    if tau_J <= 0:
+        raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
+    n = cfg.number(cfg.table(full, "orbit", ("n",))["n"], "orbit.n [rad/s]", low=0.0)
+    dist = cfg.table(full, "disturbance", ("amplitude", "frequency", "noise_std"))
+    disturbance = {
+        "amplitude": cfg.number(dist["amplitude"], "disturbance.amplitude [N m]"),
+        "frequency": cfg.number(dist["frequency"], "disturbance.frequency [rad/s]"),
+        "noise_std": cfg.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
+    }
+    initial = _initial(d.get("initial", {}), full["initial"])
+
+    sensors = _sensors(d.get("sensors", {}), base["sensors"])
+    estimator = _chosen(full, "estimator", "estimator", base)
+    actuator = _chosen(full, "actuator", "actuator", base)
+    _check_wiring(period_steps, sensors, estimator["kind"])
+
+    options_table = cfg.table(full, "controller", registry.names())
+    options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
+    gains_table = cfg.table(full, "gains", registry.names())
+    gains = {}
+    for name in registry.names():  # every table given is checked, also of a controller not flown
+        spec = registry.get(name)
+        g = cfg.gains(gains_table.get(name, {}), spec.defaults, spec.gain_shapes(), f"gains.{name}")
+        try:
+            spec.check(g)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"[gains.{name}]: {err}") from None
+        if name in controllers:
+            gains[name] = g
+
+    mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
+                      disturbance, initial, sensors, estimator, actuator, options, gains)
+    for name in controllers:
+        try:
+            mission.controller(name)
+        except (TypeError, ValueError) as err:
+            raise ValueError(f"[controller.{name}]: {err}") from None
+    inertias = {"J0": J0} if constant else {"J0": J0, "J1": J1, "J2": J2}
+    for name, J in inertias.items():
+        check_inertia(f"{name} (inertia.{name})" if not constant else "inertia.J", J, warn=False)
+    check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
+    check_loop(_build_loop(mission, np.asarray), inertias)
+    return mission
+
+
+def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:
+    """m = control.period / dt, a whole number >= 1 dividing the horizon; None: continuous."""
+    mode = cfg.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
+    if mode == "continuous":
+        return None
+    period = cfg.number(control.get("period"), "control.period [s]", low=0.0)
+    ratio = period / dt
+    if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
+        raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
+    m = int(round(ratio))
+    if m > n_steps:
+        raise ValueError(f"control.period = {period} s is longer than the horizon T = {T} s")
+    if n_steps % m:
+        raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods control.period = {period} s")
+    return m
+
+
+def _inertias(given: dict, full: dict):
+    """(J0, J1, J2, J1's scale or None, constant): ``[inertia] J`` for a constant inertia,
+    else the paper's J0 (capture), J1 = scale J0 or a nominal (deployed), J2 (docked) [kg m^2]."""
+    if isinstance(given, dict) and "J" in given:
+        extra = sorted(set(given) - {"J"})
+        if extra:
+            raise ValueError(f"[inertia] J (a constant inertia) excludes {', '.join(extra)}")
+        J = cfg.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
+        return J, J, J, None, True
+    inertia = cfg.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
+    J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
+    J1_table = cfg.table(inertia, "J1", ("scale", "nominal"), "inertia.")
+    scale = None if "nominal" in J1_table else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0)
+    J1 = cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
+    J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
+    return J0, J1, J2, scale, False
+
+
+def _initial(given: dict, full: dict) -> dict:
+    """{"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}; R(0) given as
+    ``attitude`` (a rotation vector) or ``quaternion`` [w, x, y, z] (scalar first, unit)."""
+    init = cfg.table({"initial": full}, "initial", ("attitude", "quaternion", "rate"))
+    rate = cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))
+    if not (isinstance(given, dict) and "quaternion" in given):
+        return {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
+                "rate": rate}
+    if "attitude" in given:
+        raise ValueError("initial.attitude and initial.quaternion both give R(0): give one")
+    q = cfg.array(given["quaternion"], "initial.quaternion [w, x, y, z]", (4,))
+    if abs(np.linalg.norm(q) - 1.0) > 1e-9:
+        raise ValueError(f"initial.quaternion [w, x, y, z] must be a unit quaternion, got norm {np.linalg.norm(q):.12g}")
+    w, v = q[0], q[1:]
+    sin_half = np.linalg.norm(v)
+    angle = 2.0 * np.arctan2(sin_half, w)
+    return {"attitude": v * (angle / sin_half) if sin_half > 0 else np.zeros(3), "rate": rate}
+
+
+def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
+    """The estimator's measurements exist; the continuous wiring reads the true state."""
+    spec = components.get("estimator", estimator)
+    if period_steps is None:
+        if sensors or not spec.truth:
+            raise ValueError("control.mode = 'continuous' reads the true state: it takes no sensors "
+                             "(sensors.NAME=false) and an estimator that reads the truth (estimator.kind='truth')")
+        return
+    measured = {components.get("sensor", name).provides: name for name in sensors}
+    missing = [q for q in spec.needs if q not in measured]
+    if missing:
+        offered = [n for n in components.names("sensor") if components.get("sensor", n).provides == missing[0]]
+        raise ValueError(f"estimator '{estimator}' needs a sensor of the {' and the '.join(missing)} "
+                         f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")
+
+
+def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple[Mission, dict]:
+    """(the mission, {table: value}) of a job file (a sweep, a tuning campaign): its
+    ``mission`` entry names a mission file (relative to ``base_dir``), its other mission
+    keys and tables override that file's (or ``base``'s) entries, and ``job_tables`` are the
+    job's own tables."""
+    d = dict(d)
+    jobs = {k: d.pop(k) for k in job_tables if k in d}
+    path = d.pop("mission", None)
+    if path is not None and not isinstance(path, str):
+        raise ValueError(f"mission must be the path of a mission file, got {cfg.short(path)}")
+    unknown = set(d) - set(_TOP) - set(_TABLES)
+    if unknown:
+        allowed = ("mission",) + job_tables + _TOP + _TABLES
+        raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
+    tables = cfg.read_toml(Path(base_dir) / path) if path is not None else {}
+    return from_dict(_merge(tables, d), base), jobs
+
+
+def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
+    """The mission of a TOML file (or ``base``: the flight mission of docs/model.md §8.5), with KEY=VALUE overrides."""
+    return from_dict(cfg.load(path, overrides), base)

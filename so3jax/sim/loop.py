@@ -1,0 +1,303 @@
+"""The closed loop as a wiring of components (docs/model.md §1-§6, §8).
+
+    true state --sensors--> measurements --estimator--> estimate --controller--> command
+        ^                                                                          |
+        +------ plant (RK4 at dt) <-- applied torque <-- actuator (held over a tick) +
+
+A :class:`Loop` holds the sensors, the estimator, the actuator and the control period;
+the plant (inertia), reference and disturbance come from the :class:`~so3jax.dynamics.scenario.Scenario`,
+the law from a :class:`~so3jax.controllers.Controller`. Each component owns a field of
+:class:`State`. The plant (:func:`so3jax.dynamics.plant.derivative`) integrates the rigid body
+and the actuator's state under the actuator's input; one :func:`step` serves two wirings:
+
+* sampled (``period_steps=m``, docs/model.md §8.1): at every m-th step a :func:`tick` runs
+  sensors -> estimator -> controller -> actuator once (the controller's state by its
+  ``update``, else forward Euler over the period), and the plant's RK4 steps see the
+  actuator's input held over the period;
+* continuous (``period_steps=None``, the paper's mode, docs/model.md §5): the same step with the
+  law and the actuator's command evaluated in every RK4 stage on the true state, the
+  controller's state integrated with the plant (``truth`` and no sensors).
+
+Both take the metrics' torque sample of a step from the actuator's ``delivered`` at the
+step start, from its own state.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.core import _trig, so3
+
+from so3jax.sim import metrics
+
+from so3jax.dynamics import plant, stepped
+from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.components.actuators import Ideal, uncompensated_momentum
+from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
+from so3jax.components.estimators import Truth
+from so3jax.core.integrate import OnSO3, rk4_step
+from so3jax.dynamics.plant import inertia_rate
+from so3jax.dynamics.scenario import Scenario, _concrete
+from so3jax.components.sensors import Sensors
+
+
+@pytree_dataclass
+class Loop:
+    """The components between the true state and the torque on the body.
+
+    period_steps: control period in plant steps (Delta_c = m dt, docs/model.md §8.1); None for
+    the continuous-time controller of the paper's mode. The components' parameters have
+    no batch axes: a batch of trajectories shares them (``so3.batch_like``).
+    """
+
+    sensors: Any = Sensors()
+    estimator: Any = Truth()
+    actuator: Any = Ideal()
+    period_steps: int | None = static_field(default=None)
+
+    @property
+    def continuous(self) -> bool:
+        return self.period_steps is None
+
+
+PAPER_LOOP = Loop()
+
+
+class State(NamedTuple):
+    """Closed-loop state, a field per component; batch axes, if any, last."""
+
+    R: jax.Array  # (3, 3) plant attitude, body -> inertial
+    Omega: jax.Array  # (3,) plant body rate, rad/s
+    controller: Any  # the law's internal state (docs/model.md §3)
+    R_d: Any  # (3, 3) reference attitude when it is integrated, else ()
+    actuator: Any = ()  # the actuator's state (wheels: speeds (N,) rad/s), or ()
+    sensors: Any = ()  # gyro bias (3,) rad/s, or ()
+    estimator: Any = ()  # the estimator's state (the prior for the next tick)
+    held: Any = ()  # the actuator's input held over the current period (sampled wiring), or ()
+
+
+class Tick(NamedTuple):
+    """What a control tick computed (docs/model.md §8.1), at t_j."""
+
+    t: jax.Array  # s
+    desired: Desired
+    estimate: Any  # estimators.Estimate
+    bias: jax.Array  # (3,) true gyro bias b_j, rad/s
+    tau_cmd: jax.Array  # (3,) the controller's command, N m
+    tau_applied: jax.Array  # (3,) the control torque delivered at t_j (actuator.delivered), N m
+
+
+def time(scenario: Scenario, k):
+    """t_k = k dt [s] in the scenario's dtype."""
+    dtype = scenario.R0.dtype
+    return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
+
+
+def phase(scenario: Scenario, k):
+    """Index of the phase holding at step k (phase switches on step boundaries)."""
+    return sum((k >= K).astype(jnp.int32) for K in scenario.phase_steps) if scenario.phase_steps else 0
+
+
+def integrates_reference(scenario: Scenario) -> bool:
+    """R_d is integrated when the reference has no closed form."""
+    return scenario.reference.attitude(0.0, 0) is None
+
+
+def desired(scenario: Scenario, t, phase, integrated_R_d, like) -> Desired:
+    """R_d, Omega_d, Omega_d' at t; a reference shared by a batch is computed once."""
+    ref = scenario.reference
+    R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(ref.attitude(t, phase), 2, like)
+    return Desired(R_d, so3.batch_like(ref.rate(t, phase), 1, like), so3.batch_like(ref.rate_dot(t, phase), 1, like))
+
+
+def broadcast(x, core_ndim, batch_shape):
+    """x (core, [batch or unit axes]) -> (core, *batch)."""
+    x = jnp.asarray(x)
+    x = x.reshape(x.shape + (1,) * (core_ndim + len(batch_shape) - x.ndim))
+    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
+
+
+def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape=(), loop: Loop = PAPER_LOOP) -> State:
+    """The state at t = 0, every leaf broadcast to (core, *batch_shape)."""
+    dtype = scenario.R0.dtype
+    R_d = broadcast(jnp.eye(3, dtype=dtype), 2, batch_shape) if integrates_reference(scenario) else ()
+    controller_state = jax.tree.map(lambda x: broadcast(x, x.ndim, batch_shape), controller.init(gains))
+    R0, Omega0 = broadcast(scenario.R0, 2, batch_shape), broadcast(scenario.Omega0, 1, batch_shape)
+    state = State(R0, Omega0, controller_state, R_d, loop.actuator.init(batch_shape, dtype))
+    if loop.continuous:
+        return state
+    zero = jnp.zeros_like(Omega0)
+    return state._replace(
+        sensors=loop.sensors.init(batch_shape, dtype),
+        estimator=loop.estimator.init(R0, batch_shape, dtype),
+        held=loop.actuator.command(state.actuator, zero, zero),
+    )
+
+
+# --- the plant's step -------------------------------------------------------------------
+
+
+def _integrated(state: State, with_controller: bool) -> State:
+    """The continuous part of the state, rotations marked for the SO(3) integrator."""
+    R_d = OnSO3(state.R_d) if isinstance(state.R_d, jax.Array) else ()
+    return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
+
+
+def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
+    """The vector field of one step (phase and disturbance held). law(t, x, desired) ->
+    (actuator input, controller state rate): the controller in every stage
+    (continuous), or the held input (sampled). stages: the step's precomputed time terms
+    (:func:`so3jax.dynamics.stepped.stage_terms`), taken in the order RK4 calls the field; None:
+    each stage evaluates the reference and the inertia at its time."""
+    calls = iter(stepped.STAGE_OF_CALL)
+
+    def field(t, x: State):
+        Omega = x.Omega
+        terms = stepped.StageTerms(None, None, None) if stages is None else stages[next(calls)]
+        R_d = x.R_d.R if isinstance(x.R_d, OnSO3) else terms.R_d
+        wanted = desired(scenario, t, phase, R_d, Omega)
+        held, controller_dot = law(t, x, wanted)
+        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega) if terms.J is None else terms.J
+        J_dot = (
+            so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
+            if scenario.variable_inertia_term
+            else None
+        )
+        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, d, t, J_dot, terms.J_inv)
+        R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
+        return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
+
+    return field
+
+
+def sample(state: State, tau, wanted: Desired, atan2=jnp.arctan2) -> metrics.Sample:
+    """The docs/model.md §6 metrics' sample of a step start (true state; tau: the control torque delivered)."""
+    err = tracking_error(Measured(state.R, state.Omega), wanted)
+    return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e, atan2))
+
+
+def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP,
+         constants=None):
+    """Advance over step k with disturbance d_k held (docs/model.md §5, §8.1): RK4 of the plant and the
+    actuator under the actuator's input, the input held since the last tick (sampled
+    wiring), or the law and the actuator's command evaluated in every stage on the true
+    state, the controller's state integrated too (continuous wiring).
+    constants: :func:`so3jax.dynamics.stepped.constants` of a batch of per-trajectory scenarios
+    (the time terms then computed once per step), or None.
+    Returns (state, phase, metrics sample at t_k), the sample's torque the actuator's
+    ``delivered`` at the step start."""
+    dtype = scenario.R0.dtype
+    t, p = time(scenario, k), phase(scenario, k)
+    continuous = loop.continuous
+    stages = None
+    if constants is not None:
+        with_inverse = loop.actuator.stored_momentum(state.actuator) is None and not scenario.variable_inertia_term
+        stages = stepped.stage_terms(scenario, constants, t, p, with_inverse)
+
+    def law(t, x, wanted):
+        if not continuous:
+            return state.held, ()
+        h_w = uncompensated_momentum(loop.actuator, x.actuator, x.Omega)
+        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega, h_w), wanted, t)
+        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
+
+    field = _field(scenario, loop, p, d, law, stages)
+    x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
+    new = state._replace(
+        R=x.R.R,
+        Omega=x.Omega,
+        controller=x.controller if continuous else state.controller,
+        R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
+        actuator=x.actuator,
+    )
+    atan2 = jnp.arctan2 if constants is None else _trig.atan2  # a batch of per-trajectory scenarios: vectorized
+    return new, p, sample(state, loop.actuator.delivered(state.actuator, held, state.Omega), wanted, atan2)
+
+
+class Observation(NamedTuple):
+    """What the continuous wiring records at a step start (no step taken)."""
+
+    t: jax.Array  # s
+    tau: jax.Array  # (3, *b) the control torque delivered, N m
+    desired: Desired  # broadcast to the batch
+    sample: metrics.Sample
+    J: jax.Array  # (3, 3, *b) true inertia, kg m^2
+    tau_cmd: jax.Array  # (3, *b) the controller's command, N m
+
+
+def observe(scenario: Scenario, controller: Controller, gains, state: State, k, loop: Loop = PAPER_LOOP):
+    """The :class:`Observation` at step start k of the continuous wiring."""
+    t, p = time(scenario, k), phase(scenario, k)
+    wanted = desired(scenario, t, p, state.R_d, state.Omega)
+    h_w = uncompensated_momentum(loop.actuator, state.actuator, state.Omega)
+    tau_cmd, _ = controller.torque(gains, state.controller, Measured(state.R, state.Omega, h_w), wanted, t)
+    tau = loop.actuator.delivered(state.actuator, loop.actuator.command(state.actuator, tau_cmd, state.Omega),
+                                  state.Omega)
+    batch = state.Omega.shape[1:]
+    wanted = Desired(*(broadcast(x, x.ndim - len(batch), batch) for x in wanted))
+    J = broadcast(so3.batch_like(scenario.inertia(t, p), 2, state.Omega), 2, batch)
+    return Observation(t, tau, wanted, sample(state, tau, wanted), J, tau_cmd)
+
+
+# --- the sampled wiring's control tick ----------------------------------------------------
+
+
+def period(scenario: Scenario, loop: Loop):
+    """Delta_c = m dt [s] in the scenario's dtype."""
+    return jnp.asarray(loop.period_steps * scenario.dt, scenario.R0.dtype)
+
+
+def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j):
+    """Control tick j at step k = j m (docs/model.md §8.1): sensors sample the true state, the
+    estimator updates, the controller commands from the estimate (its state advanced by
+    its ``update``, else by forward Euler over the period), the actuator turns the
+    command into the held input."""
+    k = j * loop.period_steps
+    t, p, dc = time(scenario, k), phase(scenario, k), period(scenario, loop)
+    sensors, measured = loop.sensors.measure(state.sensors, state.R, state.Omega, key, j, dc)
+    truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
+    estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
+    wanted = desired(scenario, t, p, state.R_d, state.Omega)
+    h_w = uncompensated_momentum(loop.actuator, state.actuator, estimate.omega_hat)
+    measured_state = Measured(estimate.R_hat, estimate.omega_hat, h_w)
+    tau_cmd, controller_dot = controller.torque(gains, state.controller, measured_state, wanted, t)
+    held = loop.actuator.command(state.actuator, tau_cmd, estimate.omega_hat)
+    if controller.update is None:
+        controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
+    else:
+        controller_state = controller.update(gains, state.controller, measured_state, wanted, t, dc)
+    new = state._replace(
+        controller=controller_state,
+        sensors=sensors,
+        estimator=estimator,
+        held=held,
+    )
+    bias = loop.sensors.true_bias(state.sensors, state.Omega)
+    tau_applied = loop.actuator.delivered(state.actuator, held, state.Omega)  # the first step's sample
+    return new, Tick(t, wanted, estimate, bias, tau_cmd, tau_applied)
+
+
+def check_loop(loop: Loop, inertias: dict) -> None:
+    """One-line ValueErrors, before compilation: the control period, each component's
+    own checks, and the wiring (docs/model.md §8). inertias: name -> J (3, 3) the plant will use.
+    Values are read only where concrete (NumPy on the host), so a rollout under jit,
+    vmap or grad is checked by shape and static data alone."""
+    m = loop.period_steps
+    if m is None:
+        if loop.sensors.rate is not None or loop.sensors.attitude is not None or not loop.estimator.reads_truth:
+            raise ValueError("a continuous-time controller reads the true state: sensors and an estimator need a control period")
+    elif isinstance(m, bool) or not isinstance(m, int) or m < 1:
+        raise ValueError(f"the control period must be a whole number (>= 1) of steps, got {m!r}")
+    for part in (loop.sensors, loop.estimator, loop.actuator):
+        part.check()
+    spin = getattr(loop.actuator, "spin_inertia_values", None)
+    spin = None if spin is None else spin()  # NumPy, None where traced: nothing is added to a trace
+    if spin is not None:
+        for name, J in inertias.items():
+            J = _concrete(J)
+            if J is not None and np.any(np.linalg.eigvalsh(J - spin) <= 0):
+                raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) is not positive definite")

@@ -1,0 +1,131 @@
+"""Figures of the flight loop (docs/model.md §8): estimation, torques, wheels, momentum.
+
+Each takes {controller name: History of the sampled wiring with NumPy leaves}, the phase start times [s]
+and the horizon T [s]; it returns a matplotlib figure.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+from so3jax.core import so3
+from so3jax.controllers import registry
+from so3jax.viz.plots import AXES, shade_phases
+
+
+def _frame(ax, phase_times, T, ylabel):
+    shade_phases(ax, phase_times, T)
+    ax.set_ylabel(ylabel)
+
+
+def _angle(R):
+    """|log(R)^vee| [rad] of (M, 3, 3) rotations."""
+    return np.asarray(so3.angle(np.moveaxis(np.asarray(R), 0, -1)))
+
+
+def attitude_figure(histories, phase_times, T):
+    """True vs estimated attitude error |log(R_d^T R)|, |log(R_d^T R_hat)|, and the
+    estimation error |log(R_hat^T R)| [deg]."""
+    fig = Figure(figsize=(10, 6.5))
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for name, h in histories.items():
+        style = registry.style(name)
+        top.plot(h.t, np.degrees(h.angle), lw=1.0, **style)
+        estimated = _angle(np.einsum("mji,mjk->mik", h.R_d, h.R_hat))
+        top.plot(h.t, np.degrees(estimated), lw=0.8, alpha=0.7, color=style.get("color"), ls=":",
+                 label=f"{style['label']} (estimated)")
+        bottom.plot(h.t, np.degrees(_angle(np.einsum("mji,mjk->mik", h.R_hat, h.R))), lw=1.0, **style)
+    top.set_yscale("log")
+    bottom.set_yscale("log")
+    _frame(top, phase_times, T, "|log(R_dᵀR)| [deg]")
+    _frame(bottom, phase_times, T, "|log(R̂ᵀR)| [deg]")
+    top.legend(fontsize=8)
+    bottom.set_xlabel("t [s]")
+    top.set_title("Attitude error: true (solid) and as estimated (dotted)", pad=14)
+    bottom.set_title("Attitude estimation error", pad=14)
+    return fig
+
+
+def bias_figure(histories, phase_times, T):
+    """Gyro bias b and its estimate b_hat with the filter's 3-sigma bound, per axis [deg/h];
+    the y range follows the values after the first 2 % of the horizon (the filter's
+    initial sigma would dwarf them)."""
+    to_deg_h = np.degrees(1.0) * 3600.0
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
+    for i, ax in enumerate(axes):
+        shown = []
+        for n, (name, h) in enumerate(histories.items()):
+            style = registry.style(name)
+            bias, estimate, bound = (x * to_deg_h for x in (h.bias[:, i], h.bias_hat[:, i], 3.0 * h.std[:, 3 + i]))
+            if n == 0:
+                ax.plot(h.t, bias, color="k", lw=1.2, label="true bias")
+            ax.plot(h.t, estimate, lw=1.0, **style)
+            ax.fill_between(h.t, estimate - bound, estimate + bound, color=style.get("color"), alpha=0.15, lw=0)
+            late = h.t >= 0.02 * T
+            shown += [bias[late], estimate[late] - bound[late], estimate[late] + bound[late]]
+        shown = np.concatenate(shown)
+        shown = shown[np.isfinite(shown)]
+        if shown.size:  # else (no sample past 2 % of T, or none finite) matplotlib's own range
+            low, high = np.min(shown), np.max(shown)
+            pad = 0.1 * max(high - low, 1e-12)
+            ax.set_ylim(low - pad, high + pad)
+        _frame(ax, phase_times, T, f"b {AXES[i]} [deg/h]")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("Gyro bias and its estimate (shaded: ±3σ of the filter)")
+    return fig
+
+
+def torque_figure(histories, phase_times, T):
+    """Commanded (dotted) and delivered (solid) control torque per axis [N m]."""
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
+    for i, ax in enumerate(axes):
+        for name, h in histories.items():
+            style = registry.style(name)
+            ax.plot(h.t, h.tau_cmd[:, i], lw=0.8, ls=":", color=style.get("color"), label=f"{style['label']} commanded")
+            ax.plot(h.t, h.tau[:, i], lw=1.0, color=style.get("color"), label=f"{style['label']} applied")
+        _frame(ax, phase_times, T, f"τ {AXES[i]} [N m]")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("Commanded and applied torque")
+    return fig
+
+
+def wheel_speed_figure(histories, phase_times, T, max_speed):
+    """Wheel speeds [rad/s] (the actuator's state) with their limits +-Omega_max (dashed)."""
+    names = list(histories)
+    fig = Figure(figsize=(10, 3.2 * len(names)))
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)
+    for ax, name in zip(axes[:, 0], names):
+        h = histories[name]
+        for i in range(h.actuator.shape[1]):
+            ax.plot(h.t, h.actuator[:, i], lw=1.0, label=f"wheel {i + 1}")
+        for limit in np.unique(max_speed):
+            ax.axhline(limit, color="k", ls="--", lw=0.8)
+            ax.axhline(-limit, color="k", ls="--", lw=0.8)
+        _frame(ax, phase_times, T, "Ω_w [rad/s]")
+        ax.set_title(registry.style(name)["label"], pad=14)
+        ax.legend(fontsize=8, loc="upper right", ncol=4)
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle("Wheel speeds (dashed: limits)")
+    return fig
+
+
+def momentum_figure(histories, phase_times, T, capacity):
+    """Wheel momentum h_w in the body frame per axis [N m s], and the wheels' capacity
+    (the largest |h_w| along a body axis, dashed)."""
+    fig = Figure(figsize=(10, 7.5))
+    axes = fig.subplots(3, 1, sharex=True)
+    for i, ax in enumerate(axes):
+        for name, h in histories.items():
+            ax.plot(h.t, h.momentum[:, i], lw=1.0, **registry.style(name))
+        ax.axhline(capacity[i], color="k", ls="--", lw=0.8)
+        ax.axhline(-capacity[i], color="k", ls="--", lw=0.8)
+        _frame(ax, phase_times, T, f"h_w {AXES[i]} [N m s]")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle("Wheel angular momentum (body frame)")
+    return fig

@@ -1,0 +1,99 @@
+"""A sweep's figures: CDFs and histograms of RMSE and effort, RMSE against inertia scale."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from so3jax.jobs.sweep.config import SweepConfig
+from so3jax.jobs.sweep.summary import _phases
+
+def _log_if_wide(ax, axis: str, values) -> None:
+    """Log scale where the values span more than a decade (else log ticks crowd)."""
+    if len(values) and values.min() > 0 and values.max() > 10 * values.min():
+        getattr(ax, f"set_{axis}scale")("log")
+
+
+def figures(config: SweepConfig, cols: dict) -> dict:
+    """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale."""
+    from matplotlib.figure import Figure
+
+    from so3jax.controllers.registry import style
+
+    names = config.controllers
+    color = {c: {"color": style(c)["color"], "label": style(c)["label"]} for c in names}
+    good = {c: cols[f"{c}_diverged"] == 0 for c in names}
+    title = f"{len(cols['index'])} samples, T = {config.T:g} s (diverged samples left out)"
+    cdf, hist = Figure(figsize=(10, 3.8), layout="constrained"), Figure(figsize=(10, 3.8), layout="constrained")
+    for fig, kind in ((cdf, "cdf"), (hist, "hist")):
+        axes = fig.subplots(1, 2)
+        for ax, (metric, label) in zip(axes, (("rmse", "RMSE [rad/s]"), ("effort", "effort [N$^2$ m$^2$ s]"))):
+            values = {c: np.sort(cols[f"{c}_{metric}"][good[c]]) for c in names}
+            pooled = np.concatenate(list(values.values()))
+            if not len(pooled):
+                continue
+            _log_if_wide(ax, "x", pooled)
+            low, high = pooled.min(), pooled.max()
+            bins = np.geomspace(low, high, 40) if ax.get_xscale() == "log" else np.linspace(low, high, 40)
+            for c, v in values.items():
+                if kind == "cdf":
+                    ax.step(v, np.arange(1, len(v) + 1) / max(len(v), 1), where="post", **color[c])
+                else:
+                    ax.hist(v, bins=bins, histtype="step", **color[c])
+            ax.set_xlabel(label)
+            ax.set_ylabel("fraction of samples" if kind == "cdf" else "samples")
+            ax.grid(alpha=0.3)
+            ax.legend()
+        fig.suptitle(title)
+    panels = [("J0_trace_ratio", "rmse", "capture inertia scale tr(J0)/tr(J0 nominal)", "mission RMSE [rad/s]")]
+    if any(name == "detumble" for _, name in _phases(config)):
+        panels.append(("J2_trace_ratio", "rmse_detumble", "docked inertia scale tr(J2)/tr(J2 nominal)", "detumble RMSE [rad/s]"))
+    scatter = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
+    for ax, (x, y, xlabel, ylabel) in zip(scatter.subplots(1, len(panels), squeeze=False)[0], panels):
+        for c in names:
+            ax.scatter(cols[x][good[c]], cols[f"{c}_{y}"][good[c]], s=6, alpha=0.6, **color[c])
+        _log_if_wide(ax, "y", np.concatenate([cols[f"{c}_{y}"][good[c]] for c in names]))
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    scatter.suptitle(title)
+    out = {"cdf.png": cdf, "histograms.png": hist, "rmse_vs_inertia_scale.png": scatter}
+    flight = _flight_figure(config, cols, good, color, title)
+    if flight is not None:
+        out["flight.png"] = flight
+    return out
+
+
+ARCSEC = 180 / np.pi * 3600  # arcsec per rad
+# (x parameter, its label, its scale to the label's unit, y metric, its label and scale): a
+# panel is drawn where the sweep disperses its x parameter (per element: the smallest)
+FLIGHT_PANELS = (
+    ("sensors.star_tracker.sigma", "star-tracker noise sigma [arcsec]", ARCSEC,
+     "attitude_estimation_rms", "attitude estimation RMS [arcsec]", ARCSEC),
+    ("actuator.wheels.max_torque", "smallest wheel torque limit u_max [N m]", 1.0,
+     "time_at_torque_limit", "time at a torque limit [s]", 1.0),
+)
+
+
+def _flight_figure(config: SweepConfig, cols: dict, good: dict, color: dict, title: str):
+    """Estimation error against star-tracker noise, time at a limit against the torque
+    limit: the panels whose parameter the sweep disperses (None: none)."""
+    from matplotlib.figure import Figure
+
+    panels = []
+    for x, xlabel, x_scale, y, ylabel, y_scale in FLIGHT_PANELS:
+        elements = [cols[k] for k in cols if k == x or k.startswith(f"{x}_")]  # one column, or one per element
+        if elements and f"{config.controllers[0]}_{y}" in cols:
+            panels.append((np.min(elements, axis=0), xlabel, x_scale, y, ylabel, y_scale))
+    if not panels:
+        return None
+    fig = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
+    for ax, (x, xlabel, x_scale, y, ylabel, y_scale) in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
+        for c in config.controllers:
+            ax.scatter(x[good[c]] * x_scale, cols[f"{c}_{y}"][good[c]] * y_scale, s=6, alpha=0.6, **color[c])
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.suptitle(title)
+    return fig
