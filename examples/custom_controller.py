@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import tracking_error
 from so3jax.jobs.fly import fly

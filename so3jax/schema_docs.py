@@ -1,7 +1,7 @@
 """Markdown tables of the configuration schema, for the documentation site.
 
 Every table is read from the objects the parsers check against, so the pages cannot drift
-from the code: the components' and controllers' :class:`~so3jax.components.registry.Param`
+from the code: the components' and controllers' :class:`~so3jax.core.params.Param`
 declarations, the gains NamedTuples and the campaign dataclasses (defaults, and the units
 in their fields' comments), the mission's and the sweep's value checks (the ``so3jax.missions.config``
 calls of their parsers: the label names the key, its meaning and unit, the arguments its

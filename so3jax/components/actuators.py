@@ -39,10 +39,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.missions import config as cfg
+from so3jax.core import checks
 from so3jax.core import so3
 from so3jax.core.pytree import pytree_dataclass, static_field
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 
 _UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
@@ -63,7 +63,7 @@ def _values(x):
 
 def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool = False) -> None:
     """One-line ValueError unless x is real numbers of ``shape``, finite (positive / non-negative)."""
-    v = cfg.concrete(x, name)
+    v = checks.concrete(x, name)
     if np.shape(x) != shape:
         raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
     if v is None:
@@ -439,16 +439,6 @@ def _complete_wheels(values: dict) -> dict:
     return w
 
 
-def _wheel_figures(histories, phase_times, T, w: dict) -> dict:
-    """Wheel speeds against their limits, and the wheels' momentum against the array's
-    capacity (the largest |h_w| along a body axis) [N m s]."""
-    from so3jax.viz import flight as flight_plots
-
-    capacity = np.abs(np.asarray(w["axes"]).T) @ (w["spin_inertia"] * w["max_speed"])
-    return {"wheel_speeds.png": flight_plots.wheel_speed_figure(histories, phase_times, T, w["max_speed"]),
-            "momentum.png": flight_plots.momentum_figure(histories, phase_times, T, capacity)}
-
-
 def _known_zero(x) -> bool:
     """x is concrete and all zero (a dispersed, traced value is not)."""
     return isinstance(x, (int, float, np.ndarray, list)) and not np.any(np.asarray(x))
@@ -494,7 +484,6 @@ components.register(components.ComponentSpec(
               doc="the body's wheels have J_s (1 + error), the flight software keeping `spin_inertia`"),
     ),
     complete=_complete_wheels,
-    figures=_wheel_figures,
     effort_label="motor effort",
     build=_wheels,
     doc="N reaction wheels (docs/model.md §8.4)",

@@ -18,9 +18,9 @@ import numpy as np
 from so3jax.components import registry as components
 
 from so3jax.core import so3
-from so3jax.missions import config as cfg
+from so3jax.core import checks
 from so3jax.core.pytree import pytree_dataclass
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 
 
 class Estimate(NamedTuple):
@@ -170,15 +170,15 @@ class MEKF:
 
     def check(self) -> None:
         for name in ("sigma_theta0", "sigma_b0", "arw", "rrw", "sigma_st"):
-            v = cfg.concrete(getattr(self, name), f"estimator {name}")
+            v = checks.concrete(getattr(self, name), f"estimator {name}")
             if v is None:
                 continue
             if v.shape != () or not np.isfinite(v) or v < 0:
-                raise ValueError(f"estimator {name} must be a finite non-negative number, got {cfg.short(v.tolist())}")
-        t = cfg.concrete(self.theta0, "estimator theta0 [rad]")
+                raise ValueError(f"estimator {name} must be a finite non-negative number, got {checks.short(v.tolist())}")
+        t = checks.concrete(self.theta0, "estimator theta0 [rad]")
         if t is not None and (t.shape != (3,) or not np.all(np.isfinite(t))):
-            raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {cfg.short(t.tolist())}")
-        sigma_st = cfg.concrete(self.sigma_st, "estimator sigma_st")
+            raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {checks.short(t.tolist())}")
+        sigma_st = checks.concrete(self.sigma_st, "estimator sigma_st")
         if sigma_st is not None and float(sigma_st) == 0.0:
             raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")
 

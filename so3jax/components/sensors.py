@@ -18,9 +18,9 @@ import numpy as np
 from so3jax.components import registry as components
 
 from so3jax.core import so3
-from so3jax.missions import config as cfg
+from so3jax.core import checks
 from so3jax.core.pytree import pytree_dataclass, static_field
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 from so3jax.dynamics.disturbance import noise_components
 
 GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (docs/model.md §8.2)
@@ -42,7 +42,7 @@ def _like(x, like):
 
 
 def _check(name: str, x, shape=()) -> None:
-    v = cfg.concrete(x, name)
+    v = checks.concrete(x, name)
     if v is None:
         return
     if v.shape != shape:

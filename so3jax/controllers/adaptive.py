@@ -40,7 +40,7 @@ import jax.numpy as jnp
 
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 from so3jax.controllers.base import Controller, tracking_error
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register

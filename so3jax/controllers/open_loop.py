@@ -18,7 +18,7 @@ import jax.numpy as jnp
 
 from so3jax.core import so3
 from so3jax.controllers.base import Controller
-from so3jax.components.registry import Param
+from so3jax.core.params import Param
 from so3jax.controllers.registry import ControllerSpec, register
 
 

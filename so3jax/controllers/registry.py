@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from so3jax.controllers.base import Controller
+from so3jax.core.params import parse_params
 
 
 @dataclasses.dataclass(frozen=True)
@@ -28,7 +29,7 @@ class ControllerSpec:
     shapes: the shapes a gain may take, {field: ((), (9,), ...)}, for the fields that
     take more than their default's shape; every other gain has its default's shape
     (:meth:`gain_shapes`). The config parser checks gains read from files against them.
-    options: the factory's keywords as :class:`so3jax.components.registry.Param` (a mission's
+    options: the factory's keywords as :class:`so3jax.core.params.Param` (a mission's
     ``[controller.NAME]`` table); a None default is left to the factory.
     """
 
@@ -58,6 +59,12 @@ def register(spec: ControllerSpec) -> ControllerSpec:
     return spec
 
 
+def unregister(name: str) -> ControllerSpec:
+    """Remove a registered controller (e.g. a test's or a notebook's); returns its spec."""
+    get(name)
+    return _REGISTRY.pop(name)
+
+
 def names(tunable: bool | None = None) -> tuple[str, ...]:
     """Registered names, in registration order (only the tunable ones if tunable=True)."""
     return tuple(n for n, s in _REGISTRY.items() if tunable is None or s.tunable == tunable)
@@ -79,7 +86,6 @@ def style(name: str) -> dict:
 def parse_options(name: str, given: dict) -> dict:
     """The factory keywords of a mission's ``[controller.NAME]`` table, checked against
     the registration's options (a None default is left out)."""
-    from so3jax.components.registry import parse_params
 
     values = parse_params(get(name).options, given, f"controller.{name}")
     return {k: v for k, v in values.items() if v is not None}

@@ -38,6 +38,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.core import checks
 from so3jax.missions import config as cfg
 from so3jax.results import io, runfolder
 from so3jax.missions import mission as missions
@@ -100,14 +101,14 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     from so3jax.jobs.tune.config import parse_config
 
     if not isinstance(table, dict):
-        raise ValueError(f"a comparison must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a comparison must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
     table = copy.deepcopy(table)
     jobs = {k: table.pop(k) for k in JOBS if k in table}
     if "tune" not in jobs or not isinstance(jobs["tune"], dict):
         raise ValueError("a comparison needs a [tune] table: the campaign every law shares")
     if "controller" in jobs["tune"]:
         raise ValueError("tune.controller: a comparison tunes each of the mission's controllers; list them in controllers")
-    options = cfg.table(jobs, "compare", ("reference", "bootstrap", "seed", "candidates"))
+    options = checks.table(jobs, "compare", ("reference", "bootstrap", "seed", "candidates"))
     mission, _ = missions.load_job(table, base_dir, (), missions.PAPER)
     given = options.get("candidates")
     if given is None:
@@ -119,7 +120,7 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
         where = "controllers"
     else:
         if not isinstance(given, dict) or not all(isinstance(v, dict) for v in given.values()):
-            raise ValueError(f"compare.candidates must hold a table per candidate, got {cfg.short(given)}")
+            raise ValueError(f"compare.candidates must hold a table per candidate, got {checks.short(given)}")
         entries, where = given, "compare.candidates"
     if len(entries) < 2:
         raise ValueError(f"{where}: a comparison needs at least two laws, got {list(entries)}")
@@ -128,12 +129,12 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
         shared = {**shared, "dispersions": jobs.get("dispersions", DEFAULT["dispersions"])}
     candidates = {name: _candidate(name, entry, table, shared, mission, base_dir) for name, entry in entries.items()}
     laws = tuple(candidates)
-    reference = cfg.choice(options.get("reference", laws[0]), "compare.reference", laws)
+    reference = checks.choice(options.get("reference", laws[0]), "compare.reference", laws)
     for name, c in candidates.items():
-        if c.against is not None and cfg.choice(c.against, f"compare.candidates.{name}.against", laws) == name:
+        if c.against is not None and checks.choice(c.against, f"compare.candidates.{name}.against", laws) == name:
             raise ValueError(f"compare.candidates.{name}.against: a candidate is paired with another one")
-    bootstrap = cfg.number(options.get("bootstrap", 2000), "compare.bootstrap", low=100, integer=True)
-    seed = cfg.number(options.get("seed", 0), "compare.seed", low=0, high=2**32 - 1, integer=True)
+    bootstrap = checks.number(options.get("bootstrap", 2000), "compare.bootstrap", low=100, integer=True)
+    seed = checks.number(options.get("seed", 0), "compare.seed", low=0, high=2**32 - 1, integer=True)
     sweep_table = {**table, **{k: jobs[k] for k in ("sweep", "dispersions") if k in jobs}}
     judged = config_from_dict(sweep_table, base_dir)  # the sweep's errors before any tuning
     if jobs["tune"].get("dispersions") == "sweep":
@@ -151,14 +152,14 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
     from so3jax.jobs.tune.gains import resolve_gains
 
     where = f"compare.candidates.{name}"
-    entry = cfg.table({"t": entry}, "t", ("controller", "gains", "tune", "against"), where)
-    law = cfg.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
+    entry = checks.table({"t": entry}, "t", ("controller", "gains", "tune", "against"), where)
+    law = checks.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
     if "gains" in entry and "tune" in entry:
         raise ValueError(f"{where}: fixed gains are not tuned; give gains or tune, not both")
     changes = entry.get("tune", {})
     if not isinstance(changes, dict) or "controller" in changes:
         raise ValueError(f"{where}.tune must be a table of [tune] entries (the law is {where}.controller), "
-                         f"got {cfg.short(changes)}")
+                         f"got {checks.short(changes)}")
     campaign = parse_config({**table, "tune": {**missions._merge(shared, changes), "controller": law}}, base_dir)
     if campaign.estimator:
         raise ValueError(f"{where}: tune.estimator: a comparison sweeps the laws' gains with the mission's estimator")

@@ -198,9 +198,7 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
             "torque.png": flight_plots.torque_figure(histories, phases, mission.T),
         }
         kind = mission.actuator["kind"]
-        own = components.get("actuator", kind).figures  # the actuator's figures of its own state
-        if own is not None:
-            figures.update(own(histories, phases, mission.T, mission.actuator[kind]))
+        figures.update(flight_plots.actuator_figures(kind, histories, phases, mission.T, mission.actuator[kind]))
     return save_figures(out, figures)
 
 

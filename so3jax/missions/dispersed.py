@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.missions import config as cfg
+from so3jax.core import checks
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop, _rotation
 from so3jax.dynamics.plant import ConstantInertia
@@ -81,7 +81,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
     """(structured dispersions, component leaves) of a ``[dispersions]`` table on ``mission``;
     one-line ValueErrors naming the key."""
     if not isinstance(table, dict):
-        raise ValueError(f"[dispersions] must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"[dispersions] must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
     fields = {
         "J0": disp.InertiaDispersion(nominal=_matrix(mission.J0)),
         "J1": disp.InertiaDispersion(nominal=None if mission.J1_scale is not None else _matrix(mission.J1),
@@ -97,7 +97,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
         path = tuple(key.split("."))
         where = f"dispersions.{key}"
         if key == "seed":
-            choice = cfg.choice(value, f"{where} (random: a seed per sample; mission: the mission's seed for all)",
+            choice = checks.choice(value, f"{where} (random: a seed per sample; mission: the mission's seed for all)",
                                 ("random", "mission"))
             fields["disturbance_seed"] = None if choice == "random" else mission.seed
         elif path[0] == "inertia" and len(path) == 2 and path[1] in ("J0", "J1", "J2"):
@@ -105,10 +105,10 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
                 raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")
             fields[path[1]] = _inertia(value, where, fields[path[1]])
         elif key == "initial.attitude":
-            t = cfg.table({"t": value}, "t", ("max_angle_deg",), where)
-            fields["initial_angle_deg"] = cfg.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg", 0.0, 180.0)
+            t = checks.table({"t": value}, "t", ("max_angle_deg",), where)
+            fields["initial_angle_deg"] = checks.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg", 0.0, 180.0)
         elif key == "initial.rate":
-            t = cfg.table({"t": value}, "t", ("norm",), where)
+            t = checks.table({"t": value}, "t", ("norm",), where)
             fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
         elif path in STRUCTURED:
             fields[STRUCTURED[path]] = _distribution(value, where)
@@ -132,15 +132,15 @@ def _matrix(J) -> tuple:
 
 def _distribution(value, where: str) -> disp.Distribution:
     if isinstance(value, dict) and "dist" in value and not isinstance(value["dist"], str):
-        cfg.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
+        checks.choice(value["dist"], f"{where}.dist", tuple(disp.DISTRIBUTIONS))
     return disp.parse_distribution(value, where)
 
 
 def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
-    t = cfg.table({"t": value}, "t", _INERTIA_KEYS, where)
+    t = checks.table({"t": value}, "t", _INERTIA_KEYS, where)
     changes = {name: _distribution(t[name], f"{where}.{name}") for name in ("scale", "axis_scale", "products") if name in t}
     if "rotation_deg" in t:
-        changes["rotation_deg"] = cfg.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
+        changes["rotation_deg"] = checks.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
     return dataclasses.replace(default, **changes)
 
 

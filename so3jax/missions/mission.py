@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
+from so3jax.core import checks
 from so3jax.missions import config as cfg
 from so3jax.controllers import registry
 from so3jax.results.io import to_builtin
@@ -193,14 +194,14 @@ def _merge(base: dict, over: dict) -> dict:
 def _sensors(given: dict, default: dict) -> dict:
     """{name: values} of the sensors flown: the base mission's (``default``), each merged
     with its given table (false: left out), plus any other registered sensor given a table."""
-    given = cfg.table({"sensors": given}, "sensors", components.names("sensor"))
+    given = checks.table({"sensors": given}, "sensors", components.names("sensor"))
     out = {}
     for name in components.names("sensor"):
         table = given.get(name, {} if name in default else False)
         if table is False:
             continue
         if not isinstance(table, dict):
-            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {cfg.short(table)}")
+            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {checks.short(table)}")
         out[name] = components.get("sensor", name).parse(table, f"sensors.{name}")
     providers = {}
     for name in out:
@@ -215,8 +216,8 @@ def _sensors(given: dict, default: dict) -> dict:
 def _chosen(d: dict, kind: str, table: str, base: dict) -> dict:
     """{"kind": name, name: values} of ``[table] kind`` and its ``[table.NAME]`` subtable
     (every other registered name's subtable is checked too, so a typo is never ignored)."""
-    t = cfg.table(d, table, ("kind",) + components.names(kind))
-    name = cfg.choice(t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
+    t = checks.table(d, table, ("kind",) + components.names(kind))
+    name = checks.choice(t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
     out = {"kind": name}
     for other in components.names(kind):
         if other in t or other == name:
@@ -230,7 +231,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     """A Mission from the TOML tables (missing entries: ``base``'s, the flight mission or
     :data:`PAPER`); ValueError on bad input."""
     if not isinstance(d, dict):
-        raise ValueError(f"a mission must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a mission must be a table, got {checks.short(d)}")  # noqa: TRY004 (bad input)
     unknown = set(d) - set(_TOP) - set(_TABLES)
     if unknown:
         raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")
@@ -239,24 +240,24 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
             raise ValueError(f"[{t}] must be a table")
     full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
-    T = cfg.number(full["T"], "T (horizon) [s]")  # a number here; positive and a multiple of dt below
-    dt = cfg.number(full["dt"], "dt (step) [s]")
+    T = checks.number(full["T"], "T (horizon) [s]")  # a number here; positive and a multiple of dt below
+    dt = checks.number(full["dt"], "dt (step) [s]")
     n_steps = steps_for_horizon(T, dt)
-    seed = cfg.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
-    record_every = cfg.number(full["record_every"], "record_every", low=1, integer=True)
-    controllers = cfg.names(full["controllers"], "controllers", registry.names())
-    period_steps = _period_steps(cfg.table(full, "control", ("mode", "period")), T, dt, n_steps)
+    seed = checks.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
+    record_every = checks.number(full["record_every"], "record_every", low=1, integer=True)
+    controllers = checks.names(full["controllers"], "controllers", registry.names())
+    period_steps = _period_steps(checks.table(full, "control", ("mode", "period")), T, dt, n_steps)
 
     J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
-    tau_J = cfg.number(cfg.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]")
+    tau_J = checks.number(checks.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]")
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
-    n = cfg.number(cfg.table(full, "orbit", ("n",))["n"], "orbit.n [rad/s]", low=0.0)
-    dist = cfg.table(full, "disturbance", ("amplitude", "frequency", "noise_std"))
+    n = checks.number(checks.table(full, "orbit", ("n",))["n"], "orbit.n [rad/s]", low=0.0)
+    dist = checks.table(full, "disturbance", ("amplitude", "frequency", "noise_std"))
     disturbance = {
-        "amplitude": cfg.number(dist["amplitude"], "disturbance.amplitude [N m]"),
-        "frequency": cfg.number(dist["frequency"], "disturbance.frequency [rad/s]"),
-        "noise_std": cfg.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
+        "amplitude": checks.number(dist["amplitude"], "disturbance.amplitude [N m]"),
+        "frequency": checks.number(dist["frequency"], "disturbance.frequency [rad/s]"),
+        "noise_std": checks.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
     }
     initial = _initial(d.get("initial", {}), full["initial"])
 
@@ -265,13 +266,13 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     actuator = _chosen(full, "actuator", "actuator", base)
     _check_wiring(period_steps, sensors, estimator["kind"])
 
-    options_table = cfg.table(full, "controller", registry.names())
+    options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
-    gains_table = cfg.table(full, "gains", registry.names())
+    gains_table = checks.table(full, "gains", registry.names())
     gains = {}
     for name in registry.names():  # every table given is checked, also of a controller not flown
         spec = registry.get(name)
-        g = cfg.gains(gains_table.get(name, {}), spec.defaults, spec.gain_shapes(), f"gains.{name}")
+        g = checks.gains(gains_table.get(name, {}), spec.defaults, spec.gain_shapes(), f"gains.{name}")
         try:
             spec.check(g)
         except (TypeError, ValueError) as err:
@@ -296,10 +297,10 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
 
 def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:
     """m = control.period / dt, a whole number >= 1 dividing the horizon; None: continuous."""
-    mode = cfg.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
+    mode = checks.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
     if mode == "continuous":
         return None
-    period = cfg.number(control.get("period"), "control.period [s]", low=0.0)
+    period = checks.number(control.get("period"), "control.period [s]", low=0.0)
     ratio = period / dt
     if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
         raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
@@ -318,28 +319,28 @@ def _inertias(given: dict, full: dict):
         extra = sorted(set(given) - {"J"})
         if extra:
             raise ValueError(f"[inertia] J (a constant inertia) excludes {', '.join(extra)}")
-        J = cfg.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
+        J = checks.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
         return J, J, J, None, True
-    inertia = cfg.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
-    J0 = cfg.array(cfg.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
-    J1_table = cfg.table(inertia, "J1", ("scale", "nominal"), "inertia.")
-    scale = None if "nominal" in J1_table else cfg.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0)
-    J1 = cfg.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
-    J2 = cfg.array(cfg.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
+    inertia = checks.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
+    J0 = checks.array(checks.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
+    J1_table = checks.table(inertia, "J1", ("scale", "nominal"), "inertia.")
+    scale = None if "nominal" in J1_table else checks.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0)
+    J1 = checks.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
+    J2 = checks.array(checks.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
     return J0, J1, J2, scale, False
 
 
 def _initial(given: dict, full: dict) -> dict:
     """{"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}; R(0) given as
     ``attitude`` (a rotation vector) or ``quaternion`` [w, x, y, z] (scalar first, unit)."""
-    init = cfg.table({"initial": full}, "initial", ("attitude", "quaternion", "rate"))
-    rate = cfg.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))
+    init = checks.table({"initial": full}, "initial", ("attitude", "quaternion", "rate"))
+    rate = checks.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))
     if not (isinstance(given, dict) and "quaternion" in given):
-        return {"attitude": cfg.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
+        return {"attitude": checks.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
                 "rate": rate}
     if "attitude" in given:
         raise ValueError("initial.attitude and initial.quaternion both give R(0): give one")
-    q = cfg.array(given["quaternion"], "initial.quaternion [w, x, y, z]", (4,))
+    q = checks.array(given["quaternion"], "initial.quaternion [w, x, y, z]", (4,))
     if abs(np.linalg.norm(q) - 1.0) > 1e-9:
         raise ValueError(f"initial.quaternion [w, x, y, z] must be a unit quaternion, got norm {np.linalg.norm(q):.12g}")
     w, v = q[0], q[1:]
@@ -373,7 +374,7 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     jobs = {k: d.pop(k) for k in job_tables if k in d}
     path = d.pop("mission", None)
     if path is not None and not isinstance(path, str):
-        raise ValueError(f"mission must be the path of a mission file, got {cfg.short(path)}")
+        raise ValueError(f"mission must be the path of a mission file, got {checks.short(path)}")
     unknown = set(d) - set(_TOP) - set(_TABLES)
     if unknown:
         allowed = ("mission",) + job_tables + _TOP + _TABLES

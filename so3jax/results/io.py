@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from so3jax.results import runfolder
+_BEFORE_WRITE: list = []  # callables path -> None: the open run folders list a file before it is written
 
 _UMASK = os.umask(0)
 os.umask(_UMASK)
@@ -24,9 +24,10 @@ os.umask(_UMASK)
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path next to ``path``; move it into place on success. The run
-    folder holding ``path`` lists it before it is written."""
+    folder holding ``path`` lists it before it is written (:func:`before_write`)."""
     path = Path(path)
-    runfolder.writing(path)
+    for callback in _BEFORE_WRITE:
+        callback(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
@@ -37,6 +38,12 @@ def atomic_path(path):
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def before_write(callback) -> None:
+    """Call ``callback(path)`` before :func:`atomic_path` writes any file (once per callback)."""
+    if callback not in _BEFORE_WRITE:
+        _BEFORE_WRITE.append(callback)
 
 
 def to_builtin(x):

@@ -36,6 +36,8 @@ import threading
 import time
 from pathlib import Path
 
+from so3jax.results import io
+
 LOCK = ".so3jax.lock"
 MANIFEST = "manifest.json"
 _OWN = (LOCK, MANIFEST, ".so3jax-shared")  # the folder's machinery, never a run's result
@@ -45,9 +47,8 @@ _GUARD = threading.RLock()
 
 def fingerprint(description) -> str:
     """A short hash of a run's description (anything JSON can write, after to_builtin)."""
-    from so3jax.results.io import to_builtin
 
-    text = json.dumps(to_builtin(description), sort_keys=True, default=str)
+    text = json.dumps(io.to_builtin(description), sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -150,11 +151,10 @@ class Run:
     """One run's hold on its output folder (see the module docstring); ``out`` is the Path."""
 
     def __init__(self, out: Path, command: str, settings, resume: bool, writer: bool):
-        from so3jax.results.io import to_builtin
 
         self.out, self.command, self.resume, self.writer = out, command, resume, writer
         settings = {k: v for k, v in dict(settings or {}).items() if not callable(v)}
-        self.settings = json.loads(json.dumps(to_builtin(settings), default=str))  # paths as text
+        self.settings = json.loads(json.dumps(io.to_builtin(settings), default=str))  # paths as text
         self.root = os.path.abspath(out)
         self.manifest = None  # this run's, once it writes
         self.locked = None  # the lock's owner record, while this run holds it
@@ -225,9 +225,8 @@ class Run:
         print(f"so3jax {self.command}: warning: {text}", file=sys.stderr, flush=True)
 
     def _save(self, manifest: dict | None = None) -> None:
-        from so3jax.results.io import write_json
 
-        write_json(self.out / MANIFEST, self.manifest if manifest is None else manifest)
+        io.write_json(self.out / MANIFEST, self.manifest if manifest is None else manifest)
 
     def record(self, path) -> None:
         """List ``path`` (inside the folder) in the manifest, starting the run first."""
@@ -258,7 +257,7 @@ class Run:
 
 
 def writing(path) -> None:
-    """Called by :func:`so3jax.results.io.atomic_path` before it writes ``path``: each run whose
+    """Called by :func:`so3jax.results.io.atomic_path` (registered below) before it writes ``path``: each run whose
     folder holds it starts (folder, lock, manifest) and lists it (a run inside another's
     folder, as ``compare`` holds its campaigns and sweep, lists its files; the outer run
     lists the inner folder)."""
@@ -304,3 +303,6 @@ def claim(out, command: str, settings=None, *, resume: bool = False, lock: bool 
 def corrupt(path, err: Exception, remedy: str) -> ValueError:
     """The one-line error for a result file that cannot be read back."""
     return ValueError(f"{path} cannot be read ({type(err).__name__}: {err}); {remedy}")
+
+
+io.before_write(writing)

@@ -129,3 +129,22 @@ def momentum_figure(histories, phase_times, T, capacity):
     axes[-1].set_xlabel("t [s]")
     fig.suptitle("Wheel angular momentum (body frame)")
     return fig
+
+
+def wheel_figures(histories, phase_times, T, w: dict) -> dict:
+    """Wheel speeds against their limits, and the wheels' momentum against the array's
+    capacity (the largest |h_w| along a body axis) [N m s]; w: the wheels' parameters."""
+    capacity = np.abs(np.asarray(w["axes"]).T) @ (w["spin_inertia"] * w["max_speed"])
+    return {"wheel_speeds.png": wheel_speed_figure(histories, phase_times, T, w["max_speed"]),
+            "momentum.png": momentum_figure(histories, phase_times, T, capacity)}
+
+
+# figures of an actuator's own state, by registered actuator name:
+# f(histories, phase_times, T, the actuator's parameters) -> {file name: Figure}
+ACTUATOR_FIGURES = {"wheels": wheel_figures}
+
+
+def actuator_figures(kind: str, histories, phase_times, T, values: dict) -> dict:
+    """{file name: Figure} of the actuator's own state ({} for an actuator without figures)."""
+    draw = ACTUATOR_FIGURES.get(kind)
+    return {} if draw is None else draw(histories, phase_times, T, values)

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from so3jax.jobs.sweep.config import SweepConfig
-from so3jax.jobs.sweep.summary import _phases
 
 def _log_if_wide(ax, axis: str, values) -> None:
     """Log scale where the values span more than a decade (else log ticks crowd)."""
@@ -13,8 +11,9 @@ def _log_if_wide(ax, axis: str, values) -> None:
         getattr(ax, f"set_{axis}scale")("log")
 
 
-def figures(config: SweepConfig, cols: dict) -> dict:
-    """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale."""
+def figures(config, cols: dict, phases: list) -> dict:
+    """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale.
+    config: the sweep's ``SweepConfig``; phases: (index, name) of the phases the horizon reaches."""
     from matplotlib.figure import Figure
 
     from so3jax.controllers.registry import style
@@ -45,7 +44,7 @@ def figures(config: SweepConfig, cols: dict) -> dict:
             ax.legend()
         fig.suptitle(title)
     panels = [("J0_trace_ratio", "rmse", "capture inertia scale tr(J0)/tr(J0 nominal)", "mission RMSE [rad/s]")]
-    if any(name == "detumble" for _, name in _phases(config)):
+    if any(name == "detumble" for _, name in phases):
         panels.append(("J2_trace_ratio", "rmse_detumble", "docked inertia scale tr(J2)/tr(J2 nominal)", "detumble RMSE [rad/s]"))
     scatter = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
     for ax, (x, y, xlabel, ylabel) in zip(scatter.subplots(1, len(panels), squeeze=False)[0], panels):
@@ -75,7 +74,7 @@ FLIGHT_PANELS = (
 )
 
 
-def _flight_figure(config: SweepConfig, cols: dict, good: dict, color: dict, title: str):
+def _flight_figure(config, cols: dict, good: dict, color: dict, title: str):
     """Estimation error against star-tracker noise, time at a limit against the torque
     limit: the panels whose parameter the sweep disperses (None: none)."""
     from matplotlib.figure import Figure

@@ -7,6 +7,7 @@ import copy
 import dataclasses
 from pathlib import Path
 
+from so3jax.core import checks
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
@@ -85,14 +86,14 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     file, relative to ``base_dir``) and/or mission tables inline, ``[sweep]``,
     ``[dispersions]``; missing entries take the default sweep's. ValueError on bad input."""
     if not isinstance(d, dict):
-        raise ValueError(f"a sweep config must be a table, got {cfg.short(d)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a sweep config must be a table, got {checks.short(d)}")  # noqa: TRY004 (bad input)
     mission, jobs = missions.load_job(d, base_dir, ("sweep", "dispersions"), missions.PAPER)
-    sweep = cfg.table(jobs, "sweep", _SWEEP_KEYS)
+    sweep = checks.table(jobs, "sweep", _SWEEP_KEYS)
     values = dict(DEFAULT["sweep"], **sweep)
-    top = {key: cfg.number(values[key], f"sweep.{key}", low=1, integer=True) for key in ("samples", "chunk", "max_draws")}
-    top["seed"] = cfg.number(values["seed"], "sweep.seed", low=0, high=2**32 - 1, integer=True)
-    top["divergence_angle_deg"] = cfg.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg", 0.0, 180.0)
-    top["limit_share"] = cfg.number(values["limit_share"], "sweep.limit_share", 0.0, 1.0)
+    top = {key: checks.number(values[key], f"sweep.{key}", low=1, integer=True) for key in ("samples", "chunk", "max_draws")}
+    top["seed"] = checks.number(values["seed"], "sweep.seed", low=0, high=2**32 - 1, integer=True)
+    top["divergence_angle_deg"] = checks.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg", 0.0, 180.0)
+    top["limit_share"] = checks.number(values["limit_share"], "sweep.limit_share", 0.0, 1.0)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
     dispersions, leaves = dispersed.parse(table, mission)
     if not dispersions.initial_angle_deg < top["divergence_angle_deg"]:

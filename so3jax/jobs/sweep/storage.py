@@ -21,7 +21,7 @@ from so3jax.results.io import save_figure, save_npz, write_json, write_text
 from so3jax.sim.metrics import Metrics
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.viz.sweep import figures
-from so3jax.jobs.sweep.summary import _row, columns, format_summary
+from so3jax.jobs.sweep.summary import _row, columns, format_summary, reached_phases
 
 def _take(claims: Path, controller: str, first: int) -> bool:
     """Whether this process takes the chunk (controller, first): the first process to create
@@ -134,5 +134,5 @@ def write_outputs(out: Path, config: SweepConfig, samples: disp.Samples, results
     save_npz(out / "samples.npz", **cols)
     write_json(out / "summary.json", summary)
     write_text(out / "summary.md", format_summary(summary))
-    for name, fig in figures(config, cols).items():
+    for name, fig in figures(config, cols, reached_phases(config)).items():
         save_figure(fig, out / name)

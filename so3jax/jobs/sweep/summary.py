@@ -27,7 +27,7 @@ FLIGHT = {
 }
 
 
-def _phases(config: SweepConfig) -> list[tuple[int, str]]:
+def reached_phases(config: SweepConfig) -> list[tuple[int, str]]:
     """(index, name) of the phases the horizon reaches."""
     steps = config.mission.scenario().steps_per_phase
     return [(p, PHASE_NAMES[p]) for p, k in enumerate(steps) if k > 0]
@@ -35,7 +35,7 @@ def _phases(config: SweepConfig) -> list[tuple[int, str]]:
 
 def diverged(config: SweepConfig, r: dict) -> np.ndarray:
     """Non-finite state, or attitude error beyond divergence_angle_deg (NaN counts as beyond)."""
-    active = [p for p, _ in _phases(config)]
+    active = [p for p, _ in reached_phases(config)]
     angle = r["max_angle_phase"][:, active].max(axis=1)
     return (r["diverged"] == 1) | ~(angle <= math.radians(config.divergence_angle_deg))
 
@@ -67,7 +67,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     for key, value in samples.leaves.items():  # dispersed component parameters
         flat = value.reshape(len(value), -1)
         cols.update({key: flat[:, 0]} if value.ndim == 1 else {f"{key}_{i + 1}": flat[:, i] for i in range(flat.shape[1])})
-    phases = _phases(config)
+    phases = reached_phases(config)
     n = len(p.seed)
     flight = flight_fields(results)
     for c in config.controllers:
@@ -118,7 +118,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
     none); counts and parameters of diverged and rejected samples; paired comparisons (every
     pair of controllers in config order, on the samples where neither diverged)."""
     cols = columns(config, samples, results)
-    phases = _phases(config)
+    phases = reached_phases(config)
     summary: dict[str, Any] = {
         "config": dict(config_to_dict(config), mission=config.mission.describe()),
         "precision": str(jnp.dtype(jnp.result_type(float))),

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from so3jax.core import checks
 from so3jax.missions import config as cfg
 from so3jax.missions import mission as missions
 from so3jax.sim.gradients import MODES
@@ -116,7 +117,7 @@ def _key(name: str) -> str:
 def _build(cls, table: dict, prefix: str, **extra):
     """cls(**table, **extra), with a ValueError naming any unknown or missing key of table."""
     if not isinstance(table, dict):
-        raise ValueError(f"config key {prefix.rstrip('.')!r} must be a table, got {cfg.short(table)}")  # noqa: TRY004
+        raise ValueError(f"config key {prefix.rstrip('.')!r} must be a table, got {checks.short(table)}")  # noqa: TRY004
     fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "mission"}
     for key in table:
         if key not in fields:
@@ -131,23 +132,23 @@ def _build(cls, table: dict, prefix: str, **extra):
         elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
-            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {cfg.short(value)}")
+            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {checks.short(value)}")
         elif key == "estimator":
-            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, got {cfg.short(value)}")
+            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, got {checks.short(value)}")
         values[key] = value
     return cls(**values, **extra)
 
 
 def _positive(name, value, integer=False):
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not cfg.finite(value) or value <= 0:
+    if isinstance(value, bool) or not ok or not checks.finite(value) or value <= 0:
         kind = "a positive integer" if integer else "a positive finite number"
-        raise ValueError(f"config key {_key(name)!r} must be {kind}, got {cfg.short(value)}")
+        raise ValueError(f"config key {_key(name)!r} must be {kind}, got {checks.short(value)}")
 
 
 def _choice(name, value, choices):
     if not isinstance(value, str) or value not in choices:
-        raise ValueError(f"config key {_key(name)!r} must be one of {choices}, got {cfg.short(value)}")
+        raise ValueError(f"config key {_key(name)!r} must be one of {choices}, got {checks.short(value)}")
 
 
 def _check_kwargs(fn, options, where: str) -> None:
@@ -156,7 +157,7 @@ def _check_kwargs(fn, options, where: str) -> None:
     A table is required; options without a typed default are left to the call."""
     where = _key(where)
     if not isinstance(options, dict):
-        got = cfg.short(options)
+        got = checks.short(options)
         raise ValueError(f"config key {where!r} must be a table of keyword arguments, got {got}")  # noqa: TRY004
     parameters = inspect.signature(fn).parameters
     for key, value in options.items():
@@ -165,11 +166,11 @@ def _check_kwargs(fn, options, where: str) -> None:
             continue  # the call names it
         default = p.default
         if isinstance(default, bool) or p.annotation in (bool, "bool"):
-            cfg.boolean(value, f"config key '{where}.{key}'")
+            checks.boolean(value, f"config key '{where}.{key}'")
         elif (isinstance(default, (int, float)) or p.annotation in (int, float, "int", "float")) and (
             isinstance(value, bool) or not isinstance(value, (int, float))
         ):
-            raise ValueError(f"config key '{where}.{key}' must be a number, got {cfg.short(value)}")
+            raise ValueError(f"config key '{where}.{key}' must be a number, got {checks.short(value)}")
 
 
 def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
@@ -179,14 +180,14 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     name_key = _key("optimizer.name")
     factory = getattr(optax, config.name, None) if isinstance(config.name, str) else None
     if not callable(factory) or next(iter(inspect.signature(factory).parameters), None) != "learning_rate":
-        raise ValueError(f"config key {name_key!r}: {cfg.short(config.name)} is not an optax optimizer "
+        raise ValueError(f"config key {name_key!r}: {checks.short(config.name)} is not an optax optimizer "
                          "(e.g. adam, sgd)")
     _check_kwargs(factory, config.options, "optimizer.options")
     learning_rate = config.learning_rate
     if config.schedule is not None:
         schedule = getattr(optax, config.schedule, None) if isinstance(config.schedule, str) else None
         if not callable(schedule):
-            raise ValueError(f"config key {_key('optimizer.schedule')!r}: {cfg.short(config.schedule)} "
+            raise ValueError(f"config key {_key('optimizer.schedule')!r}: {checks.short(config.schedule)} "
                              "is not an optax schedule")
         _check_kwargs(schedule, config.schedule_options, "optimizer.schedule_options")
         try:
@@ -216,7 +217,7 @@ def validate(config: TuneConfig) -> None:
     _choice("gradient", config.gradient, MODES)
     _choice("cost.mode", config.cost.mode, COST_MODES)
     _choice("objective", config.objective, OBJECTIVES)
-    cfg.number(config.alpha, f"config key {_key('alpha')!r}", low=0.0, high=1.0)
+    checks.number(config.alpha, f"config key {_key('alpha')!r}", low=0.0, high=1.0)
     if not 0.0 < config.alpha < 1.0:
         raise ValueError(f"config key {_key('alpha')!r} must lie strictly between 0 and 1, got {config.alpha}")
     _positive("iterations", config.iterations, integer=True)
@@ -249,12 +250,12 @@ def validate(config: TuneConfig) -> None:
                          f"{_key('cost.budget_controller')!r}")
     if cost.budget_controller is not None:
         _choice("cost.budget_controller", cost.budget_controller, tuple(CONTROLLERS))
-    cfg.boolean(config.diagonal_gamma, f"config key {_key('diagonal_gamma')!r}")
+    checks.boolean(config.diagonal_gamma, f"config key {_key('diagonal_gamma')!r}")
     if config.diagonal_gamma and not diagonals(config.controller):
         raise ValueError(f"config key {_key('diagonal_gamma')!r}: no gain of the {config.controller} controller "
                          "may be a diagonal")
     if not isinstance(config.mission, missions.Mission):
-        got = cfg.short(config.mission)
+        got = checks.short(config.mission)
         raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
     for key, controller, spec in (
         ("initial_gains", config.controller, config.initial_gains),
@@ -269,7 +270,7 @@ def validate(config: TuneConfig) -> None:
     make_optimizer(config.optimizer)
     _positive("es.population", config.es.population, integer=True)
     _positive("es.sigma", config.es.sigma)
-    cfg.number(config.es.seed, f"config key {_key('es.seed')!r}", low=0, high=2**32 - 1, integer=True)
+    checks.number(config.es.seed, f"config key {_key('es.seed')!r}", low=0, high=2**32 - 1, integer=True)
 
 
 def _check_dispersions(config: TuneConfig) -> None:
@@ -292,7 +293,7 @@ def _check_dispersions(config: TuneConfig) -> None:
     if config.dispersions is None:
         return
     if not isinstance(config.dispersions, dict):
-        raise ValueError(f"config key {_key('dispersions')!r} must be a table, got {cfg.short(config.dispersions)}")
+        raise ValueError(f"config key {_key('dispersions')!r} must be a table, got {checks.short(config.dispersions)}")
     if config.method != "gradient":
         raise ValueError(f"config key {_key('dispersions')!r} needs {_key('method')} = \"gradient\": a fresh batch "
                          "every iteration, where the ES's elitist selection would compare costs of different batches")
@@ -321,7 +322,7 @@ def _check_estimator(config: TuneConfig) -> None:
     kind = config.mission.estimator["kind"]
     tunable = tunable_estimator(config.mission)
     if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
-        raise ValueError(f"config key {where!r} must list distinct parameter names, got {cfg.short(list(names))}")
+        raise ValueError(f"config key {where!r} must list distinct parameter names, got {checks.short(list(names))}")
     for name in names:
         if name not in tunable:
             raise ValueError(f"config key {where!r}: the mission's estimator {kind!r} has no tunable parameter "
@@ -362,7 +363,7 @@ def parse_config(table: dict, base_dir=".", base: dict = missions.PAPER) -> Tune
     to base_dir) and/or mission tables over ``base``, and ``[tune]``; gain-file paths
     relative to base_dir."""
     if not isinstance(table, dict):
-        raise ValueError(f"a campaign must be a table, got {cfg.short(table)}")  # noqa: TRY004 (bad input)
+        raise ValueError(f"a campaign must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
     table = json.loads(json.dumps(table))  # a deep copy
     mission, jobs = missions.load_job(table, base_dir, (TUNE,), base)
     if TUNE not in jobs:

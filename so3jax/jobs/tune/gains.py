@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.missions import config as cfg
+from so3jax.core import checks
 from so3jax.results import runfolder
 from so3jax.controllers import registry
 from so3jax.dynamics.scenario import gain_domain
@@ -68,7 +68,7 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     elif isinstance(spec, dict):
         table = spec
     else:
-        raise ValueError(f"gains must be 'mission', 'paper', a table or a .json path, got {cfg.short(spec)}")
+        raise ValueError(f"gains must be 'mission', 'paper', a table or a .json path, got {checks.short(spec)}")
     for name in table:
         if name not in cls._fields:
             raise ValueError(f"unknown gain {name!r} for the {controller} controller ({', '.join(cls._fields)})")
@@ -76,7 +76,7 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     if missing:
         raise ValueError(f"missing gain {missing[0]!r} for the {controller} controller")
     shapes = {name: tuple(s for s in allowed if len(s) < 2) for name, allowed in registered.gain_shapes().items()}
-    table = cfg.gains(table, registered.defaults, shapes, "gains")._asdict()
+    table = checks.gains(table, registered.defaults, shapes, "gains")._asdict()
     gains = cls(**{name: jnp.asarray(table[name], dtype) for name in cls._fields})
     if diagonal_gamma:
         gains = gains._replace(**{f: jnp.broadcast_to(getattr(gains, f), s) for f, s in diagonals(controller).items()})
