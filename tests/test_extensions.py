@@ -17,7 +17,8 @@ from so3jax.jobs import fly
 
 from so3jax.missions import mission
 from so3jax.core.pytree import pytree_dataclass
-from so3jax.components.registry import ComponentSpec, Param
+from so3jax.components.registry import ComponentSpec
+from so3jax.core.params import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
 from so3jax.components.estimators import Estimate
