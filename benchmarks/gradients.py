@@ -63,7 +63,8 @@ def _child(spec: dict) -> dict:
     from so3jax.sim import gradients
 
     from so3jax.jobs import tune
-    from so3jax.dynamics.scenario import InertiaWarning, paper_scenario
+    from so3jax.dynamics.inertia import InertiaWarning
+    from so3jax.dynamics.scenario import paper_scenario
 
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     diagonal = spec.get("diagonal_gamma", False)

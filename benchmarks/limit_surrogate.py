@@ -75,7 +75,7 @@ def main() -> None:
 
     from so3jax.jobs import tune
     from so3jax.missions import mission as missions
-    from so3jax.dynamics.scenario import InertiaWarning
+    from so3jax.dynamics.inertia import InertiaWarning
 
     warnings.simplefilter("ignore", InertiaWarning)
     flown = missions.load(str(ROOT / "missions/flight.toml"), [f"T={args.T!r}", f"actuator.wheels.max_torque={args.max_torque!r}"])

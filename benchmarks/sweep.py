@@ -89,7 +89,8 @@ def _child(spec: dict) -> list:
     from so3jax.parallel import distributed
 
     from so3jax.jobs import sweep
-    from so3jax.dynamics.scenario import InertiaWarning, steps_for_horizon
+    from so3jax.dynamics.inertia import InertiaWarning
+    from so3jax.dynamics.scenario import steps_for_horizon
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -101,7 +102,7 @@ def _child(spec: dict) -> list:
     n = -(-spec["samples"] // chunk) * chunk
     drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws)
     params, leaves = dispersed.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
-    key = sweep.mission_key(config.mission)
+    key = config.mission
     use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop
     if use_numba:  # the parent raised NUMBA_NUM_THREADS to at least the device count
         import numba
@@ -187,7 +188,7 @@ def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.missions import dispersed
+    from so3jax.missions import build
 
     from so3jax.dynamics import stepped
     from so3jax.sim.loop import initial_state, step
@@ -198,7 +199,7 @@ def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     gains = jax.tree.map(lambda g: jnp.asarray(g)[..., None], config.gains[controller])  # shared: a unit axis
     batch = min(batch, len(params.seed))
     part = jax.tree.map(lambda x: x[:batch], params)
-    scenario = _batch_last(jax.vmap(lambda p: dispersed.scenario(mission, p))(part), 0)
+    scenario = _batch_last(jax.vmap(lambda p: build.scenario(mission, p))(part), 0)
     loop = mission.loop(jnp.float64)
     key = _keys(part.seed)
     state = initial_state(scenario, law, gains, (batch,), loop)

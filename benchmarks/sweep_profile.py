@@ -47,10 +47,10 @@ def main() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks.*, run as a script too
     from benchmarks.throughput import cpu_model
     from so3jax.core import _trig
-    from so3jax.missions import dispersed
+    from so3jax.missions import build, dispersed
     from so3jax.jobs import sweep
     from so3jax.sim.rollout import rollout_batch
-    from so3jax.dynamics.scenario import InertiaWarning
+    from so3jax.dynamics.inertia import InertiaWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -58,7 +58,7 @@ def main() -> None:
         samples = dispersed.draw(config.dispersions, config.leaves, config.seed, args.batch, config.max_draws)
     params, _ = dispersed.inputs(samples, jnp.float64)
     mission = config.mission
-    per_sample = jax.vmap(lambda p: dispersed.scenario(mission, p))(params)
+    per_sample = jax.vmap(lambda p: build.scenario(mission, p))(params)
     first = jax.tree.map(lambda x: x[0], per_sample)
     axes = jax.tree.map(lambda _: 0, per_sample)
 

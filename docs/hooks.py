@@ -1,7 +1,7 @@
 """MkDocs hooks of the so3jax site (registered in mkdocs.yml).
 
 * ``<!-- keys: NAME [ARG] -->`` and ``<!-- options: COMMAND -->`` in a page are replaced by
-  the tables :func:`so3jax.schema_docs.render` generates from the schema objects (the
+  the tables ``schema_docs.render`` (docs/schema_docs.py) generates from the schema objects (the
   registrations, the parsers' checks, the default missions, the argparse parsers), so the
   pages list exactly what the code accepts; "model §N" in them links to the model page.
 * A link ``[model §N.M](model.md)`` gets the anchor of that numbered section of
@@ -17,6 +17,7 @@ import posixpath
 import re
 from pathlib import Path
 
+import schema_docs  # docs/schema_docs.py: mkdocs puts this hook's folder on sys.path while it loads it
 from mkdocs.structure.files import File
 
 MODEL_LINK = re.compile(r"\[([Mm]odel §(\d+(?:\.\d+)*))\]\(([^)#\s]*model\.md)\)")
@@ -47,8 +48,6 @@ def _sections(config) -> dict:
 
 
 def on_page_markdown(markdown, page, config, files):
-    from so3jax import schema_docs
-
     model = posixpath.relpath("model.md", posixpath.dirname(page.file.src_uri) or ".")
     sections = _sections(config)
 

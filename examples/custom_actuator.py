@@ -4,9 +4,9 @@
 
 (tau_a: the actuator's state, integrated by RK4 with the plant), registered as a mission
 component and flown with the PD through the flight mission (missions/flight.toml: gyro,
-star tracker, MEKF, Delta_c = 0.1 s) beside the ideal actuator. The interface is the
-docstring of so3jax/components/actuators.py (docs/model.md §11.1); `Actuator` gives the defaults
-(no stored momentum, no limits).
+star tracker, MEKF, Delta_c = 0.1 s) beside the ideal actuator. The interface is
+so3jax.components.base.Actuator (docs/model.md §11.1): `command` is required, the base
+gives the rest's defaults (no stored momentum, no limits).
 
 Run: python examples/custom_actuator.py [--T 4000] [--set KEY=VALUE ...]   (horizon T [s];
 default $SO3JAX_EXAMPLE_T, else 4000; --set: a mission entry, as for `so3jax fly`)
@@ -22,8 +22,9 @@ import jax.numpy as jnp
 
 import so3jax as sj
 from so3jax.components import registry as components
-from so3jax.components.actuators import Actuator
-from so3jax.components.registry import ComponentSpec, Param
+from so3jax.components.base import Actuator
+from so3jax.components.registry import ComponentSpec
+from so3jax.core.params import Param
 
 NAME = "example_lag"  # the mission's actuator.kind
 FLIGHT = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"
@@ -37,7 +38,7 @@ class FirstOrderLag(Actuator):
     def init(self, batch_shape, dtype):  # tau_a(0) = 0, components first, batch axes last
         return jnp.zeros((3, *batch_shape), dtype)
 
-    def command(self, state, tau_c, omega_hat):  # the input held over a control period
+    def command(self, state, tau_c, Omega_hat):  # the input held over a control period
         return tau_c
 
     def body_torque(self, state, held, Omega):
@@ -46,12 +47,9 @@ class FirstOrderLag(Actuator):
     def derivative(self, state, held, Omega, Omega_dot):
         return (held - state) / self.time_constant
 
-    def check(self):  # the Param below declares the domain, checked when a mission is read
-        pass
 
-
-components.register(ComponentSpec(
-    kind="actuator", name=NAME, doc="tau_a' = (tau_c - tau_a) / time_constant",
+components.register(ComponentSpec(  # the Param declares the domain, checked when a mission is read
+    kind="actuator", name=NAME, component=FirstOrderLag, doc="tau_a' = (tau_c - tau_a) / time_constant",
     params=(Param("time_constant", 0.5, "s", low=1e-6, doc="lag time constant"),),
     build=lambda values, ctx: FirstOrderLag(ctx.as_array(values["time_constant"])),
 ))

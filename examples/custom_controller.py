@@ -2,8 +2,9 @@
 
     tau_i = clip(-k_R e_R - k_Omega Omega_e, -max_torque, max_torque)_i    [N m]
 
-(e_R, Omega_e: the attitude and rate errors of docs/model.md §2), written as a
-``Controller(init, torque)``, registered by name, and flown on the paper's mission
+(e_R, Omega_e: the attitude and rate errors of docs/model.md §2), written as a subclass of
+``so3jax.Controller`` (a frozen dataclass of its options, ``init`` and ``torque``),
+registered by name with a plot style, and flown on the paper's mission
 (missions/paper.toml) beside the built-in geometric PD with the same gains.
 
 Run: python examples/custom_controller.py [--T 4000] [--set KEY=VALUE ...]   (horizon T [s];
@@ -12,6 +13,7 @@ default $SO3JAX_EXAMPLE_T, else 4000; --set: a mission entry, as for `so3jax fly
 """
 
 import argparse
+import dataclasses
 import os
 from pathlib import Path
 
@@ -23,21 +25,29 @@ from so3jax.core.params import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import tracking_error
 from so3jax.jobs.fly import fly
+from so3jax.viz import styles
 
 NAME = "example_saturated_pd"  # the registry's name: what a mission's `controllers` lists
 PAPER = Path(__file__).resolve().parents[1] / "missions" / "paper.toml"
 
 
-def saturated_pd(max_torque=0.25) -> sj.Controller:
-    """The law above; max_torque [N m], per axis. A static law: its state is ()."""
+@dataclasses.dataclass(frozen=True)
+class SaturatedPD(sj.Controller):
+    """The law above; max_torque [N m], per axis. A static law: its state is (). Its
+    options are hashable fields: two equal instances share one compiled rollout."""
 
-    def torque(gains, state, measured, desired, t):
-        err = tracking_error(measured, desired)
+    max_torque: float = 0.25
+
+    gains_type = sj.PDGains
+
+    def init(self, gains):
+        return ()
+
+    def torque(self, gains, state, feedback, desired, t):
+        err = tracking_error(feedback, desired)
         e_R = sj.so3.skew_vee(err.R_e)  # vee of the skew part of R_e (docs/model.md §3.1)
         tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e
-        return jnp.clip(tau, -max_torque, max_torque), ()
-
-    return sj.Controller(lambda gains: (), torque, sj.PDGains)
+        return jnp.clip(tau, -self.max_torque, self.max_torque), ()
 
 
 def check(gains):
@@ -46,10 +56,10 @@ def check(gains):
 
 
 registry.register(registry.ControllerSpec(
-    name=NAME, label="saturated PD", factory=saturated_pd, gains_type=sj.PDGains, defaults=sj.PAPER_PD_GAINS,
-    style={"label": "saturated PD", "color": "tab:green"}, check=check,
-    options=(Param("max_torque", 0.25, "N m", low=0.0, doc="torque limit per body axis"),),
+    name=NAME, label="saturated PD", factory=SaturatedPD, gains_type=sj.PDGains, defaults=sj.PAPER_PD_GAINS,
+    check=check, options=(Param("max_torque", 0.25, "N m", low=0.0, doc="torque limit per body axis"),),
 ))
+styles.register(NAME, color="tab:olive", label="saturated PD")  # its lines in the figures
 
 
 def main(T: float, overrides=()) -> dict:

@@ -20,7 +20,7 @@ import numpy as np
 
 import so3jax as sj
 from so3jax.missions.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
-from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2
+from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
 
 def main(T: float, samples: int, seed: int = 0) -> dict:

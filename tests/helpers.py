@@ -4,14 +4,14 @@ import jax.numpy as jnp
 import numpy as np
 
 import so3jax as sj
-from so3jax.controllers import Controller
+from so3jax.controllers import Controller, from_functions
 
 J_BODY = np.array([[120.0, 3.0, -2.0], [3.0, 100.0, 4.0], [-2.0, 4.0, 80.0]])  # a physical rigid body
 
 
 def zero_torque() -> Controller:
     """A third controller in a few lines: no torque at all (free rigid body)."""
-    return Controller(init=lambda gains: (), torque=lambda gains, state, measured, desired, t: (0.0 * measured.Omega, ()))
+    return from_functions(init=lambda gains: (), torque=lambda gains, state, feedback, desired, t: (0.0 * feedback.Omega, ()))
 
 
 def sinusoidal_rate(t):

@@ -3,6 +3,7 @@ library, flies in both wirings; a stateful actuator reports the same effort in b
 control period shrinks; the plant with wheels matches an independent integration in the
 closed loop; a controller's discrete update runs at the ticks."""
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -13,7 +14,9 @@ from scipy.integrate import solve_ivp
 
 import so3jax as sj
 from so3jax.components.actuators import Wheels, pyramid_axes
-from so3jax.controllers import Controller
+from so3jax.components.base import Actuator
+from so3jax.core.pytree import pytree_dataclass
+from so3jax.controllers import Controller, from_functions
 from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
 
@@ -22,42 +25,24 @@ T, DT = 3.0, 0.01
 OMEGA0 = (0.02, -0.01, 0.03)  # rad/s
 
 
-class FirstOrderLag(NamedTuple):
+@pytree_dataclass
+class FirstOrderLag(Actuator):
     """tau_a' = (tau_c - tau_a) / T_lag: the body receives tau_a, the actuator's state; no
-    stored momentum, no limits (the actuator interface of so3jax.components.actuators, written out)."""
+    stored momentum, no limits (the base's defaults: so3jax.components.base.Actuator)."""
 
     time_constant: jax.Array  # T_lag, s
 
     def init(self, batch_shape, dtype):
         return jnp.zeros((3, *batch_shape), dtype)
 
-    def command(self, state, tau_c, omega_hat):
+    def command(self, state, tau_c, Omega_hat):
         return tau_c
 
     def body_torque(self, state, held, Omega):
         return state
 
-    def stored_momentum(self, state):
-        return None
-
     def derivative(self, state, held, Omega, Omega_dot):
         return (held - state) / self.time_constant
-
-    def delivered(self, state, held, Omega):
-        return state
-
-    def effort(self, held):
-        return jnp.sum(held * held, axis=0)
-
-    def limits(self, state, held, tau_c):
-        none = jnp.zeros(held.shape[1:], bool)
-        return none, none
-
-    def speed_ratio(self, state):
-        return 0.0
-
-    def check(self):
-        pass
 
 
 LAG = FirstOrderLag(jnp.asarray(0.3))
@@ -150,15 +135,15 @@ def counting_controller() -> Controller:
     is what forward Euler would add instead)."""
     pd = sj.geometric_pd()
 
-    def torque(gains, state, measured, desired, t):
-        tau, _ = pd.torque(gains, (), measured, desired, t)
+    def torque(gains, state, feedback, desired, t):
+        tau, _ = pd.torque(gains, (), feedback, desired, t)
         return tau, Count(*(jnp.full_like(x, 1e3) for x in state))
 
-    def update(gains, state, measured, desired, t, period):
+    def update(gains, state, feedback, desired, t, period):
         return Count(state.ticks + 1.0, t + 0.0 * state.last_t, state.elapsed + period)
 
     init = lambda gains: Count(*(jnp.zeros((), jnp.asarray(gains.k_R).dtype) for _ in range(3)))  # noqa: E731
-    return Controller(init, torque, sj.PDGains, update)
+    return from_functions(init, torque, sj.PDGains, update)
 
 
 def test_a_controller_update_runs_at_the_ticks():
@@ -174,6 +159,6 @@ def test_a_controller_update_runs_at_the_ticks():
     np.testing.assert_allclose(float(r.final.controller.ticks), ticks)
     np.testing.assert_allclose(float(r.final.controller.last_t), (ticks - 1) * m * DT, rtol=1e-12)
     np.testing.assert_allclose(float(r.final.controller.elapsed), T, rtol=1e-12)
-    euler = _fly(m, sj.Ideal(), counting._replace(update=None), record_every=m)
+    euler = _fly(m, sj.Ideal(), dataclasses.replace(counting, update=None), record_every=m)
     np.testing.assert_allclose(float(euler.final.controller.ticks), 1e3 * T, rtol=1e-12)
     np.testing.assert_array_equal(euler.final.Omega, r.final.Omega)  # the torque never read the state

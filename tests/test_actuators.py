@@ -178,23 +178,23 @@ def test_speed_limit_stops_a_wheel_spinning_faster_but_not_slower():
     assert float(actuator.speed_ratio(speed)) == pytest.approx(1.2)
 
 
-def test_momentum_compensation_adds_omega_hat_cross_wheel_momentum():
-    """tau = tau_c + omega_hat x G_s J_s (G_s^T omega_hat + Omega_w), then distributed."""
+def test_momentum_compensation_adds_Omega_hat_cross_wheel_momentum():
+    """tau = tau_c + Omega_hat x G_s J_s (G_s^T Omega_hat + Omega_w), then distributed."""
     actuator = wheels(compensation=True)
-    tau_c, omega_hat = np.array([0.02, -0.01, 0.03]), np.array([0.05, -0.02, 0.04])
+    tau_c, Omega_hat = np.array([0.02, -0.01, 0.03]), np.array([0.05, -0.02, 0.04])
     speed = np.array([30.0, -10.0, 5.0, 20.0])
     G = pyramid_axes(4)
-    h = G @ (SPIN * (G.T @ omega_hat + speed))
-    tau = tau_c + np.cross(omega_hat, h)
-    held = actuator.command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(omega_hat))
+    h = G @ (SPIN * (G.T @ Omega_hat + speed))
+    tau = tau_c + np.cross(Omega_hat, h)
+    held = actuator.command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(Omega_hat))
     np.testing.assert_allclose(np.asarray(held.u), -np.linalg.pinv(G) @ tau, rtol=1e-13)
-    np.testing.assert_allclose(np.asarray(actuator.body_torque(jnp.asarray(speed), held, omega_hat)), tau, rtol=1e-13)
-    np.testing.assert_allclose(np.asarray(actuator.delivered(jnp.asarray(speed), held, omega_hat)), tau_c, rtol=1e-12)
-    for stored in (actuator.momentum(jnp.asarray(speed), jnp.asarray(omega_hat)),
-                   momentum(actuator, jnp.asarray(speed), jnp.asarray(omega_hat))):  # J_locked omega + h_rel
+    np.testing.assert_allclose(np.asarray(actuator.body_torque(jnp.asarray(speed), held, Omega_hat)), tau, rtol=1e-13)
+    np.testing.assert_allclose(np.asarray(actuator.delivered(jnp.asarray(speed), held, Omega_hat)), tau_c, rtol=1e-12)
+    for stored in (actuator.momentum(jnp.asarray(speed), jnp.asarray(Omega_hat)),
+                   momentum(actuator, jnp.asarray(speed), jnp.asarray(Omega_hat))):  # J_locked omega + h_rel
         np.testing.assert_allclose(np.asarray(stored), h, rtol=1e-14)
-    assert np.abs(np.cross(omega_hat, h)).max() > 0.1 * np.abs(tau_c).max()  # the term matters here
-    off = wheels(compensation=False).command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(omega_hat))
+    assert np.abs(np.cross(Omega_hat, h)).max() > 0.1 * np.abs(tau_c).max()  # the term matters here
+    off = wheels(compensation=False).command(jnp.asarray(speed), jnp.asarray(tau_c), jnp.asarray(Omega_hat))
     np.testing.assert_allclose(np.asarray(off.u), -np.linalg.pinv(G) @ tau_c, rtol=1e-13)
     np.testing.assert_array_equal(np.asarray(off.compensation), np.zeros(3))
 
@@ -357,7 +357,7 @@ def test_a_per_wheel_motor_torque_command_clips_each_wheel_on_its_own():
 
     from so3jax.jobs import fly
     from so3jax.missions import mission as missions
-    from so3jax.dynamics.scenario import InertiaWarning
+    from so3jax.dynamics.inertia import InertiaWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 import so3jax as sj
 from so3jax.missions import mission
 from so3jax.core import so3
-from so3jax.controllers import Desired, Measured, regressor_parameters
+from so3jax.controllers import Desired, Feedback, regressor_parameters
 from so3jax.controllers.adaptive import _apply_gamma, adaptive_terms, leakage_rate, project
 from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
@@ -79,11 +79,11 @@ def _gamma_np(Gamma, b):
 
 def _evaluate(controller, x, Gamma, theta_hat=None):
     gains = sj.AdaptiveGains(jnp.asarray(x["K_r"]), jnp.asarray(x["K_w"]), jnp.asarray(Gamma))
-    measured = Measured(jnp.asarray(x["R"]), jnp.asarray(x["Omega"]))
+    feedback = Feedback(jnp.asarray(x["R"]), jnp.asarray(x["Omega"]))
     desired = Desired(jnp.asarray(x["R_d"]), jnp.asarray(x["Omega_d"]), jnp.asarray(x["Omega_d_dot"]))
     theta = jnp.asarray(x["theta_hat"] if theta_hat is None else theta_hat)
-    tau, rate = controller.torque(gains, theta, measured, desired, jnp.asarray(0.0))
-    return np.asarray(tau), np.asarray(rate), (gains, measured, desired)
+    tau, rate = controller.torque(gains, theta, feedback, desired, jnp.asarray(0.0))
+    return np.asarray(tau), np.asarray(rate), (gains, feedback, desired)
 
 
 def _sigma_s_np(norm, leakage):
@@ -100,12 +100,12 @@ def test_defaults_are_the_papers_law(inputs, shape):
     """Default options: torque and rate equal the paper's formula (NumPy) and, bit for bit,
     the law's own unmodified rate -Gamma Phi z^T; every option's 'off' value gives the same."""
     Gamma = inputs["gammas"][shape]
-    tau, rate, (gains, measured, desired) = _evaluate(sj.adaptive_backstepping(), inputs, Gamma)
+    tau, rate, (gains, feedback, desired) = _evaluate(sj.adaptive_backstepping(), inputs, Gamma)
     for b in range(B):
         tau_np, rate_np, _, _ = _numpy_law(inputs, Gamma, b)
         np.testing.assert_allclose(tau[:, b], tau_np, rtol=1e-11, atol=1e-12 * np.abs(tau_np).max())
         np.testing.assert_allclose(rate[..., b], rate_np, rtol=1e-11, atol=1e-12 * np.abs(rate_np).max())
-    terms = adaptive_terms(gains, measured, desired, "exact", jnp.asarray(0.0))
+    terms = adaptive_terms(gains, feedback, desired, "exact", jnp.asarray(0.0))
     np.testing.assert_array_equal(rate, -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :])
     off = sj.adaptive_backstepping(leakage="none", sigma=1.0, projection_bound=None, projection_eps=0.5)
     assert off.update is None and sj.adaptive_backstepping().update is None  # Euler at the ticks, as before
@@ -196,13 +196,13 @@ def test_switching_sigma_is_continuous():
 def test_vmap_equals_the_trailing_batch(inputs):
     """Both modifications on, a full Gamma: jax.vmap over the batch (one element at a time)
     gives the trailing-batch evaluation."""
-    law = sj.adaptive_backstepping(leakage="switching", sigma=SIGMA, theta_bound=M0, projection_bound=2.5 * M0)
+    controller = sj.adaptive_backstepping(leakage="switching", sigma=SIGMA, theta_bound=M0, projection_bound=2.5 * M0)
     Gamma = inputs["gammas"]["full"]
-    tau, rate, (gains, measured, desired) = _evaluate(law, inputs, Gamma)
+    tau, rate, (gains, feedback, desired) = _evaluate(controller, inputs, Gamma)
     last = lambda tree: jax.tree.map(lambda x: jnp.moveaxis(x, -1, 0), tree)
-    one = lambda g, th, m, d: law.torque(g, th, m, d, jnp.asarray(0.0))
+    one = lambda g, th, m, d: controller.torque(g, th, m, d, jnp.asarray(0.0))
     theta = last(jnp.asarray(inputs["theta_hat"]))
-    tau_v, rate_v = jax.jit(jax.vmap(one))(last(gains), theta, last(measured), last(desired))
+    tau_v, rate_v = jax.jit(jax.vmap(one))(last(gains), theta, last(feedback), last(desired))
     for batched, trailing in ((tau_v, tau), (rate_v, rate)):
         np.testing.assert_allclose(np.moveaxis(np.asarray(batched), 0, -1), trailing, rtol=1e-12,
                                    atol=1e-12 * np.abs(trailing).max())
@@ -282,15 +282,15 @@ def test_projection_holds_the_bound_in_rollouts():
     length s tangent to the sphere ends s^2 / (2 theta_max) outside, the tolerance (s: the
     longest step taken within the boundary layer). The sampled wiring's tick scales the
     estimate back onto the ball: the bound holds to round-off."""
-    law = sj.adaptive_backstepping(projection_bound=THETA_MAX, projection_eps=THETA_EPS)
+    controller = sj.adaptive_backstepping(projection_bound=THETA_MAX, projection_eps=THETA_EPS)
     scenario = custom_scenario(20.0, 0.01, noise=True, Omega0=(0.05, -0.03, 0.02))
-    r = sj.simulate(scenario, law, GAINS, 1, record_every=1)
+    r = sj.simulate(scenario, controller, GAINS, 1, record_every=1)
     norm = _deviation(r.history)
     steps = np.sqrt(np.sum(np.diff(np.asarray(r.history.controller), axis=0) ** 2, axis=(1, 2)))
     s = steps[norm[:-1] > THETA_MAX / np.sqrt(1 + THETA_EPS)].max()
     assert norm.max() > 0.99 * THETA_MAX  # it reaches the bound ...
     assert norm.max() <= THETA_MAX + s**2 / (2 * THETA_MAX), (norm.max() - THETA_MAX, s)  # ... and stays within
-    sampled = _deviation(sj.simulate(scenario, law, GAINS, 1, loop=Loop(period_steps=5), record_every=5).history)
+    sampled = _deviation(sj.simulate(scenario, controller, GAINS, 1, loop=Loop(period_steps=5), record_every=5).history)
     assert sampled.max() > 0.99 * THETA_MAX and sampled.max() <= THETA_MAX * (1 + 1e-12)
 
 
@@ -307,16 +307,16 @@ MINI_OPTIONS = {  # bounds the estimate crosses (its deviation peaks near 3 kg m
 }
 
 
-def _mini_rollout(law, log_gains):
+def _mini_rollout(controller, log_gains):
     """(cost, ||Theta_hat - Theta_0|| per step) of N_MINI steps from Theta_hat = Theta_0."""
     gains = sj.AdaptiveGains(*jnp.exp(log_gains))
     J = jnp.asarray(J_BODY)
-    theta_0 = law.init(gains)
+    theta_0 = controller.init(gains)
 
     def step(carry, t):
         R, Omega, theta = carry
         desired = Desired(so3.exp(W_MINI * t), W_MINI, jnp.zeros(3))
-        tau, theta_dot = law.torque(gains, theta, Measured(R, Omega), desired, t)
+        tau, theta_dot = controller.torque(gains, theta, Feedback(R, Omega), desired, t)
         d = 0.05 * jnp.stack([jnp.sin(t), jnp.cos(2 * t), jnp.sin(3 * t)])
         Omega_dot = jnp.linalg.solve(J, tau + d - jnp.cross(Omega, J @ Omega))
         rate_error = Omega - (desired.R_d.T @ R).T @ W_MINI
@@ -335,8 +335,8 @@ def test_gradients_are_finite_with_each_modification(name):
     norm's singular point) through every branch (switching sigma past M0 and 2 M0, the
     projection's layer): finite and equal to central differences; and the rate's Jacobian
     in Theta_hat at Theta_0 itself finite in both modes."""
-    law = sj.adaptive_backstepping(**MINI_OPTIONS[name])
-    run = jax.jit(jax.value_and_grad(lambda x: _mini_rollout(law, x), has_aux=True))  # one program for all
+    controller = sj.adaptive_backstepping(**MINI_OPTIONS[name])
+    run = jax.jit(jax.value_and_grad(lambda x: _mini_rollout(controller, x), has_aux=True))  # one program for all
     (_, deviation), grad = run(X_MINI)
     if name == "switching":
         assert deviation.max() > 2 * MINI_OPTIONS[name]["theta_bound"]
@@ -349,10 +349,10 @@ def test_gradients_are_finite_with_each_modification(name):
     np.testing.assert_allclose(grad, np.asarray(central), rtol=1e-6)
 
     gains = jax.tree.map(jnp.asarray, GAINS)
-    measured = Measured(so3.exp(jnp.array([0.1, -0.2, 0.3])), jnp.array([0.01, 0.02, -0.03]))
+    feedback = Feedback(so3.exp(jnp.array([0.1, -0.2, 0.3])), jnp.array([0.01, 0.02, -0.03]))
     desired = Desired(jnp.eye(3), jnp.array([0.0, 0.01, 0.0]), jnp.zeros(3))
-    rate = lambda theta: law.torque(gains, theta, measured, desired, jnp.asarray(0.0))[1]
-    theta_0 = law.init(gains)
+    rate = lambda theta: controller.torque(gains, theta, feedback, desired, jnp.asarray(0.0))[1]
+    theta_0 = controller.init(gains)
     both = lambda th: (jax.jacfwd(rate)(th), jax.grad(lambda x: jnp.sum(rate(x) ** 2))(th))
     forward, reverse = jax.jit(both)(theta_0)
     assert np.all(np.isfinite(np.asarray(forward))) and np.all(np.isfinite(np.asarray(reverse)))
@@ -362,12 +362,12 @@ def test_gradients_are_finite_with_each_modification(name):
 def test_library_rollout_gradient():
     """jax.grad through so3jax.sim.rollout (RK4, the paper's disturbance) with the switching sigma
     and the projection both on and active, against central differences."""
-    law = sj.adaptive_backstepping(leakage="switching", sigma=1e-5, theta_bound=5.0, projection_bound=20.0,
+    controller = sj.adaptive_backstepping(leakage="switching", sigma=1e-5, theta_bound=5.0, projection_bound=20.0,
                                    projection_eps=0.5)
     scenario = custom_scenario(2.0, 0.01, noise=True, Omega0=(0.05, -0.03, 0.02))
 
     def cost(log_gains):
-        m = sj.rollout(scenario, law, sj.AdaptiveGains(*jnp.exp(log_gains)), 0, record_every=20).metrics
+        m = sj.rollout(scenario, controller, sj.AdaptiveGains(*jnp.exp(log_gains)), 0, record_every=20).metrics
         return m.rmse / 1e-3 + m.effort
 
     x = jnp.log(jnp.asarray([0.2, 30.0, 1e5]))

@@ -284,7 +284,7 @@ def test_component_bad_parameter(loop, path, field, what, bad):
 @pytest.mark.parametrize(
     "overrides,message",
     [
-        (["actuator.wheels.initial_speed=700.0"], "actuator.wheels.initial_speed [rad/s] must not exceed"),
+        (["actuator.wheels.initial_speed=700.0"], "wheel initial_speed [rad/s] must not exceed max_speed"),
         (["actuator.wheels.initial_speed=[0.0, -628.5, 0.0, 0.0]"], "(wheel 2: -628.5 against 628)"),
         (["T=0.05"], "control.period = 0.1 s is longer than the horizon T = 0.05 s"),
         (["T=0.25"], "T (horizon) = 0.25 s is not a whole number of control periods"),

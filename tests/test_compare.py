@@ -12,6 +12,7 @@ import pytest
 from so3jax.jobs import compare
 
 from so3jax.results import io, runfolder
+from so3jax.viz import compare as compare_plots
 from tests.test_cli import run_cli
 
 ROOT = Path(__file__).parents[1]
@@ -111,7 +112,7 @@ def test_the_report_pairs_the_sweep_s_columns():
     assert result["laws"]["sliding_mode"]["sweep"]["diverged"] == 1 and "against_reference" not in result["laws"]["pd"]
     table = compare.markdown(io.to_builtin(result))
     assert "| sliding_mode | g = 1 |" in table and "-20.0 % [-20.0, -20.0]" in table and "1 of 50" in table
-    assert compare.figure(config, columns).axes[1].get_ylabel() == "RMSE change vs PD [%]"
+    assert compare_plots.figure(config, columns, compare.pairs(config)).axes[1].get_ylabel() == "RMSE change vs PD [%]"
 
 
 def test_a_run_inside_another_s_folder_lists_its_own_files(tmp_path):
@@ -191,5 +192,5 @@ def test_a_candidate_paired_with_another_than_the_reference():
     assert result["laws"]["c"]["paired_with"] == "b" and "paired_with" not in result["laws"]["b"]
     assert result["laws"]["c"]["against_reference"]["relative_change"]["mean"] == pytest.approx(1.2 / 0.9 - 1)
     assert "vs b: +33.3 %" in compare.markdown(io.to_builtin(result))
-    labels = [t.get_text() for t in compare.figure(config, columns).axes[1].get_xticklabels()]
+    labels = [t.get_text() for t in compare_plots.figure(config, columns, compare.pairs(config)).axes[1].get_xticklabels()]
     assert labels == ["b", "c\nvs b"]  # named after the candidate where it is not its law

@@ -11,7 +11,7 @@ import pytest
 
 from so3jax.missions import dispersed, mission
 from so3jax.missions import dispersions as disp
-from so3jax.dynamics.scenario import InertiaWarning
+from so3jax.dynamics.inertia import InertiaWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {

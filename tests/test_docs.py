@@ -28,9 +28,10 @@ def site(tmp_path_factory):
 
 
 def _fresh(expression: str):
-    """The value of an expression over so3jax.schema_docs in a fresh interpreter, as mkdocs
+    """The value of an expression over docs/schema_docs.py in a fresh interpreter, as mkdocs
     sees the package (no component a test registered in this process)."""
-    code = f"import json; from so3jax import schema_docs, mission; print(json.dumps({expression}))"
+    code = (f"import json, sys; sys.path.insert(0, {str(ROOT / 'docs')!r}); import schema_docs; "
+            f"from so3jax.missions import mission; print(json.dumps({expression}))")
     run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
                          check=True)
     return json.loads(run.stdout.strip().splitlines()[-1])

@@ -19,8 +19,9 @@ from scipy import stats
 from scipy.spatial.transform import Rotation
 
 from so3jax.core import so3
-from so3jax.components.estimators import MEKF, Covariance, Estimate, MEKFState, Raw, Truth
-from so3jax.components.sensors import Gyro, Measurements, Sensors, StarTracker
+from so3jax.components.base import Estimate, Estimator, Measurements
+from so3jax.components.estimators import MEKF, Covariance, MEKFState, Raw, Truth
+from so3jax.components.sensors import Gyro, Sensors, StarTracker
 
 F64 = jnp.float64
 
@@ -103,7 +104,7 @@ def monte_carlo(ks):
             std=estimate.std,
             posterior_std=jnp.sqrt(jnp.diagonal(posterior.P.matrix()).T),
             bias=bias,
-            omega_error=estimate.omega_hat - (measured.omega_m - estimate.bias_hat),
+            omega_error=estimate.Omega_hat - (measured.omega_m - estimate.bias_hat),
         )
         return (new_bias, nxt), out
 
@@ -145,7 +146,7 @@ def test_mekf_std_matches_the_empirical_error(mc):
     err, std = mc["estimate_error"][SKIP:], mc["std"][SKIP:]
     rms = np.sqrt(np.mean(err**2, axis=-1))  # (ticks, 6)
     filt = std.mean(axis=-1)
-    # the filter's covariance hardly depends on the run (only through omega_hat in Phi)
+    # the filter's covariance hardly depends on the run (only through Omega_hat in Phi)
     np.testing.assert_allclose(std, np.broadcast_to(filt[..., None], std.shape), rtol=1e-3)
     ratio = rms / filt
     for axis in range(6):
@@ -156,7 +157,7 @@ def test_mekf_std_matches_the_empirical_error(mc):
 
 def test_mekf_estimate_is_the_posterior(mc):
     """The Estimate at tick j is the posterior: its errors and std are those of the state
-    that update returns for a zero period; omega_hat = omega_m - b_hat."""
+    that update returns for a zero period; Omega_hat = omega_m - b_hat."""
     np.testing.assert_allclose(mc["estimate_error"], mc["error"], rtol=0, atol=1e-15)
     np.testing.assert_allclose(mc["std"], mc["posterior_std"], rtol=1e-12)
     np.testing.assert_array_equal(mc["omega_error"], 0.0)
@@ -192,7 +193,7 @@ def test_truth_returns_the_truth():
     state, out = jax.jit(est.update)(state, measured, f64(PERIOD), (R, Omega))
     assert isinstance(out, Estimate) and state == ()
     np.testing.assert_array_equal(np.asarray(out.R_hat), np.asarray(R))
-    np.testing.assert_array_equal(np.asarray(out.omega_hat), np.asarray(Omega))
+    np.testing.assert_array_equal(np.asarray(out.Omega_hat), np.asarray(Omega))
     np.testing.assert_array_equal(np.asarray(out.bias_hat), 0.0)
     assert out.std.shape == (6, n)
     np.testing.assert_array_equal(np.asarray(out.std), 0.0)
@@ -226,13 +227,13 @@ def test_raw_holds_the_last_star_sample_and_uses_the_gyro():
     for j in range(n_ticks):
         last = every * (j // every)
         np.testing.assert_array_equal(out.R_hat[j], measured.R_m[last], err_msg=f"tick {j}")
-        np.testing.assert_array_equal(out.omega_hat[j], measured.omega_m[j])
+        np.testing.assert_array_equal(out.Omega_hat[j], measured.omega_m[j])
         if j != last:  # between samples: not the (unused) sample of this tick
             assert not np.allclose(out.R_hat[j], measured.R_m[j])
     np.testing.assert_array_equal(out.bias_hat, 0.0)
     np.testing.assert_array_equal(out.std, 0.0)
     # the gyro's reading is not the truth (bias and noise), and raw passes it through
-    assert np.all(np.abs(out.omega_hat - OMEGA[None, :, None]) > 0)
+    assert np.all(np.abs(out.Omega_hat - OMEGA[None, :, None]) > 0)
     Raw().check()
 
 
@@ -293,7 +294,7 @@ def test_mekf_single_update_is_the_spec():
     R_next = R_u @ Rotation.from_rotvec(w * dc).as_matrix()
     np.testing.assert_allclose(np.asarray(est.R_hat), R_u, rtol=0, atol=1e-14)
     np.testing.assert_allclose(np.asarray(est.bias_hat), b_u, rtol=1e-12)
-    np.testing.assert_allclose(np.asarray(est.omega_hat), w, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(est.Omega_hat), w, rtol=1e-12)
     np.testing.assert_allclose(np.asarray(est.std), np.sqrt(np.diag(P_u)), rtol=1e-12)
     np.testing.assert_allclose(np.asarray(nxt.R_hat), R_next, rtol=0, atol=1e-14)
     np.testing.assert_allclose(np.asarray(nxt.bias_hat), b_u, rtol=1e-12)
@@ -318,6 +319,11 @@ def test_mekf_valid_parameters_pass_check():
 
     assert components.names("estimator") == ("truth", "raw", "mekf")
     assert Truth.reads_truth and not Raw.reads_truth and not MEKF.reads_truth
+    assert (Truth.needs, Raw.needs, MEKF.needs) == ((), ("attitude",), ("rate", "attitude"))
+    assert all(issubclass(c, Estimator) for c in (Truth, Raw, MEKF))
+    # the registration reads what the class declares: one declaration per fact
+    assert [(components.get("estimator", n).truth, components.get("estimator", n).needs) for n in ("truth", "mekf")] \
+        == [(True, ()), (False, ("rate", "attitude"))]
 
 
 @pytest.mark.parametrize("field,value", [

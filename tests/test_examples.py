@@ -27,7 +27,7 @@ NO_FILTER = ["--set", "estimator.kind=truth", "--set", "sensors.gyro=false", "--
 def example(monkeypatch):
     """run(name, *argv, T=seconds) -> the example's ``results``; registrations it made are removed after the test."""
     components.names("sensor")  # the built-in components registered before the snapshot
-    before = set(registry._REGISTRY), {kind: set(specs) for kind, specs in components._REGISTRY.items()}
+    before = set(registry.names()), {kind: set(components.names(kind)) for kind in components.KINDS}
 
     def run(name, *argv, T):
         monkeypatch.setattr(sys, "argv", [f"examples/{name}.py", *argv])
@@ -36,11 +36,11 @@ def example(monkeypatch):
         return runpy.run_path(str(EXAMPLES / f"{name}.py"), run_name="__main__")["results"]
 
     yield run
-    for name in set(registry._REGISTRY) - before[0]:
-        registry._REGISTRY.pop(name)
-    for kind, specs in components._REGISTRY.items():
-        for name in set(specs) - before[1][kind]:
-            specs.pop(name)
+    for name in set(registry.names()) - before[0]:
+        registry.unregister(name)
+    for kind in components.KINDS:
+        for name in set(components.names(kind)) - before[1][kind]:
+            components.unregister(kind, name)
 
 
 def test_every_example_is_tested():

@@ -1,12 +1,15 @@
 """A new component of each kind is one definition plus its registration: a sensor, an
 estimator and a controller defined here and an actuator defined in
-tests/test_actuator_interface.py, registered here and flown from a mission file with no
-edit of the library."""
+tests/test_actuator_interface.py, each a subclass of its kind's base
+(so3jax.components.base), registered here and flown from a mission file with no edit of
+the library."""
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -21,7 +24,7 @@ from so3jax.components.registry import ComponentSpec
 from so3jax.core.params import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
-from so3jax.components.estimators import Estimate
+from so3jax.components.base import Actuator, Estimate, Estimator, Sensor
 from so3jax.components.sensors import sensor_noise
 from tests.test_actuator_interface import FirstOrderLag
 
@@ -29,7 +32,7 @@ from tests.test_actuator_interface import FirstOrderLag
 
 
 @pytree_dataclass
-class ScaledGyro:
+class ScaledGyro(Sensor):
     """omega_m = (1 + scale_factor) Omega + (arw / sqrt(Delta_c)) eta, no bias."""
 
     scale_factor: jnp.ndarray
@@ -43,22 +46,16 @@ class ScaledGyro:
         scale = jnp.asarray(self.scale_factor, Omega.dtype)
         return state, (1.0 + scale) * Omega + jnp.asarray(self.arw, Omega.dtype) / jnp.sqrt(period) * eta
 
-    def bias(self, state, Omega):
-        return jnp.zeros_like(Omega)
-
-    def check(self):
-        pass
-
 
 # --- an estimator: the star tracker's sample and a low-pass filtered rate -------------------
 
 
 @pytree_dataclass
-class LowPass:
-    """R_hat = R_m; omega_hat_j = omega_hat_{j-1} + gain (omega_m - omega_hat_{j-1})."""
+class LowPass(Estimator):
+    """R_hat = R_m; Omega_hat_j = Omega_hat_{j-1} + gain (omega_m - Omega_hat_{j-1})."""
 
     gain: jnp.ndarray
-    reads_truth = False
+    needs = ("rate", "attitude")
 
     def init(self, R0, batch_shape, dtype):
         return jnp.zeros((3, *batch_shape), dtype)
@@ -67,9 +64,6 @@ class LowPass:
         omega = state + jnp.asarray(self.gain, state.dtype) * (measured.omega_m - state)
         zeros = jnp.zeros_like(omega)
         return omega, Estimate(measured.R_m, omega, zeros, jnp.zeros((6, *omega.shape[1:]), omega.dtype))
-
-    def check(self):
-        pass
 
 
 # --- an actuator: a first-order lag (tests/test_actuator_interface.py writes its interface out) ---
@@ -81,13 +75,20 @@ class DamperGains(NamedTuple):
     c: float  # N m s / rad
 
 
-def damper(sign: float = 1.0) -> Controller:
-    """tau = -sign c Omega_e."""
+@dataclasses.dataclass(frozen=True)
+class Damper(Controller):
+    """tau = -sign c Omega_e: a subclass of so3jax.controllers.Controller, its options
+    (sign) the dataclass's fields."""
 
-    def torque(gains, state, measured, desired, t):
-        return -sign * gains.c * tracking_error(measured, desired).Omega_e, ()
+    sign: float = 1.0
 
-    return Controller(lambda gains: (), torque, DamperGains)
+    gains_type = DamperGains
+
+    def init(self, gains):
+        return ()
+
+    def torque(self, gains, state, feedback, desired, t):
+        return -self.sign * gains.c * tracking_error(feedback, desired).Omega_e, ()
 
 
 def _no_check(gains):
@@ -95,17 +96,17 @@ def _no_check(gains):
 
 
 SPECS = [
-    ComponentSpec(kind="sensor", name="scaled_gyro", provides="rate",
+    ComponentSpec(kind="sensor", name="scaled_gyro", component=ScaledGyro, provides="rate",
                   params=(Param("scale_factor", 0.0, low=-0.5, high=0.5), Param("arw", 0.0, "rad/sqrt(s)", low=0.0)),
                   build=lambda v, ctx: ScaledGyro(ctx.as_array(v["scale_factor"]), ctx.as_array(v["arw"]))),
-    ComponentSpec(kind="estimator", name="lowpass", needs=("rate", "attitude"),
+    ComponentSpec(kind="estimator", name="lowpass", component=LowPass,
                   params=(Param("gain", 1.0, low=0.0, high=1.0),),
                   build=lambda v, ctx: LowPass(ctx.as_array(v["gain"]))),
-    ComponentSpec(kind="actuator", name="lag", params=(Param("time_constant", 0.5, "s", low=1e-6),),
+    ComponentSpec(kind="actuator", name="lag", component=FirstOrderLag, params=(Param("time_constant", 0.5, "s", low=1e-6),),
                   build=lambda v, ctx: FirstOrderLag(ctx.as_array(v["time_constant"]))),
 ]
-CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=damper, gains_type=DamperGains,
-                                     defaults=DamperGains(c=50.0), style={"label": "damper"}, check=_no_check,
+CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=Damper, gains_type=DamperGains,
+                                     defaults=DamperGains(c=50.0), check=_no_check,
                                      options=(Param("sign", 1.0, low=-1.0, high=1.0),))
 
 
@@ -116,8 +117,8 @@ def registered():
     registry.register(CONTROLLER)
     yield
     for spec in SPECS:
-        components._REGISTRY[spec.kind].pop(spec.name)
-    registry._REGISTRY.pop(CONTROLLER.name)
+        components.unregister(spec.kind, spec.name)
+    registry.unregister(CONTROLLER.name)
 
 
 MISSION = """
@@ -151,7 +152,7 @@ def test_extra_sensor_estimator_and_controller_fly_from_a_mission_file(registere
     assert m.sensors["scaled_gyro"]["scale_factor"] == 0.05 and m.estimator == {"kind": "lowpass", "lowpass": {"gain": 1.0}}
     results, _ = fly.fly(m)
     h = results["damper"].history
-    # the sensor's reading reached the estimate, and the estimate the law: omega_hat = 1.05 Omega at the ticks
+    # the sensor's reading reached the estimate, and the estimate the law: Omega_hat = 1.05 Omega at the ticks
     np.testing.assert_allclose(np.asarray(h.Omega_hat), 1.05 * np.asarray(h.Omega), rtol=1e-12, atol=1e-15)
     error = np.linalg.norm(np.asarray(h.Omega_e), axis=1)
     assert error[-1] < 0.2 * error[0]  # the damper damps (J / c ~ 0.6 s)
@@ -191,3 +192,60 @@ def test_extra_actuator_flies_from_a_mission_file_in_both_wirings(registered, tm
         h = fly.fly(m)[0]["open_loop"].history
         t = np.asarray(h.t)
         np.testing.assert_allclose(np.asarray(h.tau), tau_c * (1 - np.exp(-t / 0.5))[:, None], rtol=0, atol=1e-9)
+
+
+# --- the bases: the required methods, the defaults, pytrees -------------------------------
+
+
+def test_a_component_missing_a_required_method_cannot_be_made():
+    """Each base declares its kind's required methods abstract: a subclass without one is
+    refused when it is instantiated, naming the method; the rest is the base's."""
+
+    @pytree_dataclass
+    class NoMeasure(Sensor):
+        def init(self, batch_shape, dtype):
+            return ()
+
+    @pytree_dataclass
+    class NoUpdate(Estimator):
+        def init(self, R0, batch_shape, dtype):
+            return ()
+
+    @pytree_dataclass
+    class NoCommand(Actuator):
+        pass
+
+    for cls, method in ((NoMeasure, "measure"), (NoUpdate, "update"), (NoCommand, "command")):
+        with pytest.raises(TypeError, match=method):
+            cls()
+    for base in (Sensor, Estimator, Actuator):
+        with pytest.raises(TypeError, match="abstract"):
+            base()
+    lag = FirstOrderLag(jnp.asarray(0.5))  # only init, command, body_torque, derivative defined
+    zero = jnp.zeros(3)
+    assert lag.stored_momentum(zero) is None and lag.uncompensated_momentum(zero, zero) is None
+    assert lag.spin_inertia_values() is None and lag.speed_ratio(zero) == 0.0 and lag.check() is None
+    np.testing.assert_array_equal(ScaledGyro(0.1, 0.0).bias((), jnp.ones(3)), jnp.zeros(3))
+    assert LowPass.needs == ("rate", "attitude") and not LowPass.reads_truth and not Estimator.reads_truth
+
+
+def test_a_component_subclassing_its_base_is_a_pytree_and_a_jit_argument():
+    """A pytree_dataclass subclass of an ABC flattens and unflattens as before, passes
+    through jit as a dynamic argument (its fields traced) and as a static one (hashed)."""
+    lag = FirstOrderLag(jnp.asarray(0.5))
+    leaves, tree = jax.tree.flatten(lag)
+    assert len(leaves) == 1 and jax.tree.unflatten(tree, leaves) == lag
+    assert isinstance(jax.tree.map(lambda x: 2 * x, lag), FirstOrderLag)
+    rate = jax.jit(lambda a, s: a.derivative(s, jnp.ones(3), None, None))(lag, jnp.zeros(3))
+    np.testing.assert_allclose(rate, 2.0 * np.ones(3))
+    static = FirstOrderLag(0.25)  # hashable fields: a static argument
+    f = jax.jit(lambda a, s: a.derivative(s, jnp.ones(3), None, None), static_argnums=0)
+    np.testing.assert_allclose(f(static, jnp.zeros(3)), 4.0 * np.ones(3))
+
+
+def test_registering_a_component_checks_its_base():
+    """A registration names the class it builds, a subclass of its kind's base."""
+    with pytest.raises(ValueError, match="subclass of so3jax.components.base.Estimator"):
+        components.register(ComponentSpec(kind="estimator", name="not_an_estimator", component=ScaledGyro, params=(),
+                                          build=lambda v, ctx: None))
+    assert "not_an_estimator" not in components.names("estimator")

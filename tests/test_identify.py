@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 import so3jax as sj
 from so3jax.missions import mission as missions
 from so3jax.jobs.identify import inertia, regression, simulation, telemetry
-from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2
+from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "identify.toml"
 T = 120.0  # s: the square waves switch several times, the rate sweeps several directions
@@ -186,7 +186,7 @@ def manoeuvre():
 
 
 def fly(mission):
-    """The history of the manoeuvre for every seed (batch axis last; t shared)."""
+    """The history of the manoeuvre for every seed (batch axis first)."""
     controller, gains = manoeuvre()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", sj.InertiaWarning)
@@ -196,9 +196,8 @@ def fly(mission):
 
 
 def run(history, i):
-    """Seed i's history (every batched field's last axis taken)."""
-    return history._replace(**{k: v[..., i] for k, v in history._asdict().items()
-                               if k != "t" and not isinstance(v, tuple)})
+    """Seed i's history."""
+    return history._replace(**{k: v[i] for k, v in history._asdict().items() if v is not None})
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.core import so3
-from so3jax.components.actuators import Ideal, Saturated, Wheels, pyramid_axes
-from so3jax.components.estimators import MEKF, Truth
+from so3jax.components.actuators import Saturated, Wheels, pyramid_axes
+from so3jax.components.estimators import MEKF
 from so3jax.sim.gradients import checkpoint_steps
 from so3jax.sim.loop import Loop
 from so3jax.sim.rollout import rollout_batch

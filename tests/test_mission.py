@@ -156,14 +156,14 @@ def test_controller_options_reach_the_law():
     """[controller.pd] J_hat is the PD's nominal inertia: its torque's feedforward changes."""
     import jax.numpy as jnp
 
-    from so3jax.controllers.base import Desired, Measured
+    from so3jax.controllers.base import Desired, Feedback
 
     J = [[100.0, 0.0, 0.0], [0.0, 120.0, 0.0], [0.0, 0.0, 90.0]]
     plain, with_J = (missions.load(None, o).controller("pd") for o in ([], [f"controller.pd.J_hat={J}"]))
     Omega = jnp.array([0.1, -0.2, 0.05])
-    measured, desired = Measured(jnp.eye(3), Omega), Desired(jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
-    (law0, g0), (law1, g1) = plain, with_J
-    tau0, tau1 = law0.torque(g0, (), measured, desired, 0.0)[0], law1.torque(g1, (), measured, desired, 0.0)[0]
+    feedback, desired = Feedback(jnp.eye(3), Omega), Desired(jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
+    (controller0, g0), (controller1, g1) = plain, with_J
+    tau0, tau1 = controller0.torque(g0, (), feedback, desired, 0.0)[0], controller1.torque(g1, (), feedback, desired, 0.0)[0]
     gyroscopic = lambda M: np.cross(np.asarray(Omega), np.asarray(M) @ np.asarray(Omega))
     np.testing.assert_allclose(np.asarray(tau1 - tau0), gyroscopic(J) - gyroscopic(np.eye(3)), rtol=1e-12)
 
@@ -178,7 +178,7 @@ def test_two_sensors_of_one_quantity_are_refused():
         with pytest.raises(ValueError, match="both measure the rate"):
             missions.load(None, ["sensors.second_gyro={}"])
     finally:
-        components._REGISTRY["sensor"].pop("second_gyro")
+        components.unregister("sensor", "second_gyro")
 
 
 def test_the_history_records_the_filter_covariance_and_the_disturbance():
@@ -213,3 +213,58 @@ def test_the_initial_attitude_as_a_quaternion():
         missions.load(None, ["initial.quaternion=[1.0, 0.1, 0.0, 0.0]"])
     with pytest.raises(ValueError, match="give one"):
         missions.load(None, ["initial.quaternion=[1.0, 0.0, 0.0, 0.0]", "initial.attitude=[0.1, 0.0, 0.0]"])
+
+
+def test_a_mission_is_hashable_by_its_fingerprint_and_a_static_jit_argument():
+    import jax
+
+    from so3jax.results import runfolder
+
+    a, b = missions.load(None, ["T=2.0"]), missions.load(None, ["T=2.0"])
+    other = missions.load(None, ["T=3.0"])
+    assert a is not b and a == b and hash(a) == hash(b) and a != other
+    assert a.fingerprint == runfolder.fingerprint(a.describe()) != other.fingerprint
+    traces = []
+
+    @jax.jit(static_argnames="mission")
+    def horizon(x, *, mission):
+        traces.append(mission)
+        return x * mission.T
+
+    assert float(horizon(1.0, mission=a)) == 2.0 and float(horizon(1.0, mission=b)) == 2.0
+    assert float(horizon(1.0, mission=other)) == 3.0 and len(traces) == 2  # b reuses a's compilation
+
+
+def test_the_mission_keys_are_declared_params_whose_defaults_are_the_flight_missions():
+    from so3jax.missions import keys
+
+    for p in keys.KEYS:
+        node = missions.FLIGHT
+        for part in p.name.split("."):
+            node = node.get(part) if isinstance(node, dict) else None
+        assert node == p.default, p.name
+    assert missions._TOP == ("T", "dt", "seed", "controllers", "record_every")
+    assert keys.allowed("initial") == ("attitude", "quaternion", "rate")
+    with pytest.raises(ValueError, match=r"initial\.rate \(Omega\(0\)\) \[rad/s\] must have shape \(3,\)"):
+        missions.load(None, ["initial.rate=[0.0]"])
+
+
+def test_the_dispersed_and_the_nominal_scenario_are_one_builder():
+    """build.scenario of the mission's own values as a sample equals its nominal scenario."""
+    import jax
+    import jax.numpy as jnp
+
+    from so3jax.missions import build
+    from so3jax.missions import dispersions as disp
+
+    m = missions.load(None, ["T=2.0", "initial.attitude=[0.0, 0.0, 0.5]", "initial.rate=[0.01, 0.0, 0.0]"])
+    nominal = m.scenario()
+    p = disp.RolloutParams(J0=jnp.asarray(m.J0), J1=jnp.asarray(m.J1), J2=jnp.asarray(m.J2), tau_J=jnp.asarray(m.tau_J),
+                           n=jnp.asarray(m.n), amplitude=jnp.asarray(m.disturbance["amplitude"]),
+                           frequency=jnp.asarray(m.disturbance["frequency"]),
+                           noise_std=jnp.asarray(m.disturbance["noise_std"]), R0=jnp.eye(3), Omega0=jnp.zeros(3),
+                           seed=jnp.asarray(0))
+    sample = build.scenario(m, p)
+    assert jax.tree.structure(sample) == jax.tree.structure(nominal)
+    for x, y in zip(jax.tree.leaves(sample), jax.tree.leaves(nominal)):
+        np.testing.assert_array_equal(x, y)

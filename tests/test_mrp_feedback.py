@@ -11,10 +11,10 @@ from scipy.spatial.transform import Rotation
 
 import so3jax as sj
 from so3jax.components.actuators import Wheels, pyramid_axes
-from so3jax.controllers import Desired, Measured, registry
-from so3jax.controllers.mrp_feedback import MRPFeedbackGains, mrp, mrp_feedback
+from so3jax.controllers import Desired, Feedback, registry
+from so3jax.controllers.mrp import MRPFeedbackGains, mrp, mrp_feedback
 from so3jax.sim.loop import Loop
-from so3jax.dynamics.scenario import check_gains
+from so3jax.controllers.gains import check_gains
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(8)
@@ -90,9 +90,9 @@ def test_ticks_follow_the_modules_update(law_type, K_i, wheels):
     """Ten ticks of torque-then-update against the module's Update, the integral limit
     binding (K_i > 0) on some ticks; dt = 0 at the first tick as in the module."""
     gains = MRPFeedbackGains(*map(jnp.asarray, (2.0, 30.0, K_i, 0.02)))
-    law = mrp_feedback(J_hat=jnp.asarray(I_HAT), law_type=law_type)
+    controller = mrp_feedback(J_hat=jnp.asarray(I_HAT), law_type=law_type)
     module = BasiliskMRPFeedback(2.0, 30.0, K_i, 0.02, I_HAT, law_type)
-    state = law.init(gains)
+    state = controller.init(gains)
     period, clipped = 0.5, 0
     for j in range(10):
         R, Omega, R_d, Omega_d, Omega_d_dot = random_state()
@@ -100,11 +100,11 @@ def test_ticks_follow_the_modules_update(law_type, K_i, wheels):
         h_w = None
         if wheels:
             h_w = jnp.asarray(sum(J_S[i] * (G_S[:, i] @ Omega + speeds[i]) * G_S[:, i] for i in range(4)))
-        measured, desired = Measured(jnp.asarray(R), jnp.asarray(Omega), h_w), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
-        tau, _ = law.torque(gains, state, measured, desired, jnp.asarray(j * period))
+        feedback, desired = Feedback(jnp.asarray(R), jnp.asarray(Omega), h_w), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
+        tau, _ = controller.torque(gains, state, feedback, desired, jnp.asarray(j * period))
         expected = module.update(j * period, *guidance(R, Omega, R_d, Omega_d, Omega_d_dot), speeds)
         np.testing.assert_allclose(tau, expected, rtol=1e-11, atol=1e-13)
-        state = law.update(gains, state, measured, desired, jnp.asarray(j * period), jnp.asarray(period))
+        state = controller.update(gains, state, feedback, desired, jnp.asarray(j * period), jnp.asarray(period))
         if K_i > 0:
             np.testing.assert_allclose(state.integral, module.int_sigma, rtol=1e-12, atol=1e-16)
             clipped += int(np.any(np.abs(module.int_sigma) >= 0.02 - 1e-15))
@@ -152,16 +152,16 @@ def test_sampled_ticks_carry_dt_and_the_limit():
 
 def test_wheel_momentum_in_the_law_equals_the_actuators_compensation():
     """With law type 1, the law's omega x h_w (compensation off, h_w from the loop) and the
-    actuator's omega_hat x h_w_hat (compensation on) are one term: the same trajectory."""
+    actuator's Omega_hat x h_w_hat (compensation on) are one term: the same trajectory."""
     scenario = custom_scenario(20.0, 0.01, J=np.diag([900.0, 700.0, 1200.0]), Omega0=(0.02, -0.01, 0.03))
     gains = registry.get("mrp_feedback").defaults
     gains = jax.tree.map(jnp.asarray, gains)
-    law = mrp_feedback(law_type=1)
+    controller = mrp_feedback(law_type=1)
 
     def fly(compensation):
         wheels = Wheels(jnp.asarray(G_S), jnp.asarray(J_S), jnp.full(4, 0.2), jnp.full(4, 600.0),
                         jnp.asarray([40.0, -25.0, 15.0, 60.0]), compensation)
-        return sj.simulate(scenario, law, gains, loop=Loop(actuator=wheels, period_steps=10), record_every=10).history
+        return sj.simulate(scenario, controller, gains, loop=Loop(actuator=wheels, period_steps=10), record_every=10).history
 
     on, off = fly(True), fly(False)
     np.testing.assert_allclose(off.Omega, on.Omega, rtol=0, atol=1e-13)

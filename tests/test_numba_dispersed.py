@@ -18,7 +18,8 @@ from benchmarks.baselines.numba_dispersed import FIELDS, simulate_dispersed  # n
 from benchmarks.baselines.numpy_loop import J0, J1, J2, ORBITAL_RATE  # noqa: E402
 from so3jax.missions import dispersed
 from so3jax.jobs import sweep  # noqa: E402
-from so3jax.dynamics.scenario import InertiaWarning, steps_for_horizon  # noqa: E402
+from so3jax.dynamics.inertia import InertiaWarning  # noqa: E402
+from so3jax.dynamics.scenario import steps_for_horizon  # noqa: E402
 
 T = 510.0  # s: across the first phase switch (500 s)
 N_SAMPLES = 8
@@ -41,7 +42,7 @@ def test_matches_so3jax_sweep_metrics(sweep_samples, controller):
     config, samples = sweep_samples
     gains = jax.tree.map(lambda g: np.asarray(g, np.float64), config.gains[controller])
     run = functools.partial(dispersed.sample_metrics, law=config.mission.controller(controller)[0],
-                            mission=dispersed.mission_key(config.mission))
+                            mission=config.mission)
     ours = {k: np.asarray(v) for k, v in jax.jit(run)(dispersed.inputs(samples, np.float64), gains).items()}
     theirs = simulate_dispersed(controller, samples.params, steps_for_horizon(config.T, config.dt), dt=config.dt,
                                 gains=config.gains[controller])

@@ -320,3 +320,18 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
         assert len(set(np.asarray(native.metrics.rmse).tolist())) == 3  # the samples differ
+
+
+def test_seeds_give_the_batch_first_and_absent_records_are_none():
+    """``simulate`` over seeds (B,) is the batch of single runs, batch axis first (the public
+    convention, as ``rollout_batch``); what a wiring does not record is None."""
+    controller, gains = LAWS[0]
+    seeds = jnp.array([3, 4])
+    batch = sj.simulate(TINY, controller, gains, seeds, record_every=5)
+    for i, seed in enumerate(seeds.tolist()):
+        one = sj.simulate(TINY, controller, gains, seed, record_every=5)
+        for a, b in zip(jax.tree.leaves(batch), jax.tree.leaves(one)):
+            assert a.shape == (2,) + b.shape
+            np.testing.assert_allclose(a[i], b, rtol=1e-12, atol=1e-15)
+    assert batch.flight is None and batch.history.R_hat is None and batch.history.covariance is None
+    assert batch.history.actuator is None  # the ideal actuator has no state

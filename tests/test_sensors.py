@@ -15,12 +15,12 @@ from scipy import stats
 
 from so3jax.core import so3
 from so3jax.dynamics.disturbance import noise as disturbance_noise
+from so3jax.components.base import Measurements
 from so3jax.components.sensors import (
     GYRO_BIAS_WALK,
     GYRO_WHITE,
     STAR_TRACKER,
     Gyro,
-    Measurements,
     Sensors,
     StarTracker,
     sensor_noise,

@@ -9,9 +9,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax.controllers import Desired, Measured, registry
-from so3jax.controllers.sliding_mode import SlidingModeGains, attitude_error_rate_matrix, sliding_mode
-from so3jax.dynamics.scenario import check_gains
+from so3jax.controllers import Desired, Feedback, registry
+from so3jax.controllers.sliding import SlidingModeGains, attitude_error_rate_matrix, sliding_mode
+from so3jax.controllers.gains import check_gains
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(11)
@@ -59,13 +59,13 @@ def test_torque_matches_numpy(boundary, J_hat):
     gains k_s and eta; the layer's inside and outside both reached."""
     n = 6
     states = random_states(n)
-    law = sliding_mode(J_hat=None if J_hat is None else jnp.asarray(J_hat), boundary=boundary)
+    controller = sliding_mode(J_hat=None if J_hat is None else jnp.asarray(J_hat), boundary=boundary)
     gains = SlidingModeGains(*map(jnp.asarray, GAINS))
     t = jnp.asarray(0.0)
     inside = outside = 0
     for R, Omega, R_d, Omega_d, Omega_d_dot in zip(*states):
-        measured, desired = Measured(jnp.asarray(R), jnp.asarray(Omega)), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
-        tau, state = law.torque(gains, law.init(gains), measured, desired, t)
+        feedback, desired = Feedback(jnp.asarray(R), jnp.asarray(Omega)), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
+        tau, state = controller.torque(gains, controller.init(gains), feedback, desired, t)
         expected, s = numpy_torque(GAINS, R, Omega, R_d, Omega_d, Omega_d_dot, J_hat, boundary)
         np.testing.assert_allclose(tau, expected, rtol=1e-12, atol=1e-15)
         assert state == ()
@@ -75,7 +75,7 @@ def test_torque_matches_numpy(boundary, J_hat):
     k_s, eta = RNG.uniform(10.0, 50.0, n), RNG.uniform(0.05, 0.5, n)
     batch_gains = SlidingModeGains(jnp.asarray(GAINS[0]), jnp.asarray(k_s), jnp.asarray(eta), jnp.asarray(GAINS[3]))
     R, Omega, R_d, Omega_d, Omega_d_dot = (jnp.asarray(np.moveaxis(x, 0, -1)) for x in states)
-    tau, _ = law.torque(batch_gains, (), Measured(R, Omega), Desired(R_d, Omega_d, Omega_d_dot), t)
+    tau, _ = controller.torque(batch_gains, (), Feedback(R, Omega), Desired(R_d, Omega_d, Omega_d_dot), t)
     assert tau.shape == (3, n)
     for j in range(n):
         column = (GAINS[0], k_s[j], eta[j], GAINS[3])
@@ -143,8 +143,8 @@ def test_registration():
             with pytest.raises(ValueError, match=f"{name} must be positive"):
                 spec.check(spec.defaults._replace(**{name: bad}))
     options = registry.parse_options("sliding_mode", {"boundary": "sat", "J_hat": J_HAT.tolist()})
-    law = spec.factory(**options)
-    assert law.gains_type is SlidingModeGains and law.init(spec.defaults) == ()
+    controller = spec.factory(**options)
+    assert controller.gains_type is SlidingModeGains and controller.init(spec.defaults) == ()
     assert registry.parse_options("sliding_mode", {}) == {"boundary": "tanh"}
     with pytest.raises(ValueError, match="boundary"):
         registry.parse_options("sliding_mode", {"boundary": "sign"})

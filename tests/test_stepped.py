@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.missions import dispersed
+from so3jax.missions import build, dispersed
 from so3jax.dynamics import stepped
 from so3jax.jobs import sweep
 from so3jax.dynamics.plant import ConstantInertia
@@ -24,7 +24,7 @@ def batch():
         config = sweep.load_config(None, ("T=3000.0",))
         samples = dispersed.draw(config.dispersions, config.leaves, config.seed, 4, config.max_draws)
     params, _ = dispersed.inputs(samples, np.float64)
-    scenarios = jax.vmap(lambda p: dispersed.scenario(config.mission, p))(params)
+    scenarios = jax.vmap(lambda p: build.scenario(config.mission, p))(params)
     return scenarios, _batch_last(scenarios, 0)
 
 

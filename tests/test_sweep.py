@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.missions import dispersed
+from so3jax.missions import build
 from so3jax.jobs import sweep
 from so3jax.missions import dispersions as disp
 from so3jax.jobs.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
@@ -160,8 +160,7 @@ def test_each_dispersed_value_reaches_the_rollout():
     batch = jax.tree.map(lambda *xs: np.stack(xs), *(variants + [base] * (-len(variants) % 8)))
     gains = jax.tree.map(np.asarray, cfg.gains["pd"])
     halves = [jax.tree.map(lambda x: x[:8], batch), jax.tree.map(lambda x: x[8:], batch)]
-    key = sweep.mission_key(cfg.mission)
-    m = [sweep.run_chunk((half, {}), gains, "pd", key, sweep.batch_mesh()) for half in halves]
+    m = [sweep.run_chunk((half, {}), gains, "pd", cfg.mission, sweep.batch_mesh()) for half in halves]
     rmse, effort = (np.concatenate([x[k] for x in m]) for k in ("rmse", "effort"))
     for i, name in enumerate(base._fields, start=1):
         assert rmse[i] != rmse[0] and effort[i] != effort[0], f"{name} does not change the motion"
@@ -183,7 +182,7 @@ def test_sample_parameters_map_onto_the_mission():
         noise_std=float(p.noise_std),
     )
     expected = dataclasses.replace(expected, R0=jax.numpy.asarray(p.R0), Omega0=jax.numpy.asarray(p.Omega0))
-    got = dispersed.scenario(cfg.mission, jax.tree.map(jax.numpy.asarray, p))
+    got = build.scenario(cfg.mission, jax.tree.map(jax.numpy.asarray, p))
     assert jax.tree.structure(got) == jax.tree.structure(expected)
     for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected)):
         np.testing.assert_allclose(a, b, rtol=1e-15, atol=0)

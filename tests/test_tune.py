@@ -37,7 +37,7 @@ BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
     },
 }
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 
 
 def table(mission=None, **changes):

@@ -17,7 +17,7 @@ from so3jax.jobs.tune import campaign
 from so3jax.jobs.tune.cost import cvar
 from so3jax.jobs.tune.problem import batch_at, build_problem
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 
 COSTS = np.array([3.0, 0.5, 7.0, 1.5, 2.0, 9.0, 4.0, 0.1, 6.0, 5.0, 8.0, 2.5, 1.0, 3.5, 4.5, 6.5, 7.5, 0.7, 5.5, 9.5])
 

@@ -15,7 +15,7 @@ from so3jax.jobs.tune.cost import CostRefs, cost_and_grad
 from so3jax.jobs.tune.gains import law, split, tables, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.problem import build_problem
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 
 NAMES = ("arw", "sigma_st", "sigma_b0")
 
@@ -70,7 +70,7 @@ def test_dispersed_missions_fly_the_tuned_filter():
     parsed, leaves = dispersed.parse({"seed": "random", "sensors.gyro.arw": 1.5e-6}, mission)
     inputs = dispersed.inputs(dispersed.draw(parsed, leaves, 0, 2, 20), jnp.float64)
     gains = PDGains(jnp.asarray(0.5714), jnp.asarray(25.0))
-    run = lambda m, **kw: dispersed.sample_metrics(inputs, gains, law=law(m, "pd"), mission=dispersed.mission_key(m), **kw)
+    run = lambda m, **kw: dispersed.sample_metrics(inputs, gains, law=law(m, "pd"), mission=m, **kw)
     tuned = run(mission, estimator={k: jnp.asarray(v) for k, v in values.items()})
     np.testing.assert_allclose(tuned["attitude_estimation_rms"], run(written)["attitude_estimation_rms"], rtol=1e-12)
     assert not np.allclose(tuned["attitude_estimation_rms"], run(mission)["attitude_estimation_rms"], rtol=1e-6)

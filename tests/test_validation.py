@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.dynamics.scenario import check_inertia, check_scenario, is_paper_inertia
+from so3jax.dynamics.inertia import check_inertia, is_paper_inertia
+from so3jax.dynamics.scenario import check_scenario
 
-pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.scenario.InertiaWarning")
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 rollout_module = importlib.import_module("so3jax.sim.rollout")  # the package re-exports a function of that name
 GOOD = sj.paper_scenario(T=1.0)
 

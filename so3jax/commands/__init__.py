@@ -1,14 +1,15 @@
 """Command line: so3jax paper | fly | tune | sweep | compare | identify.
 
-Each command lives in its own module, which exposes ``register(subparsers)``; the
-parser it adds sets ``func(args) -> int``. JAX is configured here (precision, one
-host device per core) before any command imports it.
+Each command lives in its own module (paper, fly, tune, sweep, compare, identify),
+which exposes ``register(subparsers)``, whose parser sets ``func`` to the module's
+``run(args) -> int``; the options the commands share are in :mod:`so3jax.commands.common`.
+The jobs the commands run live in :mod:`so3jax.jobs`. JAX is configured here (precision,
+one host device per core) before any command runs.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import importlib.util
 import os
 import sys
@@ -16,16 +17,11 @@ import traceback
 import warnings
 from pathlib import Path
 
+from so3jax.commands import compare, fly, identify, paper, sweep, tune
+from so3jax.commands.common import _Parser
 from so3jax.parallel import xla_flags as _xla_flags, distributed
 
-COMMAND_MODULES = ("so3jax.jobs.paper", "so3jax.jobs.fly", "so3jax.jobs.tune", "so3jax.jobs.sweep", "so3jax.jobs.compare", "so3jax.commands.identify")
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the usage."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+COMMANDS = (paper, fly, tune, sweep, compare, identify)  # in the order --help lists them
 
 
 DESCRIPTION = (
@@ -42,46 +38,9 @@ DESCRIPTION = (
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="so3jax", description=DESCRIPTION)
     subparsers = parser.add_subparsers(dest="command", required=True)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(subparsers)
+    for command in COMMANDS:
+        command.register(subparsers)
     return parser
-
-
-def registered(tunable: bool = False) -> str:
-    """The registered names a mission chooses among (a command's --help epilog), read from
-    the registries; ``tunable``: the controllers whose gains ``tune`` can tune."""
-    from so3jax.components import registry as components
-    from so3jax.controllers import registry
-
-    laws = ", ".join(registry.names(tunable=True) if tunable else registry.names())
-    return (f"registered {'tunable controllers (tune.controller)' if tunable else 'controllers'}: {laws}; "
-            f"sensors ([sensors.NAME]): {', '.join(components.names('sensor'))}; "
-            f"estimators (estimator.kind): {', '.join(components.names('estimator'))}; "
-            f"actuators (actuator.kind): {', '.join(components.names('actuator'))}.")
-
-
-def controllers_help(default: str) -> str:
-    """--controllers' help: the registered controller names."""
-    from so3jax.controllers import registry
-
-    return f"comma-separated controllers among: {', '.join(registry.names())} (default: {default})"
-
-
-def add_precision_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--precision",
-        choices=("float64", "float32"),
-        default="float64",
-        help="floating-point precision (default float64)",
-    )
-
-
-def add_memory_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--max-memory",
-        metavar="SIZE",
-        help="refuse a run estimated to need more memory than SIZE, e.g. 4G (default: the memory available)",
-    )
 
 
 CACHE_MAX_BYTES = 2 << 30
@@ -146,6 +105,3 @@ def _warning_printer(command: str):
 
     return show
 
-
-if __name__ == "__main__":
-    sys.exit(main())

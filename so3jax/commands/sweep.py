@@ -1,4 +1,5 @@
-"""``so3jax sweep``: the subcommand's arguments, and the run they start."""
+"""``so3jax sweep``: the subcommand's arguments, and the run they start (the job:
+:mod:`so3jax.jobs.sweep`)."""
 
 from __future__ import annotations
 
@@ -7,15 +8,15 @@ import sys
 import warnings
 from pathlib import Path
 
+from so3jax.commands.common import add_memory_argument, add_precision_argument, controllers_help, registered
 from so3jax.parallel import distributed
-from so3jax.dynamics.scenario import InertiaWarning
+from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.sweep.config import load_config
 from so3jax.jobs.sweep.engine import LAYOUTS, run_sweep
 from so3jax.jobs.sweep.summary import format_summary
 
-def register(subparsers) -> None:
-    from so3jax.commands import add_memory_argument, add_precision_argument, controllers_help, registered
 
+def register(subparsers) -> None:
     p = subparsers.add_parser(
         "sweep",
         help="Monte Carlo robustness sweep of a mission (sharded over all devices)",
@@ -44,10 +45,10 @@ def register(subparsers) -> None:
                        help="how processes share the sweep: whole chunks per process (default), or each chunk over every process's devices")
     add_memory_argument(p)
     add_precision_argument(p)
-    p.set_defaults(func=main)
+    p.set_defaults(func=run)
 
 
-def main(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace) -> int:
     distributed.initialize(args)
     overrides = list(args.set)
     for key, where in (("samples", "sweep.samples"), ("T", "T"), ("chunk", "sweep.chunk"), ("seed", "sweep.seed")):

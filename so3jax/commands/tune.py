@@ -1,10 +1,12 @@
-"""``so3jax tune``: the subcommand's arguments, and the campaign they run."""
+"""``so3jax tune``: the subcommand's arguments, and the campaign they run (the job:
+:mod:`so3jax.jobs.tune`)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
+from so3jax.commands.common import add_precision_argument, registered
 from so3jax.missions import config as cfg
 from so3jax.parallel import distributed
 from so3jax.jobs.tune.campaign import tune
@@ -15,7 +17,7 @@ from so3jax.jobs.tune.validation import markdown_table
 DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
 
 
-def _command(args) -> int:
+def run(args) -> int:
     distributed.initialize(args)  # before anything touches JAX's backend
     overrides = [cfg.parse_override(text) for text in args.set]
     if args.iterations is not None:
@@ -36,8 +38,6 @@ def _command(args) -> int:
 
 
 def register(subparsers) -> None:
-    from so3jax.commands import add_precision_argument, registered
-
     parser = subparsers.add_parser("tune", help="tune controller gains by gradient descent through the simulator",
                                    description="A tuning campaign: one controller's gains (and optionally the "
                                    "estimator's noise levels) tuned through the mission's rollouts, checkpointed "
@@ -59,4 +59,4 @@ def register(subparsers) -> None:
     )
     distributed.add_arguments(parser)
     add_precision_argument(parser)
-    parser.set_defaults(func=_command)
+    parser.set_defaults(func=run)

@@ -1,32 +1,11 @@
 """Actuators: the controller's command tau_c in, the torque on the body out (docs/model.md §8.4).
 
-The plant (:func:`so3jax.dynamics.plant.derivative`) owns the rigid body; an actuator is a pytree
-that reports what it does to it, from its own state and the input held over a period:
-
-* ``init(batch_shape, dtype)``: its state, () or e.g. the wheel speeds Omega_w (N, *batch) [rad/s];
-* ``command(state, tau_c, omega_hat)``: the input held over a control period, computed
-  from the command tau_c (3, *b) [N m] and the estimated rate omega_hat (3, *b) [rad/s]
-  (at a tick; in every RK4 stage in the continuous wiring);
-* ``body_torque(state, held, Omega)``: the torque it puts on the body, tau_body (3, *b) [N m];
-* ``stored_momentum(state)``: None, or (J_locked (3, 3) [kg m^2], h_rel (3, *b) [N m s]):
-  it stores J_locked Omega + h_rel of angular momentum, body frame (wheels: G_s J_s G_s^T
-  and G_s J_s Omega_w); the plant then solves (J - J_locked) Omega' = -Omega x (J Omega
-  + h_rel) + tau_body + d [- J' Omega] (docs/model.md §8.4);
-* ``derivative(state, held, Omega, Omega_dot)``: its state's rate given the body's (() without state);
-* ``delivered(state, held, Omega)``: the control torque the command became (3, *b) [N m]:
-  tau_c where no limit binds; the metrics' torque sample at every step start in both
-  wirings, and the torque the figures show;
-* ``effort(held)``: |held input|^2 (wheels: sum_i u_i^2) [N^2 m^2], of the batch shape
-  (the flight metrics' actuator effort);
-* ``limits(state, held, tau_c)``: (at a torque limit, at a speed limit), bool of the batch shape;
-* ``speed_ratio(state)``: max_i |Omega_w,i| / Omega_max,i (0 without wheels);
-* ``check()``: one-line ValueErrors on bad parameters, before compilation;
-* ``uncompensated_momentum(state, omega_hat)`` (optional): the stored momentum a control
-  law must account for itself, h_w_hat (3, *b) [N m s], or None (also when absent).
-
-:class:`Actuator` gives the defaults of a stateless actuator without stored momentum or
-limits. Arrays follow :mod:`so3jax.core.so3`: components first, batch axes last; wheel arrays
-are (N, *b). Parameters are cast to the dtype of the arrays they meet.
+The interface and its defaults are :class:`so3jax.components.base.Actuator`'s (only
+``command`` is required): ``init``, ``command(state, tau_c, Omega_hat)``, ``body_torque``,
+``stored_momentum``, ``derivative``, ``delivered``, ``effort``, ``limits``, ``speed_ratio``,
+``uncompensated_momentum``, ``spin_inertia_values`` and ``check``. Arrays follow
+:mod:`so3jax.core.so3`: components first, batch axes last; wheel arrays are (N, *b).
+Parameters are cast to the dtype of the arrays they meet.
 """
 
 from __future__ import annotations
@@ -39,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
+from so3jax.components.base import Actuator, StoredMomentum, _no_limit
 from so3jax.core import checks
 from so3jax.core import so3
 from so3jax.core.pytree import pytree_dataclass, static_field
@@ -46,11 +26,6 @@ from so3jax.core.params import Param
 
 _UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
-
-
-def _no_limit(held):
-    """False of the batch shape of a (3 or N, *b) array."""
-    return jnp.zeros(held.shape[1:], bool)
 
 
 def _values(x):
@@ -76,60 +51,10 @@ def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool
         raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
 
 
-# --- the defaults, ideal and saturated body torques ---------------------------------------
+# --- stored momentum, ideal and saturated body torques -----------------------------------
 
 
-class StoredMomentum(NamedTuple):
-    """Angular momentum an actuator stores, J_locked Omega + h_rel, body frame (docs/model.md §8.4)."""
-
-    locked_inertia: jax.Array  # J_locked (3, 3) kg m^2: the part of J that spins with the body's rate
-    relative: jax.Array  # h_rel (3, *b) N m s: the momentum of its motion relative to the body
-
-
-class Actuator:
-    """Defaults of the actuator interface: no state, no stored momentum, no limits; the
-    held input is the body torque and the control torque delivered."""
-
-    def init(self, batch_shape, dtype):
-        return ()
-
-    def body_torque(self, state, held, Omega):
-        return held
-
-    def stored_momentum(self, state):
-        return None
-
-    def derivative(self, state, held, Omega, Omega_dot):
-        return ()
-
-    def delivered(self, state, held, Omega):
-        return self.body_torque(state, held, Omega)
-
-    def effort(self, held):
-        return so3.sum_leading(held * held)
-
-    def limits(self, state, held, tau_c):
-        return _no_limit(held), _no_limit(held)
-
-    def speed_ratio(self, state):
-        return 0.0
-
-    def uncompensated_momentum(self, state, omega_hat):
-        """The stored momentum a control law must account for itself (3, *b) [N m s]:
-        None where the actuator stores none or compensates it in its command."""
-        return None
-
-    def check(self) -> None:
-        pass
-
-
-def uncompensated_momentum(actuator, state, omega_hat):
-    """``actuator.uncompensated_momentum(state, omega_hat)``, None where it has no such method."""
-    method = getattr(actuator, "uncompensated_momentum", None)
-    return None if method is None else method(state, omega_hat)
-
-
-def momentum(actuator, state, Omega):
+def momentum(actuator: Actuator, state, Omega):
     """J_locked Omega + h_rel (3, *b) [N m s]: the angular momentum the actuator stores,
     body frame; zeros where it stores none."""
     stored = actuator.stored_momentum(state)
@@ -142,7 +67,7 @@ def momentum(actuator, state, Omega):
 class Ideal(Actuator):
     """tau = tau_c (docs/model.md §8.4 ``ideal``)."""
 
-    def command(self, state, tau_c, omega_hat):
+    def command(self, state, tau_c, Omega_hat):
         return tau_c
 
 
@@ -158,7 +83,7 @@ class Saturated(Actuator):
     def _limit(self, like):
         return so3.batch_like(jnp.asarray(self.max_torque).astype(like.dtype), 1, like)
 
-    def command(self, state, tau_c, omega_hat):
+    def command(self, state, tau_c, Omega_hat):
         limit = self._limit(tau_c)
         return jnp.clip(tau_c, -limit, limit)
 
@@ -201,7 +126,7 @@ class WheelCommand(NamedTuple):
     """What the wheels hold over a control period (docs/model.md §8.4), computed at the tick."""
 
     u: jax.Array  # (N, *b) motor torques, N m (the body receives -G_s u)
-    compensation: jax.Array  # (3, *b) omega_hat x h_w_hat included in u, N m (zeros without)
+    compensation: jax.Array  # (3, *b) Omega_hat x h_w_hat included in u, N m (zeros without)
 
 
 @pytree_dataclass
@@ -212,7 +137,7 @@ class Wheels(Actuator):
     max_torque: u_max (N,) N m; max_speed: Omega_max (N,) rad/s; initial_speed:
     Omega_w(0) (N,) rad/s, relative to the body. The state is Omega_w (N, *b); the held
     input a :class:`WheelCommand`. momentum_compensation: the command becomes
-    tau_c + omega_hat x h_w_hat before it is distributed. motor_torque: None, or a
+    tau_c + Omega_hat x h_w_hat before it is distributed. motor_torque: None, or a
     constant motor-torque command per wheel (N,) [N m] that replaces the distributed
     command (open-loop and identification runs: the controller's command is not used),
     each wheel clipped on its own.
@@ -294,16 +219,16 @@ class Wheels(Actuator):
         gram = so3.batch_like(_weighted_gram(G, jnp.ones(self.count, tau.dtype)), 2, tau)
         return -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
 
-    def command(self, state, tau_c, omega_hat):
+    def command(self, state, tau_c, Omega_hat):
         """The motor torques u (N, *b) [N m] held over the period (docs/model.md §8.4): the command
-        (plus omega_hat x h_w_hat with momentum compensation, h_w_hat from omega_hat and the
+        (plus Omega_hat x h_w_hat with momentum compensation, h_w_hat from Omega_hat and the
         tachometers' Omega_w) distributed at minimum norm, clipped to +-u_max, and zero on a
         wheel at its speed limit that it would spin faster; with the compensation they include."""
         if self.motor_torque is not None:  # a per-wheel command: nothing distributed, nothing compensated
             compensation = jnp.zeros_like(tau_c)
             wanted = jnp.broadcast_to(_per_wheel(self.motor_torque, state), state.shape)
         else:
-            compensation = self._compensation(state, omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
+            compensation = self._compensation(state, Omega_hat) if self.momentum_compensation else jnp.zeros_like(tau_c)
             wanted = self.distribute(tau_c + compensation)
         tau = tau_c + compensation
         u = self.torque_limited(wanted, _per_wheel(self.max_torque, tau))
@@ -318,17 +243,17 @@ class Wheels(Actuator):
         """-G_s u (3, *b) [N m], along the axes the body carries."""
         return -_spin_sum(self._axes(held.u, plant=True), held.u)
 
-    def uncompensated_momentum(self, state, omega_hat):
-        """h_w_hat (from omega_hat and the tachometers) without the momentum compensation,
-        None with it (the command then adds omega_hat x h_w_hat itself)."""
-        return None if self.momentum_compensation else self.momentum(state, omega_hat)
+    def uncompensated_momentum(self, state, Omega_hat):
+        """h_w_hat (from Omega_hat and the tachometers) without the momentum compensation,
+        None with it (the command then adds Omega_hat x h_w_hat itself)."""
+        return None if self.momentum_compensation else self.momentum(state, Omega_hat)
 
-    def _compensation(self, state, omega_hat):
-        """omega_hat x h_w_hat (3, *b) [N m]."""
-        return so3.cross(omega_hat, self.momentum(state, omega_hat))
+    def _compensation(self, state, Omega_hat):
+        """Omega_hat x h_w_hat (3, *b) [N m]."""
+        return so3.cross(Omega_hat, self.momentum(state, Omega_hat))
 
     def delivered(self, state, held, Omega):
-        """-G_s u less the momentum compensation it includes (omega_hat x h_w_hat of the
+        """-G_s u less the momentum compensation it includes (Omega_hat x h_w_hat of the
         tick): the command tau_c itself where no limit binds [N m]."""
         return self.body_torque(state, held, Omega) - held.compensation
 
@@ -409,7 +334,8 @@ _WHEEL_LISTS = ("spin_inertia", "max_torque", "max_speed", "initial_speed", "spi
 
 
 def _wheel_values(values: dict) -> dict:
-    """The per-wheel parameters broadcast to (N,) for N = the number of axes."""
+    """The per-wheel parameters broadcast to (N,) for N = the number of axes (Omega_w(0)
+    within the speed limit is :meth:`Wheels.check`'s, when the mission's loop is checked)."""
     n = values["axes"].shape[0]
     out = dict(values)
     for key in _WHEEL_LISTS:
@@ -426,17 +352,6 @@ def _wheel_values(values: dict) -> dict:
     if motor is not None and np.shape(motor) != (n,):
         raise ValueError(f"actuator.wheels.motor_torque [N m] must hold {n} values (one per wheel), got {np.size(motor)}")
     return out
-
-
-def _complete_wheels(values: dict) -> dict:
-    """One value per wheel for each per-wheel parameter; Omega_w(0) within the speed limit."""
-    w = _wheel_values(values)
-    over = np.abs(w["initial_speed"]) > w["max_speed"]
-    if np.any(over):
-        i = int(np.argmax(over))
-        raise ValueError("actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in magnitude "
-                         f"(wheel {i + 1}: {w['initial_speed'][i]:g} against {w['max_speed'][i]:g})")
-    return w
 
 
 def _known_zero(x) -> bool:
@@ -457,24 +372,24 @@ def _wheels(w: dict, ctx) -> Wheels:
 
 
 components.register(components.ComponentSpec(
-    kind="actuator", name="ideal", params=(), build=lambda v, ctx: Ideal(),
+    kind="actuator", name="ideal", component=Ideal, params=(), build=lambda v, ctx: Ideal(),
     doc="tau = tau_c",
 ))
 components.register(components.ComponentSpec(
-    kind="actuator", name="saturated",
+    kind="actuator", name="saturated", component=Saturated,
     params=(Param("max_torque", [0.25, 0.25, 0.25], "N m", shapes=((), (3,)), low=0.0, doc="limit per body axis"),),
     build=lambda v, ctx: Saturated(ctx.as_array(np.broadcast_to(v["max_torque"], (3,)).copy())),
     doc="tau_i = clip(tau_c,i, -max_torque_i, max_torque_i)",
 ))
 components.register(components.ComponentSpec(
-    kind="actuator", name="wheels",
+    kind="actuator", name="wheels", component=Wheels,
     params=(
         Param("axes", _PYRAMID, "", shapes=((None, 3),), doc="one unit spin axis per wheel (rows)"),
         Param("spin_inertia", 0.16, "kg m^2", shapes=_PER_WHEEL, low=0.0, doc="J_s"),
         Param("max_torque", 0.25, "N m", shapes=_PER_WHEEL, low=0.0, doc="motor torque limit u_max"),
         Param("max_speed", 628.0, "rad/s", shapes=_PER_WHEEL, low=0.0, doc="speed limit Omega_max"),
         Param("initial_speed", 0.0, "rad/s", shapes=_PER_WHEEL, doc="Omega_w(0), relative to the body"),
-        Param("momentum_compensation", True, boolean=True, doc="command tau_c + omega_hat x h_w_hat"),
+        Param("momentum_compensation", True, boolean=True, doc="command tau_c + Omega_hat x h_w_hat"),
         Param("motor_torque", None, "N m", shapes=((None,),),
               doc="a constant motor-torque command per wheel, replacing the controller's (open loop)"),
         Param("misalignment", None, "rad", shapes=((None, 3),),
@@ -483,7 +398,7 @@ components.register(components.ComponentSpec(
         Param("spin_inertia_error", 0.0, "-", shapes=_PER_WHEEL, low=-0.9, high=10.0,
               doc="the body's wheels have J_s (1 + error), the flight software keeping `spin_inertia`"),
     ),
-    complete=_complete_wheels,
+    complete=_wheel_values,
     effort_label="motor effort",
     build=_wheels,
     doc="N reaction wheels (docs/model.md §8.4)",

@@ -1,34 +1,29 @@
 """Estimators: measurements in, attitude and rate estimates out, once per control tick
 (docs/model.md §8.3): ``truth``, ``raw`` and a multiplicative EKF on attitude and gyro bias.
 
-Each is a pytree with ``init(R0, batch_shape, dtype)`` -> state, ``update(state,
-measured, period, truth)`` -> (state for the next tick, :class:`Estimate`), ``check()``
-and a class attribute ``reads_truth``: only an estimator that declares it gets the true
-state, ``truth`` = (R, Omega) at the tick (None for every other estimator). Arrays follow :mod:`so3jax.core.so3` (batch axes last); parameters have no batch axes.
+Each is a :class:`~so3jax.components.base.Estimator`: ``init(R0, batch_shape, dtype)`` ->
+state, ``update(state, measured, period, truth)`` -> (state for the next tick,
+:class:`~so3jax.components.base.Estimate`), and the class attributes ``needs`` (the
+measurements it reads) and ``reads_truth`` (only such an estimator gets the true state,
+``truth`` = (R, Omega) at the tick; None for every other). Arrays follow
+:mod:`so3jax.core.so3` (batch axes last); parameters have no batch axes.
 """
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
+from so3jax.components.base import Estimate, Estimator
 
 from so3jax.core import so3
 from so3jax.core import checks
 from so3jax.core.pytree import pytree_dataclass
 from so3jax.core.params import Param
-
-
-class Estimate(NamedTuple):
-    R_hat: jax.Array  # (3, 3, *b)
-    omega_hat: jax.Array  # (3, *b) rad/s
-    bias_hat: jax.Array  # (3, *b) rad/s (zeros without a bias estimate)
-    std: jax.Array  # (6, *b): sqrt(diag P) after the update (attitude rad, bias rad/s); zeros without a filter
-    covariance: Any = ()  # (6, 6, *b): P after the update (a filter's), or ()
 
 
 def _batch(x, core_ndim, batch_shape, dtype):
@@ -42,8 +37,8 @@ def _zero_std(Omega):
 
 
 @pytree_dataclass
-class Truth:
-    """R_hat = R(t_j), omega_hat = Omega(t_j)."""
+class Truth(Estimator):
+    """R_hat = R(t_j), Omega_hat = Omega(t_j)."""
 
     reads_truth = True
 
@@ -54,16 +49,13 @@ class Truth:
         R, Omega = truth
         return state, Estimate(R, Omega, jnp.zeros_like(Omega), _zero_std(Omega))
 
-    def check(self) -> None:
-        pass
-
 
 @pytree_dataclass
-class Raw:
-    """R_hat = the latest star-tracker sample (held between samples), omega_hat = omega_m.
+class Raw(Estimator):
+    """R_hat = the latest star-tracker sample (held between samples), Omega_hat = omega_m.
     State: that sample (3, 3, *b), R0 before the first."""
 
-    reads_truth = False
+    needs = ("attitude",)
 
     def init(self, R0, batch_shape, dtype):
         return _batch(R0, 2, batch_shape, dtype)
@@ -72,9 +64,6 @@ class Raw:
         R_hat = jnp.where(measured.star_valid, measured.R_m, state)
         omega = measured.omega_m
         return R_hat, Estimate(R_hat, omega, jnp.zeros_like(omega), _zero_std(omega))
-
-    def check(self) -> None:
-        pass
 
 
 class Covariance(NamedTuple):
@@ -108,10 +97,10 @@ def _diag(M):
 
 
 @pytree_dataclass
-class MEKF:
+class MEKF(Estimator):
     """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (docs/model.md §8.3):
-    star-tracker update (Joseph form), output omega_hat = omega_m - b_hat, then
-    propagation to the next tick with w = omega_hat."""
+    star-tracker update (Joseph form), output Omega_hat = omega_m - b_hat, then
+    propagation to the next tick with w = Omega_hat."""
 
     sigma_theta0: jax.Array  # initial attitude sigma [rad]
     sigma_b0: jax.Array  # initial bias sigma [rad/s]
@@ -120,7 +109,7 @@ class MEKF:
     rrw: jax.Array  # the filter's gyro rate random walk sigma_u [rad/s^(3/2)]
     sigma_st: jax.Array  # the filter's star-tracker sigma [rad]
 
-    reads_truth = False
+    needs = ("rate", "attitude")
 
     def init(self, R0, batch_shape, dtype):
         R0 = _batch(R0, 2, batch_shape, dtype)
@@ -154,18 +143,18 @@ class MEKF:
         updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r), select=True)), b_hat + so3.matvec(K2, r),
                             Covariance(A_u, B_u, C_u))
         R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
-        omega_hat = measured.omega_m - b_hat
+        Omega_hat = measured.omega_m - b_hat
         std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
-        estimate = Estimate(R_hat, omega_hat, b_hat, std, Covariance(A, B, C).matrix())
-        # propagation to the next tick with w = omega_hat
-        E = so3.exp(-omega_hat * dc, select=True)  # exp(-hat(w) Delta_c)
+        estimate = Estimate(R_hat, Omega_hat, b_hat, std, Covariance(A, B, C).matrix())
+        # propagation to the next tick with w = Omega_hat
+        E = so3.exp(-Omega_hat * dc, select=True)  # exp(-hat(w) Delta_c)
         EB = mm(E, B)
         qv, qu = param(self.arw) ** 2, param(self.rrw) ** 2
         A_p = _sym(mm(mm(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
                    + (qv * dc + qu * dc**3 / 3.0) * eye)
         B_p = EB - dc * C - (qu * dc**2 / 2.0) * eye
         C_p = C + qu * dc * eye
-        R_next = so3.matmul(R_hat, so3.exp(omega_hat * dc, select=True))
+        R_next = so3.matmul(R_hat, so3.exp(Omega_hat * dc, select=True))
         return MEKFState(R_next, b_hat, Covariance(A_p, B_p, C_p)), estimate
 
     def check(self) -> None:
@@ -192,15 +181,15 @@ def _believed(v: dict, ctx, name: str, sensor_key: str):
 
 
 components.register(components.ComponentSpec(
-    kind="estimator", name="truth", params=(), build=lambda v, ctx: Truth(), truth=True,
+    kind="estimator", name="truth", component=Truth, params=(), build=lambda v, ctx: Truth(),
     doc="the true state (perfect knowledge)",
 ))
 components.register(components.ComponentSpec(
-    kind="estimator", name="raw", params=(), build=lambda v, ctx: Raw(), needs=("attitude",),
+    kind="estimator", name="raw", component=Raw, params=(), build=lambda v, ctx: Raw(),
     doc="the latest star-tracker sample and the gyro reading, unfiltered",
 ))
 components.register(components.ComponentSpec(
-    kind="estimator", name="mekf", needs=("rate", "attitude"),
+    kind="estimator", name="mekf", component=MEKF,
     params=(
         Param("sigma_theta0", 1e-3, "rad", low=0.0, doc="initial attitude sigma"),
         Param("sigma_b0", 1e-3, "rad/s", low=0.0, doc="initial bias sigma"),

@@ -3,7 +3,8 @@ name -> its parameters (units, shapes, domains, defaults) and a builder.
 
 A mission's ``[sensors.NAME]``, ``[estimator.NAME]`` and ``[actuator.NAME]`` tables are
 read through the registration, so the mission parser is generic: a new component is one
-module that defines it and calls :func:`register`. Controllers keep their own registry
+module that defines it (a subclass of its kind's base, :mod:`so3jax.components.base`) and
+calls :func:`register`. Controllers keep their own registry
 (:mod:`so3jax.controllers.registry`), whose options are declared with the same
 :class:`~so3jax.core.params.Param`.
 
@@ -19,9 +20,11 @@ import dataclasses
 from collections.abc import Callable
 from typing import Any
 
+from so3jax.components import base
 from so3jax.core import params
 
 KINDS = ("sensor", "estimator", "actuator")
+BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator}
 MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator reads them by these names
 
 
@@ -29,29 +32,40 @@ MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator read
 class ComponentSpec:
     """A registered loop component.
 
-    build(values, context) -> the component (a pytree), values: {param: parsed value},
-    context: :class:`BuildContext`. complete(values) -> values: cross-parameter checks
-    (one-line ValueErrors) and derived values (e.g. one value per wheel), at parse time.
-    provides (sensors): the measurement it makes, one of ``MEASUREMENTS``; noise(values)
-    (sensors): the noise levels an estimator may assume, {name: value}. needs
-    (estimators): the measurements it reads; truth (estimators): whether it reads the true
-    state (an explicit input only such estimators get; the continuous-time wiring takes
-    only such an estimator). effort_label: what the flight metrics' actuator effort sums
-    (wheels: the motor torques). Figures of an actuator's own state are
-    :mod:`so3jax.viz.flight`'s, by name.
+    component: the class ``build`` returns, a subclass of its kind's base
+    (:class:`~so3jax.components.base.Sensor`, :class:`~so3jax.components.base.Estimator`,
+    :class:`~so3jax.components.base.Actuator`). build(values, context) -> the component (a
+    pytree), values: {param: parsed value}, context: :class:`BuildContext`.
+    complete(values) -> values: cross-parameter checks (one-line ValueErrors) and derived
+    values (e.g. one value per wheel), at parse time. provides (sensors): the measurement
+    it makes, one of ``MEASUREMENTS``; noise(values) (sensors): the noise levels an
+    estimator may assume, {name: value}. What an estimator reads is its class's
+    declaration (``needs``, ``reads_truth``), shown here as :attr:`needs` and
+    :attr:`truth`. effort_label: what the flight metrics' actuator effort sums (wheels:
+    the motor torques). Figures of an actuator's own state are :mod:`so3jax.viz.flight`'s,
+    by name.
     """
 
     kind: str
     name: str
+    component: type
     params: tuple
     build: Callable[..., Any]
     doc: str = ""
     complete: Callable[[dict], dict] | None = None
     provides: str = ""
     noise: Callable[[dict], dict] | None = None
-    needs: tuple = ()
-    truth: bool = False
     effort_label: str = "actuator effort"
+
+    @property
+    def needs(self) -> tuple[str, ...]:
+        """The measurements an estimator reads (its class's ``needs``); () for another kind."""
+        return tuple(self.component.needs) if self.kind == "estimator" else ()
+
+    @property
+    def truth(self) -> bool:
+        """Whether an estimator reads the true state (its class's ``reads_truth``)."""
+        return self.kind == "estimator" and bool(self.component.reads_truth)
 
     def parse(self, given: dict, where: str) -> dict:
         values = params.parse_params(self.params, given, where)
@@ -74,8 +88,13 @@ def register(spec: ComponentSpec) -> ComponentSpec:
     """Add a component to its kind's registry (re-registering the same spec is allowed)."""
     if spec.kind not in KINDS:
         raise ValueError(f"component kind must be one of {KINDS}, got {spec.kind!r}")
+    if not (isinstance(spec.component, type) and issubclass(spec.component, BASES[spec.kind])):
+        raise ValueError(f"{spec.kind} {spec.name!r}: its component must be a subclass of "
+                         f"{BASES[spec.kind].__module__}.{BASES[spec.kind].__name__}, got {spec.component!r}")
     if spec.kind == "sensor" and spec.provides not in MEASUREMENTS:
         raise ValueError(f"sensor {spec.name!r} must provide one of {MEASUREMENTS}, got {spec.provides!r}")
+    if spec.kind == "estimator" and not set(spec.needs) <= set(MEASUREMENTS):
+        raise ValueError(f"estimator {spec.name!r} must need some of {MEASUREMENTS}, got {spec.needs!r}")
     existing = _REGISTRY[spec.kind].get(spec.name)
     if existing is not None and existing != spec:
         raise ValueError(f"a {spec.kind} named {spec.name!r} is already registered")

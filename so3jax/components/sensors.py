@@ -9,13 +9,13 @@ Arrays follow :mod:`so3jax.core.so3` (batch axes last); parameters have no batch
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
+from so3jax.components.base import Measurements, Sensor
 
 from so3jax.core import so3
 from so3jax.core import checks
@@ -52,7 +52,7 @@ def _check(name: str, x, shape=()) -> None:
 
 
 @pytree_dataclass
-class Gyro:
+class Gyro(Sensor):
     """Rate gyro, Farrenkopf model at the ticks (docs/model.md §8.2):
     omega_m,j = Omega(t_j) + b_j + (arw / sqrt(Delta_c)) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j."""
 
@@ -85,7 +85,7 @@ class Gyro:
 
 
 @pytree_dataclass
-class StarTracker:
+class StarTracker(Sensor):
     """R_m,j = R(t_j) exp(hat(sigma eta_3,j)), a sample every ``every`` ticks (docs/model.md §8.2)."""
 
     sigma: jax.Array  # per axis [rad]
@@ -106,23 +106,15 @@ class StarTracker:
             raise ValueError(f"sensors.star_tracker.every must be an integer >= 1, got {self.every!r}")
 
 
-class Measurements(NamedTuple):
-    omega_m: jax.Array  # (3, *b) rad/s
-    R_m: jax.Array  # (3, 3, *b)
-    star_valid: jax.Array  # bool scalar: a star-tracker sample exists at this tick
-
-
 @pytree_dataclass
 class Sensors:
     """The sensor suite by measured quantity; a slot that is None is perfect (reads the
-    true state). A sensor is a pytree with ``init(batch_shape, dtype)`` -> its state,
-    ``measure(state, R, Omega, key, j, period)`` -> (its state at tick j + 1, reading at
-    tick j), and ``check()``. A rate sensor reads omega_m (3, *b) [rad/s] and gives its
-    true bias, ``bias(state, Omega)``; an attitude sensor reads (R_m, whether tick j has a
-    sample). Noise keys: :func:`sensor_noise`, one stream per noise source."""
+    true state). Each sensor is a :class:`~so3jax.components.base.Sensor`: a rate sensor
+    reads omega_m (3, *b) [rad/s] and gives its true bias; an attitude sensor reads (R_m,
+    whether tick j has a sample). Noise keys: :func:`sensor_noise`, one stream per noise source."""
 
-    rate: Any = None
-    attitude: Any = None
+    rate: Sensor | None = None
+    attitude: Sensor | None = None
 
     def init(self, batch_shape, dtype):
         """(the rate sensor's state, the attitude sensor's state); () for a perfect slot."""
@@ -153,7 +145,7 @@ class Sensors:
 
 
 components.register(components.ComponentSpec(
-    kind="sensor", name="gyro", provides="rate",
+    kind="sensor", name="gyro", component=Gyro, provides="rate",
     params=(
         Param("arw", 1e-6, "rad/sqrt(s)", low=0.0, doc="angle random walk sigma_v"),
         Param("rrw", 1e-9, "rad/s^(3/2)", low=0.0, doc="rate random walk sigma_u"),
@@ -165,7 +157,7 @@ components.register(components.ComponentSpec(
 ))
 
 components.register(components.ComponentSpec(
-    kind="sensor", name="star_tracker", provides="attitude",
+    kind="sensor", name="star_tracker", component=StarTracker, provides="attitude",
     params=(
         Param("sigma", 3e-5, "rad", low=0.0, doc="per-axis attitude noise"),
         Param("every", 1, "ticks", low=1, integer=True, doc="a sample every `every` ticks"),

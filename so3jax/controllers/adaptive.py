@@ -32,8 +32,9 @@ batch element):
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -41,10 +42,10 @@ import jax.numpy as jnp
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
 from so3jax.core.params import Param
-from so3jax.controllers.base import Controller, tracking_error
+from so3jax.controllers.base import Controller, hashable, tracking_error
+from so3jax.controllers.gains import PositiveDefinite, check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.dynamics.scenario import check_gains
 
 
 class AdaptiveGains(NamedTuple):
@@ -52,11 +53,12 @@ class AdaptiveGains(NamedTuple):
     K_w: jax.Array  # N m s / rad
     Gamma: jax.Array  # adaptation rate: scalar, (9,) diagonal, or (9, 9) SPD
 
+    domains = {"Gamma": PositiveDefinite(9)}  # scalar, (9,) diagonal or (9, 9) SPD: acts on Phi's 9 entries
+
 
 PAPER_ADAPTIVE_GAINS = AdaptiveGains(K_r=0.005, K_w=75.0, Gamma=1e8)
 
 LOG_DERIVATIVES = ("exact", "paper")
-GAMMA_SHAPES = ((), (9,), (9, 9))  # scalar, diagonal, full
 
 
 def regressor_parameters(J):
@@ -103,12 +105,12 @@ class AdaptiveTerms(NamedTuple):
     Phi: jax.Array  # (9,) regressor
 
 
-def adaptive_terms(gains, measured, desired, log_derivative="exact", t=None) -> AdaptiveTerms:
+def adaptive_terms(gains, feedback, desired, log_derivative="exact", t=None) -> AdaptiveTerms:
     """e, z, Phi of the law. t (the time, traced), when given, marks the tracking error
     and the terms for XLA:CPU to compute once (:mod:`so3jax.core._fusion`); values unchanged."""
     once = (lambda x: x) if t is None else (lambda x: materialize(x, t))
-    err = once(tracking_error(measured, desired))
-    Omega = measured.Omega
+    err = once(tracking_error(feedback, desired))
+    Omega = feedback.Omega
     e = so3.log(err.R_e)
     beta = -gains.K_r * e + err.Omega_r
     e_dot = so3.jr_inv_apply(e, err.Omega_e) if log_derivative == "exact" else err.Omega_e
@@ -172,9 +174,91 @@ def _checked(name: str, value, unit: str, zero: bool = False) -> float | None:
     return x
 
 
+@dataclasses.dataclass(frozen=True)
+class AdaptiveBackstepping(Controller):
+    """The adaptive backstepping law with its options, checked and normalized (see
+    :func:`adaptive_backstepping`): leakage "none" where not given, sigma and the bounds
+    as floats, projection_eps 0.1 where not given; J_hat as nested tuples."""
+
+    J_hat: Any = None
+    log_derivative: str = "exact"
+    leakage: str | None = None
+    sigma: float | None = None
+    theta_bound: float | None = None
+    projection_bound: float | None = None
+    projection_eps: float | None = None
+
+    gains_type = AdaptiveGains
+
+    def __post_init__(self):
+        if self.log_derivative not in LOG_DERIVATIVES:
+            raise ValueError(f"log_derivative must be one of {LOG_DERIVATIVES}, got {self.log_derivative!r}")
+        leakage = "none" if self.leakage is None else self.leakage
+        if leakage not in LEAKAGES:
+            raise ValueError(f"leakage must be one of {LEAKAGES}, got {leakage!r}")
+        sigma = _checked("sigma", self.sigma, "[1/(kg m^2 s^3)]", zero=True)
+        theta_bound = _checked("theta_bound", self.theta_bound, "[kg m^2]")
+        projection_bound = _checked("projection_bound", self.projection_bound, "[kg m^2]")
+        projection_eps = 0.1 if self.projection_eps is None else _checked("projection_eps", self.projection_eps, "")
+        if projection_eps > 1.0:
+            raise ValueError(f"projection_eps must be in (0, 1], got {projection_eps!r}")
+        if leakage != "none" and sigma is None:
+            raise ValueError(f"leakage {leakage!r} needs sigma [1/(kg m^2 s^3)]")
+        if leakage == "switching" and theta_bound is None:
+            raise ValueError("leakage 'switching' needs theta_bound (M0) [kg m^2]")
+        for name, value in (("J_hat", hashable(self.J_hat)), ("leakage", leakage), ("sigma", sigma),
+                            ("theta_bound", theta_bound), ("projection_bound", projection_bound),
+                            ("projection_eps", projection_eps)):
+            object.__setattr__(self, name, value)
+
+    @property
+    def robust(self) -> bool:
+        """Whether a robustness modification is on (off: the paper's law, bit for bit)."""
+        return self.leakage != "none" or self.projection_bound is not None
+
+    def nominal(self, dtype):
+        """Theta_0 = Theta(J_hat) (9, 3), the identity's where J_hat is None."""
+        J = jnp.eye(3, dtype=dtype) if self.J_hat is None else jnp.asarray(self.J_hat, dtype)
+        return regressor_parameters(J)
+
+    def _nominal_like(self, theta_hat):
+        """Theta_0 with theta_hat's batch axes (of size 1)."""
+        theta_0 = self.nominal(theta_hat.dtype)
+        return theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
+
+    def init(self, gains):
+        return self.nominal(jnp.result_type(gains.K_r, float))
+
+    def torque(self, gains, theta_hat, feedback, desired, t):
+        terms = adaptive_terms(gains, feedback, desired, self.log_derivative, t)
+        feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
+        tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
+        theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
+        if not self.robust:
+            return tau, theta_dot
+        d = theta_hat - self._nominal_like(theta_hat)
+        if self.leakage != "none":
+            theta_dot = theta_dot - leakage_rate(d, self.leakage, self.sigma, self.theta_bound) * _gamma_columns(gains.Gamma, d)
+        if self.projection_bound is not None:
+            theta_dot = project(d, theta_dot, gains.Gamma, self.projection_bound, self.projection_eps)
+        return tau, theta_dot
+
+    @property
+    def update(self):
+        """With a projection: the tick's forward-Euler step scaled back onto the ball
+        (:meth:`projected_update`); without: None (forward Euler)."""
+        return None if self.projection_bound is None else self.projected_update
+
+    def projected_update(self, gains, theta_hat, feedback, desired, t, period):
+        theta_0 = self._nominal_like(theta_hat)
+        stepped = theta_hat + period * self.torque(gains, theta_hat, feedback, desired, t)[1]
+        return theta_0 + project_to_ball(stepped - theta_0, self.projection_bound)
+
+
 def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: str | None = None,
                           sigma: float | None = None, theta_bound: float | None = None,
-                          projection_bound: float | None = None, projection_eps: float | None = None) -> Controller:
+                          projection_bound: float | None = None,
+                          projection_eps: float | None = None) -> AdaptiveBackstepping:
     """tau = -K_r e - K_w z + Theta_hat^T Phi,  Theta_hat' = -Gamma Phi z^T  (docs/model.md §3.2).
 
     J_hat: nominal inertia for the initial estimate Theta_hat(0) = Theta_0 = Theta(J_hat)
@@ -193,55 +277,7 @@ def adaptive_backstepping(J_hat=None, log_derivative: str = "exact", leakage: st
     (the continuous operator bounds the continuous flow only). With leakage, forward
     Euler at a tick of period Delta_c is stable for lambda_max(Gamma) sigma Delta_c < 2.
     """
-    if log_derivative not in LOG_DERIVATIVES:
-        raise ValueError(f"log_derivative must be one of {LOG_DERIVATIVES}, got {log_derivative!r}")
-    leakage = "none" if leakage is None else leakage
-    if leakage not in LEAKAGES:
-        raise ValueError(f"leakage must be one of {LEAKAGES}, got {leakage!r}")
-    sigma = _checked("sigma", sigma, "[1/(kg m^2 s^3)]", zero=True)
-    theta_bound = _checked("theta_bound", theta_bound, "[kg m^2]")
-    projection_bound = _checked("projection_bound", projection_bound, "[kg m^2]")
-    projection_eps = 0.1 if projection_eps is None else _checked("projection_eps", projection_eps, "")
-    if projection_eps > 1.0:
-        raise ValueError(f"projection_eps must be in (0, 1], got {projection_eps!r}")
-    if leakage != "none" and sigma is None:
-        raise ValueError(f"leakage {leakage!r} needs sigma [1/(kg m^2 s^3)]")
-    if leakage == "switching" and theta_bound is None:
-        raise ValueError("leakage 'switching' needs theta_bound (M0) [kg m^2]")
-    robust = leakage != "none" or projection_bound is not None
-
-    def nominal(dtype):
-        J = jnp.eye(3, dtype=dtype) if J_hat is None else jnp.asarray(J_hat, dtype)
-        return regressor_parameters(J)
-
-    def nominal_like(theta_hat):
-        """Theta_0 with theta_hat's batch axes (of size 1)."""
-        theta_0 = nominal(theta_hat.dtype)
-        return theta_0.reshape(theta_0.shape + (1,) * (theta_hat.ndim - 2))
-
-    def init(gains):
-        return nominal(jnp.result_type(gains.K_r, float))
-
-    def torque(gains, theta_hat, measured, desired, t):
-        terms = adaptive_terms(gains, measured, desired, log_derivative, t)
-        feedforward = so3.sum_leading(theta_hat * terms.Phi[:, None])
-        tau = -gains.K_r * terms.e - gains.K_w * terms.z + feedforward
-        theta_dot = -_apply_gamma(gains.Gamma, terms.Phi)[:, None] * terms.z[None, :]
-        if not robust:
-            return tau, theta_dot
-        d = theta_hat - nominal_like(theta_hat)
-        if leakage != "none":
-            theta_dot = theta_dot - leakage_rate(d, leakage, sigma, theta_bound) * _gamma_columns(gains.Gamma, d)
-        if projection_bound is not None:
-            theta_dot = project(d, theta_dot, gains.Gamma, projection_bound, projection_eps)
-        return tau, theta_dot
-
-    def update(gains, theta_hat, measured, desired, t, period):
-        theta_0 = nominal_like(theta_hat)
-        stepped = theta_hat + period * torque(gains, theta_hat, measured, desired, t)[1]
-        return theta_0 + project_to_ball(stepped - theta_0, projection_bound)
-
-    return Controller(init, torque, AdaptiveGains, None if projection_bound is None else update)
+    return AdaptiveBackstepping(J_hat, log_derivative, leakage, sigma, theta_bound, projection_bound, projection_eps)
 
 
 register(
@@ -251,9 +287,7 @@ register(
         factory=adaptive_backstepping,
         gains_type=AdaptiveGains,
         defaults=PAPER_ADAPTIVE_GAINS,
-        style=dict(ls="-", color="tab:blue", label="adaptive"),
         check=check_gains,
-        shapes={"Gamma": GAMMA_SHAPES},
         # the robustness options default to None (absent unless given): a mission that does
         # not set them describes, fingerprints and flies as one without these options
         options=(J_HAT, Param("log_derivative", "exact", choices=LOG_DERIVATIVES,

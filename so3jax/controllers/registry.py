@@ -1,6 +1,7 @@
-"""One registry of controllers: name -> factory, gains type, defaults, checks, plot style.
+"""One registry of controllers: name -> factory, gains type, defaults, checks, options.
 
-Every command (``paper``, ``fly``, ``tune``, ``sweep``) and the plots read it. A new
+Every command (``paper``, ``fly``, ``tune``, ``sweep``) and the plots read it (the plots'
+line styles are in :mod:`so3jax.viz.styles`). A new
 controller is one module that builds its :class:`ControllerSpec` and calls
 :func:`register`, imported by :mod:`so3jax.controllers`.
 """
@@ -14,12 +15,13 @@ from typing import Any
 import numpy as np
 
 from so3jax.controllers.base import Controller
+from so3jax.controllers.gains import gain_domain
 from so3jax.core.params import parse_params
 
 
 @dataclasses.dataclass(frozen=True)
 class ControllerSpec:
-    """What the commands need to know of a control law.
+    """What the commands need to know of a controller.
 
     factory(**options) -> Controller; options are the law's construction choices
     (nominal inertia J_hat, log_derivative, a torque for open loop, ...).
@@ -27,7 +29,8 @@ class ControllerSpec:
     neutral set). check(gains) raises ValueError on gains the law cannot use.
     tunable: whether ``tune`` may optimize its gains (a law without gains cannot).
     shapes: the shapes a gain may take, {field: ((), (9,), ...)}, for the fields that
-    take more than their default's shape; every other gain has its default's shape
+    take more than their default's shape and whose domain does not say
+    (:mod:`so3jax.controllers.gains`); every other gain has its default's shape
     (:meth:`gain_shapes`). The config parser checks gains read from files against them.
     options: the factory's keywords as :class:`so3jax.core.params.Param` (a mission's
     ``[controller.NAME]`` table); a None default is left to the factory.
@@ -38,15 +41,18 @@ class ControllerSpec:
     factory: Callable[..., Controller]
     gains_type: type
     defaults: Any
-    style: dict
     check: Callable[[Any], None]
     tunable: bool = True
     shapes: dict = dataclasses.field(default_factory=dict)
     options: tuple = ()  # components.Param of each factory keyword (J_hat, log_derivative, ...)
 
     def gain_shapes(self) -> dict:
-        """{field: allowed shapes} of every gain: ``shapes``' entry, else the default's shape."""
-        return {f: tuple(self.shapes.get(f, (np.shape(getattr(self.defaults, f)),))) for f in self.gains_type._fields}
+        """{field: allowed shapes} of every gain: ``shapes``' entry, else its domain's
+        (:func:`so3jax.controllers.gains.gain_domain`), else the default's shape."""
+        def allowed(f):
+            return self.shapes.get(f) or gain_domain(self.gains_type, f).shapes or (np.shape(getattr(self.defaults, f)),)
+
+        return {f: tuple(allowed(f)) for f in self.gains_type._fields}
 
 
 _REGISTRY: dict[str, ControllerSpec] = {}
@@ -76,11 +82,6 @@ def get(name: str) -> ControllerSpec:
         return _REGISTRY[name]
     except (KeyError, TypeError):
         raise ValueError(f"unknown controller {name!r}; known: {', '.join(_REGISTRY)}") from None
-
-
-def style(name: str) -> dict:
-    """Matplotlib keyword arguments (line style, color, label) of a controller."""
-    return dict(_REGISTRY[name].style) if name in _REGISTRY else {"label": name}
 
 
 def parse_options(name: str, given: dict) -> dict:

@@ -1,4 +1,5 @@
-"""``so3jax compare``: control laws side by side, each tuned to one effort budget.
+"""Control laws side by side, each tuned to one effort budget: the job ``so3jax compare``
+(:mod:`so3jax.commands.compare`) runs.
 
 A comparison file is a mission (its ``controllers`` are the laws compared), a ``[tune]``
 table every law's campaign shares (``controller`` is set per law; a budget controller in
@@ -44,7 +45,7 @@ from so3jax.results import io, runfolder
 from so3jax.missions import mission as missions
 from so3jax.controllers import registry
 from so3jax.sim.metrics import cell
-from so3jax.dynamics.scenario import InertiaWarning
+from so3jax.dynamics.inertia import InertiaWarning
 
 JOBS = ("tune", "sweep", "dispersions", "compare")
 TAILS = 95.0  # percentile of the tails compared [%]
@@ -98,7 +99,6 @@ def sweep_folder(index: int) -> str:
 def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     """A checked CompareConfig: every campaign and the sweep parse before any work."""
     from so3jax.jobs.sweep.config import DEFAULT, config_from_dict
-    from so3jax.jobs.tune.config import parse_config
 
     if not isinstance(table, dict):
         raise ValueError(f"a comparison must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
@@ -286,45 +286,9 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _styles(config: CompareConfig) -> dict:
-    """Matplotlib keywords per candidate: its law's style, dotted for a law's second candidate, labelled by name."""
-    styles, seen = {}, set()
-    for name in config.laws:
-        law = config.candidates[name].law if hasattr(config, "candidates") else name
-        style = registry.style(law)
-        if law in seen:
-            style = {k: v for k, v in style.items() if k not in ("ls", "linestyle")} | {"linestyle": ":"}
-        seen.add(law)
-        styles[name] = {**style, "label": style["label"] if name == law else name}
-    return styles
-
-
-def figure(config: CompareConfig, columns: dict):
-    """RMSE CDF per candidate over the sweep; the paired relative change against the reference."""
-    import matplotlib.pyplot as plt
-
-    fig, (cdf, change) = plt.subplots(1, 2, figsize=(11, 4))
-    ref = config.reference
-    pairs = [(law, paired_with(config, law)) for law in config.laws if paired_with(config, law) is not None]
-    styles = _styles(config)
-    for law in config.laws:
-        flown = ~np.isnan(columns[f"{law}_diverged"])  # a diverged sample keeps the curve below 1
-        x = np.sort(columns[f"{law}_rmse"][flown & (columns[f"{law}_diverged"] == 0)])
-        cdf.plot(x, np.arange(1, len(x) + 1) / max(int(flown.sum()), 1), **styles[law])
-    cdf.set(xscale="log", xlabel="RMSE [rad/s]", ylabel="share of samples (diverged: never reached)",
-            title="RMSE over the dispersed missions")
-    cdf.legend()
-    data = []
-    for law, other in pairs:
-        both = (columns[f"{law}_diverged"] == 0) & (columns[f"{other}_diverged"] == 0)
-        data.append(100 * (columns[f"{law}_rmse"][both] - columns[f"{other}_rmse"][both]) / columns[f"{other}_rmse"][both])
-    change.boxplot(data, whis=(5, 95), showfliers=False)
-    change.set_xticks(range(1, len(pairs) + 1), [styles[law]["label"] + ("" if other == ref else f"\nvs {other}")
-                                                 for law, other in pairs])
-    change.axhline(0.0, color="k", lw=0.8)
-    change.set(ylabel=f"RMSE change vs {styles[ref]['label']} [%]", title="paired by sample (whiskers: 5-95 %)")
-    fig.tight_layout()
-    return fig
+def pairs(config: CompareConfig) -> list:
+    """(candidate, the candidate it is paired with) of every candidate but the reference, in order."""
+    return [(law, paired_with(config, law)) for law in config.laws if paired_with(config, law) is not None]
 
 
 # --- the run --------------------------------------------------------------------------
@@ -335,6 +299,7 @@ def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
     at their gains, pair them: the comparison's report."""
     from so3jax.jobs.tune.campaign import tune
     from so3jax.jobs.tune.validation import held_out
+    from so3jax.viz import compare as plots
 
     out = Path(out)
     with runfolder.claim(out, "compare", describe(config), resume=resume) as folder:
@@ -357,7 +322,7 @@ def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
         result = io.to_builtin(judge(config, reports, columns))
         io.write_json(out / "compare.json", result)
         io.write_text(out / "compare.md", markdown(result))
-        io.save_figure(figure(config, columns), out / "compare.png")
+        io.save_figure(plots.figure(config, columns, pairs(config)), out / "compare.png")
     return result
 
 
@@ -386,32 +351,3 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
         if key in seen and key in columns and not np.array_equal(seen[key], columns[key], equal_nan=True):
             raise RuntimeError(f"{out}: its samples differ from the first sweep's ({key})")
     return columns
-
-
-def _command(args) -> int:
-    overrides = [cfg.parse_override(text) for text in args.set]
-    with warnings.catch_warnings():
-        warnings.simplefilter("once", InertiaWarning)
-        config = load_config(args.config, overrides)
-    out = Path(args.out) if args.out else Path("results/compare") / Path(args.config).stem
-    result = run(config, out, resume=args.resume)
-    print(markdown(result))
-    print(f"results in {out}/")
-    return 0
-
-
-def register(subparsers) -> None:
-    from so3jax.commands import add_precision_argument, registered
-
-    parser = subparsers.add_parser(
-        "compare", help="tune control laws to one effort budget, then pair them over a dispersed sweep",
-        description="Control laws side by side: each tuned to one effort budget, judged on held-out seeds and a sweep.",
-        epilog=registered(tunable=True))
-    parser.add_argument("config", help="comparison file (TOML): a mission whose controllers are compared, [tune], "
-                        "[sweep], [dispersions], [compare]; e.g. comparisons/paper.toml")
-    parser.add_argument("--out", help="run folder (default results/compare/NAME for NAME.toml)")
-    parser.add_argument("--resume", action="store_true", help="finish the comparison in --out, keeping what it holds")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override an entry with a TOML value: a mission key (T=100.0), tune.*, sweep.*, compare.*")
-    add_precision_argument(parser)
-    parser.set_defaults(func=_command)

@@ -1,12 +1,11 @@
-"""``so3jax fly``: a mission flown by the closed loop of docs/model.md §8 (sensors, estimator,
-sampled-data control, actuators), each controller on the same mission and seed."""
+"""A mission flown by the closed loop of docs/model.md §8 (sensors, estimator, sampled-data
+control, actuators), each controller on the same mission and seed: the job ``so3jax fly``
+(:mod:`so3jax.commands.fly`) runs, its report, trajectory, telemetry and figures."""
 
 from __future__ import annotations
 
 import functools
-import json
 import math
-import sys
 import time
 import warnings
 from pathlib import Path
@@ -25,63 +24,37 @@ FLIGHT_METRICS = ("attitude_estimation_rms", "attitude_estimation_max", "bias_es
 TRAJECTORY = ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed")
 
 
-def register(subparsers) -> None:
-    from so3jax.commands import add_memory_argument, add_precision_argument, controllers_help, registered
-
-    p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels",
-                              description="A mission flown by each of its controllers through the mission's loop "
-                              "(sensors, estimator, sampled control, actuator): a table per controller, "
-                              "metrics.json, trajectory.npz, telemetry/ and the figures.",
-                              epilog=registered())
-    p.add_argument("mission", nargs="?", type=Path,
-                   help="mission file (TOML); default: the flight mission (missions/flight.toml)")
-    p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
-    p.add_argument("--seed", type=int, help="disturbance and sensor-noise seed (default: the mission's)")
-    p.add_argument("--controllers", help=controllers_help("the mission's"))
-    p.add_argument("--record-every", type=int, help="trajectory sampling [steps] (default: the mission's)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a mission entry, e.g. --set control.period=0.05 (repeatable)")
-    p.add_argument("--out", type=Path, default=Path("results/fly"), help="output folder (default results/fly)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    add_memory_argument(p)
-    add_precision_argument(p)
-    p.set_defaults(func=run)
-
-
-def overrides(args) -> list[str]:
-    """The command-line options as mission overrides (after --set's)."""
-    items = list(args.set)
-    for key, value in (("T", args.T), ("seed", args.seed), ("record_every", args.record_every)):
-        if value is not None:
-            items.append(f"{key}={value!r}")
-    if args.controllers is not None:
-        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
-    return items
-
-
 def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
     """Every controller of the mission, side by side on the CPU devices
     (:func:`so3jax.parallel.devices.side_by_side`: compilations in parallel). Returns {name:
     Result with NumPy leaves} and the wall time [s], compile included."""
     import jax
 
-    import so3jax as sj
+    from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.parallel import devices
+    from so3jax.sim.rollout import simulate as simulate_rollout
 
     scenario, loop = mission.scenario(dtype), mission.loop(dtype)
 
     def simulate(name):
         controller, gains = mission.controller(name)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore", sj.InertiaWarning)  # reported once, when the mission was read
-            result = sj.simulate(scenario, controller, gains, mission.seed, loop=loop,
+            warnings.simplefilter("ignore", InertiaWarning)  # reported once, when the mission was read
+            result = simulate_rollout(scenario, controller, gains, mission.seed, loop=loop,
                                  record_every=mission.record_every)
             return jax.tree.map(np.asarray, result)
 
     start = time.perf_counter()
     results = devices.side_by_side({name: functools.partial(simulate, name) for name in mission.controllers})
     return results, time.perf_counter() - start
+
+
+def memory_needed(mission, scenario, loop) -> int:
+    """The memory [bytes] every controller's rollout needs (:mod:`so3jax.sim.memory`)."""
+    from so3jax.sim import memory
+
+    return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
+               for name in mission.controllers)
 
 
 def report(mission, result) -> dict:
@@ -148,8 +121,8 @@ def _deg_h(x):
 
 
 def recorded(x, otherwise):
-    """A History field, or ``otherwise`` where the wiring does not record it (``()``)."""
-    return otherwise if isinstance(x, tuple) and x == () else x
+    """A History field, or ``otherwise`` where the wiring does not record it (None)."""
+    return otherwise if x is None else x
 
 
 def trajectory_arrays(results: dict) -> dict:
@@ -183,61 +156,8 @@ def write_telemetry(out: Path, mission, results: dict) -> str:
 
 
 def write_figures(out: Path, mission, results: dict) -> list[Path]:
-    from so3jax.viz import flight as flight_plots, plots
+    """The mission's figures (:func:`so3jax.viz.fly.figures`) into ``out``."""
+    from so3jax.viz import fly as plots
     from so3jax.results.io import save_figures
 
-    phases = mission.scenario().phase_times
-    histories = {name: r.history for name, r in results.items()}
-    if mission.period_steps is None:
-        figures = {"attitude_error.png": plots.attitude_error_figure(histories, phases, mission.T),
-                   "torque.png": plots.torque_figure(histories, phases, mission.T)}
-    else:
-        figures = {
-            "attitude.png": flight_plots.attitude_figure(histories, phases, mission.T),
-            "bias.png": flight_plots.bias_figure(histories, phases, mission.T),
-            "torque.png": flight_plots.torque_figure(histories, phases, mission.T),
-        }
-        kind = mission.actuator["kind"]
-        figures.update(flight_plots.actuator_figures(kind, histories, phases, mission.T, mission.actuator[kind]))
-    return save_figures(out, figures)
-
-
-def run(args) -> int:
-    from so3jax.missions import mission as missions
-    from so3jax.results import runfolder
-
-    mission = missions.load(args.mission, overrides(args))
-    with runfolder.claim(args.out, "fly", vars(args)):
-        return _fly_into(args, mission)
-
-
-def _fly_into(args, mission) -> int:
-    from so3jax.sim import memory
-    from so3jax.results.io import dumps, save_npz, write_json
-
-    scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
-    needed = sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
-                 for name in mission.controllers)
-    budget = memory.check(needed, memory.from_args(args), f"T = {mission.T:g} s at record_every = {mission.record_every}",
-                          "raise --record-every or shorten --T")
-    print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
-          + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
-          + " ...", file=sys.stderr, flush=True)
-    results, wall = fly(mission, args.precision)
-    reports = {name: report(mission, r) for name, r in results.items()}
-    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
-                         "mission_file": None if args.mission is None else str(args.mission)}
-    write_json(args.out / "metrics.json", reports)
-    save_npz(args.out / "trajectory.npz", **trajectory_arrays(results))
-    telemetry = write_telemetry(args.out, mission, results)
-    figures = [] if args.no_figures else write_figures(args.out, mission, results)
-    diverged = [n for n in mission.controllers if reports[n]["diverged"]]
-    if diverged:
-        print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
-    if args.json:
-        print(dumps(reports))
-    else:
-        print(format_table(mission, {n: reports[n] for n in mission.controllers}))
-        print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
-              f"results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, {len(figures)} figures)")
-    return 1 if diverged else 0
+    return save_figures(out, plots.figures(mission, {name: r.history for name, r in results.items()}))

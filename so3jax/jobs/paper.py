@@ -1,9 +1,8 @@
-"""``so3jax paper``: the paper's capture-and-detumble mission with both controllers
-(docs/model.md §4), its Table II and Figs. 1-5."""
+"""The paper's capture-and-detumble mission with both controllers (docs/model.md §4), its
+Table II and Figs. 1-5: the job ``so3jax paper`` (:mod:`so3jax.commands.paper`) runs."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -27,52 +26,24 @@ METRIC_NAMES = (
 )
 
 
-def register(subparsers) -> None:
-    from so3jax.commands import add_memory_argument, add_precision_argument, registered
-
-    p = subparsers.add_parser("paper", help="reproduce the paper's mission with both controllers (table + figures)",
-                              description="The paper's capture-and-detumble mission (missions/paper.toml) flown by "
-                              "the pd and adaptive controllers: Table II beside the paper's values, metrics.json "
-                              "and the figures.",
-                              epilog=registered())
-    p.add_argument("--T", type=float, help="horizon [s] (default 4000)")
-    p.add_argument("--dt", type=float, help="step [s] (default 0.01)")
-    p.add_argument("--seed", type=int, help="disturbance seed (default 0)")
-    p.add_argument("--tau-J", type=float, help="deployment time constant [s] (default 300)")
-    p.add_argument("--log-derivative", choices=("exact", "paper"), help="adaptive law's d/dt log(R_e) (default exact)")
-    p.add_argument("--record-every", type=int, help="history sampling [steps] (default 100)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override an entry of the paper's mission (missions/paper.toml), e.g. --set orbit.n=1e-3")
-    p.add_argument("--out", type=Path, default=Path("results/paper"), help="output folder (default results/paper)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    add_memory_argument(p)
-    add_precision_argument(p)
-    p.set_defaults(func=run)
-
-
-def overrides(args) -> list[str]:
-    """The command-line options as overrides of the paper's mission (after --set's)."""
-    items = list(args.set)
-    for key, value in (("T", args.T), ("dt", args.dt), ("seed", args.seed), ("deployment.tau_J", args.tau_J),
-                       ("record_every", args.record_every)):
-        if value is not None:
-            items.append(f"{key}={value!r}")
-    if args.log_derivative is not None:
-        items.append(f'controller.adaptive.log_derivative="{args.log_derivative}"')
-    return items
-
-
-def load_mission(args):
-    """The paper's mission (:data:`so3jax.missions.mission.PAPER`, missions/paper.toml) with the
-    command line's overrides; its controllers must be the paper's two."""
+def load_mission(overrides=()):
+    """The paper's mission (:data:`so3jax.missions.mission.PAPER`, missions/paper.toml) with
+    ``overrides`` (KEY=VALUE texts); its controllers must be the paper's two."""
     from so3jax.missions import mission as missions
 
-    m = missions.load(None, overrides(args), base=missions.PAPER)
+    m = missions.load(None, list(overrides), base=missions.PAPER)
     if m.controllers != CONTROLLERS:
         raise ValueError(f"controllers: so3jax paper compares {' and '.join(CONTROLLERS)} (Table II); "
                          "fly other controllers with so3jax fly missions/paper.toml")
     return m
+
+
+def memory_needed(mission, scenario) -> int:
+    """The memory [bytes] both controllers' rollouts need (:mod:`so3jax.sim.memory`)."""
+    from so3jax.sim import memory
+
+    return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed,
+                                     record_every=mission.record_every) for name in CONTROLLERS)
 
 
 def metrics_dict(result, steps_per_phase=None) -> dict:
@@ -137,54 +108,18 @@ def format_table(metrics: dict) -> str:
     return "\n".join(rows)
 
 
-def write_figures(out: Path, results: dict, scenario) -> list[Path]:
-    from so3jax.viz import plots
-    from so3jax.results.io import save_figures
-
-    histories = {name: r.history for name, r in results.items()}
-    h = histories["pd"]
-    phases, T = scenario.phase_times, scenario.horizon
-    t_capture = phases[-1] if phases else T
-    figures = {
-        "fig1_inertia.png": plots.inertia_figure(h.t, h.J, phases, T),
-        "fig2_angular_velocity.png": plots.rate_figure(histories, phases, T),
-        "fig3_tracking_error.png": plots.rate_error_figure(histories, phases, t_capture, T),
-        "fig4_torque.png": plots.torque_figure(histories, phases, T),
-        "fig5_torque_norm.png": plots.torque_norm_figure(histories, phases, T),
-        "fig6_attitude_error.png": plots.attitude_error_figure(histories, phases, T),
-    }
-    return save_figures(out, figures)
-
-
-def run(args) -> int:
-    from so3jax.results import runfolder
-
-    mission = load_mission(args)  # every check before the output folder exists
-    with runfolder.claim(args.out, "paper", {"mission": mission.describe(), "precision": args.precision}):
-        return _run(args, mission)
-
-
-def _run(args, mission) -> int:
+def report(mission, scenario, results: dict, precision: str, wall: float, budget) -> dict:
+    """metrics.json: each controller's metrics (:func:`metrics_dict`) and the run's configuration."""
     import jax
 
-    from so3jax.sim import memory
-    from so3jax.jobs.fly import fly
-    from so3jax.results.io import dumps, write_json
-
-    scenario = mission.scenario(args.precision)
-    needed = sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed,
-                                       record_every=mission.record_every) for name in CONTROLLERS)
-    budget = memory.check(needed, memory.from_args(args), f"--T {mission.T:g} at --record-every {mission.record_every}",
-                          "raise --record-every or shorten --T")
-    results, wall = fly(mission, args.precision)
-    report = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
-    report["config"] = {
+    out = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
+    out["config"] = {
         "T": mission.T,
         "dt": mission.dt,
         "n_steps": scenario.n_steps,
         "steps_per_phase": list(scenario.steps_per_phase),
         "seed": mission.seed,
-        "precision": args.precision,
+        "precision": precision,
         "tau_J": mission.tau_J,
         "orbital_rate": mission.n,
         "log_derivative": mission.options["adaptive"]["log_derivative"],
@@ -194,15 +129,12 @@ def _run(args, mission) -> int:
         "devices": [str(d) for d in jax.devices("cpu")],  # where fly ran them
         "memory": budget,
     }
-    write_json(args.out / "metrics.json", report)
-    figures = [] if args.no_figures else write_figures(args.out, results, scenario)
-    diverged = [name for name in CONTROLLERS if report[name]["diverged"]]
-    if diverged:
-        print(f"warning: diverged rollout(s): {', '.join(diverged)}", file=sys.stderr)
-    if args.json:
-        print(dumps(report))
-    else:
-        print(format_table(report))
-        print(f"\n{scenario.n_steps} steps x 2 controllers in {wall:.1f} s (compile included); "
-              f"results in {args.out}/ (metrics.json, {len(figures)} figures)")
-    return 1 if diverged else 0
+    return out
+
+
+def write_figures(out: Path, results: dict, scenario) -> list[Path]:
+    """Figs. 1-5 and the attitude error (:func:`so3jax.viz.paper.figures`) into ``out``."""
+    from so3jax.viz import paper as plots
+    from so3jax.results.io import save_figures
+
+    return save_figures(out, plots.figures({name: r.history for name, r in results.items()}, scenario))

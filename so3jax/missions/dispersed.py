@@ -35,10 +35,9 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.core import checks
+from so3jax.missions import build
 from so3jax.missions import dispersions as disp
-from so3jax.missions.mission import Mission, _build_loop, _rotation
-from so3jax.dynamics.plant import ConstantInertia
-from so3jax.dynamics.scenario import Scenario, paper_scenario
+from so3jax.missions.mission import Mission, _build_loop
 
 STRUCTURED = {
     ("deployment", "tau_J"): "tau_J",
@@ -214,21 +213,9 @@ def inputs(samples: disp.Samples, dtype) -> tuple:
 # --- a sample's scenario and loop ------------------------------------------------------------
 
 
-MISSIONS: dict = {}  # fingerprint -> Mission: the static key that names a mission to sample_metrics
-
-
-def mission_key(mission: Mission) -> str:
-    """A hashable name of the mission (its fingerprint), for :func:`sample_metrics`' ``mission``."""
-    from so3jax.results import runfolder
-
-    key = runfolder.fingerprint(mission.describe())
-    MISSIONS[key] = mission
-    return key
-
-
-def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None = None, estimator=None) -> dict:
-    """{metric: values} of a batch of samples of the mission named by ``mission`` (see
-    :func:`mission_key`) flown by the controller ``law`` at ``gains``: the docs/model.md §6 metrics, and the
+def sample_metrics(inputs, gains, *, law, mission: Mission, record_every: int | None = None, estimator=None) -> dict:
+    """{metric: values} of a batch of samples of ``mission`` (hashable by its fingerprint: a
+    static argument of jit) flown by the controller ``law`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
     parameter: values}), leading batch axis. The samples share the mission's loop and run
     natively batched (:func:`so3jax.sim.rollout.rollout_batch`, the values of a vmap of
@@ -240,8 +227,8 @@ def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None
     from so3jax.sim.rollout import rollout, rollout_batch
 
     params, leaves = inputs
-    m, dtype = MISSIONS[mission], params.J0.dtype
-    scenarios = jax.vmap(lambda p: scenario(m, p))(params)
+    m, dtype = mission, params.J0.dtype
+    scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
@@ -255,25 +242,8 @@ def sample_metrics(inputs, gains, *, law, mission: str, record_every: int | None
 
 def _results(result) -> dict:
     """A rollout's docs/model.md §6 metrics and, in the sampled wiring, its flight metrics, by name."""
-    flight = {} if result.flight == () else result.flight._asdict()
+    flight = {} if result.flight is None else result.flight._asdict()
     return {**result.metrics._asdict(), **flight}
-
-
-def scenario(mission: Mission, p: disp.RolloutParams) -> Scenario:
-    """The mission's scenario with one sample's parameters (traceable: vmap over samples)."""
-    s = paper_scenario(mission.T, mission.dt, tau_J=p.tau_J, n=p.n, J0=p.J0, J1=p.J1, J2=p.J2,
-                       disturbance_amplitude=p.amplitude, disturbance_frequency=p.frequency, noise_std=p.noise_std,
-                       dtype=p.J0.dtype)
-    R0 = p.R0
-    if np.any(mission.initial["attitude"]):
-        R0 = jnp.asarray(_rotation(mission.initial["attitude"]), p.R0.dtype) @ R0
-    Omega0 = p.Omega0
-    if np.any(mission.initial["rate"]):
-        Omega0 = Omega0 + jnp.asarray(mission.initial["rate"], p.Omega0.dtype)
-    changes = {"R0": R0, "Omega0": Omega0}
-    if mission.constant_inertia:
-        changes["inertia"] = ConstantInertia(p.J0)
-    return dataclasses.replace(s, **changes)
 
 
 def loop(mission: Mission, values: dict, dtype):

@@ -27,7 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.dynamics.scenario import PAPER_J0, PAPER_J2, orbital_rate
+from so3jax.dynamics.orbit import orbital_rate
+from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
 BLOCK = 512  # samples per call of the (compiled) word generator
 OTHER_VARIATES = 12  # n, amplitude, frequency, noise_std, initial attitude (4) and rate (4)
@@ -146,7 +147,7 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
     """Every dispersed quantity's distribution in its domain (:func:`check_domain`), and
     the nominal inertias (docs/model.md §6; an InertiaWarning for one that breaks the triangle
     inequality, if ``warn``), before anything is drawn or compiled."""
-    from so3jax.dynamics.scenario import check_inertia
+    from so3jax.dynamics.inertia import check_inertia
 
     for name, (where, low, strict) in DOMAINS.items():
         check_domain(getattr(d, name), where, low, strict)

@@ -14,6 +14,7 @@ file, the flight mission of docs/model.md §8.5 (``missions/flight.toml`` spells
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -21,39 +22,22 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.core import checks
+from so3jax.missions import build
 from so3jax.missions import config as cfg
+from so3jax.missions import keys
 from so3jax.controllers import registry
+from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
-from so3jax.sim.loop import Loop, check_loop
-from so3jax.dynamics.plant import ConstantInertia
-from so3jax.dynamics.scenario import (
-    PAPER_J0,
-    PAPER_J2,
-    Scenario,
-    check_inertia,
-    check_scenario,
-    paper_scenario,
-    steps_for_horizon,
-)
+from so3jax.sim.loop import Loop, check_loop, check_wiring
+from so3jax.dynamics.inertia import check_inertia
+from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
 from so3jax.components.sensors import Sensors
 
-CONTROL_MODES = ("sampled", "continuous")
-
 # docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
-# The components' own values are their registrations' defaults.
+# The mission's own keys are their declarations' defaults (so3jax.missions.keys), the
+# components' values their registrations' defaults.
 FLIGHT = {
-    "T": 4000.0,
-    "dt": 0.01,
-    "seed": 0,
-    "controllers": ["pd", "adaptive"],
-    "record_every": 100,
-    "control": {"mode": "sampled", "period": 0.1},
-    "inertia": {"J0": {"nominal": [list(r) for r in PAPER_J0]}, "J1": {"scale": 2.0},
-                "J2": {"nominal": [list(r) for r in PAPER_J2]}},
-    "deployment": {"tau_J": 300.0},
-    "orbit": {"n": 0.0011067834463349404},  # orbital_rate(): 500 km circular
-    "disturbance": {"amplitude": 0.1, "frequency": 1e-3, "noise_std": 0.025},
-    "initial": {"attitude": [0.0, 0.0, 0.0], "rate": [0.0, 0.0, 0.0]},
+    **keys.defaults(),
     "sensors": {"gyro": {}, "star_tracker": {}},
     "estimator": {"kind": "mekf"},
     "actuator": {"kind": "wheels"},
@@ -65,9 +49,8 @@ FLIGHT = {
 # in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
 PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"}, actuator={"kind": "ideal"})
 
-_TOP = ("T", "dt", "seed", "controllers", "record_every")
-_TABLES = ("control", "inertia", "deployment", "orbit", "disturbance", "initial", "sensors", "estimator", "actuator",
-           "controller", "gains")
+_TOP = keys.TOP
+_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "controller", "gains")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -106,18 +89,8 @@ class Mission:
         return None if self.period_steps is None else self.period_steps * self.dt
 
     def scenario(self, dtype=None) -> Scenario:
-        s = paper_scenario(self.T, self.dt, tau_J=self.tau_J, n=self.n, J0=self.J0, J1=self.J1, J2=self.J2,
-                           disturbance_amplitude=self.disturbance["amplitude"],
-                           disturbance_frequency=self.disturbance["frequency"],
-                           noise_std=self.disturbance["noise_std"], dtype=dtype)
-        changes = {}
-        if self.constant_inertia:
-            changes["inertia"] = ConstantInertia(jnp.asarray(self.J0, s.R0.dtype))
-        if np.any(self.initial["attitude"]):
-            changes["R0"] = jnp.asarray(_rotation(self.initial["attitude"]), s.R0.dtype)
-        if np.any(self.initial["rate"]):
-            changes["Omega0"] = jnp.asarray(self.initial["rate"], s.R0.dtype)
-        return dataclasses.replace(s, **changes) if changes else s
+        """The mission's scenario (:func:`so3jax.missions.build.scenario`)."""
+        return build.scenario(self, dtype=dtype)
 
     def loop(self, dtype=None) -> Loop:
         dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
@@ -128,9 +101,16 @@ class Mission:
         return registry.get(name).factory(**self.options.get(name, {})), self.gains[name]
 
     def __eq__(self, other) -> bool:
-        return isinstance(other, Mission) and self.describe() == other.describe()
+        return isinstance(other, Mission) and self.fingerprint == other.fingerprint
 
-    __hash__ = None
+    def __hash__(self) -> int:
+        return hash(self.fingerprint)
+
+    @functools.cached_property
+    def fingerprint(self) -> str:
+        """The fingerprint of :meth:`describe` (:func:`so3jax.results.runfolder.fingerprint`): equal
+        missions, and only they, share it, so a mission can be a static argument of jit."""
+        return runfolder.fingerprint(self.describe())
 
     def describe(self) -> dict:
         """The mission as JSON-ready plain data (the ``config`` of results)."""
@@ -157,14 +137,6 @@ def default_tree() -> dict:
     tree["gains"] = {n: {f: np.asarray(v).tolist() for f, v in registry.get(n).defaults._asdict().items()}
                      for n in registry.names()}
     return tree
-
-
-def _rotation(rotvec) -> np.ndarray:
-    """exp(hat(rotvec)) (3, 3), Rodrigues' formula in float64."""
-    v = np.asarray(rotvec, float)
-    angle = float(np.linalg.norm(v))
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
 
 
 def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
@@ -240,25 +212,21 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
             raise ValueError(f"[{t}] must be a table")
     full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
-    T = checks.number(full["T"], "T (horizon) [s]")  # a number here; positive and a multiple of dt below
-    dt = checks.number(full["dt"], "dt (step) [s]")
+    T = keys.parse("T", full["T"])  # a number here; positive and a multiple of dt below
+    dt = keys.parse("dt", full["dt"])
     n_steps = steps_for_horizon(T, dt)
-    seed = checks.number(full["seed"], "seed", low=0, high=2**31 - 1, integer=True)
-    record_every = checks.number(full["record_every"], "record_every", low=1, integer=True)
-    controllers = checks.names(full["controllers"], "controllers", registry.names())
-    period_steps = _period_steps(checks.table(full, "control", ("mode", "period")), T, dt, n_steps)
+    seed = keys.parse("seed", full["seed"])
+    record_every = keys.parse("record_every", full["record_every"])
+    controllers = keys.parse("controllers", full["controllers"])
+    period_steps = _period_steps(checks.table(full, "control", keys.allowed("control")), T, dt, n_steps)
 
     J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
-    tau_J = checks.number(checks.table(full, "deployment", ("tau_J",))["tau_J"], "deployment.tau_J [s]")
+    tau_J = keys.parse("deployment.tau_J", checks.table(full, "deployment", keys.allowed("deployment"))["tau_J"])
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
-    n = checks.number(checks.table(full, "orbit", ("n",))["n"], "orbit.n [rad/s]", low=0.0)
-    dist = checks.table(full, "disturbance", ("amplitude", "frequency", "noise_std"))
-    disturbance = {
-        "amplitude": checks.number(dist["amplitude"], "disturbance.amplitude [N m]"),
-        "frequency": checks.number(dist["frequency"], "disturbance.frequency [rad/s]"),
-        "noise_std": checks.number(dist["noise_std"], "disturbance.noise_std [N m]", low=0.0),
-    }
+    n = keys.parse("orbit.n", checks.table(full, "orbit", keys.allowed("orbit"))["n"])
+    dist = checks.table(full, "disturbance", keys.allowed("disturbance"))
+    disturbance = {name: keys.parse(f"disturbance.{name}", dist[name]) for name in keys.allowed("disturbance")}
     initial = _initial(d.get("initial", {}), full["initial"])
 
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
@@ -297,10 +265,10 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
 
 def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:
     """m = control.period / dt, a whole number >= 1 dividing the horizon; None: continuous."""
-    mode = checks.choice(control.get("mode", "sampled"), "control.mode", CONTROL_MODES)
+    mode = keys.parse("control.mode", control.get("mode", "sampled"))
     if mode == "continuous":
         return None
-    period = checks.number(control.get("period"), "control.period [s]", low=0.0)
+    period = keys.parse("control.period", control.get("period"))
     ratio = period / dt
     if period <= 0 or abs(ratio - round(ratio)) > 1e-9 * max(ratio, 1.0) or round(ratio) < 1:
         raise ValueError(f"control.period = {period} s is not a whole number (>= 1) of steps dt = {dt} s")
@@ -319,28 +287,28 @@ def _inertias(given: dict, full: dict):
         extra = sorted(set(given) - {"J"})
         if extra:
             raise ValueError(f"[inertia] J (a constant inertia) excludes {', '.join(extra)}")
-        J = checks.array(given["J"], "inertia.J [kg m^2] (3x3)", (3, 3))
+        J = keys.parse("inertia.J", given["J"])
         return J, J, J, None, True
-    inertia = checks.table({"inertia": full}, "inertia", ("J", "J0", "J1", "J2"))
-    J0 = checks.array(checks.table(inertia, "J0", ("nominal",), "inertia.")["nominal"], "inertia.J0.nominal", (3, 3))
-    J1_table = checks.table(inertia, "J1", ("scale", "nominal"), "inertia.")
-    scale = None if "nominal" in J1_table else checks.number(J1_table.get("scale", 2.0), "inertia.J1.scale", low=0.0)
-    J1 = checks.array(J1_table["nominal"], "inertia.J1.nominal", (3, 3)) if scale is None else scale * J0
-    J2 = checks.array(checks.table(inertia, "J2", ("nominal",), "inertia.")["nominal"], "inertia.J2.nominal", (3, 3))
+    inertia = checks.table({"inertia": full}, "inertia", keys.allowed("inertia"))
+    J0 = keys.parse("inertia.J0.nominal", checks.table(inertia, "J0", keys.allowed("inertia.J0"), "inertia.")["nominal"])
+    J1_table = checks.table(inertia, "J1", keys.allowed("inertia.J1"), "inertia.")
+    scale_default = keys.KEY["inertia.J1.scale"].default
+    scale = None if "nominal" in J1_table else keys.parse("inertia.J1.scale", J1_table.get("scale", scale_default))
+    J1 = keys.parse("inertia.J1.nominal", J1_table["nominal"]) if scale is None else scale * J0
+    J2 = keys.parse("inertia.J2.nominal", checks.table(inertia, "J2", keys.allowed("inertia.J2"), "inertia.")["nominal"])
     return J0, J1, J2, scale, False
 
 
 def _initial(given: dict, full: dict) -> dict:
     """{"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}; R(0) given as
     ``attitude`` (a rotation vector) or ``quaternion`` [w, x, y, z] (scalar first, unit)."""
-    init = checks.table({"initial": full}, "initial", ("attitude", "quaternion", "rate"))
-    rate = checks.array(init["rate"], "initial.rate (Omega(0)) [rad/s]", (3,))
+    init = checks.table({"initial": full}, "initial", keys.allowed("initial"))
+    rate = keys.parse("initial.rate", init["rate"])
     if not (isinstance(given, dict) and "quaternion" in given):
-        return {"attitude": checks.array(init["attitude"], "initial.attitude (rotation vector of R(0)) [rad]", (3,)),
-                "rate": rate}
+        return {"attitude": keys.parse("initial.attitude", init["attitude"]), "rate": rate}
     if "attitude" in given:
         raise ValueError("initial.attitude and initial.quaternion both give R(0): give one")
-    q = checks.array(given["quaternion"], "initial.quaternion [w, x, y, z]", (4,))
+    q = keys.parse("initial.quaternion", given["quaternion"])
     if abs(np.linalg.norm(q) - 1.0) > 1e-9:
         raise ValueError(f"initial.quaternion [w, x, y, z] must be a unit quaternion, got norm {np.linalg.norm(q):.12g}")
     w, v = q[0], q[1:]
@@ -350,19 +318,10 @@ def _initial(given: dict, full: dict) -> dict:
 
 
 def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
-    """The estimator's measurements exist; the continuous wiring reads the true state."""
-    spec = components.get("estimator", estimator)
-    if period_steps is None:
-        if sensors or not spec.truth:
-            raise ValueError("control.mode = 'continuous' reads the true state: it takes no sensors "
-                             "(sensors.NAME=false) and an estimator that reads the truth (estimator.kind='truth')")
-        return
-    measured = {components.get("sensor", name).provides: name for name in sensors}
-    missing = [q for q in spec.needs if q not in measured]
-    if missing:
-        offered = [n for n in components.names("sensor") if components.get("sensor", n).provides == missing[0]]
-        raise ValueError(f"estimator '{estimator}' needs a sensor of the {' and the '.join(missing)} "
-                         f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")
+    """The loop's wiring check (:func:`so3jax.sim.loop.check_wiring`) of the sensors flown and
+    the estimator chosen, before they are built: a sensor left out measures nothing."""
+    measured = tuple(components.get("sensor", name).provides for name in sensors)
+    check_wiring(period_steps is None, measured, measured, components.get("estimator", estimator).component, estimator)
 
 
 def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple[Mission, dict]:

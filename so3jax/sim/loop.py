@@ -36,12 +36,15 @@ from so3jax.sim import metrics
 
 from so3jax.dynamics import plant, stepped
 from so3jax.core.pytree import pytree_dataclass, static_field
-from so3jax.components.actuators import Ideal, uncompensated_momentum
-from so3jax.controllers.base import Controller, Desired, Measured, tracking_error
+from so3jax.components import registry as components
+from so3jax.components.actuators import Ideal
+from so3jax.components.base import Actuator, Estimate, Estimator
+from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
 from so3jax.components.estimators import Truth
 from so3jax.core.integrate import OnSO3, rk4_step
 from so3jax.dynamics.plant import inertia_rate
-from so3jax.dynamics.scenario import Scenario, _concrete
+from so3jax.dynamics.inertia import _concrete
+from so3jax.dynamics.scenario import Scenario
 from so3jax.components.sensors import Sensors
 
 
@@ -54,9 +57,9 @@ class Loop:
     no batch axes: a batch of trajectories shares them (``so3.batch_like``).
     """
 
-    sensors: Any = Sensors()
-    estimator: Any = Truth()
-    actuator: Any = Ideal()
+    sensors: Sensors = Sensors()
+    estimator: Estimator = Truth()
+    actuator: Actuator = Ideal()
     period_steps: int | None = static_field(default=None)
 
     @property
@@ -85,7 +88,7 @@ class Tick(NamedTuple):
 
     t: jax.Array  # s
     desired: Desired
-    estimate: Any  # estimators.Estimate
+    estimate: Estimate
     bias: jax.Array  # (3,) true gyro bias b_j, rad/s
     tau_cmd: jax.Array  # (3,) the controller's command, N m
     tau_applied: jax.Array  # (3,) the control torque delivered at t_j (actuator.delivered), N m
@@ -176,7 +179,7 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
 
 def sample(state: State, tau, wanted: Desired, atan2=jnp.arctan2) -> metrics.Sample:
     """The docs/model.md §6 metrics' sample of a step start (true state; tau: the control torque delivered)."""
-    err = tracking_error(Measured(state.R, state.Omega), wanted)
+    err = tracking_error(Feedback(state.R, state.Omega), wanted)
     return metrics.Sample(err.Omega_e, state.Omega - wanted.Omega_d, tau, so3.angle(err.R_e, atan2))
 
 
@@ -201,8 +204,8 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
     def law(t, x, wanted):
         if not continuous:
             return state.held, ()
-        h_w = uncompensated_momentum(loop.actuator, x.actuator, x.Omega)
-        tau, controller_dot = controller.torque(gains, x.controller, Measured(x.R.R, x.Omega, h_w), wanted, t)
+        h_w = loop.actuator.uncompensated_momentum(x.actuator, x.Omega)
+        tau, controller_dot = controller.torque(gains, x.controller, Feedback(x.R.R, x.Omega, h_w), wanted, t)
         return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
 
     field = _field(scenario, loop, p, d, law, stages)
@@ -233,8 +236,8 @@ def observe(scenario: Scenario, controller: Controller, gains, state: State, k, 
     """The :class:`Observation` at step start k of the continuous wiring."""
     t, p = time(scenario, k), phase(scenario, k)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
-    h_w = uncompensated_momentum(loop.actuator, state.actuator, state.Omega)
-    tau_cmd, _ = controller.torque(gains, state.controller, Measured(state.R, state.Omega, h_w), wanted, t)
+    h_w = loop.actuator.uncompensated_momentum(state.actuator, state.Omega)
+    tau_cmd, _ = controller.torque(gains, state.controller, Feedback(state.R, state.Omega, h_w), wanted, t)
     tau = loop.actuator.delivered(state.actuator, loop.actuator.command(state.actuator, tau_cmd, state.Omega),
                                   state.Omega)
     batch = state.Omega.shape[1:]
@@ -262,14 +265,14 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
     estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
-    h_w = uncompensated_momentum(loop.actuator, state.actuator, estimate.omega_hat)
-    measured_state = Measured(estimate.R_hat, estimate.omega_hat, h_w)
-    tau_cmd, controller_dot = controller.torque(gains, state.controller, measured_state, wanted, t)
-    held = loop.actuator.command(state.actuator, tau_cmd, estimate.omega_hat)
+    h_w = loop.actuator.uncompensated_momentum(state.actuator, estimate.Omega_hat)
+    feedback = Feedback(estimate.R_hat, estimate.Omega_hat, h_w)
+    tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
+    held = loop.actuator.command(state.actuator, tau_cmd, estimate.Omega_hat)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
     else:
-        controller_state = controller.update(gains, state.controller, measured_state, wanted, t, dc)
+        controller_state = controller.update(gains, state.controller, feedback, wanted, t, dc)
     new = state._replace(
         controller=controller_state,
         sensors=sensors,
@@ -287,17 +290,37 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     Values are read only where concrete (NumPy on the host), so a rollout under jit,
     vmap or grad is checked by shape and static data alone."""
     m = loop.period_steps
-    if m is None:
-        if loop.sensors.rate is not None or loop.sensors.attitude is not None or not loop.estimator.reads_truth:
-            raise ValueError("a continuous-time controller reads the true state: sensors and an estimator need a control period")
-    elif isinstance(m, bool) or not isinstance(m, int) or m < 1:
+    if m is not None and (isinstance(m, bool) or not isinstance(m, int) or m < 1):
         raise ValueError(f"the control period must be a whole number (>= 1) of steps, got {m!r}")
+    flown = tuple(q for q, sensor in zip(components.MEASUREMENTS, (loop.sensors.rate, loop.sensors.attitude))
+                  if sensor is not None)
+    # a slot without a sensor is perfect: the estimator reads that measurement exactly
+    check_wiring(m is None, flown, components.MEASUREMENTS, type(loop.estimator), type(loop.estimator).__name__)
     for part in (loop.sensors, loop.estimator, loop.actuator):
         part.check()
-    spin = getattr(loop.actuator, "spin_inertia_values", None)
-    spin = None if spin is None else spin()  # NumPy, None where traced: nothing is added to a trace
+    spin = loop.actuator.spin_inertia_values()  # NumPy, None where traced: nothing is added to a trace
     if spin is not None:
         for name, J in inertias.items():
             J = _concrete(J)
             if J is not None and np.any(np.linalg.eigvalsh(J - spin) <= 0):
                 raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) is not positive definite")
+
+
+def check_wiring(continuous: bool, sensors: tuple, measured: tuple, estimator: type[Estimator], name: str) -> None:
+    """One-line ValueErrors on the wiring (docs/model.md §8), from what the components
+    declare, before anything is built or compiled: the continuous wiring reads the true
+    state (no sensors, an estimator with ``reads_truth``); the sampled wiring gives the
+    estimator every measurement it ``needs``. sensors: the measurements a sensor makes
+    (``rate``, ``attitude``); measured: those the estimator can read (a loop's empty slot
+    reads the truth, a mission's sensor left out reads nothing); name: the estimator's."""
+    if continuous:
+        if sensors or not estimator.reads_truth:
+            raise ValueError("a continuous-time controller (control.mode = 'continuous') reads the true state: it takes "
+                             "no sensors (sensors.NAME=false) and an estimator that reads the truth "
+                             "(estimator.kind='truth'); sensors and other estimators need a control period")
+        return
+    missing = [q for q in estimator.needs if q not in measured]
+    if missing:
+        offered = [n for n in components.names("sensor") if components.get("sensor", n).provides == missing[0]]
+        raise ValueError(f"estimator '{name}' needs a sensor of the {' and the '.join(missing)} "
+                         f"(registered: {', '.join(f'[sensors.{n}]' for n in offered) or 'none'})")

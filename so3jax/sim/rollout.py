@@ -29,7 +29,8 @@ from so3jax.sim import flight_metrics, metrics
 from so3jax.core import so3
 
 from so3jax.dynamics import stepped
-from so3jax.controllers.base import Controller, Measured, tracking_error
+from so3jax.controllers.base import Controller, Feedback, tracking_error
+from so3jax.controllers.gains import check_gains
 from so3jax.sim.loop import (
     PAPER_LOOP,
     Loop,
@@ -44,15 +45,15 @@ from so3jax.sim.loop import (
     time,
 )
 from so3jax.dynamics.disturbance import NOISE
-from so3jax.dynamics.scenario import Scenario, check_gains, check_scenario
+from so3jax.dynamics.scenario import Scenario, check_scenario
 
 
 class History(NamedTuple):
     """Samples of the true state and what the loop computed from it, at the start of every
     block of ``record_every`` steps (in the sampled wiring, the control tick there), each
     with a leading axis M. One record for both wirings: a field a wiring does not have is
-    () (the estimate's fields in the continuous wiring, whose law reads the true state;
-    ``actuator`` for an actuator without state)."""
+    None (the estimate's fields in the continuous wiring, whose law reads the true state;
+    ``actuator`` for an actuator without state; ``covariance`` without a filter)."""
 
     t: jax.Array  # (M,) s
     R: jax.Array  # (M, 3, 3) true attitude, body -> inertial
@@ -64,23 +65,23 @@ class History(NamedTuple):
     angle: jax.Array  # (M,) attitude error |log(R_e)^vee|, rad
     J: jax.Array  # (M, 3, 3) true inertia, kg m^2
     controller: Any  # controller state, leading axis M
-    tau_cmd: Any = ()  # (M, 3) N m, the controller's command
-    actuator: Any = ()  # the actuator's state (wheels: speeds (M, N) rad/s), or ()
-    momentum: Any = ()  # (M, 3) N m s, the momentum the actuator stores, body frame (zeros without)
-    R_hat: Any = ()  # (M, 3, 3) estimate (sampled wiring), or ()
-    Omega_hat: Any = ()  # (M, 3) rad/s (sampled wiring), or ()
-    bias: Any = ()  # (M, 3) true gyro bias, rad/s (sampled wiring), or ()
-    bias_hat: Any = ()  # (M, 3) rad/s (sampled wiring), or ()
-    std: Any = ()  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s) (sampled wiring), or ()
-    covariance: Any = ()  # (M, 6, 6) the filter's P after the update (a filter in the sampled wiring), or ()
-    disturbance: Any = ()  # (M, 3) N m, the disturbance torque d_k of the recorded step
+    tau_cmd: Any = None  # (M, 3) N m, the controller's command
+    actuator: Any = None  # the actuator's state (wheels: speeds (M, N) rad/s), or None
+    momentum: Any = None  # (M, 3) N m s, the momentum the actuator stores, body frame (zeros without)
+    R_hat: Any = None  # (M, 3, 3) estimate (sampled wiring), or None
+    Omega_hat: Any = None  # (M, 3) rad/s (sampled wiring), or None
+    bias: Any = None  # (M, 3) true gyro bias, rad/s (sampled wiring), or None
+    bias_hat: Any = None  # (M, 3) rad/s (sampled wiring), or None
+    std: Any = None  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s) (sampled wiring), or None
+    covariance: Any = None  # (M, 6, 6) the filter's P after the update (a filter in the sampled wiring), or None
+    disturbance: Any = None  # (M, 3) N m, the disturbance torque d_k of the recorded step
 
 
 class Result(NamedTuple):
     metrics: metrics.Metrics
     history: History
     final: State
-    flight: Any = ()  # flight_metrics.FlightMetrics of the sampled wiring
+    flight: Any = None  # flight_metrics.FlightMetrics of the sampled wiring, else None
 
 
 def _time(scenario, k):
@@ -135,7 +136,7 @@ def check_inputs(
 ) -> None:
     """The checks of docs/model.md §6 on a rollout's inputs, before tracing: types and shapes always,
     values where concrete (so jit, vmap and grad of a rollout keep working).
-    batch_last: the scenario's leaves carry a trailing batch axis (see :func:`rollout`)."""
+    batch_last: the scenario's leaves carry a trailing batch axis (inside :func:`rollout_batch`)."""
     seed_dtype = seed.dtype if hasattr(seed, "dtype") else np.asarray(seed).dtype
     if isinstance(seed, bool) or seed_dtype.kind not in "iu":
         raise TypeError(f"seed must be an integer or an array of integers, got {seed!r}")
@@ -175,16 +176,18 @@ def rollout(
     sampled ``loop``). Pure; its inputs are checked first (:func:`check_inputs`: values
     only where concrete, so it composes with jit, vmap and grad).
 
-    One trajectory for an int seed. For an array of seeds of shape (B,), a natively
-    batched rollout with the batch axis LAST everywhere (the so3 convention): every
-    scenario/gains/loop leaf then carries a trailing batch axis of size B or 1 (shared);
-    see :func:`rollout_batch` for the batch-first interface.
+    One trajectory for an integer seed. For seeds of shape (B,), the batch that shares the
+    scenario, the gains and the loop, with the batch axis FIRST in every output (the one
+    batch convention of the public API, as :func:`rollout_batch` and ``jax.vmap`` give).
 
     record_every: steps per block (history sample and checkpoint), ~sqrt(N) by default
     (rounded up to whole control periods). When blocks overrun N, the surplus steps are
     computed but masked.
     """
-    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
+    if jnp.ndim(seed) > 0:
+        return rollout_batch(scenario, controller, gains, seed, scenario_axes=None, loop=loop,
+                             record_every=record_every, unroll=unroll)
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
     return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
@@ -232,7 +235,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
             state, k = carry[0], carry[1]
             seen = observe(scenario, controller, gains, state, k, loop)
             return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
-                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, state.actuator,
+                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, _or_none(state.actuator),
                            actuators.momentum(loop.actuator, state.actuator, state.Omega),
                            disturbance=disturbance_at(scenario, key, k))
 
@@ -296,16 +299,22 @@ def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics
 
 def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k, key) -> History:
     """The sampled wiring's history sample at tick step k (state: before the tick)."""
-    err = tracking_error(Measured(state.R, state.Omega), out.desired)
+    err = tracking_error(Feedback(state.R, state.Omega), out.desired)
     est = out.estimate
     batch = state.Omega.shape[1:]
     R_d, Omega_d = (broadcast(x, n, batch) for x, n in ((out.desired.R_d, 2), (out.desired.Omega_d, 1)))
     J = broadcast(so3.batch_like(scenario.inertia(out.t, phase(scenario, k)), 2, state.Omega), 2, batch)
     return History(
         out.t, state.R, state.Omega, R_d, Omega_d, err.Omega_e, out.tau_applied, so3.angle(err.R_e), J,
-        state.controller, out.tau_cmd, state.actuator, actuators.momentum(loop.actuator, state.actuator, state.Omega),
-        est.R_hat, est.omega_hat, out.bias, est.bias_hat, est.std, est.covariance, disturbance_at(scenario, key, k),
+        state.controller, out.tau_cmd, _or_none(state.actuator),
+        actuators.momentum(loop.actuator, state.actuator, state.Omega), est.R_hat, est.Omega_hat, out.bias,
+        est.bias_hat, est.std, _or_none(est.covariance), disturbance_at(scenario, key, k),
     )
+
+
+def _or_none(x):
+    """None for an absent record (an empty tuple: a component without that state)."""
+    return None if isinstance(x, tuple) and not x else x
 
 
 def _axes_tree(axes, tree):
@@ -417,10 +426,21 @@ def _simulate_jit(scenario, controller, gains, seed, loop, record_every, unroll)
     return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
+@functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))
+def _simulate_batch_jit(scenario, controller, gains, seeds, loop, record_every, unroll):
+    return rollout_batch(scenario, controller, gains, seeds, scenario_axes=None, loop=loop, record_every=record_every,
+                         unroll=unroll)
+
+
 def simulate(
     scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
 ) -> Result:
-    """Validate the inputs (docs/model.md §6, :func:`check_inputs`), then run the jitted rollout."""
-    check_inputs(scenario, controller, gains, loop, record_every, seed=seed, batch_last=jnp.ndim(seed) > 0)
+    """Validate the inputs (docs/model.md §6, :func:`check_inputs`), then run the jitted
+    rollout: one trajectory for an integer seed, a batch (batch axis first) for seeds (B,)."""
     as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
+    if jnp.ndim(seed) > 0:
+        check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
+        return _simulate_batch_jit(scenario, controller, as_dtype(gains), jnp.asarray(seed), as_dtype(loop),
+                                   record_every, unroll)
+    check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
     return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)

@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from so3jax.core import so3
-from so3jax.controllers import registry
+from so3jax.viz.styles import style as controller_style
 from so3jax.viz.plots import AXES, shade_phases
 
 
@@ -30,7 +30,7 @@ def attitude_figure(histories, phase_times, T):
     fig = Figure(figsize=(10, 6.5))
     top, bottom = fig.subplots(2, 1, sharex=True)
     for name, h in histories.items():
-        style = registry.style(name)
+        style = controller_style(name)
         top.plot(h.t, np.degrees(h.angle), lw=1.0, **style)
         estimated = _angle(np.einsum("mji,mjk->mik", h.R_d, h.R_hat))
         top.plot(h.t, np.degrees(estimated), lw=0.8, alpha=0.7, color=style.get("color"), ls=":",
@@ -57,7 +57,7 @@ def bias_figure(histories, phase_times, T):
     for i, ax in enumerate(axes):
         shown = []
         for n, (name, h) in enumerate(histories.items()):
-            style = registry.style(name)
+            style = controller_style(name)
             bias, estimate, bound = (x * to_deg_h for x in (h.bias[:, i], h.bias_hat[:, i], 3.0 * h.std[:, 3 + i]))
             if n == 0:
                 ax.plot(h.t, bias, color="k", lw=1.2, label="true bias")
@@ -84,7 +84,7 @@ def torque_figure(histories, phase_times, T):
     axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
-            style = registry.style(name)
+            style = controller_style(name)
             ax.plot(h.t, h.tau_cmd[:, i], lw=0.8, ls=":", color=style.get("color"), label=f"{style['label']} commanded")
             ax.plot(h.t, h.tau[:, i], lw=1.0, color=style.get("color"), label=f"{style['label']} applied")
         _frame(ax, phase_times, T, f"τ {AXES[i]} [N m]")
@@ -107,7 +107,7 @@ def wheel_speed_figure(histories, phase_times, T, max_speed):
             ax.axhline(limit, color="k", ls="--", lw=0.8)
             ax.axhline(-limit, color="k", ls="--", lw=0.8)
         _frame(ax, phase_times, T, "Ω_w [rad/s]")
-        ax.set_title(registry.style(name)["label"], pad=14)
+        ax.set_title(controller_style(name)["label"], pad=14)
         ax.legend(fontsize=8, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("t [s]")
     fig.suptitle("Wheel speeds (dashed: limits)")
@@ -121,7 +121,7 @@ def momentum_figure(histories, phase_times, T, capacity):
     axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
-            ax.plot(h.t, h.momentum[:, i], lw=1.0, **registry.style(name))
+            ax.plot(h.t, h.momentum[:, i], lw=1.0, **controller_style(name))
         ax.axhline(capacity[i], color="k", ls="--", lw=0.8)
         ax.axhline(-capacity[i], color="k", ls="--", lw=0.8)
         _frame(ax, phase_times, T, f"h_w {AXES[i]} [N m s]")

@@ -8,7 +8,7 @@ from __future__ import annotations
 from matplotlib.figure import Figure
 import numpy as np
 
-from so3jax.controllers.registry import style
+from so3jax.viz.styles import style
 
 AXES = ("x", "y", "z")
 PHASE_COLORS = ("#f2f2f2", "#e3ecf7", "#f7ebe3", "#e8f5e3")

@@ -16,10 +16,10 @@ def figures(config, cols: dict, phases: list) -> dict:
     config: the sweep's ``SweepConfig``; phases: (index, name) of the phases the horizon reaches."""
     from matplotlib.figure import Figure
 
-    from so3jax.controllers.registry import style
+    from so3jax.viz.styles import style
 
     names = config.controllers
-    color = {c: {"color": style(c)["color"], "label": style(c)["label"]} for c in names}
+    color = {c: {"color": style(c).get("color"), "label": style(c)["label"]} for c in names}
     good = {c: cols[f"{c}_diverged"] == 0 for c in names}
     title = f"{len(cols['index'])} samples, T = {config.T:g} s (diverged samples left out)"
     cdf, hist = Figure(figsize=(10, 3.8), layout="constrained"), Figure(figsize=(10, 3.8), layout="constrained")

@@ -1,4 +1,4 @@
-"""``so3jax sweep``: Monte Carlo robustness sweeps of the paper's mission.
+"""Monte Carlo robustness sweeps of a mission: the job ``so3jax sweep`` (:mod:`so3jax.commands.sweep`) runs.
 
 Samples (:mod:`so3jax.missions.dispersions`) run with every chosen controller, so results pair
 sample by sample. Rollouts run in chunks, each split over the devices one chunk runs
@@ -23,7 +23,7 @@ cdf.png, histograms.png, rmse_vs_inertia_scale.png.
 
 Modules: config (SweepConfig, TOML parsing, defaults), engine (a chunk's shards over
 the devices, run_sweep), storage (output folder, chunk files, resume, outputs),
-summary (per-sample table, statistics), plots (figures), cli (the subcommand).
+summary (per-sample table, statistics); the figures are drawn by :mod:`so3jax.viz.sweep`.
 """
 
 from so3jax.sim.metrics import Metrics
@@ -44,12 +44,10 @@ from so3jax.jobs.sweep.engine import (
     run_sweep,
     simulate_batch,
 )
-from so3jax.missions.dispersed import mission_key
 from so3jax.jobs.sweep.storage import _take  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
 from so3jax.jobs.sweep.storage import load_chunks, write_csv, write_outputs
 from so3jax.jobs.sweep.summary import PHASE_NAMES, STAT_NAMES, columns, diverged, format_summary, summarize
 from so3jax.viz.sweep import figures
-from so3jax.commands.sweep import main, register
 
 __all__ = [
     "DEFAULT",
@@ -68,11 +66,8 @@ __all__ = [
     "format_summary",
     "load_chunks",
     "load_config",
-    "main",
     "memory_needed",
-    "mission_key",
     "padded_chunk",
-    "register",
     "run_chunk",
     "run_sweep",
     "simulate_batch",

@@ -18,6 +18,7 @@ from jax.sharding import Mesh
 from so3jax.parallel import devices, distributed
 
 from so3jax.missions import dispersed
+from so3jax.missions.mission import Mission
 
 from so3jax.results import runfolder
 from so3jax.results.io import save_npz
@@ -31,13 +32,12 @@ LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
-def simulate_batch(inputs, gains, *, controller: str, mission: str, mesh: Mesh | None = None) -> dict:
+def simulate_batch(inputs, gains, *, controller: str, mission: Mission, mesh: Mesh | None = None) -> dict:
     """:func:`so3jax.missions.dispersed.sample_metrics` of a batch of samples without histories,
     by controller name, the batch split over the devices of ``mesh``
     (:func:`so3jax.parallel.devices.split`; None: one device)."""
-    m = dispersed.MISSIONS[mission]
-    shard = functools.partial(dispersed.sample_metrics, law=m.controller(controller)[0], mission=mission,
-                              record_every=steps_for_horizon(m.T, m.dt))  # no history
+    shard = functools.partial(dispersed.sample_metrics, law=mission.controller(controller)[0], mission=mission,
+                              record_every=steps_for_horizon(mission.T, mission.dt))  # no history
     return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
 
 
@@ -52,7 +52,7 @@ def padded_chunk(chunk: int, n_devices: int) -> int:
     return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
 
 
-def run_chunk(inputs, gains, controller: str, mission: str, mesh: Mesh) -> dict:
+def run_chunk(inputs, gains, controller: str, mission: Mission, mesh: Mesh) -> dict:
     """{metric: values} (numpy) of a chunk whose size is a multiple of the mesh size, split over
     the mesh's devices (:func:`simulate_batch`). Over several processes with a mesh of
     every process's devices, each process runs its devices' shards and the processes
@@ -91,10 +91,10 @@ def memory_needed(config: SweepConfig, inputs, chunk: int) -> int:
 
     dtype = jnp.result_type(float)
     first = jax.tree.map(lambda x: x[:1], inputs)
-    per_sample, key = 0, dispersed.mission_key(config.mission)
+    per_sample = 0
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
-        run = functools.partial(simulate_batch, controller=controller, mission=key)
+        run = functools.partial(simulate_batch, controller=controller, mission=config.mission)
         per_sample = max(per_sample, memory.outputs(run, first, gains) + memory.nbytes(first))
     table = config.samples * len(config.controllers) * (per_sample + memory.nbytes(first))
     return chunk * per_sample + table
@@ -110,7 +110,6 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     dtype = jnp.result_type(float)
     samples = dispersed.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws)
     inputs = dispersed.inputs(samples, dtype)
-    key = dispersed.mission_key(config.mission)
     valid = np.flatnonzero(samples.valid)
     n_steps = steps_for_horizon(config.T, config.dt)
     mesh = batch_mesh(layout)
@@ -146,7 +145,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     def compute(controller, index):
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, key, mesh)
+        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, config.mission, mesh)
 
     # In one process, each controller's first chunk starts at once: their programs compile side by side.
     firsts = {} if processes > 1 else {c: i for i, (c, _) in reversed(list(enumerate(jobs)))}

@@ -1,5 +1,5 @@
 """Gain tuning through the simulator: docs/model.md §6 costs, an optax loop with resumable
-checkpoints, a gradient-free baseline, and the ``so3jax tune`` command.
+checkpoints, a gradient-free baseline: the job ``so3jax tune`` (:mod:`so3jax.commands.tune`) runs.
 
 A campaign file is a mission (``mission = "PATH"`` relative to the file, and/or mission
 keys and tables inline; default the paper's mission) and a ``[tune]`` table. Its
@@ -32,8 +32,8 @@ Modules: config (TuneConfig, parsing, checks, the campaign's description), gains
 mission's controllers, gains and log-gains), cost (docs/model.md §6 cost and gradient over a
 device mesh), optimizers (optax step, ES), problem (the mission's scenario and loop,
 batches on devices, evaluations, normalizers), storage (checkpoint, history, best
-gains), campaign (the loop, resume), validation (held-out report, markdown), plots
-(history.png), cli (the subcommand).
+gains), campaign (the loop, resume), validation (held-out report, markdown); history.png
+is drawn by :mod:`so3jax.viz.tune`.
 """
 
 from so3jax.jobs.tune.gains import (
@@ -75,7 +75,6 @@ from so3jax.jobs.tune.storage import _best_row  # noqa: F401 (tests)
 from so3jax.viz.tune import plot_history
 from so3jax.jobs.tune.validation import markdown_table, validate_gains
 from so3jax.jobs.tune.campaign import tune
-from so3jax.commands.tune import DEFAULT_OUT, register
 
 __all__ = [
     "CHECKPOINT",
@@ -83,7 +82,6 @@ __all__ = [
     "COST_MODES",
     "CostConfig",
     "CostRefs",
-    "DEFAULT_OUT",
     "ESConfig",
     "ESState",
     "Evaluation",
@@ -120,7 +118,6 @@ __all__ = [
     "parse_config",
     "plot_history",
     "population_costs",
-    "register",
     "resolve_gains",
     "save_checkpoint",
     "scenario_costs",

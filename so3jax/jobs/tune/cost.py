@@ -83,7 +83,7 @@ def _summary(metrics, refs, mode, objective="mean", alpha=0.9, valid=None) -> Ev
 def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, mission=None):
     """Per-scenario metrics, the batch split over the devices of mesh (None: one device;
     :func:`so3jax.parallel.devices.split`): batch_metrics through ``loop``, or with ``mission`` (a
-    :func:`so3jax.missions.dispersed.mission_key`) the dispersed missions of a DispersedBatch.
+    :class:`~so3jax.missions.mission.Mission`) the dispersed missions of a DispersedBatch.
     ``gains``: the law's, or tuned parameters with the estimator's (:func:`with_estimator`),
     which then replace the loop's estimator parameters."""
     if mission is not None:

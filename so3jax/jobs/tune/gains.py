@@ -16,7 +16,7 @@ import numpy as np
 from so3jax.core import checks
 from so3jax.results import runfolder
 from so3jax.controllers import registry
-from so3jax.dynamics.scenario import gain_domain
+from so3jax.controllers.gains import Nonnegative, gain_domain
 
 # One instance per controller with its default options, so that jit caches hit across runs.
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
@@ -88,11 +88,11 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
 
 
 def _fieldwise(gains, positive, nonnegative):
-    """positive(value) on each positive gain, nonnegative(value, scale) on each gain its
-    type declares Nonnegative(scale) (scenario.gain_domain)."""
+    """nonnegative(value, scale) on each gain its type declares Nonnegative(scale)
+    (controllers.gains.gain_domain), positive(value) on every other (a positive gain)."""
     def one(name, value):
         domain = gain_domain(gains, name)
-        return positive(value) if domain is None else nonnegative(value, domain.scale)
+        return nonnegative(value, domain.scale) if isinstance(domain, Nonnegative) else positive(value)
 
     return type(gains)(**{name: one(name, value) for name, value in gains._asdict().items()})
 

@@ -39,7 +39,7 @@ class Sampler(NamedTuple):
 
     dispersions: object  # so3jax.missions.dispersions.Dispersions
     leaves: tuple  # so3jax.missions.dispersed.Leaf, the dispersed component parameters
-    mission: str  # so3jax.missions.dispersed.mission_key of the campaign's mission
+    mission: object  # so3jax.missions.mission.Mission, the campaign's (a static argument of jit)
 
 
 MAX_DRAWS = 20  # attempts at a positive definite inertia before a sample is rejected (the sweep's default)
@@ -88,7 +88,7 @@ def build_problem(config: TuneConfig) -> Problem:
     record_every = checkpoint_steps(loop, mode, config.record_every)
     if config.dispersions is not None:
         parsed, leaves = dispersed.parse(config.dispersions, config.mission)
-        sampler = Sampler(parsed, leaves, dispersed.mission_key(config.mission))
+        sampler = Sampler(parsed, leaves, config.mission)
         validation = draw_batch(sampler, config.validation.seeds[0], config.validation.samples, 0, dtype, mesh)
         return Problem(place(scenario, mesh), config.controller, None, validation, record_every, mesh,
                        place(loop, mesh), config.mission, sampler)
@@ -130,8 +130,8 @@ def evaluate(problem: Problem, gains, batch, controller=None):
     )
 
 
-def mission_of(problem: Problem) -> str | None:
-    """The key of the mission that dispersed batches vary (None without dispersions)."""
+def mission_of(problem: Problem):
+    """The mission that dispersed batches vary (None without dispersions)."""
     return None if problem.sampler is None else problem.sampler.mission
 
 

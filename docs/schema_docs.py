@@ -1,11 +1,13 @@
-"""Markdown tables of the configuration schema, for the documentation site.
+"""Markdown tables of the configuration schema, for the documentation site (not part of
+the package: ``docs/hooks.py`` imports it for mkdocs, ``tests/test_docs.py`` to check it).
 
 Every table is read from the objects the parsers check against, so the pages cannot drift
-from the code: the components' and controllers' :class:`~so3jax.core.params.Param`
-declarations, the gains NamedTuples and the campaign dataclasses (defaults, and the units
-in their fields' comments), the mission's and the sweep's value checks (the ``so3jax.missions.config``
-calls of their parsers: the label names the key, its meaning and unit, the arguments its
-domain), the default missions and sweep, and the commands' argparse parsers.
+from the code: the :class:`~so3jax.core.params.Param` declarations of the mission's own keys
+(:mod:`so3jax.missions.keys`), the components' and the controllers', the gains NamedTuples
+and the campaign dataclasses (defaults, and the units in their fields' comments), the
+sweep's and the comparison's value checks (the ``so3jax.core.checks`` calls of their
+parsers: the label names the key, its meaning and unit, the arguments its domain), the
+default missions and sweep, and the commands' argparse parsers.
 
 :func:`render` is what ``docs/hooks.py`` calls for a placeholder ``<!-- keys: NAME -->``
 (or ``<!-- options: COMMAND -->``) in a page.
@@ -24,7 +26,8 @@ import re
 import textwrap
 import tokenize
 
-_CHECKS = ("number", "array", "choice", "names", "boolean")  # so3jax.missions.config's value checks
+_CHECKS = ("number", "array", "choice", "names", "boolean")  # so3jax.core.checks' value checks
+_CHECK_MODULES = ("checks", "cfg")  # the names the parsers import it by
 _POSITIONAL = {"number": ("low", "high", "integer"), "array": ("shape", "low"), "choice": ("choices",),
                "names": ("choices",), "boolean": ()}
 
@@ -124,7 +127,7 @@ def toml_comments(path) -> dict:
 
 
 def _shipped(name: str):
-    """A file of the source tree (missions/, sweeps/), beside the package."""
+    """A file of the source tree (missions/, sweeps/)."""
     from pathlib import Path
 
     return Path(__file__).resolve().parents[1] / name
@@ -171,7 +174,7 @@ def _split_label(label: str) -> tuple[str, str, str]:
 
 def checked_keys(module) -> dict:
     """{key: {"meaning", "unit", "low", "high", "integer", "shape", "choices", "check"}} of
-    every ``cfg.<check>(value, "label", ...)`` call in ``module`` whose label is a string
+    every ``checks.<check>(value, "label", ...)`` call in ``module`` whose label is a string
     literal, in source order; arguments that are not module-level expressions are left out."""
     tree = ast.parse(inspect.getsource(module))
     namespace = vars(module)
@@ -179,7 +182,7 @@ def checked_keys(module) -> dict:
     calls = []
     for n in ast.walk(tree):
         if (isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and isinstance(n.func.value, ast.Name)
-                and n.func.value.id == "cfg" and n.func.attr in _CHECKS and len(n.args) >= 2):
+                and n.func.value.id in _CHECK_MODULES and n.func.attr in _CHECKS and len(n.args) >= 2):
             calls += [(n, label) for label in _labels(n.args[1], _loop_values(tree, n, namespace))]
     for call, label in sorted(calls, key=lambda c: (c[0].lineno, c[0].col_offset)):
         key, meaning, unit = _split_label(label)
@@ -261,6 +264,8 @@ def _dotted(tree: dict, key: str):
 
 
 def _param_domain(p) -> str:
+    if hasattr(p, "domain"):  # a declaration that states its own (e.g. registered names)
+        return p.domain()
     if p.boolean:
         return "true or false"
     if p.choices:
@@ -281,28 +286,22 @@ _HEADER = ("key", "unit", "domain", "default", "meaning")
 
 
 def mission_table(base: str = "flight") -> str:
-    """The mission's own keys (scenario, loop timing, controllers), with the defaults of the
+    """The mission's own keys (:data:`so3jax.missions.keys.KEYS`: horizon, loop timing,
+    controllers, inertias, orbit, disturbance, initial state), with the defaults of the
     flight mission or of the paper's (``base``)."""
-    from so3jax.missions import mission
+    from so3jax.missions import keys, mission
 
     tree = {"flight": mission.FLIGHT, "paper": mission.PAPER}[base]
-    order = mission._TOP + mission._TABLES
-    keys = checked_keys(mission)
-    comments = toml_comments(_shipped("missions/flight.toml"))
-    ranked = sorted(keys, key=lambda k: order.index(k.split(".")[0]) if k.split(".")[0] in order else len(order))
-    rows = []
-    for k in ranked:  # the meaning: the file's comment on the key, the check's label, the table's comment
-        meaning = comments.get(k) or keys[k]["meaning"] or comments.get(k.rpartition(".")[0], "")
-        unit = keys[k]["unit"] or next((u for u in re.findall(r"\[([^\],]*)\]", meaning)), "")
-        rows.append((f"`{k}`", _cell(unit), _domain_of_check(keys[k]), _code(_dotted(tree, k)), _prose(meaning)))
+    rows = [(f"`{p.name}`", _cell(p.unit), _param_domain(p), _code(_dotted(tree, p.name)), _prose(p.doc))
+            for p in keys.KEYS]
     return _table(_HEADER, rows)
 
 
 def mission_keys() -> tuple:
     """The keys :func:`mission_table` lists."""
-    from so3jax.missions import mission
+    from so3jax.missions import keys
 
-    return tuple(checked_keys(mission))
+    return tuple(p.name for p in keys.KEYS)
 
 
 def components_table(kind: str, heading: str = "###") -> str:

@@ -23,15 +23,16 @@ integral is integrated with the plant, held where a component sits at its limit 
 sigma would push it further out (conditional integration).
 
 The wheels' momentum is the one the actuator does not compensate itself
-(:meth:`so3jax.components.actuators.Actuator.uncompensated_momentum`, in ``Measured.wheel_momentum``):
+(:meth:`so3jax.components.base.Actuator.uncompensated_momentum`, in ``Feedback.wheel_momentum``):
 with the wheels' momentum compensation on (the default) the actuator adds
-omega_hat x h_w_hat to the command, which is the law_type 1 term; for the module's
+Omega_hat x h_w_hat to the command, which is the law_type 1 term; for the module's
 wiring with law_type 0, set ``[actuator.wheels] momentum_compensation = false``.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -39,10 +40,10 @@ import jax.numpy as jnp
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
 from so3jax.core.params import Param
-from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.base import Controller, hashable, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.gains import Nonnegative, check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.dynamics.scenario import Nonnegative, check_gains
 
 
 class MRPFeedbackGains(NamedTuple):
@@ -80,33 +81,41 @@ def mrp(R):
     return _tan_quarter_ratio(so3.dot(e, e)) * e
 
 
-def mrp_feedback(J_hat=None, law_type: int = 0) -> Controller:
-    """Basilisk's mrpFeedback law (module docstring); J_hat: the nominal inertia [I]
-    (3, 3) [kg m^2], the identity by default; law_type 0 or 1 (v = Omega_r + K_i z or Omega)."""
-    if law_type not in LAW_TYPES:
-        raise ValueError(f"law_type must be 0 or 1, got {law_type!r}")
+@dataclasses.dataclass(frozen=True)
+class MRPFeedback(Controller):
+    """Basilisk's mrpFeedback law with its options (see :func:`mrp_feedback`); J_hat as nested tuples."""
 
-    nominal = nominal_inertia(J_hat)
+    J_hat: Any = None
+    law_type: int = 0
 
-    def init(gains):
+    gains_type = MRPFeedbackGains
+
+    def __post_init__(self):
+        if self.law_type not in LAW_TYPES:
+            raise ValueError(f"law_type must be 0 or 1, got {self.law_type!r}")
+        object.__setattr__(self, "J_hat", hashable(self.J_hat))
+
+    def init(self, gains):
         dtype = jnp.result_type(gains.K, float)
         return IntegralState(jnp.zeros(3, dtype), jnp.zeros((), dtype))
 
-    def advanced(gains, state, sigma, limit):
+    @staticmethod
+    def _advanced(gains, state, sigma, limit):
         """int_sigma after this tick's K dt sigma, clipped per component to +-limit."""
         return jnp.clip(state.integral + gains.K * state.dt * sigma, -limit, limit)
 
-    def torque(gains, state, measured, desired, t):
-        err = materialize(tracking_error(measured, desired), t)
-        Omega = measured.Omega
+    def torque(self, gains, state, feedback, desired, t):
+        nominal = nominal_inertia(self.J_hat)
+        err = materialize(tracking_error(feedback, desired), t)
+        Omega = feedback.Omega
         sigma = mrp(err.R_e)
         limit = so3.batch_like(gains.integral_limit, 0, sigma)
-        integral = advanced(gains, state, sigma, limit)
+        integral = self._advanced(gains, state, sigma, limit)
         z = integral + nominal(err.Omega_e)
         H = nominal(Omega)
-        if measured.wheel_momentum is not None:
-            H = H + measured.wheel_momentum
-        v = err.Omega_r + gains.K_i * z if law_type == 0 else Omega
+        if feedback.wheel_momentum is not None:
+            H = H + feedback.wheel_momentum
+        v = err.Omega_r + gains.K_i * z if self.law_type == 0 else Omega
         L_r = (
             gains.K * sigma
             + gains.P * err.Omega_e
@@ -118,12 +127,18 @@ def mrp_feedback(J_hat=None, law_type: int = 0) -> Controller:
         integral_dot = jnp.where(held, jnp.zeros_like(sigma), gains.K * sigma)
         return -L_r, IntegralState(integral_dot, jnp.zeros_like(state.dt))
 
-    def update(gains, state, measured, desired, t, period):
-        sigma = mrp(tracking_error(measured, desired).R_e)
+    def update(self, gains, state, feedback, desired, t, period):
+        """The integral advanced at a tick (before the torque, as the module's Update), dt = period."""
+        sigma = mrp(tracking_error(feedback, desired).R_e)
         limit = so3.batch_like(gains.integral_limit, 0, sigma)
-        return IntegralState(advanced(gains, state, sigma, limit), jnp.broadcast_to(period, state.dt.shape).astype(state.dt.dtype))
+        return IntegralState(self._advanced(gains, state, sigma, limit),
+                             jnp.broadcast_to(period, state.dt.shape).astype(state.dt.dtype))
 
-    return Controller(init, torque, MRPFeedbackGains, update)
+
+def mrp_feedback(J_hat=None, law_type: int = 0) -> MRPFeedback:
+    """Basilisk's mrpFeedback law (module docstring); J_hat: the nominal inertia [I]
+    (3, 3) [kg m^2], the identity by default; law_type 0 or 1 (v = Omega_r + K_i z or Omega)."""
+    return MRPFeedback(J_hat, law_type)
 
 
 register(
@@ -133,7 +148,6 @@ register(
         factory=mrp_feedback,
         gains_type=MRPFeedbackGains,
         defaults=DEFAULT_GAINS,
-        style=dict(ls="-", color="tab:purple", label="MRP feedback"),
         check=check_gains,
         options=(J_HAT, Param("law_type", 0, low=0, high=1, integer=True,
                               doc="0: v = Omega_r + K_i z; 1: v = Omega (Basilisk's controlLawType)")),

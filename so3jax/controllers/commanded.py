@@ -12,12 +12,13 @@ wave of period P moves a wheel's speed by at most u P / (4 J_s) around its mean.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
 from so3jax.core import so3
-from so3jax.controllers.base import Controller
+from so3jax.controllers.base import Controller, hashable
 from so3jax.core.params import Param
 from so3jax.controllers.registry import ControllerSpec, register
 
@@ -26,22 +27,38 @@ class NoGains(NamedTuple):
     """A law without gains."""
 
 
-def open_loop(torque=(0.0, 0.0, 0.0), amplitude=(0.0, 0.0, 0.0), period=(100.0, 140.0, 60.0),
-              phase=(0.0, 0.0, 0.0)) -> Controller:
-    """tau = torque + amplitude sign(sin(2 pi t / period + phase)) per body axis, whatever
-    the state: torque, amplitude (3,) [N m], period (3,) [s], phase (3,) [rad]; no
-    internal state."""
+@dataclasses.dataclass(frozen=True)
+class OpenLoop(Controller):
+    """The open-loop torque with its options (see :func:`open_loop`), each a 3-tuple."""
 
-    def init(gains):
+    constant: Any = (0.0, 0.0, 0.0)  # the factory's torque: constant body torque [N m]
+    amplitude: Any = (0.0, 0.0, 0.0)
+    period: Any = (100.0, 140.0, 60.0)
+    phase: Any = (0.0, 0.0, 0.0)
+
+    gains_type = NoGains
+
+    def __post_init__(self):
+        for name in ("constant", "amplitude", "period", "phase"):
+            object.__setattr__(self, name, hashable(getattr(self, name)))
+
+    def init(self, gains):
         return ()
 
-    def tau(gains, state, measured, desired, t):
-        like = measured.Omega
-        c, a, p, f = (so3.batch_like(jnp.asarray(x, like.dtype), 1, like) for x in (torque, amplitude, period, phase))
+    def torque(self, gains, state, feedback, desired, t):
+        like = feedback.Omega
+        c, a, p, f = (so3.batch_like(jnp.asarray(x, like.dtype), 1, like)
+                      for x in (self.constant, self.amplitude, self.period, self.phase))
         command = c + a * jnp.sign(jnp.sin(2.0 * jnp.pi * jnp.asarray(t, like.dtype) / p + f))
         return jnp.broadcast_to(command, like.shape), ()
 
-    return Controller(init, tau, NoGains)
+
+def open_loop(torque=(0.0, 0.0, 0.0), amplitude=(0.0, 0.0, 0.0), period=(100.0, 140.0, 60.0),
+              phase=(0.0, 0.0, 0.0)) -> OpenLoop:
+    """tau = torque + amplitude sign(sin(2 pi t / period + phase)) per body axis, whatever
+    the state: torque, amplitude (3,) [N m], period (3,) [s], phase (3,) [rad]; no
+    internal state."""
+    return OpenLoop(torque, amplitude, period, phase)
 
 
 def _check(gains) -> None:
@@ -56,7 +73,6 @@ register(
         factory=open_loop,
         gains_type=NoGains,
         defaults=NoGains(),
-        style=dict(ls=":", color="tab:gray", label="open loop"),
         check=_check,
         tunable=False,
         options=(Param("torque", [0.0, 0.0, 0.0], "N m", shapes=((3,),), doc="constant body torque"),

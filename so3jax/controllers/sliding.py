@@ -29,7 +29,8 @@ Units: lam [1/s], k_s [N m s/rad], eta [N m], phi [rad/s].
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -37,10 +38,10 @@ import jax.numpy as jnp
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
 from so3jax.core.params import Param
-from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.base import Controller, hashable, inertial_terms, nominal_inertia, tracking_error
+from so3jax.controllers.gains import check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
-from so3jax.dynamics.scenario import check_gains
 
 
 class SlidingModeGains(NamedTuple):
@@ -66,37 +67,51 @@ def _surface(gains, err):
     return err.Omega_e + gains.lam * so3.skew_vee(err.R_e)
 
 
-def sliding_variable(gains, measured, desired):
+def sliding_variable(gains, feedback, desired):
     """s = Omega_e + lam e_R [rad/s] (3, ...)."""
-    return _surface(gains, tracking_error(measured, desired))
+    return _surface(gains, tracking_error(feedback, desired))
 
 
-def sliding_mode(J_hat=None, boundary: str = "tanh") -> Controller:
+@dataclasses.dataclass(frozen=True)
+class SlidingMode(Controller):
+    """The sliding-mode law with its options (see :func:`sliding_mode`); J_hat as nested tuples."""
+
+    J_hat: Any = None
+    boundary: str = "tanh"
+
+    gains_type = SlidingModeGains
+
+    def __post_init__(self):
+        if self.boundary not in BOUNDARIES:
+            raise ValueError(f"boundary must be one of {BOUNDARIES}, got {self.boundary!r}")
+        object.__setattr__(self, "J_hat", hashable(self.J_hat))
+
+    def saturate(self, x):
+        """sat(x): tanh(x) or clip(x, -1, 1) elementwise."""
+        return jnp.tanh(x) if self.boundary == "tanh" else jnp.clip(x, -1.0, 1.0)
+
+    def init(self, gains):
+        return ()
+
+    def torque(self, gains, state, feedback, desired, t):
+        err = materialize(tracking_error(feedback, desired), t)
+        Omega = feedback.Omega
+        s = _surface(gains, err)
+        # E(R_e) Omega_e = 1/2 (tr(R_e) Omega_e - R_e^T Omega_e)
+        e_R_dot = 0.5 * (so3.trace(err.R_e) * err.Omega_e - so3.rmatvec(err.R_e, err.Omega_e))
+        inertial, feedforward = inertial_terms(nominal_inertia(self.J_hat), Omega, err, gains.lam * e_R_dot)
+        tau = inertial - feedforward - gains.k_s * s - gains.eta * self.saturate(s / gains.phi)
+        return tau, ()
+
+
+def sliding_mode(J_hat=None, boundary: str = "tanh") -> SlidingMode:
     """tau = Omega x J_hat Omega - J_hat (Omega x Omega_r - R^T R_d Omega_d' + lam E(R_e) Omega_e)
     - k_s s - eta sat_phi(s)  [N m], s = Omega_e + lam e_R (see the module).
 
     J_hat: nominal inertia (3, 3) [kg m^2], the identity by default. boundary: "tanh"
     (tanh(s / phi)) or "sat" (clip(s / phi, -1, 1)).
     """
-    if boundary not in BOUNDARIES:
-        raise ValueError(f"boundary must be one of {BOUNDARIES}, got {boundary!r}")
-    saturate = jnp.tanh if boundary == "tanh" else (lambda x: jnp.clip(x, -1.0, 1.0))
-    nominal = nominal_inertia(J_hat)
-
-    def init(gains):
-        return ()
-
-    def torque(gains, state, measured, desired, t):
-        err = materialize(tracking_error(measured, desired), t)
-        Omega = measured.Omega
-        s = _surface(gains, err)
-        # E(R_e) Omega_e = 1/2 (tr(R_e) Omega_e - R_e^T Omega_e)
-        e_R_dot = 0.5 * (so3.trace(err.R_e) * err.Omega_e - so3.rmatvec(err.R_e, err.Omega_e))
-        inertial, feedforward = inertial_terms(nominal, Omega, err, gains.lam * e_R_dot)
-        tau = inertial - feedforward - gains.k_s * s - gains.eta * saturate(s / gains.phi)
-        return tau, ()
-
-    return Controller(init, torque, SlidingModeGains)
+    return SlidingMode(J_hat, boundary)
 
 
 register(
@@ -106,7 +121,6 @@ register(
         factory=sliding_mode,
         gains_type=SlidingModeGains,
         defaults=DEFAULT_GAINS,
-        style=dict(ls="-.", color="tab:green", label="sliding mode"),
         check=check_gains,
         options=(J_HAT, Param("boundary", "tanh", choices=BOUNDARIES,
                               doc="sat_phi(s): tanh(s/phi), or sat: clip(s/phi, -1, 1)")),

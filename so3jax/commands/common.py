@@ -1,0 +1,50 @@
+"""What the commands' parsers share: the one-line-error parser, the --precision and
+--max-memory options, and the registered names a command's --help lists."""
+
+from __future__ import annotations
+
+import argparse
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the usage."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def registered(tunable: bool = False) -> str:
+    """The registered names a mission chooses among (a command's --help epilog), read from
+    the registries; ``tunable``: the controllers whose gains ``tune`` can tune."""
+    from so3jax.components import registry as components
+    from so3jax.controllers import registry
+
+    laws = ", ".join(registry.names(tunable=True) if tunable else registry.names())
+    return (f"registered {'tunable controllers (tune.controller)' if tunable else 'controllers'}: {laws}; "
+            f"sensors ([sensors.NAME]): {', '.join(components.names('sensor'))}; "
+            f"estimators (estimator.kind): {', '.join(components.names('estimator'))}; "
+            f"actuators (actuator.kind): {', '.join(components.names('actuator'))}.")
+
+
+def controllers_help(default: str) -> str:
+    """--controllers' help: the registered controller names."""
+    from so3jax.controllers import registry
+
+    return f"comma-separated controllers among: {', '.join(registry.names())} (default: {default})"
+
+
+def add_precision_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--precision",
+        choices=("float64", "float32"),
+        default="float64",
+        help="floating-point precision (default float64)",
+    )
+
+
+def add_memory_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--max-memory",
+        metavar="SIZE",
+        help="refuse a run estimated to need more memory than SIZE, e.g. 4G (default: the memory available)",
+    )

@@ -1,0 +1,84 @@
+"""``so3jax fly``: the subcommand's arguments, and the run they start (the job:
+:mod:`so3jax.jobs.fly`)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from so3jax.commands.common import add_memory_argument, add_precision_argument, controllers_help, registered
+from so3jax.jobs import fly
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("fly", help="fly a mission through sensors, estimator, sampled control and wheels",
+                              description="A mission flown by each of its controllers through the mission's loop "
+                              "(sensors, estimator, sampled control, actuator): a table per controller, "
+                              "metrics.json, trajectory.npz, telemetry/ and the figures.",
+                              epilog=registered())
+    p.add_argument("mission", nargs="?", type=Path,
+                   help="mission file (TOML); default: the flight mission (missions/flight.toml)")
+    p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
+    p.add_argument("--seed", type=int, help="disturbance and sensor-noise seed (default: the mission's)")
+    p.add_argument("--controllers", help=controllers_help("the mission's"))
+    p.add_argument("--record-every", type=int, help="trajectory sampling [steps] (default: the mission's)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a mission entry, e.g. --set control.period=0.05 (repeatable)")
+    p.add_argument("--out", type=Path, default=Path("results/fly"), help="output folder (default results/fly)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_memory_argument(p)
+    add_precision_argument(p)
+    p.set_defaults(func=run)
+
+
+def overrides(args) -> list[str]:
+    """The command-line options as mission overrides (after --set's)."""
+    items = list(args.set)
+    for key, value in (("T", args.T), ("seed", args.seed), ("record_every", args.record_every)):
+        if value is not None:
+            items.append(f"{key}={value!r}")
+    if args.controllers is not None:
+        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
+    return items
+
+
+def run(args) -> int:
+    from so3jax.missions import mission as missions
+    from so3jax.results import runfolder
+
+    mission = missions.load(args.mission, overrides(args))
+    with runfolder.claim(args.out, "fly", vars(args)):
+        return _fly_into(args, mission)
+
+
+def _fly_into(args, mission) -> int:
+    from so3jax.results.io import dumps, save_npz, write_json
+    from so3jax.sim import memory
+
+    scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
+    budget = memory.check(fly.memory_needed(mission, scenario, loop), memory.from_args(args),
+                          f"T = {mission.T:g} s at record_every = {mission.record_every}",
+                          "raise --record-every or shorten --T")
+    print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
+          + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
+          + " ...", file=sys.stderr, flush=True)
+    results, wall = fly.fly(mission, args.precision)
+    reports = {name: fly.report(mission, r) for name, r in results.items()}
+    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
+                         "mission_file": None if args.mission is None else str(args.mission)}
+    write_json(args.out / "metrics.json", reports)
+    save_npz(args.out / "trajectory.npz", **fly.trajectory_arrays(results))
+    telemetry = fly.write_telemetry(args.out, mission, results)
+    figures = [] if args.no_figures else fly.write_figures(args.out, mission, results)
+    diverged = [n for n in mission.controllers if reports[n]["diverged"]]
+    if diverged:
+        print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
+    if args.json:
+        print(dumps(reports))
+    else:
+        print(fly.format_table(mission, {n: reports[n] for n in mission.controllers}))
+        print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
+              f"results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, {len(figures)} figures)")
+    return 1 if diverged else 0

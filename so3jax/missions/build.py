@@ -1,0 +1,51 @@
+"""A mission's :class:`~so3jax.dynamics.scenario.Scenario`: the one builder of the nominal
+mission (:meth:`so3jax.missions.mission.Mission.scenario`) and of its dispersed samples
+(:func:`so3jax.missions.dispersed.sample_metrics`)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.dynamics.plant import ConstantInertia
+from so3jax.dynamics.scenario import Scenario, paper_scenario
+
+
+def scenario(mission, params=None, dtype=None) -> Scenario:
+    """The scenario of ``mission`` (a :class:`~so3jax.missions.mission.Mission`): its own
+    values, in ``dtype`` (default: JAX's float), or with ``params`` (a
+    :class:`~so3jax.missions.dispersions.RolloutParams` of one sample, traceable: vmap over
+    samples) its inertias, time constant, orbital rate and disturbance, and its R(0) and
+    Omega(0) composed with the mission's (R(0) = R_mission(0) R_sample(0), Omega(0) =
+    Omega_sample(0) + Omega_mission(0)), in the dtype of params.J0."""
+    m, p = mission, params
+    if p is None:
+        values = dict(tau_J=m.tau_J, n=m.n, J0=m.J0, J1=m.J1, J2=m.J2, disturbance_amplitude=m.disturbance["amplitude"],
+                      disturbance_frequency=m.disturbance["frequency"], noise_std=m.disturbance["noise_std"])
+    else:
+        values = dict(tau_J=p.tau_J, n=p.n, J0=p.J0, J1=p.J1, J2=p.J2, disturbance_amplitude=p.amplitude,
+                      disturbance_frequency=p.frequency, noise_std=p.noise_std)
+        dtype = p.J0.dtype
+    s = paper_scenario(m.T, m.dt, **values, dtype=dtype)
+    # the mission's initial state: where it is the default (R(0) = I, Omega(0) = 0), the
+    # scenario's (or the sample's) is kept as it is
+    changes = {} if p is None else {"R0": p.R0, "Omega0": p.Omega0}
+    if np.any(m.initial["attitude"]):
+        R0 = jnp.asarray(rotation(m.initial["attitude"]), s.R0.dtype if p is None else p.R0.dtype)
+        changes["R0"] = R0 if p is None else R0 @ p.R0
+    if np.any(m.initial["rate"]):
+        Omega0 = jnp.asarray(m.initial["rate"], s.R0.dtype if p is None else p.Omega0.dtype)
+        changes["Omega0"] = Omega0 if p is None else p.Omega0 + Omega0
+    if m.constant_inertia:
+        changes["inertia"] = ConstantInertia(jnp.asarray(m.J0, s.R0.dtype) if p is None else p.J0)
+    return dataclasses.replace(s, **changes) if changes else s
+
+
+def rotation(rotvec) -> np.ndarray:
+    """exp(hat(rotvec)) (3, 3), Rodrigues' formula in float64."""
+    v = np.asarray(rotvec, float)
+    angle = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)

@@ -1,0 +1,99 @@
+"""The mission's own keys (docs/model.md §4, §8.5), declared as
+:class:`~so3jax.core.params.Param` like the components' parameters: the horizon, step,
+seed, controllers and history stride, and the ``[control]``, ``[inertia]``,
+``[deployment]``, ``[orbit]``, ``[disturbance]`` and ``[initial]`` tables. Their
+defaults are the flight mission's (:data:`so3jax.missions.mission.FLIGHT`); the parser
+(:func:`so3jax.missions.mission.from_dict`) reads every value through :func:`parse`, and
+the documentation's key table reads the declarations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+from so3jax.controllers import registry
+from so3jax.core import checks
+from so3jax.core.params import Param
+from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
+
+CONTROL_MODES = ("sampled", "continuous")
+
+
+@dataclasses.dataclass(frozen=True)
+class ControllerNames(Param):
+    """A list of registered controllers' names (the registry is read when a value is parsed)."""
+
+    def parse(self, value, where: str):
+        return checks.names(value, where, registry.names())
+
+    def domain(self) -> str:
+        return "names among " + ", ".join(f"`{name}`" for name in registry.names())
+
+
+def _matrix(J) -> list:
+    return [list(row) for row in J]
+
+
+KEYS = (
+    Param("T", 4000.0, "s", doc="horizon: a whole number of steps dt (and of control periods)"),
+    Param("dt", 0.01, "s", doc="plant integration step (RK4 on SO(3))"),
+    Param("seed", 0, low=0, high=2**31 - 1, integer=True, doc="disturbance and sensor-noise seed"),
+    ControllerNames("controllers", ["pd", "adaptive"], shapes=((None,),), doc="the controllers flown, in turn"),
+    Param("record_every", 100, low=1, integer=True,
+          doc="trajectory sampling [steps], rounded up to whole control periods"),
+    Param("control.mode", "sampled", choices=CONTROL_MODES,
+          doc="sampled: the controller ticks every control.period through the sensors, estimator and actuator; "
+              "continuous: the paper's idealized loop (the true state in every RK4 stage)"),
+    Param("control.period", 0.1, "s", low=0.0, doc="control period (sampled mode), a whole number of steps dt"),
+    Param("inertia.J", None, "kg m^2", shapes=((3, 3),),
+          doc="a constant inertia J(t) = J throughout (excludes inertia.J0, J1, J2)"),
+    Param("inertia.J0.nominal", _matrix(PAPER_J0), "kg m^2", shapes=((3, 3),), doc="inertia at capture (the paper's J0)"),
+    Param("inertia.J1.scale", 2.0, low=0.0, doc="deployed inertia J1 = scale J0"),
+    Param("inertia.J1.nominal", None, "kg m^2", shapes=((3, 3),), doc="deployed inertia J1 (instead of a scale of J0)"),
+    Param("inertia.J2.nominal", _matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),
+    Param("deployment.tau_J", 300.0, "s", doc="deployment time constant (positive)"),
+    Param("orbit.n", 0.0011067834463349404, "rad/s", low=0.0,
+          doc="orbital rate (the default: orbital_rate(), a 500 km circular orbit)"),
+    Param("disturbance.amplitude", 0.1, "N m", doc="d = amplitude sin(frequency t) [1, 1, 1] + noise_std eta"),
+    Param("disturbance.frequency", 1e-3, "rad/s", doc="the sinusoid's frequency"),
+    Param("disturbance.noise_std", 0.025, "N m", low=0.0, doc="the white noise's standard deviation"),
+    Param("initial.attitude", [0.0, 0.0, 0.0], "rad", shapes=((3,),),
+          doc="R(0) = exp(hat(attitude)), a rotation vector (R_d(0) = I: the initial attitude error)"),
+    Param("initial.quaternion", None, shapes=((4,),), doc="R(0) as a unit quaternion [w, x, y, z] (instead of attitude)"),
+    Param("initial.rate", [0.0, 0.0, 0.0], "rad/s", shapes=((3,),), doc="Omega(0), body frame"),
+)
+
+KEY = {p.name: p for p in KEYS}
+
+# the labels of the values in error messages, where they say more than the key
+LABELS = {"T": "T (horizon)", "dt": "dt (step)", "initial.attitude": "initial.attitude (rotation vector of R(0))",
+          "initial.rate": "initial.rate (Omega(0))", "initial.quaternion": "initial.quaternion [w, x, y, z]"}
+
+TOP = tuple(p.name for p in KEYS if "." not in p.name)  # the keys outside tables
+TABLES = tuple(dict.fromkeys(p.name.split(".")[0] for p in KEYS if "." in p.name))  # the tables declared here
+
+
+def parse(name: str, value):
+    """The value of the declared key ``name`` checked against its declaration; one-line
+    ValueError naming the key otherwise."""
+    return KEY[name].parse(value, LABELS.get(name, name))
+
+
+def allowed(table: str) -> tuple:
+    """The keys (or subtables) declared in ``table`` (dotted), in declaration order."""
+    prefix = table + "."
+    return tuple(dict.fromkeys(p.name[len(prefix):].split(".")[0] for p in KEYS if p.name.startswith(prefix)))
+
+
+def defaults() -> dict:
+    """The declared defaults as nested tables (None defaults left out)."""
+    tree = {}
+    for p in KEYS:
+        if p.default is None:
+            continue
+        *tables, last = p.name.split(".")
+        node = tree
+        for t in tables:
+            node = node.setdefault(t, {})
+        node[last] = p.default
+    return tree
