@@ -76,7 +76,7 @@ def _child(spec: dict) -> dict:
             flown = missions.load(spec["mission"], [f"T={spec['N'] * 0.01!r}"])
             scenario, loop = flown.scenario(jnp.float64), flown.loop(jnp.float64)
             batch = gradients.make_batch([1.0], list(range(spec["batch"])), jnp.float64)
-            controller = tune.law(flown, spec["controller"])
+            controller = flown.controller(spec["controller"])[0]
             source = "mission" if spec["controller"] in flown.controllers else "paper"
             gains = tune.resolve_gains(spec["controller"], source, jnp.float64, diagonal, flown)
         else:

@@ -90,7 +90,7 @@ def main() -> None:
               "T": args.T, "max_torque": args.max_torque, "width": args.width, "iterations": args.iterations,
               "learning_rate": args.learning_rate, "seeds": args.seeds, "laws": {}}
     for name in args.laws:
-        controller = tune.law(flown, name)
+        controller = flown.controller(name)[0]
         gains = tune.resolve_gains(name, "mission" if name in flown.controllers else "paper", jnp.float64, False, flown)
         params0 = tune.to_params(gains)
 

@@ -94,7 +94,7 @@ class _Step:
         refs = devices.place(tune.CostRefs(one, effort, jnp.asarray(config.cost.weight, dtype)), problem.mesh)
         params = devices.place(tune.to_params(initial), problem.mesh)
         self.args = (params, problem.scenario, problem.train, refs, problem.loop)
-        self.static = {"controller": tune.law(config.mission, config.controller), "mode": config.cost.mode,
+        self.static = {"controller": config.mission.controller(config.controller)[0], "mode": config.cost.mode,
                        "gradient": config.gradient, "record_every": problem.record_every, "mesh": problem.mesh}
         self.compiled = None
         self.jax = jax

@@ -144,7 +144,7 @@ def test_candidates_name_what_is_compared():
     flown = compare.load_config(ROOT / "comparisons" / "paper_gains_in_flight.toml")
     fixed = flown.candidates["pd_paper_tuned"]
     saved = json.loads((ROOT / "tuning" / "pd_equal_effort" / "best_gains.json").read_text())["gains"]
-    assert fixed.law == "pd" and fixed.gains._asdict() == pytest.approx(saved, rel=1e-12)
+    assert fixed.controller == "pd" and fixed.gains._asdict() == pytest.approx(saved, rel=1e-12)
     assert flown.candidates["pd"].gains is None and "candidates" in compare.describe(flown)
     assert "candidates" not in compare.describe(compare.load_config(ROOT / "comparisons" / "flight.toml"))
 

@@ -41,7 +41,7 @@ def sweep_samples():
 def test_matches_so3jax_sweep_metrics(sweep_samples, controller):
     config, samples = sweep_samples
     gains = jax.tree.map(lambda g: np.asarray(g, np.float64), config.gains[controller])
-    run = functools.partial(dispersed.sample_metrics, law=config.mission.controller(controller)[0],
+    run = functools.partial(dispersed.sample_metrics, controller=config.mission.controller(controller)[0],
                             mission=config.mission)
     ours = {k: np.asarray(v) for k, v in jax.jit(run)(dispersed.inputs(samples, np.float64), gains).items()}
     theirs = simulate_dispersed(controller, samples.params, steps_for_horizon(config.T, config.dt), dt=config.dt,

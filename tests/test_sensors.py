@@ -21,6 +21,7 @@ from so3jax.components.sensors import (
     GYRO_WHITE,
     STAR_TRACKER,
     Gyro,
+    IntegratingGyro,
     Sensors,
     StarTracker,
     sensor_noise,
@@ -210,6 +211,64 @@ def test_gyro_bias_walk_statistics():
     c = np.corrcoef(variables)
     off = c - np.eye(c.shape[0])
     assert np.max(np.abs(off)) < 4 / np.sqrt(N_KEYS), np.unravel_index(np.argmax(np.abs(off)), off.shape)
+
+
+# --- the rate-integrating gyro ---------------------------------------------------------
+
+
+def integrating_gyro(arw, rrw, bias0=BIAS0):
+    return IntegratingGyro(jnp.asarray(arw, F64), jnp.asarray(rrw, F64), jnp.asarray(bias0, F64))
+
+
+def run_integrating(sensor, attitudes, n_keys=N_KEYS, period=PERIOD):
+    """The readings omega_m,j (ticks, 3, n) and the true biases b_j (ticks, 3, n) over the
+    attitudes R_j (ticks, 3, 3), shared by n keys, ticks j = 0, 1, ..."""
+    ks = keys(n_keys)
+
+    def step(state, x):
+        R, j = x
+        bias = sensor.bias(state, None)
+        R = jnp.broadcast_to(R[..., None], (3, 3, n_keys))
+        state, omega_m = sensor.measure(state, R, jnp.zeros((3, n_keys), F64), ks, j, period)
+        return state, (omega_m, bias)
+
+    ticks = jnp.arange(attitudes.shape[0])
+    _, (omega_m, biases) = jax.jit(lambda Rs: jax.lax.scan(step, sensor.init((n_keys,), F64), (Rs, ticks)))(attitudes)
+    return np.asarray(omega_m), np.asarray(biases)
+
+
+def test_integrating_gyro_reads_the_mean_rate_of_a_varying_rotation():
+    """Noise-free, about a fixed axis with theta(t) = a t + c t^2 / 2 (the rate changes within
+    every period): omega_m,j = (theta(t_j) - theta(t_{j-1})) / Delta_c n + b_0, the closed form
+    of the mean rate; omega_m,0 = 0 (no period has elapsed)."""
+    n = np.array([1.0, -2.0, 2.0]) / 3.0
+    t = PERIOD * np.arange(12)
+    theta = 0.4 * t + 0.5 * 0.9 * t**2  # rad, past pi within the run
+    Rs = jax.vmap(so3.exp)(jnp.asarray(theta[:, None] * n, F64))
+    omega_m, biases = run_integrating(integrating_gyro(0.0, 0.0), Rs, n_keys=2)
+    expected = np.diff(theta)[:, None] / PERIOD * n + BIAS0
+    np.testing.assert_allclose(omega_m[1:, :, 0], expected, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(omega_m[0], 0.0)
+    np.testing.assert_array_equal(biases, np.broadcast_to(BIAS0[None, :, None], biases.shape))
+
+
+def test_integrating_gyro_noise_is_the_integrated_farrenkopf_model():
+    """A still body: omega_m,j - (b_{j-1} + b_j) / 2 ~ N(0, arw^2 / Delta_c + rrw^2 Delta_c / 12)
+    per axis (docs/model.md (8.2)), b_j - b_{j-1} ~ N(0, rrw^2 Delta_c), all uncorrelated."""
+    arw, rrw, n_ticks = 2e-4, 3e-3, GYRO_TICKS
+    Rs = jnp.broadcast_to(jnp.eye(3, dtype=F64), (n_ticks + 1, 3, 3))
+    omega_m, biases = run_integrating(integrating_gyro(arw, rrw), Rs)
+    white = omega_m[1:] - 0.5 * (biases[:-1] + biases[1:])
+    for j in range(n_ticks):
+        for axis in range(3):
+            assert_normal_sample(white[j, axis], arw**2 / PERIOD + rrw**2 * PERIOD / 12, f"tick {j + 1} axis {axis}")
+    increments = np.diff(biases, axis=0)
+    for j in range(1, n_ticks):
+        for axis in range(3):
+            assert_normal_sample(increments[j, axis], rrw**2 * PERIOD, f"bias increment {j} axis {axis}")
+    variables = np.concatenate([increments[1:].reshape(-1, N_KEYS), white.reshape(-1, N_KEYS)])
+    off = np.corrcoef(variables) - np.eye(variables.shape[0])
+    assert np.max(np.abs(off)) < 4 / np.sqrt(N_KEYS)
 
 
 # --- the star tracker -----------------------------------------------------------------

@@ -220,13 +220,14 @@ def test_the_flight_mission_tunes_through_its_own_loop(tmp_path, monkeypatch):
 
 
 def test_the_missions_controller_options_and_gains_are_the_campaigns():
-    """[controller.NAME] options configure the tuned law (one instance per configuration);
-    [gains.NAME] are the initial gains of initial_gains = "mission"."""
+    """[controller.NAME] options configure the tuned law (equal options, equal controllers:
+    one jit cache entry per configuration); [gains.NAME] are the initial gains of initial_gains = "mission"."""
     J_hat = [[600.0, 0.0, 0.0], [0.0, 400.0, 0.0], [0.0, 0.0, 900.0]]
     cfg = config(mission={"controller": {"pd": {"J_hat": J_hat}}, "gains": {"pd": {"k_R": 1.5}}})
     same = config(mission={"controller": {"pd": {"J_hat": J_hat}}}).mission
-    assert tune.law(cfg.mission, "pd") is tune.law(same, "pd")
-    assert tune.law(cfg.mission, "pd") is not tune.law(config().mission, "pd")
+    controller, plain = cfg.mission.controller("pd")[0], config().mission.controller("pd")[0]
+    assert controller == same.controller("pd")[0] and hash(controller) == hash(same.controller("pd")[0])
+    assert controller != plain
     gains = tune.resolve_gains("pd", cfg.initial_gains, jnp.float64, mission=cfg.mission)
     assert tune.gains_table(gains) == {"k_R": 1.5, "k_Omega": 25.0}
     assert tune.describe(cfg) != tune.describe(config())

@@ -12,7 +12,7 @@ from so3jax.missions import mission as missions
 from so3jax.controllers.pd import PDGains
 from so3jax.jobs.tune.config import parse_config
 from so3jax.jobs.tune.cost import CostRefs, cost_and_grad
-from so3jax.jobs.tune.gains import law, split, tables, to_gains, to_params, with_estimator
+from so3jax.jobs.tune.gains import split, tables, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.problem import build_problem
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
@@ -45,7 +45,7 @@ def test_the_cost_s_derivative_in_the_assumed_noise_matches_central_differences(
     initial = with_estimator(PDGains(jnp.asarray(0.5714), jnp.asarray(25.0)),
                              {n: jnp.asarray(getattr(est, n)) for n in NAMES})
     refs = CostRefs(jnp.asarray(1e-2), jnp.asarray(0.2), jnp.asarray(1.0))
-    controller = law(config.mission, "pd")
+    controller = config.mission.controller("pd")[0]
 
     def run(params):
         return cost_and_grad(params, problem.scenario, controller, problem.train, refs, "weighted", "forward", None,
@@ -70,7 +70,7 @@ def test_dispersed_missions_fly_the_tuned_filter():
     parsed, leaves = dispersed.parse({"seed": "random", "sensors.gyro.arw": 1.5e-6}, mission)
     inputs = dispersed.inputs(dispersed.draw(parsed, leaves, 0, 2, 20), jnp.float64)
     gains = PDGains(jnp.asarray(0.5714), jnp.asarray(25.0))
-    run = lambda m, **kw: dispersed.sample_metrics(inputs, gains, law=law(m, "pd"), mission=m, **kw)
+    run = lambda m, **kw: dispersed.sample_metrics(inputs, gains, controller=m.controller("pd")[0], mission=m, **kw)
     tuned = run(mission, estimator={k: jnp.asarray(v) for k, v in values.items()})
     np.testing.assert_allclose(tuned["attitude_estimation_rms"], run(written)["attitude_estimation_rms"], rtol=1e-12)
     assert not np.allclose(tuned["attitude_estimation_rms"], run(mission)["attitude_estimation_rms"], rtol=1e-6)

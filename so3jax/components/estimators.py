@@ -11,7 +11,7 @@ measurements it reads) and ``reads_truth`` (only such an estimator gets the true
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +22,7 @@ from so3jax.components.base import Estimate, Estimator
 
 from so3jax.core import so3
 from so3jax.core import checks
-from so3jax.core.pytree import pytree_dataclass
+from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.core.params import Param
 
 
@@ -81,11 +81,13 @@ class Covariance(NamedTuple):
 
 
 class MEKFState(NamedTuple):
-    """The prior at the next tick."""
+    """The filter between two ticks: the prior at the next tick (a sampled-rate gyro), or
+    the posterior at the last tick and the time since it (a rate-integrating gyro)."""
 
     R_hat: jax.Array  # (3, 3, *b)
     bias_hat: jax.Array  # (3, *b) rad/s
     P: Covariance
+    elapsed: Any = ()  # (*b,) s: the period the next update propagates over (rate-integrating gyro), or ()
 
 
 def _sym(M):
@@ -98,9 +100,15 @@ def _diag(M):
 
 @pytree_dataclass
 class MEKF(Estimator):
-    """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (docs/model.md §8.3):
-    star-tracker update (Joseph form), output Omega_hat = omega_m - b_hat, then
-    propagation to the next tick with w = Omega_hat."""
+    """Multiplicative EKF on (R_hat, b_hat) with R = R_hat exp(hat(delta theta)) (docs/model.md §8.3).
+
+    With a rate-integrating gyro (``gyro="increment"``: omega_m is the mean rate over the
+    last period), each tick propagates over the period with w = omega_m - b_hat, then
+    takes the star-tracker update (Joseph form) and outputs Omega_hat = omega_m - b_hat.
+    With a sampled-rate gyro (``gyro="rate"``), each tick takes the update, outputs
+    Omega_hat, then propagates to the next tick with w = Omega_hat held over the period.
+    Both propagate the covariance with Phi = [[exp(-hat(w) dt), -dt I], [0, I]] and the
+    continuous model's Q (docs/model.md §8.3)."""
 
     sigma_theta0: jax.Array  # initial attitude sigma [rad]
     sigma_b0: jax.Array  # initial bias sigma [rad/s]
@@ -108,6 +116,7 @@ class MEKF(Estimator):
     arw: jax.Array  # the filter's gyro angle random walk sigma_v [rad/sqrt(s)]
     rrw: jax.Array  # the filter's gyro rate random walk sigma_u [rad/s^(3/2)]
     sigma_st: jax.Array  # the filter's star-tracker sigma [rad]
+    gyro: str = static_field(default="rate")  # what the gyro delivers: "increment" or "rate"
 
     needs = ("rate", "attitude")
 
@@ -118,18 +127,33 @@ class MEKF(Estimator):
         zero = jnp.zeros_like(eye)
         var = lambda s: jnp.asarray(s).astype(dtype) ** 2
         P = Covariance(var(self.sigma_theta0) * eye, zero, var(self.sigma_b0) * eye)
-        return MEKFState(so3.matmul(R0, so3.exp(theta0)), jnp.zeros_like(theta0), P)
+        elapsed = jnp.zeros(tuple(batch_shape), dtype) if self.gyro == "increment" else ()
+        return MEKFState(so3.matmul(R0, so3.exp(theta0)), jnp.zeros_like(theta0), P, elapsed)
 
     def update(self, state: MEKFState, measured, period, truth=None):
         Omega = measured.omega_m  # shape and dtype only: the filter never reads the true state
         dtype = Omega.dtype
-        param = lambda x: jnp.asarray(x).astype(dtype)
         dc = jnp.asarray(period, dtype)
-        R_hat, b_hat, (A, B, C) = state
+        R_hat, b_hat, P, elapsed = state
         eye = so3.eye_like(Omega)
-        # measurement update (docs/model.md §8.3), where a star-tracker sample exists
+        if self.gyro == "increment":  # propagate over the period the increment covers (none at tick 0)
+            R_hat, P = self._propagate(R_hat, P, measured.omega_m - b_hat, elapsed, eye)
+            elapsed = jnp.full(elapsed.shape, dc)
+        R_hat, b_hat, (A, B, C) = self._star_update(R_hat, b_hat, P, measured, eye)
+        Omega_hat = measured.omega_m - b_hat
+        std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
+        estimate = Estimate(R_hat, Omega_hat, b_hat, std, Covariance(A, B, C).matrix())
+        if self.gyro == "increment":
+            return MEKFState(R_hat, b_hat, Covariance(A, B, C), elapsed), estimate
+        R_next, P_next = self._propagate(R_hat, Covariance(A, B, C), Omega_hat, dc, eye)  # to the next tick
+        return MEKFState(R_next, b_hat, P_next), estimate
+
+    def _star_update(self, R_hat, b_hat, P, measured, eye):
+        """(R_hat, b_hat, P) after the star tracker's sample (Joseph form), where one exists."""
+        dtype = measured.omega_m.dtype
+        A, B, C = P
         mm = so3.matmul_compact  # the covariance algebra
-        s2 = param(self.sigma_st) ** 2
+        s2 = jnp.asarray(self.sigma_st).astype(dtype) ** 2
         r = so3.log(so3.rmatmul(R_hat, measured.R_m), select=True)
         S_inv = so3.inv_spd(A + s2 * eye)  # S = A + s2 I
         K1, K2 = mm(A, S_inv), mm(so3.transpose(B), S_inv)  # A S^-1, B^T S^-1
@@ -140,22 +164,22 @@ class MEKF(Estimator):
         A_u = _sym(mm(M11, so3.transpose(I_K1)) + s2 * mm(K1, K1T))
         B_u = M12 - mm(M11, K2T) + s2 * mm(K1, K2T)
         C_u = _sym(M22 - mm(M21, K2T) + s2 * mm(K2, K2T))
-        updated = MEKFState(so3.matmul(R_hat, so3.exp(so3.matvec(K1, r), select=True)), b_hat + so3.matvec(K2, r),
-                            Covariance(A_u, B_u, C_u))
-        R_hat, b_hat, (A, B, C) = jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, state)
-        Omega_hat = measured.omega_m - b_hat
-        std = jnp.sqrt(jnp.concatenate([_diag(A), _diag(C)]))
-        estimate = Estimate(R_hat, Omega_hat, b_hat, std, Covariance(A, B, C).matrix())
-        # propagation to the next tick with w = Omega_hat
-        E = so3.exp(-Omega_hat * dc, select=True)  # exp(-hat(w) Delta_c)
+        updated = (so3.matmul(R_hat, so3.exp(so3.matvec(K1, r), select=True)), b_hat + so3.matvec(K2, r),
+                   Covariance(A_u, B_u, C_u))
+        return jax.tree.map(lambda u, p: jnp.where(measured.star_valid, u, p), updated, (R_hat, b_hat, P))
+
+    def _propagate(self, R_hat, P, w, dt, eye):
+        """(R_hat exp(hat(w) dt), Phi P Phi^T + Q) over dt [s] with the rate w (3, *b) [rad/s]."""
+        A, B, C = P
+        mm = so3.matmul_compact
+        E = so3.exp(-w * dt, select=True)  # exp(-hat(w) dt)
         EB = mm(E, B)
-        qv, qu = param(self.arw) ** 2, param(self.rrw) ** 2
-        A_p = _sym(mm(mm(E, A), so3.transpose(E)) - dc * (EB + so3.transpose(EB)) + dc**2 * C
-                   + (qv * dc + qu * dc**3 / 3.0) * eye)
-        B_p = EB - dc * C - (qu * dc**2 / 2.0) * eye
-        C_p = C + qu * dc * eye
-        R_next = so3.matmul(R_hat, so3.exp(Omega_hat * dc, select=True))
-        return MEKFState(R_next, b_hat, Covariance(A_p, B_p, C_p)), estimate
+        qv, qu = (jnp.asarray(x).astype(w.dtype) ** 2 for x in (self.arw, self.rrw))
+        A_p = _sym(mm(mm(E, A), so3.transpose(E)) - dt * (EB + so3.transpose(EB)) + dt**2 * C
+                   + (qv * dt + qu * dt**3 / 3.0) * eye)
+        B_p = EB - dt * C - (qu * dt**2 / 2.0) * eye
+        C_p = C + qu * dt * eye
+        return so3.matmul(R_hat, so3.exp(w * dt, select=True)), Covariance(A_p, B_p, C_p)
 
     def check(self) -> None:
         for name in ("sigma_theta0", "sigma_b0", "arw", "rrw", "sigma_st"):
@@ -197,9 +221,13 @@ components.register(components.ComponentSpec(
         Param("arw", None, "rad/sqrt(s)", low=0.0, doc="assumed gyro sigma_v (default: the gyro's)"),
         Param("rrw", None, "rad/s^(3/2)", low=0.0, doc="assumed gyro sigma_u (default: the gyro's)"),
         Param("sigma_st", None, "rad", low=0.0, doc="assumed star-tracker sigma (default: the star tracker's)"),
+        Param("gyro", None, choices=("increment", "rate"),
+              doc="what the gyro delivers: its angle increment over a period, or its rate at the tick "
+                  "(default: the gyro's output; a rate sensor that does not say: rate)"),
     ),
     build=lambda v, ctx: MEKF(ctx.as_array(v["sigma_theta0"]), ctx.as_array(v["sigma_b0"]), ctx.as_array(v["theta0"]),
                               _believed(v, ctx, "arw", "arw"), _believed(v, ctx, "rrw", "rrw"),
-                              _believed(v, ctx, "sigma_st", "sigma_st")),
+                              _believed(v, ctx, "sigma_st", "sigma_st"),
+                              v["gyro"] or ctx.sensor_noise.get("gyro_output", "rate")),
     doc="multiplicative EKF on attitude and gyro bias (docs/model.md §8.3)",
 ))

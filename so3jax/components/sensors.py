@@ -53,7 +53,7 @@ def _check(name: str, x, shape=()) -> None:
 
 @pytree_dataclass
 class Gyro(Sensor):
-    """Rate gyro, Farrenkopf model at the ticks (docs/model.md §8.2):
+    """Sampled-rate gyro, Farrenkopf model at the ticks (docs/model.md §8.2):
     omega_m,j = Omega(t_j) + b_j + (arw / sqrt(Delta_c)) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j."""
 
     arw: jax.Array  # sigma_v, angle random walk [rad/sqrt(s)]
@@ -77,6 +77,47 @@ class Gyro(Sensor):
     def bias(self, state, Omega):
         """The true bias b_j (3, *b) [rad/s]."""
         return state
+
+    def check(self) -> None:
+        _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
+        _check("sensors.gyro.rrw [rad/s^(3/2)]", self.rrw)
+        _check("sensors.gyro.bias0 [rad/s]", self.bias0, (3,))
+
+
+@pytree_dataclass
+class IntegratingGyro(Sensor):
+    """Rate-integrating gyro: the angle increment over each control period, Farrenkopf model
+    on increments (docs/model.md §8.2), delivered as the mean rate over the period:
+    omega_m,j = log(R_{j-1}^T R_j)^v / Delta_c + (b_{j-1} + b_j) / 2
+    + sqrt(arw^2 / Delta_c + rrw^2 Delta_c / 12) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j.
+    At tick 0 no period has elapsed: omega_m,0 = 0. State: (b_{j-1}, b_j, R_{j-1})."""
+
+    arw: jax.Array  # sigma_v, angle random walk [rad/sqrt(s)]
+    rrw: jax.Array  # sigma_u, rate random walk [rad/s^(3/2)]
+    bias0: jax.Array  # (3,) b_0 [rad/s]
+
+    def init(self, batch_shape, dtype):
+        """(b_0, b_0, I): the previous tick's bias and attitude are not read at tick 0."""
+        b = jnp.asarray(self.bias0).astype(dtype)
+        b = jnp.broadcast_to(b.reshape((3,) + (1,) * len(batch_shape)), (3, *batch_shape))
+        return b, b, so3.eye_like(b)
+
+    def measure(self, state, R, Omega, key, j, period):
+        """((b_j, b_{j+1}, R_j), omega_m,j) from the true attitudes R_{j-1} (the state's) and R_j (3, 3, *b)."""
+        b_prev, b, R_prev = state
+        dtype = Omega.dtype
+        period = jnp.asarray(period, dtype)
+        white = sensor_noise(key, GYRO_WHITE, j, dtype)
+        walk = sensor_noise(key, GYRO_BIAS_WALK, j, dtype)
+        arw, rrw = _like(self.arw, Omega), _like(self.rrw, Omega)
+        increment = so3.log(so3.rmatmul(R_prev, R), select=True)  # the true rotation vector over the period
+        sigma = jnp.sqrt(arw**2 / period + rrw**2 * period / 12.0)
+        omega_m = jnp.where(j == 0, jnp.zeros_like(Omega), increment / period + 0.5 * (b_prev + b) + sigma * white)
+        return (b, b + rrw * jnp.sqrt(period) * walk, R), omega_m
+
+    def bias(self, state, Omega):
+        """The true bias b_j (3, *b) [rad/s] at the tick about to be measured."""
+        return state[1]
 
     def check(self) -> None:
         _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
@@ -144,16 +185,27 @@ class Sensors:
                 part.check()
 
 
+GYRO_OUTPUTS = ("increment", "rate")  # what the gyro delivers: the angle increment over a period, or the sampled rate
+
+
+def _gyro(v: dict, ctx):
+    kind = IntegratingGyro if v["output"] == "increment" else Gyro
+    return kind(ctx.as_array(v["arw"]), ctx.as_array(v["rrw"]), ctx.as_array(v["bias0"]))
+
+
 components.register(components.ComponentSpec(
-    kind="sensor", name="gyro", component=Gyro, provides="rate",
+    kind="sensor", name="gyro", component=Sensor, provides="rate",
     params=(
         Param("arw", 1e-6, "rad/sqrt(s)", low=0.0, doc="angle random walk sigma_v"),
         Param("rrw", 1e-9, "rad/s^(3/2)", low=0.0, doc="rate random walk sigma_u"),
         Param("bias0", [1e-4, 1e-4, 1e-4], "rad/s", shapes=((3,),), doc="initial bias b_0"),
+        Param("output", "increment", choices=GYRO_OUTPUTS,
+              doc="increment: the angle increment over each period (a rate-integrating gyro); rate: the rate "
+                  "sampled at the tick"),
     ),
-    build=lambda v, ctx: Gyro(ctx.as_array(v["arw"]), ctx.as_array(v["rrw"]), ctx.as_array(v["bias0"])),
-    noise=lambda v: {"arw": v["arw"], "rrw": v["rrw"]},
-    doc="rate gyro, Farrenkopf model (docs/model.md §8.2)",
+    build=_gyro,
+    noise=lambda v: {"arw": v["arw"], "rrw": v["rrw"], "gyro_output": v["output"]},
+    doc="gyro, Farrenkopf model on the angle increment or on the sampled rate (docs/model.md §8.2)",
 ))
 
 components.register(components.ComponentSpec(

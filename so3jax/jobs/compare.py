@@ -56,9 +56,9 @@ class Candidate:
     """A law and its gains: tuned by ``campaign``, or ``gains`` fixed (the campaign then
     names only the held-out scenarios and the effort budget that judge them)."""
 
-    law: str
+    controller: str  # the registered controller's name
     campaign: Any  # tune.TuneConfig
-    gains: Any = None  # the law's gains type, or None: tuned
+    gains: Any = None  # the controller's gains type, or None: tuned
     against: str | None = None  # the candidate it is paired with (None: the comparison's reference)
 
 
@@ -84,7 +84,7 @@ class CompareConfig:
         """The candidates' names grouped into sweeps of distinct laws, in order."""
         groups = []
         for name, c in self.candidates.items():
-            group = next((g for g in groups if all(self.candidates[o].law != c.law for o in g)), None)
+            group = next((g for g in groups if all(self.candidates[o].controller != c.controller for o in g)), None)
             if group is None:
                 groups.append(group := [])
             group.append(name)
@@ -112,11 +112,11 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     mission, _ = missions.load_job(table, base_dir, (), missions.PAPER)
     given = options.get("candidates")
     if given is None:
-        for law in mission.controllers:
-            if not registry.get(law).tunable:
-                raise ValueError(f"controllers: {law!r} has no gains to tune; compare the tunable laws "
+        for controller in mission.controllers:
+            if not registry.get(controller).tunable:
+                raise ValueError(f"controllers: {controller!r} has no gains to tune; compare the tunable laws "
                                  f"({', '.join(registry.names(tunable=True))})")
-        entries = {law: {} for law in mission.controllers}
+        entries = {controller: {} for controller in mission.controllers}
         where = "controllers"
     else:
         if not isinstance(given, dict) or not all(isinstance(v, dict) for v in given.values()):
@@ -153,14 +153,14 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
 
     where = f"compare.candidates.{name}"
     entry = checks.table({"t": entry}, "t", ("controller", "gains", "tune", "against"), where)
-    law = checks.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
+    controller = checks.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
     if "gains" in entry and "tune" in entry:
         raise ValueError(f"{where}: fixed gains are not tuned; give gains or tune, not both")
     changes = entry.get("tune", {})
     if not isinstance(changes, dict) or "controller" in changes:
         raise ValueError(f"{where}.tune must be a table of [tune] entries (the law is {where}.controller), "
                          f"got {checks.short(changes)}")
-    campaign = parse_config({**table, "tune": {**missions._merge(shared, changes), "controller": law}}, base_dir)
+    campaign = parse_config({**table, "tune": {**missions._merge(shared, changes), "controller": controller}}, base_dir)
     if campaign.estimator:
         raise ValueError(f"{where}: tune.estimator: a comparison sweeps the laws' gains with the mission's estimator")
     gains = None
@@ -169,10 +169,10 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
         if isinstance(spec, str) and spec not in ("mission", "paper"):
             spec = str((Path(base_dir) / spec).resolve())
         try:
-            gains = resolve_gains(law, spec, jnp.result_type(float), mission=mission)
+            gains = resolve_gains(controller, spec, jnp.result_type(float), mission=mission)
         except (OSError, ValueError) as err:
             raise ValueError(f"{where}.gains: {err}") from None
-    return Candidate(law, campaign, gains, entry.get("against"))
+    return Candidate(controller, campaign, gains, entry.get("against"))
 
 
 def load_config(path, overrides=()) -> CompareConfig:
@@ -190,7 +190,7 @@ def describe(config: CompareConfig) -> dict:
            "seed": config.seed, "campaigns": {law: describe_campaign(c) for law, c in config.campaigns.items()},
            "sweep": io.to_builtin(config.sweep_table)}
     if config.given is not None:
-        out["candidates"] = {name: {"controller": c.law, "gains": None if c.gains is None else gains_table(c.gains),
+        out["candidates"] = {name: {"controller": c.controller, "gains": None if c.gains is None else gains_table(c.gains),
                                     "against": c.against} for name, c in config.candidates.items()}
     return out
 
@@ -333,10 +333,10 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
     from so3jax.jobs.sweep.config import config_from_dict
     from so3jax.jobs.sweep.engine import run_sweep
 
-    laws = {config.candidates[name].law: name for name in names}
+    candidates = {config.candidates[name].controller: name for name in names}  # controller -> candidate
     table = copy.deepcopy(config.sweep_table)
-    table["controllers"] = list(laws)
-    table["gains"] = {**table.get("gains", {}), **{law: gains[name] for law, name in laws.items()}}
+    table["controllers"] = list(candidates)
+    table["gains"] = {**table.get("gains", {}), **{c: gains[name] for c, name in candidates.items()}}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)  # reported when the comparison was read
         sweep = config_from_dict(table, config.base_dir)
@@ -345,8 +345,8 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
     columns = {}
     with np.load(out / "samples.npz") as saved:
         for key in saved.files:
-            law = next((law for law in laws if key.startswith(law + "_")), None)
-            columns[key if law is None else laws[law] + key[len(law):]] = saved[key]
+            c = next((c for c in candidates if key.startswith(c + "_")), None)
+            columns[key if c is None else candidates[c] + key[len(c):]] = saved[key]
     for key in ("index", "disturbance_seed", "J0_scale"):  # one set of samples for every sweep
         if key in seen and key in columns and not np.array_equal(seen[key], columns[key], equal_nan=True):
             raise RuntimeError(f"{out}: its samples differ from the first sweep's ({key})")

@@ -213,9 +213,9 @@ def inputs(samples: disp.Samples, dtype) -> tuple:
 # --- a sample's scenario and loop ------------------------------------------------------------
 
 
-def sample_metrics(inputs, gains, *, law, mission: Mission, record_every: int | None = None, estimator=None) -> dict:
+def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every: int | None = None, estimator=None) -> dict:
     """{metric: values} of a batch of samples of ``mission`` (hashable by its fingerprint: a
-    static argument of jit) flown by the controller ``law`` at ``gains``: the docs/model.md §6 metrics, and the
+    static argument of jit) flown by ``controller`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
     parameter: values}), leading batch axis. The samples share the mission's loop and run
     natively batched (:func:`so3jax.sim.rollout.rollout_batch`, the values of a vmap of
@@ -232,10 +232,10 @@ def sample_metrics(inputs, gains, *, law, mission: Mission, record_every: int | 
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
-        return _results(rollout_batch(scenarios, law, gains, params.seed, loop=shared_loop, record_every=record_every))
+        return _results(rollout_batch(scenarios, controller, gains, params.seed, loop=shared_loop, record_every=record_every))
 
     def one(s, seed, values):
-        return _results(rollout(s, law, gains, seed, loop=loop(m, {**shared, **values}, dtype), record_every=record_every))
+        return _results(rollout(s, controller, gains, seed, loop=loop(m, {**shared, **values}, dtype), record_every=record_every))
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 

@@ -97,8 +97,10 @@ class Mission:
         return _build_loop(self, lambda x: jnp.asarray(x, dtype))
 
     def controller(self, name: str):
-        """(Controller, gains) of a controller named in the mission."""
-        return registry.get(name).factory(**self.options.get(name, {})), self.gains[name]
+        """(Controller, gains) of a registered controller with the mission's options
+        ([controller.NAME]); gains None where the mission does not fly it. Equal options
+        give equal controllers (a static jit argument)."""
+        return registry.get(name).factory(**self.options.get(name, {})), self.gains.get(name)
 
     def __eq__(self, other) -> bool:
         return isinstance(other, Mission) and self.fingerprint == other.fingerprint

@@ -12,12 +12,12 @@ def styles(config) -> dict:
     """Matplotlib keywords per candidate: its law's style, dotted for a law's second candidate, labelled by name."""
     styles, seen = {}, set()
     for name in config.laws:
-        law = config.candidates[name].law if hasattr(config, "candidates") else name
-        style = controller_style(law)
-        if law in seen:
+        controller = config.candidates[name].controller if hasattr(config, "candidates") else name
+        style = controller_style(controller)
+        if controller in seen:
             style = {k: v for k, v in style.items() if k not in ("ls", "linestyle")} | {"linestyle": ":"}
-        seen.add(law)
-        styles[name] = {**style, "label": style["label"] if name == law else name}
+        seen.add(controller)
+        styles[name] = {**style, "label": style["label"] if name == controller else name}
     return styles
 
 

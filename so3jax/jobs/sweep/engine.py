@@ -36,7 +36,7 @@ def simulate_batch(inputs, gains, *, controller: str, mission: Mission, mesh: Me
     """:func:`so3jax.missions.dispersed.sample_metrics` of a batch of samples without histories,
     by controller name, the batch split over the devices of ``mesh``
     (:func:`so3jax.parallel.devices.split`; None: one device)."""
-    shard = functools.partial(dispersed.sample_metrics, law=mission.controller(controller)[0], mission=mission,
+    shard = functools.partial(dispersed.sample_metrics, controller=mission.controller(controller)[0], mission=mission,
                               record_every=steps_for_horizon(mission.T, mission.dt))  # no history
     return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
 

@@ -18,7 +18,7 @@ from so3jax.results import io, runfolder
 from so3jax.parallel.devices import place
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.jobs.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
-from so3jax.jobs.tune.gains import gain_columns, law, resolve_gains, to_gains, to_params, with_estimator
+from so3jax.jobs.tune.gains import gain_columns, resolve_gains, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
 from so3jax.viz.tune import plot_history
 from so3jax.jobs.tune.problem import batch_at, build_problem, cost_refs, evaluate, mission_of
@@ -60,7 +60,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     if resume and checkpoint.exists():  # before any work: another configuration or precision is refused
         check_fingerprint(checkpoint, fingerprint, description)
     problem = build_problem(config)
-    controller = law(config.mission, config.controller)
+    controller = config.mission.controller(config.controller)[0]
     dtype = problem.scenario.R0.dtype
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
     initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype) for n in config.estimator})

@@ -89,7 +89,7 @@ def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, missi
     if mission is not None:
         def missions(gains, batch):
             gains, believed = split(gains)
-            m = dispersed.sample_metrics((batch.params, batch.leaves), gains, law=controller, mission=mission,
+            m = dispersed.sample_metrics((batch.params, batch.leaves), gains, controller=controller, mission=mission,
                                          record_every=record_every, estimator=believed)
             return Metrics(**{k: m[k] for k in Metrics._fields})
 

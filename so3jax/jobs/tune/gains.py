@@ -1,4 +1,4 @@
-"""Tunable controllers and their gains: the laws a mission configures, reading gains
+"""Tunable controllers and their gains: reading gains
 ("mission", "paper", a table, a best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
 gains as tables and columns."""
 
@@ -22,19 +22,6 @@ from so3jax.controllers.gains import Nonnegative, gain_domain
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
 GAIN_TYPES = {n: registry.get(n).gains_type for n in CONTROLLERS}
 PAPER_GAINS = {n: registry.get(n).defaults for n in CONTROLLERS}
-
-_LAWS: dict = {}  # (name, options' fingerprint) -> Controller: one instance per configuration
-
-
-def law(mission, name: str):
-    """The controller ``name`` with the mission's options ([controller.NAME]: J_hat, ...);
-    the same instance for the same options (a static jit argument)."""
-    options = mission.options.get(name, {}) if mission is not None else {}
-    key = (name, runfolder.fingerprint(options))
-    if key not in _LAWS:
-        _LAWS[key] = registry.get(name).factory(**options)
-    return _LAWS[key]
-
 
 def diagonals(controller: str) -> dict:
     """{gain: (n,)} of the gains that may be a diagonal of n entries (the adaptive law's Gamma)."""
