@@ -190,8 +190,8 @@ def main(argv=None) -> int:
     import numpy as np
 
     import so3jax as sj
-    from so3jax.parallel import devices
     from so3jax.controllers import regressor_parameters
+    from so3jax.parallel import devices
 
     # the paper's J0 and J1 = 2 J0 break the triangle inequality (so3jax fly reports it once)
     warnings.filterwarnings("ignore", category=sj.InertiaWarning)

@@ -128,7 +128,8 @@ def rates(batch: int, n_steps: int, rounds: int, controllers=CONTROLLERS) -> dic
         row["flight_over_paper_rounds"] = per_round
         row["single_us_per_step"] = {w: _single(w, controller, n_steps) for w in runs}
         log(f"{controller}: paper {row['paper']['M_steps_per_s']:.2f} M/s, flight {row['flight']['M_steps_per_s']:.2f}"
-            f" M/s, flight/paper {row['flight_over_paper_median']:.2f} (rounds {', '.join(f'{r:.2f}' for r in per_round)})")
+            f" M/s, flight/paper {row['flight_over_paper_median']:.2f}"
+            f" (rounds {', '.join(f'{r:.2f}' for r in per_round)})")
         out[controller] = row
     return out
 
@@ -185,7 +186,8 @@ def main(argv=None) -> int:
     p.add_argument("--batch", type=int, default=4096)
     p.add_argument("--steps", type=int, default=2000)
     p.add_argument("--rounds", type=int, default=5)
-    p.add_argument("--controllers", default=",".join(CONTROLLERS), help="comma-separated, among " + ", ".join(CONTROLLERS))
+    p.add_argument("--controllers", default=",".join(CONTROLLERS),
+                   help="comma-separated, among " + ", ".join(CONTROLLERS))
     p.add_argument("--against", type=Path, help="another source tree: compare the paper's mode with it")
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)

@@ -39,8 +39,8 @@ import resource
 import subprocess
 import sys
 import time
-from pathlib import Path
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 WHATS = ("value", "forward", "reverse")
 FD_STEP = 1e-4
@@ -60,11 +60,10 @@ def _child(spec: dict) -> dict:
     import numpy as np
     from jax.flatten_util import ravel_pytree
 
-    from so3jax.sim import gradients
-
-    from so3jax.jobs import tune
     from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.dynamics.scenario import paper_scenario
+    from so3jax.jobs import tune
+    from so3jax.sim import gradients
 
     rss_start = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     diagonal = spec.get("diagonal_gamma", False)

@@ -47,27 +47,30 @@ def main(argv=None) -> int:
 
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(ROOT))
-    from benchmarks.throughput import cpu_model
     import so3jax as sj
-    from so3jax.missions import mission as missions
+    from benchmarks.throughput import cpu_model
     from so3jax.jobs.identify import METHODS, inertia, telemetry
+    from so3jax.missions import mission as missions
 
     rows = []
     for length in args.lengths:
         for scale in args.scales:
             base = missions.load(args.mission)
             amplitude = (np.asarray(base.options["open_loop"]["amplitude"]) * scale).tolist()
-            m = missions.load(args.mission, [f"T={length!r}", f"controller.open_loop.amplitude={json.dumps(amplitude)}"])
+            m = missions.load(args.mission,
+                              [f"T={length!r}", f"controller.open_loop.amplitude={json.dumps(amplitude)}"])
             J_true = np.asarray(m.scenario().inertia.J) if hasattr(m.scenario().inertia, "J") else None
             controller, gains = m.controller("open_loop")
             seeds = np.arange(args.runs)
             start = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                history = jax.tree.map(np.asarray, sj.simulate(m.scenario(), controller, gains, jax.numpy.asarray(seeds),
-                                                               loop=m.loop(), record_every=m.record_every).history)
+                history = jax.tree.map(np.asarray, sj.simulate(m.scenario(), controller, gains,
+                                                               jax.numpy.asarray(seeds), loop=m.loop(),
+                                                               record_every=m.record_every).history)
             flown = time.perf_counter() - start
-            tms = [telemetry.check(telemetry.from_run(m, _one(history, i, len(seeds)), int(s))) for i, s in enumerate(seeds)]
+            tms = [telemetry.check(telemetry.from_run(m, _one(history, i, len(seeds)), int(s)))
+                   for i, s in enumerate(seeds)]
             lam_t, V_t, _, _ = inertia.principal(J_true, np.zeros((6, 6)))
             for method in args.methods:
                 start = time.perf_counter()
@@ -106,10 +109,10 @@ def main(argv=None) -> int:
 
 
 def _one(history, i, n):
-    """Run i of a batched history (batch axis last on every batched leaf)."""
+    """Run i of a batched history (batch axis first on every leaf, n runs)."""
     import jax
 
-    return jax.tree.map(lambda x: x[..., i] if np.ndim(x) >= 1 and np.shape(x)[-1] == n else x, history)
+    return jax.tree.map(lambda x: x[i], history)
 
 
 if __name__ == "__main__":

@@ -38,8 +38,8 @@ def _smooth_wheels(wheels, width: float):
     """The mission's wheels with the motor torque clip smoothed over width * u_max."""
     import jax
 
-    from so3jax.core.pytree import pytree_dataclass
     from so3jax.components.actuators import Wheels
+    from so3jax.core.pytree import pytree_dataclass
 
     @pytree_dataclass
     class SmoothWheels(Wheels):
@@ -71,14 +71,14 @@ def main() -> None:
     import numpy as np
     import optax
 
-    from so3jax.sim import gradients
-
+    from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.jobs import tune
     from so3jax.missions import mission as missions
-    from so3jax.dynamics.inertia import InertiaWarning
+    from so3jax.sim import gradients
 
     warnings.simplefilter("ignore", InertiaWarning)
-    flown = missions.load(str(ROOT / "missions/flight.toml"), [f"T={args.T!r}", f"actuator.wheels.max_torque={args.max_torque!r}"])
+    flown = missions.load(str(ROOT / "missions/flight.toml"),
+                          [f"T={args.T!r}", f"actuator.wheels.max_torque={args.max_torque!r}"])
     scenario, exact_loop = flown.scenario(jnp.float64), flown.loop(jnp.float64)
     loops = {"exact": exact_loop,
              "surrogate": dataclasses.replace(exact_loop, actuator=_smooth_wheels(exact_loop.actuator, args.width))}
@@ -114,7 +114,8 @@ def main() -> None:
             rows = []
             for i in range(args.iterations + 1):
                 (value, m), grad = step(params)
-                rows.append({"iteration": i, "gains": {k: np.asarray(v).tolist() for k, v in tune.to_gains(params)._asdict().items()},
+                table = {k: np.asarray(v).tolist() for k, v in tune.to_gains(params)._asdict().items()}
+                rows.append({"iteration": i, "gains": table,
                              "trained_on": float(value), "exact_train": float(exact_cost(params, train)),
                              "exact_held_out": float(exact_cost(params, held_out))})
                 if i == args.iterations:

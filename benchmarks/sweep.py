@@ -50,8 +50,8 @@ import argparse
 import json
 import os
 import platform
-import statistics
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -84,13 +84,11 @@ def _child(spec: dict) -> list:
             process_id=spec["process_id"], timeout=300))
     import numpy as np
 
-    from so3jax.missions import dispersed
-
-    from so3jax.parallel import distributed
-
-    from so3jax.jobs import sweep
     from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.dynamics.scenario import steps_for_horizon
+    from so3jax.jobs import sweep
+    from so3jax.missions import dispersed
+    from so3jax.parallel import distributed
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -188,9 +186,8 @@ def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     import jax
     import jax.numpy as jnp
 
-    from so3jax.missions import build
-
     from so3jax.dynamics import stepped
+    from so3jax.missions import build
     from so3jax.sim.loop import initial_state, step
     from so3jax.sim.rollout import _batch_last, _keys, disturbance_at
 
@@ -299,7 +296,8 @@ def main() -> None:
     hog = None
     if args.hog:
         last = os.cpu_count() - 1
-        hog = subprocess.Popen([sys.executable, "-c", f"import os; os.sched_setaffinity(0, {{{last}}})\nwhile True: pass"])
+        hog = subprocess.Popen([sys.executable, "-c",
+                                f"import os; os.sched_setaffinity(0, {{{last}}})\nwhile True: pass"])
     try:
         for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
             for name, (processes, devices, layout) in layouts.items():
@@ -323,7 +321,8 @@ def main() -> None:
     report = {
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_avg_1min": os.getloadavg()[0]},
         "runs": runs,
-        "full_sweep": {"what": "extrapolated from the compiled rates above (compile excluded)", **FULL, "by_devices": full},
+        "full_sweep": {"what": "extrapolated from the compiled rates above (compile excluded)", **FULL,
+                       "by_devices": full},
     }
     if args.numba:
         report["numba_head_to_head"] = _head_to_head(runs)

@@ -30,7 +30,8 @@ from pathlib import Path
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--batch", type=int, default=64, help="samples per batch (default 64: a chunk of 128 on 2 devices)")
+    parser.add_argument("--batch", type=int, default=64,
+                        help="samples per batch (default 64: a chunk of 128 on 2 devices)")
     parser.add_argument("--T", type=float, default=4000.0, help="horizon [s] (default 4000: every phase)")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--controllers", default="pd,adaptive")
@@ -47,10 +48,10 @@ def main() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # benchmarks.*, run as a script too
     from benchmarks.throughput import cpu_model
     from so3jax.core import _trig
-    from so3jax.missions import build, dispersed
-    from so3jax.jobs import sweep
-    from so3jax.sim.rollout import rollout_batch
     from so3jax.dynamics.inertia import InertiaWarning
+    from so3jax.jobs import sweep
+    from so3jax.missions import build, dispersed
+    from so3jax.sim.rollout import rollout_batch
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -72,7 +73,8 @@ def main() -> None:
         "inertia shared": sharing(inertia=True),
         "disturbance shared": sharing(disturbance=True),
         "initial state shared": sharing(R0=True, Omega0=True),
-        "one scenario repeated per sample": (jax.tree.map(lambda x: jax.numpy.broadcast_to(x[0], x.shape), per_sample), 0),
+        "one scenario repeated per sample": (
+            jax.tree.map(lambda x: jax.numpy.broadcast_to(x[0], x.shape), per_sample), 0),
         "one scenario for the batch": (first, None),
         "library trigonometry": (per_sample, 0),
     }

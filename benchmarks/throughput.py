@@ -388,7 +388,8 @@ def correctness(quick: bool, controllers=CONTROLLERS) -> dict:
                 }
             )
             log(
-                f"  check vs {impl:10s} {controller:8s} N={n_steps:<6d} dt={dt}: max relative deviation {max(dev.values()):.2e}"
+                f"  check vs {impl:10s} {controller:8s} N={n_steps:<6d} dt={dt}: "
+                f"max relative deviation {max(dev.values()):.2e}"
             )
     worst = max(c["max"] for c in checks)
     return {
@@ -517,7 +518,8 @@ def peak_flops(n: int) -> dict:
     all_threads = _matmul_peak(n)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     n1 = min(n, 2048)  # one thread reaches its peak by then, in a quarter of the time
-    code = f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); import throughput; print(throughput._matmul_peak({n1}))"
+    code = (f"import sys; sys.path.insert(0, {str(Path(__file__).resolve().parent)!r}); "
+            f"import throughput; print(throughput._matmul_peak({n1}))")
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False)
     one_thread = float(proc.stdout.strip().splitlines()[-1]) if proc.returncode == 0 else None
     log(
@@ -883,7 +885,8 @@ def main(argv=None) -> int:
             single, batch_cost = cost_d["single"], cost_d["batched"]
             if single:
                 log(
-                    f"  {c:8s} {d}: {single['flops']:.0f} FLOPs + {single['transcendentals']:.0f} transcendentals / step "
+                    f"  {c:8s} {d}: {single['flops']:.0f} FLOPs + {single['transcendentals']:.0f} "
+                    f"transcendentals / step "
                     f"(one trajectory)"
                     + (
                         f"; {batch_cost['flops']:.0f} + {batch_cost['transcendentals']:.1f} per "

@@ -65,9 +65,8 @@ class _Step:
         import jax
         import jax.numpy as jnp
 
-        from so3jax.parallel import devices
-
         from so3jax.jobs import tune
+        from so3jax.parallel import devices
 
         config = tune.load_config(spec["campaign"], [("T", spec["T"])])
         if batch:
@@ -100,7 +99,6 @@ class _Step:
         self.jax = jax
 
     def compile(self) -> float:
-        from so3jax.parallel import devices
         from so3jax.jobs import tune
 
         params, scenario, batch, refs, loop = self.args
@@ -266,7 +264,8 @@ def measure(campaign: str, T: float, batches: list[int], devices: list[int], rou
             out[key] = {
                 "scenarios": size,
                 "n_steps": compiled[one]["n_steps"],
-                **{f"devices_{n}": {"batch_split_over": compiled[n]["devices_used"], "compile_s": compiled[n]["compile_s"],
+                **{f"devices_{n}": {"batch_split_over": compiled[n]["devices_used"],
+                                    "compile_s": compiled[n]["compile_s"],
                                     "step_s": times[n], "step_s_median": statistics.median(times[n]),
                                     "cpu_s_per_step": cpu[n]} for n in children},
                 f"speedup_{many}_over_{one}_rounds": rounds_ratio,

@@ -53,10 +53,10 @@ def main(argv=None) -> int:
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, str(ROOT))
     from benchmarks.throughput import cpu_model
-    from so3jax.missions import mission as missions
-    from so3jax.missions.dispersions import draw_samples
     from so3jax.jobs.identify import inertia, regression, telemetry
     from so3jax.jobs.sweep.config import load_config
+    from so3jax.missions import mission as missions
+    from so3jax.missions.dispersions import draw_samples
 
     started = time.perf_counter()
     post = missions.load(ROOT / "missions" / "post_docking.toml")
@@ -107,13 +107,15 @@ def main(argv=None) -> int:
     summary = {}
     for name, c in cases.items():
         ok = ~c["diverged"]
-        summary[name] = {"rmse_median": float(np.median(c["rmse"][ok])), "rmse_p95": float(np.percentile(c["rmse"][ok], 95)),
+        summary[name] = {"rmse_median": float(np.median(c["rmse"][ok])),
+                         "rmse_p95": float(np.percentile(c["rmse"][ok], 95)),
                          "rmse_mean": float(np.mean(c["rmse"][ok])), "effort_mean": float(np.mean(c["effort"][ok])),
                          "diverged": int(c["diverged"].sum()),
                          "rmse_after_T_id_median": {f"{k:g}": float(np.median(v[ok])) for k, v in after[name].items()}}
         summary[name].update(identification.get(name, {}))
     report = {"command": "python comparisons/identify_then_control.py " + " ".join(argv or sys.argv[1:]),
-              "machine": f"{cpu_model()}, {len(os.sched_getaffinity(0))} cores", "samples": n, "lengths_s": args.lengths,
+              "machine": f"{cpu_model()}, {len(os.sched_getaffinity(0))} cores", "samples": n,
+              "lengths_s": args.lengths,
               "wall_time_s": time.perf_counter() - started, "cases": summary}
     from so3jax.results.io import save_npz, write_json
 

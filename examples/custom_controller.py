@@ -21,9 +21,9 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax.core.params import Param
 from so3jax.controllers import registry
 from so3jax.controllers.base import tracking_error
+from so3jax.core.params import Param
 from so3jax.jobs.fly import fly
 from so3jax.viz import styles
 

@@ -19,14 +19,15 @@ import jax
 import numpy as np
 
 import so3jax as sj
-from so3jax.missions.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
 from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
+from so3jax.missions.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
 
 
 def main(T: float, samples: int, seed: int = 0) -> dict:
     """{law: RMSE of every sample [rad/s]}."""
     dispersions = Dispersions(
-        J0=InertiaDispersion(nominal=PAPER_J0, scale=Uniform(0.8, 1.2), axis_scale=Uniform(0.9, 1.1), rotation_deg=10.0),
+        J0=InertiaDispersion(nominal=PAPER_J0, scale=Uniform(0.8, 1.2), axis_scale=Uniform(0.9, 1.1),
+                             rotation_deg=10.0),
         J2=InertiaDispersion(nominal=PAPER_J2, scale=Uniform(0.8, 1.2)),
     )
     drawn = draw_samples(dispersions, seed, samples, max_draws=10)  # NumPy, leading axis = sample

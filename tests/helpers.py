@@ -11,7 +11,8 @@ J_BODY = np.array([[120.0, 3.0, -2.0], [3.0, 100.0, 4.0], [-2.0, 4.0, 80.0]])  #
 
 def zero_torque() -> Controller:
     """A third controller in a few lines: no torque at all (free rigid body)."""
-    return from_functions(init=lambda gains: (), torque=lambda gains, state, feedback, desired, t: (0.0 * feedback.Omega, ()))
+    return from_functions(init=lambda gains: (),
+                          torque=lambda gains, state, feedback, desired, t: (0.0 * feedback.Omega, ()))
 
 
 def sinusoidal_rate(t):
@@ -21,7 +22,8 @@ def sinusoidal_rate(t):
 
 def custom_scenario(T, dt, *, J=J_BODY, rate_fn=sinusoidal_rate, Omega0=(0.0, 0.0, 0.0), R0=None, noise=False):
     """Constant inertia, a user rate profile (R_d integrated), optionally the paper's disturbance."""
-    disturbance = sj.SinusoidPlusNoise(jnp.asarray(0.1), jnp.asarray(1e-3), jnp.asarray(0.025)) if noise else sj.no_disturbance()
+    disturbance = (sj.SinusoidPlusNoise(jnp.asarray(0.1), jnp.asarray(1e-3), jnp.asarray(0.025)) if noise
+                   else sj.no_disturbance())
     return sj.Scenario(
         inertia=sj.ConstantInertia(jnp.asarray(J)),
         reference=sj.RateFunction(rate_fn),

@@ -15,8 +15,8 @@ from scipy.integrate import solve_ivp
 import so3jax as sj
 from so3jax.components.actuators import Wheels, pyramid_axes
 from so3jax.components.base import Actuator
-from so3jax.core.pytree import pytree_dataclass
 from so3jax.controllers import Controller, from_functions
+from so3jax.core.pytree import pytree_dataclass
 from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
 

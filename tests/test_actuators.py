@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from so3jax.dynamics import plant
-
+from so3jax.components.actuators import Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
-from so3jax.components.actuators import Ideal, Saturated, WheelCommand, Wheels, momentum, pyramid_axes
 from so3jax.core.integrate import lie_rk4_step
+from so3jax.dynamics import plant
 from so3jax.dynamics.plant import angular_acceleration
 
 J_SC = np.array([[12.0, 0.6, -0.4], [0.6, 10.0, 0.8], [-0.4, 0.8, 8.0]])  # kg m^2, wheels locked
@@ -219,7 +218,8 @@ def test_saturated_clips_per_axis_and_ideal_is_the_identity():
 
     assert components.names("actuator") == ("ideal", "saturated", "wheels")
     assert isinstance(components.get("actuator", "wheels").build(
-        components.get("actuator", "wheels").parse({}, "actuator.wheels"), components.BuildContext(np.asarray, {})), Wheels)
+        components.get("actuator", "wheels").parse({}, "actuator.wheels"),
+        components.BuildContext(np.asarray, {})), Wheels)
 
 
 def test_rigid_body_derivatives_are_bit_for_bit_the_paper_plant():
@@ -355,9 +355,9 @@ def test_a_per_wheel_motor_torque_command_clips_each_wheel_on_its_own():
     the others nothing; every wheel then obeys Omega_w,i(t) = u_i t / J_s - g_i^T (Omega(t) - Omega(0))."""
     import warnings
 
+    from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.jobs import fly
     from so3jax.missions import mission as missions
-    from so3jax.dynamics.inertia import InertiaWarning
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
@@ -399,7 +399,8 @@ def test_misaligned_wheels_act_along_the_plant_s_axes_while_the_command_uses_the
     G = Rotation.from_rotvec(theta).apply(pyramid_axes(4).T).T  # (3, N): the body's spin axes
     spin = 0.16 * (1 + error)
     np.testing.assert_allclose(tilted.body_torque(speed, held, omega), -G @ np.asarray(held.u), rtol=1e-12, atol=1e-15)
-    assert np.linalg.norm(np.asarray(tilted.body_torque(speed, held, omega) - nominal.body_torque(speed, held, omega))) > 1e-4
+    difference = tilted.body_torque(speed, held, omega) - nominal.body_torque(speed, held, omega)
+    assert np.linalg.norm(np.asarray(difference)) > 1e-4
     Omega_dot = np.array([1e-3, -2e-3, 5e-4])
     np.testing.assert_allclose(tilted.derivative(speed, held, omega, jnp.asarray(Omega_dot)),
                                np.asarray(held.u) / spin - G.T @ Omega_dot, rtol=1e-12)

@@ -9,10 +9,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax.missions import mission
-from so3jax.core import so3
 from so3jax.controllers import Desired, Feedback, regressor_parameters
 from so3jax.controllers.adaptive import _apply_gamma, adaptive_terms, leakage_rate, project
+from so3jax.core import so3
+from so3jax.missions import mission
 from so3jax.sim.loop import Loop
 from tests.helpers import J_BODY, custom_scenario
 

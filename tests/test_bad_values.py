@@ -1,5 +1,6 @@
 """Bad values of every config entry, generated from the schemas: the default mission's
-tree (so3jax.missions.mission.default_tree(): the flight mission with every registered component, option and gain), the sweep
+tree (so3jax.missions.mission.default_tree(): the flight mission with every registered
+component, option and gain), the sweep
 defaults (sweep.config_to_dict(sweep.load_config())) and a shipped tune campaign with its
 dataclass defaults. For every leaf: a wrong-type value (a string for a number, a bool for
 a number, a number for a string, a table for a leaf, ...), and for every array a
@@ -17,12 +18,10 @@ import numpy as np
 import pytest
 
 from so3jax import commands as cli
-
-from so3jax.missions import mission
-
+from so3jax.controllers import registry
 from so3jax.jobs import sweep, tune
 from so3jax.missions import config as cfg
-from so3jax.controllers import registry
+from so3jax.missions import mission
 from so3jax.sim.loop import check_loop
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -355,7 +354,8 @@ def _tune_copy(tmp_path) -> str:
         (["sweep", "--set", "dispersions.sensors.gyro.arw=1e-6"], "the mission flies no sensors 'gyro'"),
         (["fly", "--T", "0.25"], "not a whole number of control periods"),
         (["fly", "--set", "actuator.wheels.initial_speed=-700.0"], "actuator.wheels.initial_speed"),
-        (["sweep", "--set", "dispersions.deployment.tau_J={dist=[1]}"], "dispersions.deployment.tau_J.dist must be one of"),
+        (["sweep", "--set", "dispersions.deployment.tau_J={dist=[1]}"],
+         "dispersions.deployment.tau_J.dist must be one of"),
         (["sweep", "--set", "gains.adaptive.Gamma={a=1}"], "gains.adaptive.Gamma must be"),
         (["tune", _tune_copy, "--set", "tune.optimizer.options=1.5"], "'tune.optimizer.options' must be a table"),
         (["tune", _tune_copy, "--set", "tune.train.seeds=3"], "'tune.train.seeds' must be a non-empty list"),

@@ -188,7 +188,8 @@ def _run_benchmark(*args) -> dict:
 def test_flight_benchmark_runs_as_committed():
     """benchmarks/flight.py at a tiny size: both wirings compile and run under jax.jit (the
     PD: the laws share the programs' code)."""
-    report = _run_benchmark("benchmarks.flight", "--batch", "2", "--steps", "20", "--rounds", "1", "--controllers", "pd")
+    report = _run_benchmark("benchmarks.flight", "--batch", "2", "--steps", "20", "--rounds", "1",
+                            "--controllers", "pd")
     for controller in ("pd",):
         row = report["rates"][controller]
         assert row["paper"]["M_steps_per_s"] > 0 and row["flight"]["M_steps_per_s"] > 0
@@ -220,7 +221,8 @@ def test_gradients_benchmark_runs_as_committed(mission):
     report = _run_benchmark("benchmarks.gradients", "--controllers", "pd", "--horizons", "20", "--batch", "2",
                             "--modes", "forward", "--fd-horizon", "0", *mission)
     rows = [r for r in report["runs"] if r.get("what") == "forward"]
-    assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows) and not any("error" in r for r in report["runs"])
+    assert rows and all(np.all(np.isfinite(r["gradient"])) for r in rows)
+    assert not any("error" in r for r in report["runs"])
 
 
 def test_limit_surrogate_clip_is_the_clip_smoothed_over_its_width():

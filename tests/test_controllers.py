@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.core import so3
 from so3jax.controllers import Desired, Feedback, regressor, regressor_parameters
 from so3jax.controllers.adaptive import adaptive_terms
+from so3jax.core import so3
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(1)
@@ -43,7 +43,8 @@ def test_pd_torque_closed_form_at_rest_on_reference():
     np.testing.assert_allclose(tau, 0.0, atol=1e-15)
     # a pure attitude error gives -k_R e_R with e_R = sin(theta) axis for a rotation about an axis
     R = so3.matmul(Rd, so3.exp(jnp.array([0.0, 0.0, 0.2])))
-    tau, _ = sj.geometric_pd().torque(sj.PAPER_PD_GAINS, (), Feedback(R, jnp.zeros(3)), Desired(Rd, jnp.zeros(3), jnp.zeros(3)), 0.0)
+    tau, _ = sj.geometric_pd().torque(sj.PAPER_PD_GAINS, (), Feedback(R, jnp.zeros(3)),
+                                      Desired(Rd, jnp.zeros(3), jnp.zeros(3)), 0.0)
     np.testing.assert_allclose(tau, [0.0, 0.0, -0.5714 * np.sin(0.2)], atol=1e-15)
 
 
@@ -54,10 +55,12 @@ def lyapunov(gains, J, history):
     def one(R, Omega, R_d, Omega_d, Omega_d_dot, Theta_hat):
         terms = adaptive_terms(gains, Feedback(R, Omega), Desired(R_d, Omega_d, Omega_d_dot))
         d = Theta_hat - Theta
-        return 0.5 * gains.K_r * so3.dot(terms.e, terms.e) + 0.5 * terms.z @ J @ terms.z + 0.5 * jnp.sum(d * d / gains.Gamma[:, None])
+        return (0.5 * gains.K_r * so3.dot(terms.e, terms.e) + 0.5 * terms.z @ J @ terms.z
+                + 0.5 * jnp.sum(d * d / gains.Gamma[:, None]))
 
     rate_dot = jax.vmap(jax.jacfwd(custom_rate))(history.t)
-    return np.asarray(jax.vmap(one)(history.R, history.Omega, history.R_d, history.Omega_d, rate_dot, history.controller))
+    return np.asarray(jax.vmap(one)(history.R, history.Omega, history.R_d, history.Omega_d, rate_dot,
+                                    history.controller))
 
 
 def custom_rate(t):
@@ -79,7 +82,8 @@ def test_lyapunov_function_never_increases():
     )
     Vdot = -(gains.K_r**2) * jnp.sum(terms.e**2, -1) - gains.K_w * jnp.sum(terms.z**2, -1)
     dt = float(r.history.t[1] - r.history.t[0])
-    np.testing.assert_allclose(np.diff(V) / dt, 0.5 * (Vdot[1:] + Vdot[:-1]), rtol=1e-2, atol=1e-6 * abs(Vdot).max())  # trapezoid over 0.1 s
+    np.testing.assert_allclose(np.diff(V) / dt, 0.5 * (Vdot[1:] + Vdot[:-1]),  # trapezoid over 0.1 s
+                               rtol=1e-2, atol=1e-6 * abs(Vdot).max())
 
 
 @pytest.mark.parametrize(
@@ -87,7 +91,8 @@ def test_lyapunov_function_never_increases():
     [
         (sj.geometric_pd(), sj.PDGains(k_R=60.0, k_Omega=300.0)),
         (sj.adaptive_backstepping(), sj.AdaptiveGains(K_r=0.2, K_w=150.0, Gamma=jnp.full(9, 1e4))),
-        (sj.adaptive_backstepping(log_derivative="paper"), sj.AdaptiveGains(K_r=0.2, K_w=150.0, Gamma=jnp.full(9, 1e4))),
+        (sj.adaptive_backstepping(log_derivative="paper"),
+         sj.AdaptiveGains(K_r=0.2, K_w=150.0, Gamma=jnp.full(9, 1e4))),
     ],
     ids=["pd", "adaptive", "adaptive-paper-log"],
 )
@@ -124,7 +129,8 @@ def test_controllers_built_alike_are_equal_and_share_one_compilation():
     a, b = sj.geometric_pd(J_hat=J), sj.geometric_pd(J_hat=J.tolist())
     assert a == b and hash(a) == hash(b) and a != sj.geometric_pd() and a != sj.sliding_mode(J_hat=J)
     assert sj.adaptive_backstepping() == sj.adaptive_backstepping(leakage="none", projection_eps=0.1)
-    assert sj.adaptive_backstepping().update is None and sj.adaptive_backstepping(projection_bound=1.0).update is not None
+    assert sj.adaptive_backstepping().update is None
+    assert sj.adaptive_backstepping(projection_bound=1.0).update is not None
     assert sj.mrp_feedback().update is not None and sj.geometric_pd().update is None
     scenario = sj.paper_scenario(T=0.5)
     first = sj.simulate(scenario, a, sj.PAPER_PD_GAINS)

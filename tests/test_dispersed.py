@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.missions import dispersed, mission
 from so3jax.missions import dispersions as disp
-from so3jax.dynamics.inertia import InertiaWarning
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {
@@ -61,7 +61,8 @@ def test_the_sampled_loop_carries_the_drawn_values_and_the_filter_keeps_the_nomi
     values, _ = dispersed.draw_leaves(leaves, 0, 2)
     loop = dispersed.loop(flight, {k: v[1] for k, v in values.items()}, np.float64)
     np.testing.assert_allclose(np.asarray(loop.sensors.rate.arw), values["sensors.gyro.arw"][1], rtol=1e-15)
-    np.testing.assert_allclose(np.asarray(loop.actuator.max_torque), values["actuator.wheels.max_torque"][1], rtol=1e-15)
+    np.testing.assert_allclose(np.asarray(loop.actuator.max_torque), values["actuator.wheels.max_torque"][1],
+                               rtol=1e-15)
     assert float(loop.estimator.arw) == 1e-6  # the filter assumes the datasheet's value
 
 
@@ -98,7 +99,8 @@ def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
            "disturbance_seed": p.seed, "draws": s.draws}
     for J in ("J0", "J1", "J2"):
         M = getattr(p, J)
-        for name, (i, j) in {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}.items():
+        pairs = {"xx": (0, 0), "yy": (1, 1), "zz": (2, 2), "xy": (0, 1), "xz": (0, 2), "yz": (1, 2)}
+        for name, (i, j) in pairs.items():
             got[f"{J}_{name}"] = M[:, i, j]
     for axis, name in enumerate("xyz"):
         got[f"Omega0_{name}"], got[f"attitude_error_{name}"] = p.Omega0[:, axis], s.attitude_error[:, axis]
@@ -136,13 +138,16 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
     assert (tmp_path / "out" / "flight.png").exists()  # time at a torque limit against the dispersed limit
     for i in (0, 5):
-        J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"] for a in "xyz"]
+        J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"]
+                    for a in "xyz"]
              for name in ("J0", "J1", "J2")}
+        per_wheel = lambda key: to_builtin([t[f"actuator.wheels.{key}_{w}"][i] for w in range(1, 5)])
         overrides = [f"sensors.gyro.arw={float(t['sensors.gyro.arw'][i])!r}", "estimator.mekf.arw=1e-6",
-                     f"actuator.wheels.max_torque={to_builtin([t[f'actuator.wheels.max_torque_{w}'][i] for w in range(1, 5)])}",
-                     f"actuator.wheels.spin_inertia_error={to_builtin([t[f'actuator.wheels.spin_inertia_error_{w}'][i] for w in range(1, 5)])}",
+                     f"actuator.wheels.max_torque={per_wheel('max_torque')}",
+                     f"actuator.wheels.spin_inertia_error={per_wheel('spin_inertia_error')}",
                      "actuator.wheels.misalignment="
-                     + repr(to_builtin([[t[f"actuator.wheels.misalignment_{3 * w + a + 1}"][i] for a in range(3)] for w in range(4)])),
+                     + repr(to_builtin([[t[f"actuator.wheels.misalignment_{3 * w + a + 1}"][i] for a in range(3)]
+                                        for w in range(4)])),
                      *(f"inertia.{name}.nominal={to_builtin(J[name])}" for name in ("J0", "J1", "J2")),
                      f"deployment.tau_J={float(t['tau_J'][i])!r}"]
         tables = {k: v for k, v in FLIGHT_SWEEP.items() if k not in ("sweep", "dispersions")}

@@ -71,7 +71,8 @@ def _error(stderr, command="sweep"):
 
 def _pair(out, cwd, *extra):
     port = _port()
-    common = (*SWEEP, *extra, "--out", str(out), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2", "--timeout", "60")
+    common = (*SWEEP, *extra, "--out", str(out), "--coordinator", f"127.0.0.1:{port}", "--num-processes", "2",
+              "--timeout", "60")
     return [_start((*common, "--process-id", str(i)), cwd) for i in (0, 1)]
 
 
@@ -185,7 +186,8 @@ def test_an_error_in_another_process_alone_stops_process_0(tmp_path):
     procs = [_start((*common, "0"), tmp_path), _start((*common, "1", "--set", "bogus=1"), tmp_path)]
     (rc0, _, err0), (rc1, _, err1) = _finish(procs, limit=200)
     assert (rc0, rc1) == (1, 2), err0[-2000:] + err1[-2000:]
-    assert _error(err1).startswith("so3jax sweep: error: unknown config key(s): bogus; allowed: mission, sweep, dispersions")
+    assert _error(err1).startswith(
+        "so3jax sweep: error: unknown config key(s): bogus; allowed: mission, sweep, dispersions")
     assert _error(err0) == ("so3jax sweep: error: process 0 of 2 stopped at checking the output folder: "
                             "process(es) 1 of 2 stopped with an error (see its message)")
 
@@ -197,11 +199,13 @@ def test_an_error_in_another_process_alone_stops_process_0(tmp_path):
         ({"coordinator": "127.0.0.1:1", "num_processes": 2, "process_id": 2}, "--process-id must be in 0..1"),
         ({"coordinator": "127.0.0.1:1", "num_processes": 0, "process_id": 0}, "--num-processes must be at least 1"),
         ({"num_processes": 2}, "needs --coordinator, --num-processes and --process-id"),
-        ({"coordinator": "127.0.0.1:1", "num_processes": 2, "process_id": 0, "timeout": 0}, "--timeout must be positive"),
+        ({"coordinator": "127.0.0.1:1", "num_processes": 2, "process_id": 0, "timeout": 0},
+         "--timeout must be positive"),
     ],
 )
 def test_bad_settings_are_one_line_errors_before_joining(settings, message, monkeypatch):
-    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES", "SO3JAX_PROCESS_ID"):
+    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES",
+                "SO3JAX_PROCESS_ID"):
         monkeypatch.delenv(key, raising=False)
     args = argparse.Namespace(**{"distributed": True, "coordinator": None, "num_processes": None, "process_id": None,
                                  "timeout": 60, **settings})
@@ -210,7 +214,8 @@ def test_bad_settings_are_one_line_errors_before_joining(settings, message, monk
 
 
 def test_one_process_runs_need_no_setting(monkeypatch):
-    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES", "SO3JAX_PROCESS_ID"):
+    for key in ("SLURM_NTASKS", "OMPI_COMM_WORLD_SIZE", "SO3JAX_COORDINATOR", "SO3JAX_NUM_PROCESSES",
+                "SO3JAX_PROCESS_ID"):
         monkeypatch.delenv(key, raising=False)
     args = argparse.Namespace(distributed=False, coordinator=None, num_processes=None, process_id=None, timeout=60)
     assert not distributed.requested(args)
@@ -218,7 +223,8 @@ def test_one_process_runs_need_no_setting(monkeypatch):
     assert distributed.requested(args)
 
 
-CAMPAIGN = 'T = 5.0\n[tune]\ncontroller = "pd"\niterations = 2\n[tune.train]\nseeds = [0, 1]\n[tune.validation]\nseeds = [10]\n[tune.cost]\nmode = "weighted"\n'
+CAMPAIGN = ('T = 5.0\n[tune]\ncontroller = "pd"\niterations = 2\n[tune.train]\nseeds = [0, 1]\n'
+            '[tune.validation]\nseeds = [10]\n[tune.cost]\nmode = "weighted"\n')
 
 
 def test_two_processes_tune_to_the_gains_of_one_process(tmp_path):

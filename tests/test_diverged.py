@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 import so3jax as sj
+from so3jax.jobs import paper
 from so3jax.results import io
 from so3jax.sim import metrics
-from so3jax.jobs import paper
 from so3jax.sim.rollout import History
 from tests.test_cli import run_cli
 

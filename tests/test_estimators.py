@@ -18,10 +18,10 @@ import pytest
 from scipy import stats
 from scipy.spatial.transform import Rotation
 
-from so3jax.core import so3
 from so3jax.components.base import Estimate, Estimator, Measurements
 from so3jax.components.estimators import MEKF, Covariance, MEKFState, Raw, Truth
 from so3jax.components.sensors import Gyro, Sensors, StarTracker
+from so3jax.core import so3
 
 F64 = jnp.float64
 

@@ -15,17 +15,15 @@ import numpy as np
 import pytest
 
 from so3jax.components import registry as components
-
-from so3jax.jobs import fly
-
-from so3jax.missions import mission
-from so3jax.core.pytree import pytree_dataclass
+from so3jax.components.base import Actuator, Estimate, Estimator, Sensor
 from so3jax.components.registry import ComponentSpec
-from so3jax.core.params import Param
+from so3jax.components.sensors import sensor_noise
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller, tracking_error
-from so3jax.components.base import Actuator, Estimate, Estimator, Sensor
-from so3jax.components.sensors import sensor_noise
+from so3jax.core.params import Param
+from so3jax.core.pytree import pytree_dataclass
+from so3jax.jobs import fly
+from so3jax.missions import mission
 from tests.test_actuator_interface import FirstOrderLag
 
 # --- a sensor: a rate gyro with a scale-factor error ---------------------------------------
@@ -102,7 +100,8 @@ SPECS = [
     ComponentSpec(kind="estimator", name="lowpass", component=LowPass,
                   params=(Param("gain", 1.0, low=0.0, high=1.0),),
                   build=lambda v, ctx: LowPass(ctx.as_array(v["gain"]))),
-    ComponentSpec(kind="actuator", name="lag", component=FirstOrderLag, params=(Param("time_constant", 0.5, "s", low=1e-6),),
+    ComponentSpec(kind="actuator", name="lag", component=FirstOrderLag,
+                  params=(Param("time_constant", 0.5, "s", low=1e-6),),
                   build=lambda v, ctx: FirstOrderLag(ctx.as_array(v["time_constant"]))),
 ]
 CONTROLLER = registry.ControllerSpec(name="damper", label="damper", factory=Damper, gains_type=DamperGains,
@@ -149,7 +148,8 @@ def test_extra_sensor_estimator_and_controller_fly_from_a_mission_file(registere
     path = tmp_path / "mission.toml"
     path.write_text(MISSION)
     m = mission.load(path)
-    assert m.sensors["scaled_gyro"]["scale_factor"] == 0.05 and m.estimator == {"kind": "lowpass", "lowpass": {"gain": 1.0}}
+    assert m.sensors["scaled_gyro"]["scale_factor"] == 0.05
+    assert m.estimator == {"kind": "lowpass", "lowpass": {"gain": 1.0}}
     results, _ = fly.fly(m)
     h = results["damper"].history
     # the sensor's reading reached the estimate, and the estimate the law: Omega_hat = 1.05 Omega at the ticks

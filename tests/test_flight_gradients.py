@@ -11,9 +11,9 @@ import pytest
 import so3jax as sj
 from so3jax.components.actuators import Wheels, pyramid_axes
 from so3jax.components.estimators import MEKF
+from so3jax.components.sensors import Gyro, Sensors, StarTracker
 from so3jax.sim.gradients import checkpoint_steps
 from so3jax.sim.loop import Loop
-from so3jax.components.sensors import Gyro, Sensors, StarTracker
 from tests.helpers import custom_scenario
 
 SCENARIO = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))

@@ -14,11 +14,10 @@ import numpy as np
 import pytest
 from jax.flatten_util import ravel_pytree
 
-from so3jax.sim import gradients
-
-from so3jax.jobs import tune
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.dynamics.scenario import paper_scenario
+from so3jax.jobs import tune
+from so3jax.sim import gradients
 
 T_SHORT = 20.0
 TRAIN = {"inertia_scales": [1.0], "seeds": [0, 1]}  # B = 2, as in test_tune.py

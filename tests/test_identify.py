@@ -20,9 +20,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import so3jax as sj
-from so3jax.missions import mission as missions
-from so3jax.jobs.identify import inertia, regression, simulation, telemetry
 from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
+from so3jax.jobs.identify import inertia, regression, simulation, telemetry
+from so3jax.missions import mission as missions
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "identify.toml"
 T = 120.0  # s: the square waves switch several times, the rate sweeps several directions

@@ -12,8 +12,9 @@ PACKAGE = Path(so3jax.__file__).parent
 
 IMPORT_EVERYTHING = """
 import os, sys, matplotlib
-import so3jax, so3jax.commands, so3jax.viz.plots, so3jax.viz.flight, so3jax.jobs.paper, so3jax.jobs.fly, so3jax.jobs.tune, so3jax.jobs.sweep
-import so3jax.jobs.compare, so3jax.jobs.identify.report, so3jax.viz.paper, so3jax.viz.fly, so3jax.viz.compare, so3jax.viz.identify
+import so3jax, so3jax.commands, so3jax.viz.plots, so3jax.viz.flight, so3jax.jobs.paper, so3jax.jobs.fly
+import so3jax.jobs.tune, so3jax.jobs.sweep, so3jax.jobs.compare, so3jax.jobs.identify.report
+import so3jax.viz.paper, so3jax.viz.fly, so3jax.viz.compare, so3jax.viz.identify
 import numpy as np
 fig = so3jax.viz.plots.inertia_figure(np.zeros(2), np.zeros((2, 3, 3)), (1.0,), T=2.0)
 print(os.environ.get("XLA_FLAGS", "<unset>"), matplotlib.get_backend(), "matplotlib.pyplot" in sys.modules)

@@ -14,10 +14,10 @@ import pytest
 import so3jax as sj
 from so3jax.components.actuators import Saturated, Wheels, pyramid_axes
 from so3jax.components.estimators import MEKF
+from so3jax.components.sensors import Gyro, Sensors, StarTracker
 from so3jax.sim.gradients import checkpoint_steps
 from so3jax.sim.loop import Loop
 from so3jax.sim.rollout import rollout_batch
-from so3jax.components.sensors import Gyro, Sensors, StarTracker
 from tests.helpers import J_BODY, custom_scenario
 from tests.test_cli import run_cli
 
@@ -126,7 +126,8 @@ def test_wheels_conserve_total_momentum_in_closed_loop():
     J = np.asarray(J_BODY)
     total = [np.asarray(h.R[i]) @ (J @ np.asarray(h.Omega[i]) + np.asarray(G) @ (0.16 * np.asarray(h.actuator[i])))
              for i in range(len(h.t))]
-    np.testing.assert_allclose(total, np.broadcast_to(total[0], np.shape(total)), rtol=0, atol=1e-10 * np.abs(total[0]).max())
+    np.testing.assert_allclose(total, np.broadcast_to(total[0], np.shape(total)), rtol=0,
+                               atol=1e-10 * np.abs(total[0]).max())
     assert np.ptp(np.asarray(h.actuator), axis=0).max() > 1.0  # the wheels did the work
 
 
@@ -183,7 +184,8 @@ def test_gradients_through_the_flight_loop_match_central_differences(mode):
 
     def cost(log_gains):
         gains = sj.PDGains(*jnp.exp(log_gains))
-        m = sj.rollout(scenario, sj.geometric_pd(), gains, 2, loop=loop, record_every=checkpoint_steps(loop, mode)).metrics
+        m = sj.rollout(scenario, sj.geometric_pd(), gains, 2, loop=loop,
+                       record_every=checkpoint_steps(loop, mode)).metrics
         return m.rmse / 1e-3 + m.effort / 1.0
 
     x = jnp.log(jnp.asarray([0.5714, 25.0]))

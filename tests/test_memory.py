@@ -13,7 +13,8 @@ import so3jax as sj
 from so3jax.sim import memory
 
 
-@pytest.mark.parametrize(("text", "expected"), [("512", 512), ("4K", 4096), ("1.5G", 3 << 29), ("2GiB", 2 << 30), ("3mb", 3 << 20)])
+@pytest.mark.parametrize(("text", "expected"),
+                         [("512", 512), ("4K", 4096), ("1.5G", 3 << 29), ("2GiB", 2 << 30), ("3mb", 3 << 20)])
 def test_sizes(text, expected):
     assert memory.parse_size(text) == expected
 
@@ -35,12 +36,14 @@ def test_the_estimate_is_the_bytes_of_what_simulate_returns_held_twice():
     for record_every in (1, 10):
         result = sj.simulate(scenario, controller, gains, 0, record_every=record_every)
         measured = sum(np.asarray(x).nbytes for x in jax.tree.leaves(result))
-        assert memory.simulate_bytes(scenario, controller, gains, 0, record_every=record_every) == memory.COPIES * measured
+        expected = memory.COPIES * measured
+        assert memory.simulate_bytes(scenario, controller, gains, 0, record_every=record_every) == expected
 
 
 def test_the_check_refuses_above_the_limit_and_reports_both():
     assert memory.check(10, 100, "run", "advice") == {"estimate_bytes": 10, "limit_bytes": 100}
-    with pytest.raises(ValueError, match=r"run needs about 1 KiB of memory, more than the 100 B allowed by --max-memory; advice"):
+    with pytest.raises(ValueError,
+                       match=r"run needs about 1 KiB of memory, more than the 100 B allowed by --max-memory; advice"):
         memory.check(1024, 100, "run", "advice")
 
 

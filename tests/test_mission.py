@@ -98,7 +98,8 @@ def test_fly_command_end_to_end(tmp_path):
         assert 0 <= r["max_wheel_speed_ratio"] < 1
     assert report["config"]["period_steps"] == 10
     with np.load(out / "trajectory.npz") as npz:
-        for key in ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied", "wheel_speed",
+        for key in ("t", "R", "Omega", "R_hat", "Omega_hat", "bias", "bias_hat", "tau_cmd", "tau_applied",
+                    "wheel_speed",
                     "disturbance", "covariance"):
             assert f"pd/{key}" in npz.files
         assert npz["adaptive/wheel_speed"].shape == (20, 4) and npz["pd/disturbance"].shape == (20, 3)
@@ -149,7 +150,8 @@ def test_initial_state_and_constant_inertia():
     for t in (0.0, 1000.0, 3000.0):
         np.testing.assert_array_equal(np.asarray(s.inertia(t, 1)), J)
     with pytest.raises(ValueError, match="excludes J0"):
-        missions.load(None, [f"inertia.J={J}", "inertia.J0.nominal=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"])
+        missions.load(None, [f"inertia.J={J}",
+                             "inertia.J0.nominal=[[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]"])
 
 
 def test_controller_options_reach_the_law():
@@ -163,7 +165,8 @@ def test_controller_options_reach_the_law():
     Omega = jnp.array([0.1, -0.2, 0.05])
     feedback, desired = Feedback(jnp.eye(3), Omega), Desired(jnp.eye(3), jnp.zeros(3), jnp.zeros(3))
     (controller0, g0), (controller1, g1) = plain, with_J
-    tau0, tau1 = controller0.torque(g0, (), feedback, desired, 0.0)[0], controller1.torque(g1, (), feedback, desired, 0.0)[0]
+    tau0 = controller0.torque(g0, (), feedback, desired, 0.0)[0]
+    tau1 = controller1.torque(g1, (), feedback, desired, 0.0)[0]
     gyroscopic = lambda M: np.cross(np.asarray(Omega), np.asarray(M) @ np.asarray(Omega))
     np.testing.assert_allclose(np.asarray(tau1 - tau0), gyroscopic(J) - gyroscopic(np.eye(3)), rtol=1e-12)
 

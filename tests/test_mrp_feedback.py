@@ -12,9 +12,9 @@ from scipy.spatial.transform import Rotation
 import so3jax as sj
 from so3jax.components.actuators import Wheels, pyramid_axes
 from so3jax.controllers import Desired, Feedback, registry
+from so3jax.controllers.gains import check_gains
 from so3jax.controllers.mrp import MRPFeedbackGains, mrp, mrp_feedback
 from so3jax.sim.loop import Loop
-from so3jax.controllers.gains import check_gains
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(8)
@@ -100,7 +100,8 @@ def test_ticks_follow_the_modules_update(law_type, K_i, wheels):
         h_w = None
         if wheels:
             h_w = jnp.asarray(sum(J_S[i] * (G_S[:, i] @ Omega + speeds[i]) * G_S[:, i] for i in range(4)))
-        feedback, desired = Feedback(jnp.asarray(R), jnp.asarray(Omega), h_w), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
+        feedback = Feedback(jnp.asarray(R), jnp.asarray(Omega), h_w)
+        desired = Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
         tau, _ = controller.torque(gains, state, feedback, desired, jnp.asarray(j * period))
         expected = module.update(j * period, *guidance(R, Omega, R_d, Omega_d, Omega_d_dot), speeds)
         np.testing.assert_allclose(tau, expected, rtol=1e-11, atol=1e-13)
@@ -118,7 +119,8 @@ def lyapunov_run():
     R0 = Rotation.from_rotvec([0.6, -0.7, 0.5]).as_matrix()
     scenario = custom_scenario(60.0, 0.01, R0=R0, Omega0=(0.01, -0.02, 0.015))
     gains = MRPFeedbackGains(*map(jnp.asarray, (200.0, 300.0, 0.0, 1.0)))
-    runs = [sj.simulate(scenario, mrp_feedback(J_hat=jnp.asarray(J_BODY), law_type=k), gains, record_every=10) for k in (0, 1)]
+    runs = [sj.simulate(scenario, mrp_feedback(J_hat=jnp.asarray(J_BODY), law_type=k), gains, record_every=10)
+            for k in (0, 1)]
     return gains, runs
 
 
@@ -161,7 +163,8 @@ def test_wheel_momentum_in_the_law_equals_the_actuators_compensation():
     def fly(compensation):
         wheels = Wheels(jnp.asarray(G_S), jnp.asarray(J_S), jnp.full(4, 0.2), jnp.full(4, 600.0),
                         jnp.asarray([40.0, -25.0, 15.0, 60.0]), compensation)
-        return sj.simulate(scenario, controller, gains, loop=Loop(actuator=wheels, period_steps=10), record_every=10).history
+        return sj.simulate(scenario, controller, gains, loop=Loop(actuator=wheels, period_steps=10),
+                           record_every=10).history
 
     on, off = fly(True), fly(False)
     np.testing.assert_allclose(off.Omega, on.Omega, rtol=0, atol=1e-13)

@@ -16,10 +16,10 @@ pytest.importorskip("numba")
 from benchmarks.baselines import numba_loop  # noqa: E402
 from benchmarks.baselines.numba_dispersed import FIELDS, simulate_dispersed  # noqa: E402
 from benchmarks.baselines.numpy_loop import J0, J1, J2, ORBITAL_RATE  # noqa: E402
-from so3jax.missions import dispersed
-from so3jax.jobs import sweep  # noqa: E402
 from so3jax.dynamics.inertia import InertiaWarning  # noqa: E402
 from so3jax.dynamics.scenario import steps_for_horizon  # noqa: E402
+from so3jax.jobs import sweep  # noqa: E402
+from so3jax.missions import dispersed
 
 T = 510.0  # s: across the first phase switch (500 s)
 N_SAMPLES = 8

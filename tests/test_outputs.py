@@ -9,10 +9,8 @@ from pathlib import Path
 import pytest
 
 from so3jax import commands as cli
-
-from so3jax.results import io, runfolder
-
 from so3jax.jobs import tune
+from so3jax.results import io, runfolder
 
 ROOT = Path(__file__).resolve().parents[1]
 FLY = ("fly", "--T", "1", "--controllers", "pd", "--record-every", "10", "--json")
@@ -111,7 +109,8 @@ REFUSED = {
     "sweep memory": ("sweep", "--samples", "8", "--T", "1", "--max-memory", "1K"),
     "sweep bad value": ("sweep", "--samples", "0", "--T", "1"),
     "tune horizon": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--T", "0"),
-    "tune bad value": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--set", "tune.optimizer.learning_rate=-1"),
+    "tune bad value": ("tune", str(ROOT / "tuning" / "pd_equal_effort.toml"), "--set",
+                       "tune.optimizer.learning_rate=-1"),
 }
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.sim import metrics
 from so3jax.core import so3
+from so3jax.sim import metrics
 from so3jax.sim.loop import initial_state
 from so3jax.sim.rollout import disturbance_at, disturbances, observe, rollout, step
 from tests.helpers import custom_scenario, sinusoidal_rate
@@ -44,7 +44,8 @@ def test_noise_is_jax_random_normal(dtype):
     seeds = jnp.array([0, 1, 7, 2**31 - 1, 123456], jnp.int32)
     keys = jax.vmap(jax.random.key)(seeds)
     ks = jnp.concatenate([jnp.arange(2000, dtype=jnp.int32), jnp.array([2**20 + 3, 2**31 - 1], jnp.int32)])
-    expected = jax.vmap(lambda k: jax.vmap(lambda key: jax.random.normal(jax.random.fold_in(key, k), (3,), dtype))(keys))(ks)
+    expected = jax.vmap(lambda k: jax.vmap(
+        lambda key: jax.random.normal(jax.random.fold_in(key, k), (3,), dtype))(keys))(ks)
     got = jax.jit(jax.vmap(lambda k: noise(keys, k, dtype)))(ks)  # (K, 3, B)
     one = noise(jax.random.key(7), jnp.int32(12345), dtype)  # a single key: (3,)
     one_expected = jax.random.normal(jax.random.fold_in(jax.random.key(7), 12345), (3,), dtype)
@@ -221,7 +222,8 @@ def test_gradient_is_finite_at_zero_rotation():
         new, phase, sample = step(scenario, controller, g, jnp.zeros(3), state, jnp.asarray(0, jnp.int32))
         acc = metrics.update(metrics.init(1, jnp.float64), phase, sample, jnp.asarray(True))
         m = metrics.finalize(acc, (1,), scenario.dt, new.R)
-        return m.rmse_phase[0] + m.rmse_unrotated + m.rms_angle_phase[0] + m.max_angle_phase[0] + m.max_torque + m.effort
+        return (m.rmse_phase[0] + m.rmse_unrotated + m.rms_angle_phase[0] + m.max_angle_phase[0] + m.max_torque
+                + m.effort)
 
     zero = jnp.zeros(3)
     g = jax.jit(jax.grad(one_step_metrics, argnums=(0, 1, 2)))(gains, zero, zero)

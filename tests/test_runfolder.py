@@ -11,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from so3jax.results import runfolder
-
 from so3jax.jobs import tune
+from so3jax.results import runfolder
 
 ROOT = Path(__file__).resolve().parents[1]
 HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep') as run:\n"
@@ -22,7 +21,8 @@ HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sy
 
 def cli(*args, cwd):
     """``so3jax ARGS`` in a child process (the session's compilation cache: tests/conftest.py)."""
-    return subprocess.run([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, capture_output=True, text=True, timeout=600)
+    return subprocess.run([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
 
 
 @pytest.fixture
@@ -58,7 +58,8 @@ def test_the_cli_refuses_an_unwritable_out_with_one_line_and_exit_2(tmp_path):
     (tmp_path / "f").write_text("x")
     proc = cli("paper", "--T", "1", "--out", str(tmp_path / "f"), cwd=tmp_path)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
-    assert proc.stderr.strip().splitlines() == [f"so3jax paper: error: output folder {tmp_path / 'f'} is a file; choose another --out"]
+    assert proc.stderr.strip().splitlines() == [
+        f"so3jax paper: error: output folder {tmp_path / 'f'} is a file; choose another --out"]
 
 
 def test_the_lock_is_held_during_the_block_and_released_after_it_even_on_error(tmp_path):
@@ -170,7 +171,8 @@ def test_a_lock_from_another_host_is_not_broken(tmp_path):
 
 def _campaign():
     return tune.parse_config(
-        {"T": 10.0, "tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [1]}}}
+        {"T": 10.0, "tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]},
+                             "validation": {"seeds": [1]}}}
     )
 
 

@@ -13,8 +13,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from so3jax.core import so3
-from so3jax.dynamics.disturbance import noise as disturbance_noise
 from so3jax.components.base import Measurements
 from so3jax.components.sensors import (
     GYRO_BIAS_WALK,
@@ -26,6 +24,8 @@ from so3jax.components.sensors import (
     StarTracker,
     sensor_noise,
 )
+from so3jax.core import so3
+from so3jax.dynamics.disturbance import noise as disturbance_noise
 
 F64 = jnp.float64
 N_KEYS = 20_000

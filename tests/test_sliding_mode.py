@@ -10,8 +10,8 @@ from scipy.spatial.transform import Rotation
 
 import so3jax as sj
 from so3jax.controllers import Desired, Feedback, registry
-from so3jax.controllers.sliding import SlidingModeGains, attitude_error_rate_matrix, sliding_mode
 from so3jax.controllers.gains import check_gains
+from so3jax.controllers.sliding import SlidingModeGains, attitude_error_rate_matrix, sliding_mode
 from tests.helpers import J_BODY, custom_scenario
 
 RNG = np.random.default_rng(11)
@@ -64,7 +64,8 @@ def test_torque_matches_numpy(boundary, J_hat):
     t = jnp.asarray(0.0)
     inside = outside = 0
     for R, Omega, R_d, Omega_d, Omega_d_dot in zip(*states):
-        feedback, desired = Feedback(jnp.asarray(R), jnp.asarray(Omega)), Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
+        feedback = Feedback(jnp.asarray(R), jnp.asarray(Omega))
+        desired = Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
         tau, state = controller.torque(gains, controller.init(gains), feedback, desired, t)
         expected, s = numpy_torque(GAINS, R, Omega, R_d, Omega_d, Omega_d_dot, J_hat, boundary)
         np.testing.assert_allclose(tau, expected, rtol=1e-12, atol=1e-15)
@@ -94,7 +95,8 @@ def test_attitude_error_kinematics_by_finite_differences():
     h = 1e-5
 
     def e_R_at(j, t):
-        return e_R_np(R[j] @ Rotation.from_rotvec(Omega[j] * t).as_matrix(), R_d[j] @ Rotation.from_rotvec(Omega_d[j] * t).as_matrix())
+        return e_R_np(R[j] @ Rotation.from_rotvec(Omega[j] * t).as_matrix(),
+                      R_d[j] @ Rotation.from_rotvec(Omega_d[j] * t).as_matrix())
 
     R_e = np.einsum("nji,njk->nik", R_d, R)
     E = np.moveaxis(np.asarray(attitude_error_rate_matrix(jnp.asarray(np.moveaxis(R_e, 0, -1)))), -1, 0)

@@ -47,7 +47,8 @@ def test_hat_vee_cross():
     np.testing.assert_allclose(first(so3.matmul(last(m), last(m))), m @ m, atol=1e-14)
     np.testing.assert_allclose(first(so3.rmatmul(last(m), last(m))), np.swapaxes(m, -1, -2) @ m, atol=1e-14)
     np.testing.assert_allclose(first(so3.matvec(last(m), last(a))), (m @ a[..., None])[..., 0], atol=1e-14)
-    np.testing.assert_allclose(first(so3.rmatvec(last(m), last(a))), (np.swapaxes(m, -1, -2) @ a[..., None])[..., 0], atol=1e-14)
+    np.testing.assert_allclose(first(so3.rmatvec(last(m), last(a))), (np.swapaxes(m, -1, -2) @ a[..., None])[..., 0],
+                               atol=1e-14)
     # a single vector / matrix needs no batch axis, and a shared one broadcasts with batch_like
     np.testing.assert_allclose(so3.matvec(m[0], a[0]), m[0] @ a[0], atol=1e-14)
     np.testing.assert_allclose(first(so3.matvec(so3.batch_like(m[0], 2, last(a)), last(a))), a @ m[0].T, atol=1e-14)
@@ -57,7 +58,8 @@ def test_solve_spd_matches_numpy():
     a = RNG.normal(size=(6, 3, 3))
     spd = a @ np.swapaxes(a, -1, -2) + 0.5 * np.eye(3)
     b = RNG.normal(size=(6, 3))
-    np.testing.assert_allclose(first(so3.solve_spd(last(spd), last(b))), np.linalg.solve(spd, b[..., None])[..., 0], rtol=1e-11)
+    np.testing.assert_allclose(first(so3.solve_spd(last(spd), last(b))), np.linalg.solve(spd, b[..., None])[..., 0],
+                               rtol=1e-11)
 
 
 @pytest.mark.parametrize("max_angle", [1e-6, 0.04, np.pi])

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.missions import build, dispersed
 from so3jax.dynamics import stepped
-from so3jax.jobs import sweep
 from so3jax.dynamics.plant import ConstantInertia
+from so3jax.jobs import sweep
+from so3jax.missions import build, dispersed
 from so3jax.sim.rollout import _batch_last
 
 
@@ -40,7 +40,8 @@ def test_stage_terms_equal_the_stagewise_evaluation(batch, t):
             one = jax.tree.map(lambda x, i=i: x[i], scenarios)
             R_d = one.reference.attitude(t + c * h, p)
             J = one.inertia(t + c * h, p)
-            np.testing.assert_allclose(term.R_d[..., i], R_d, rtol=0, atol=1e-14)  # the closed form's own round-off at angles of ~10 rad
+            # the closed form's own round-off at angles of ~10 rad
+            np.testing.assert_allclose(term.R_d[..., i], R_d, rtol=0, atol=1e-14)
             np.testing.assert_allclose(term.J[..., i], J, rtol=1e-15)
             np.testing.assert_allclose(term.J_inv[..., i], np.linalg.inv(J), rtol=1e-13)
 
@@ -51,6 +52,7 @@ def test_constant_inertia_and_shared_scenarios(batch):
     terms = stepped.stage_terms(constant, stepped.constants(constant), jnp.asarray(3.0), jnp.asarray(0), True)
     for term in terms:
         np.testing.assert_array_equal(term.J, scenario.inertia.J2)
-        np.testing.assert_allclose(jnp.einsum("ijb,jkb->ikb", term.J, term.J_inv), np.broadcast_to(np.eye(3)[..., None], (3, 3, 4)), atol=1e-15)
+        np.testing.assert_allclose(jnp.einsum("ijb,jkb->ikb", term.J, term.J_inv),
+                                   np.broadcast_to(np.eye(3)[..., None], (3, 3, 4)), atol=1e-15)
     shared = jax.tree.map(lambda x: x[..., :1], scenario)  # one scenario for the whole batch
     assert stepped.constants(shared) is None

@@ -19,14 +19,15 @@ import numpy as np
 import pytest
 
 import so3jax as sj
-from so3jax.missions import build
 from so3jax.jobs import sweep
-from so3jax.missions import dispersions as disp
 from so3jax.jobs.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
+from so3jax.missions import build
+from so3jax.missions import dispersions as disp
 
 ROOT = Path(__file__).resolve().parents[1]
 SETTINGS = ("sweep.samples=11", "T=2700.0", "dt=0.5", "sweep.chunk=8")
-METRIC_COLUMNS = ("rmse", "rmse_unrotated", "effort", "rmse_capture", "effort_deployment", "max_angle_detumble", "diverged")
+METRIC_COLUMNS = ("rmse", "rmse_unrotated", "effort", "rmse_capture", "effort_deployment", "max_angle_detumble",
+                  "diverged")
 
 
 def config(*overrides):
@@ -155,7 +156,8 @@ def test_each_dispersed_value_reaches_the_rollout():
     cfg = config()
     base = jax.tree.map(lambda x: x[0], disp.draw_samples(cfg.dispersions, 0, 1, 20).params)
     changed = {name: 1.1 * value for name, value in base._asdict().items() if value.dtype.kind == "f"}
-    changed.update(R0=disp.rotation_matrix(np.array([0.0, 0.1, 0.0])) @ base.R0, Omega0=base.Omega0 + 1e-3, seed=base.seed + 1)
+    changed.update(R0=disp.rotation_matrix(np.array([0.0, 0.1, 0.0])) @ base.R0, Omega0=base.Omega0 + 1e-3,
+                   seed=base.seed + 1)
     variants = [base] + [base._replace(**{name: changed[name]}) for name in base._fields]
     batch = jax.tree.map(lambda *xs: np.stack(xs), *(variants + [base] * (-len(variants) % 8)))
     gains = jax.tree.map(np.asarray, cfg.gains["pd"])
@@ -193,7 +195,8 @@ def test_sample_parameters_map_onto_the_mission():
 
 def test_outputs(reference):
     out, summary = reference
-    for name in ("samples.csv", "samples.npz", "summary.json", "summary.md", "cdf.png", "histograms.png", "rmse_vs_inertia_scale.png"):
+    for name in ("samples.csv", "samples.npz", "summary.json", "summary.md", "cdf.png", "histograms.png",
+                 "rmse_vs_inertia_scale.png"):
         assert (out / name).stat().st_size > 100, name
     assert json.loads((out / "summary.json").read_text())["samples"] == summary["samples"]
     t = table(out)
@@ -216,8 +219,10 @@ def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_pa
     """4 forced host devices with 10 samples per device, against 1 device with 8 (equal to
     round-off): in a subprocess (XLA flags must precede JAX), through the command line."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
-    args = [sys.executable, "-m", "so3jax.commands", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40", "--controllers", "pd"]
-    proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    args = [sys.executable, "-m", "so3jax.commands", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40",
+            "--controllers", "pd"]
+    proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True,
+                          text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert "on 4 device(s)" in proc.stderr and "| pd | mission |" in proc.stdout
     assert json.loads((tmp_path / "summary.json").read_text())["run"]["chunk"] == 40
@@ -264,7 +269,8 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
     chunk.write_bytes(good)
 
     run_chunk, computed = engine.run_chunk, []
-    monkeypatch.setattr(engine, "run_chunk", lambda inputs, *a: computed.append(len(inputs[0].seed)) or run_chunk(inputs, *a))
+    monkeypatch.setattr(engine, "run_chunk",
+                        lambda inputs, *a: computed.append(len(inputs[0].seed)) or run_chunk(inputs, *a))
     summary = run(config(), tmp_path, resume=True)
     assert computed == [8, 8, 8]  # pd: samples 8-10 (padded); adaptive: 0-7, 8-10
     assert summary["run"]["computed_samples"] == 3 + 11
@@ -442,4 +448,5 @@ def test_results_match_the_recorded_samples(reference):
                 assert row[key] == value, key
                 continue
             rtol, atol = (0.0, 1e-12) if key.endswith("orthogonality_error") else (1e-12, 0.0)
-            np.testing.assert_allclose(float(row[key]), expected, rtol=rtol, atol=atol, err_msg=f"{key} of sample {want['index']}")
+            np.testing.assert_allclose(float(row[key]), expected, rtol=rtol, atol=atol,
+                                       err_msg=f"{key} of sample {want['index']}")

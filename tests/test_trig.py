@@ -57,7 +57,8 @@ def test_other_dtypes_are_the_library_functions(dtype):
 
 def test_atan2_within_two_ulp_of_numpy():
     rng = np.random.default_rng(1)
-    y = np.concatenate([np.abs(rng.standard_normal(40000)) * 10.0 ** rng.uniform(-8, 8, 40000), [0.0, 0.0, 0.0, 1.0, 1.0]])
+    y = np.concatenate([np.abs(rng.standard_normal(40000)) * 10.0 ** rng.uniform(-8, 8, 40000),
+                        [0.0, 0.0, 0.0, 1.0, 1.0]])
     x = np.concatenate([rng.standard_normal(40000) * 10.0 ** rng.uniform(-8, 8, 40000), [1.0, -1.0, 0.0, 0.0, -0.0]])
     boundaries = np.array([7, 11, 19, 39]) / 16.0  # fdlibm's argument ranges, and either side
     y = np.concatenate([y, boundaries, np.nextafter(boundaries, 0), np.nextafter(boundaries, 9)])

@@ -19,10 +19,9 @@ import numpy as np
 import pytest
 
 from so3jax import commands as cli
-
 from so3jax.jobs import tune
-from so3jax.sim.metrics import Metrics
 from so3jax.jobs.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
+from so3jax.sim.metrics import Metrics
 
 ROOT = Path(__file__).parents[1]
 BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
@@ -282,7 +281,8 @@ config = tune.parse_config(json.loads(sys.argv[1]))
 problem = tune.build_problem(config)
 with tempfile.TemporaryDirectory() as out:
     report = tune.tune(config, out, progress=False)
-print(json.dumps({"devices": problem.mesh.size, "tuned": report["tuned"], "compiles": tune.cost_and_grad._cache_size()}))
+print(json.dumps({"devices": problem.mesh.size, "tuned": report["tuned"],
+                  "compiles": tune.cost_and_grad._cache_size()}))
 """
 
 
@@ -412,8 +412,8 @@ def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
     import jax
 
     from so3jax.controllers import registry
-    from so3jax.sim.loop import PAPER_LOOP
     from so3jax.dynamics.scenario import paper_scenario
+    from so3jax.sim.loop import PAPER_LOOP
 
     assert {p.stem for p in (ROOT / "tuning").glob("*.toml")} == set(SHIPPED)
     cfg = tune.load_config(ROOT / "tuning" / f"{name}.toml")

@@ -10,12 +10,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax.missions import dispersed
-
 from so3jax.jobs import tune
 from so3jax.jobs.tune import campaign
 from so3jax.jobs.tune.cost import cvar
 from so3jax.jobs.tune.problem import batch_at, build_problem
+from so3jax.missions import dispersed
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 

@@ -7,13 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from so3jax.missions import dispersed
-from so3jax.missions import mission as missions
 from so3jax.controllers.pd import PDGains
 from so3jax.jobs.tune.config import parse_config
 from so3jax.jobs.tune.cost import CostRefs, cost_and_grad
 from so3jax.jobs.tune.gains import split, tables, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.problem import build_problem
+from so3jax.missions import dispersed
+from so3jax.missions import mission as missions
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 

@@ -29,7 +29,8 @@ def no_compilation(monkeypatch):
 
 
 def with_inertia(**matrices):
-    return dataclasses.replace(GOOD, inertia=dataclasses.replace(GOOD.inertia, **{k: jnp.asarray(v) for k, v in matrices.items()}))
+    return dataclasses.replace(GOOD, inertia=dataclasses.replace(GOOD.inertia,
+                                                                 **{k: jnp.asarray(v) for k, v in matrices.items()}))
 
 
 J_OK = np.diag([100.0, 120.0, 150.0])
@@ -60,9 +61,12 @@ def test_bad_scenarios(scenario, match):
         (sj.geometric_pd(), sj.PDGains(np.inf, 25.0), "gain k_R must be finite"),
         (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, np.nan, 1e8), "gain K_w must be finite"),
         (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, -1e8), "gain Gamma must be positive"),
-        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.r_[np.ones(8), -1.0]), "gain Gamma must be positive"),
-        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.diag(np.r_[np.ones(8), -1.0])), "Gamma is not positive definite"),
-        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.eye(9) + np.eye(9, k=1)), "Gamma is not symmetric"),
+        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.r_[np.ones(8), -1.0]),
+         "gain Gamma must be positive"),
+        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.diag(np.r_[np.ones(8), -1.0])),
+         "Gamma is not positive definite"),
+        (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.eye(9) + np.eye(9, k=1)),
+         "Gamma is not symmetric"),
         (sj.adaptive_backstepping(), sj.AdaptiveGains(0.005, 75.0, np.eye(4)), "Gamma must be a scalar"),
     ],
 )
@@ -131,7 +135,8 @@ def with_profile(fn):
 @pytest.mark.parametrize(
     "fn,match",
     [
-        (lambda t: jnp.asarray(J_OK) * (1.0 - t / 5.0), "J\\(t\\) of phase 1 of 3 \\(from t = 0 s\\) is not positive definite"),
+        (lambda t: jnp.asarray(J_OK) * (1.0 - t / 5.0),
+         "J\\(t\\) of phase 1 of 3 \\(from t = 0 s\\) is not positive definite"),
         (lambda t: -jnp.asarray(J_OK), "J\\(t\\) of phase 1 of 3 .* not positive definite"),
         (lambda t: jnp.asarray(J_OK) + jnp.triu(jnp.ones((3, 3)), 1), "J\\(t\\) of phase 1 of 3 .* not symmetric"),
         (lambda t: jnp.ones((2, 3)), "J\\(t\\) of phase 1 of 3 .* must be a \\(3, 3\\) matrix"),
@@ -204,7 +209,8 @@ def test_wrong_shapes_are_named(scenario, match, no_tracing):
 @pytest.mark.parametrize(
     "controller,gains,match",
     [
-        (sj.adaptive_backstepping(), sj.PAPER_PD_GAINS, "gains must be AdaptiveGains\\(K_r, K_w, Gamma\\) .* got PDGains"),
+        (sj.adaptive_backstepping(), sj.PAPER_PD_GAINS,
+         "gains must be AdaptiveGains\\(K_r, K_w, Gamma\\) .* got PDGains"),
         (sj.geometric_pd(), sj.PAPER_ADAPTIVE_GAINS, "gains must be PDGains\\(k_R, k_Omega\\) .* got AdaptiveGains"),
         (sj.geometric_pd(), {"k_R": 0.5, "k_Omega": 25.0}, "gains must be PDGains\\(k_R, k_Omega\\) .* got dict"),
     ],
@@ -223,10 +229,12 @@ def test_rollout_batch_checks_the_batch_axes(no_tracing):
     batched = dataclasses.replace(GOOD, inertia=sj.ConstantInertia(J))
     axes = dataclasses.replace(jax.tree.map(lambda _: None, batched), inertia=sj.ConstantInertia(0))
     pd, gains = sj.geometric_pd(), sj.PAPER_PD_GAINS
-    with pytest.raises(ValueError, match="scenario.inertia.J must have a leading batch axis of size 4 .* got shape \\(3, 3, 3\\)"):
+    with pytest.raises(ValueError,
+                       match="scenario.inertia.J must have a leading batch axis of size 4 .* got shape \\(3, 3, 3\\)"):
         sj.rollout_batch(batched, pd, gains, jnp.arange(4), scenario_axes=axes)
     with pytest.raises(ValueError, match="gains.k_R must have a leading batch axis of size 3 .* got shape \\(2,\\)"):
-        sj.rollout_batch(batched, pd, sj.PDGains(jnp.ones(2), jnp.ones(3)), jnp.arange(3), scenario_axes=axes, gains_axes=0)
+        sj.rollout_batch(batched, pd, sj.PDGains(jnp.ones(2), jnp.ones(3)), jnp.arange(3), scenario_axes=axes,
+                         gains_axes=0)
     with pytest.raises(ValueError, match="seeds must be a \\(B,\\) array of integers"):
         sj.rollout_batch(batched, pd, gains, jnp.zeros((3, 1), jnp.int32), scenario_axes=axes)
     bad = dataclasses.replace(batched, inertia=sj.ConstantInertia(J.at[1].set(-jnp.asarray(J_OK))))
@@ -257,16 +265,19 @@ def test_checks_compose_with_jit_vmap_and_grad():
     [
         ("dispersions.deployment.tau_J=-50.0", "deployment.tau_J \\[s\\] must be > 0"),
         ("dispersions.deployment.tau_J=0.0", "deployment.tau_J \\[s\\] must be > 0"),
-        ('dispersions.deployment.tau_J={dist="uniform", low=-100.0, high=400.0}', "deployment.tau_J \\[s\\] must be > 0"),
+        ('dispersions.deployment.tau_J={dist="uniform", low=-100.0, high=400.0}',
+         "deployment.tau_J \\[s\\] must be > 0"),
         ('dispersions.deployment.tau_J={dist="normal", mean=-300.0, std=10.0}', "deployment.tau_J \\[s\\] must be > 0"),
         ('dispersions.deployment.tau_J={dist="uniform", low=400.0, high=200.0}', "uniform needs low <= high"),
         ('dispersions.disturbance.noise_std={dist="normal", mean=0.025, std=-1.0}', "std / sigma >= 0"),
-        ('dispersions.disturbance.noise_std={dist="uniform", low=-0.1, high=0.1}', "disturbance.noise_std \\[N m\\] must be >= 0"),
+        ('dispersions.disturbance.noise_std={dist="uniform", low=-0.1, high=0.1}',
+         "disturbance.noise_std \\[N m\\] must be >= 0"),
         ("dispersions.inertia.J0.scale=0.0", "inertia.J0.scale must be > 0"),
         ('dispersions.inertia.J1.scale={dist="uniform", low=-1.0, high=2.0}', "inertia.J1.scale must be > 0"),
         ("dispersions.inertia.J2.axis_scale=-1.0", "inertia.J2.axis_scale must be > 0"),
         ("dispersions.orbit.n=-1e-3", "orbit.n \\[rad/s\\] must be >= 0"),
-        ('dispersions.initial.rate={norm={dist="uniform", low=-0.1, high=0.1}}', "initial.rate \\[rad/s\\] must be >= 0"),
+        ('dispersions.initial.rate={norm={dist="uniform", low=-0.1, high=0.1}}',
+         "initial.rate \\[rad/s\\] must be >= 0"),
     ],
 )
 def test_impossible_dispersions_are_errors(override, match):
@@ -281,7 +292,8 @@ def test_possible_dispersions_are_accepted():
     from so3jax.jobs import sweep
 
     sweep.load_config(None, ('dispersions.deployment.tau_J={dist="normal", mean=300.0, std=200.0}',
-                             "dispersions.inertia.J0.scale=1.0", 'dispersions.orbit.n={dist="lognormal", median=1e-3, sigma=0.1}'))
+                             "dispersions.inertia.J0.scale=1.0",
+                             'dispersions.orbit.n={dist="lognormal", median=1e-3, sigma=0.1}'))
 
 
 def test_draw_samples_checks_its_dispersions():
@@ -308,7 +320,8 @@ def test_tune_checks_its_mission_values():
     "args,error,match",
     [
         ((GOOD, sj.geometric_pd(), sj.PDGains("stiff", 25.0)), TypeError, "gain k_R must be a real numeric array"),
-        ((dataclasses.replace(GOOD, inertia=sj.ConstantInertia(jnp.asarray(np.eye(3) * (1 + 1j)))), sj.geometric_pd(), sj.PAPER_PD_GAINS),
+        ((dataclasses.replace(GOOD, inertia=sj.ConstantInertia(jnp.asarray(np.eye(3) * (1 + 1j)))),
+          sj.geometric_pd(), sj.PAPER_PD_GAINS),
          TypeError, "inertia J must be a real numeric array"),
         ((GOOD, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0.5), TypeError, "seed must be an integer"),
         ((GOOD, "pd", sj.PAPER_PD_GAINS), TypeError, "controller must be a so3jax Controller"),

@@ -100,7 +100,8 @@ def _jr_inv_apply(e0, e1, e2, w0, w1, w2):
 
 @_jit
 def _mul_add(x, y):
-    """x + (x y) for row-major 9-tuples: R_k + R_k (exp(hat psi) - I), the small term summed first (docs/model.md §5)."""
+    """x + (x y) for row-major 9-tuples: R_k + R_k (exp(hat psi) - I), the small term summed
+    first (docs/model.md §5)."""
     return (
         x[0] + (x[0] * y[0] + x[1] * y[3] + x[2] * y[6]),
         x[1] + (x[0] * y[1] + x[1] * y[4] + x[2] * y[7]),

@@ -60,7 +60,9 @@ TINY = float(np.finfo(np.float64).tiny)  # smallest normal float64
 # XLA's log1p rational and Giles' erfinv coefficients (highest degree first), as so3jax's
 # own float64 draw uses them
 LOG1P_P, LOG1P_Q = np.array(_erfinv.LOG1P_P), np.array(_erfinv.LOG1P_Q)
-ERFINV_W625, ERFINV_W16, ERFINV_WBIG = (np.array(c) for c in (_erfinv.ERFINV_W625, _erfinv.ERFINV_W16, _erfinv.ERFINV_WBIG))
+ERFINV_W625, ERFINV_W16, ERFINV_WBIG = (
+    np.array(c) for c in (_erfinv.ERFINV_W625, _erfinv.ERFINV_W16, _erfinv.ERFINV_WBIG)
+)
 LOG1P_SMALL = _erfinv.LOG1P_SMALL  # the rational holds for |z| < sqrt(2) - 1
 
 N_LOG1P_P, N_LOG1P_Q = len(LOG1P_P), len(LOG1P_Q)

@@ -199,7 +199,8 @@ def log_vee(R):
 
 
 def jr_inv_apply(e, w):
-    """J_r^{-1}(e) w = w + e x w / 2 + g(theta) e x (e x w), g = 1/theta^2 - cot(theta/2)/(2 theta) (docs/model.md §3.2)."""
+    """J_r^{-1}(e) w = w + e x w / 2 + g(theta) e x (e x w), g = 1/theta^2 - cot(theta/2)/(2 theta)
+    (docs/model.md §3.2)."""
     t2 = np.sum(e * e, axis=-1)
     small = t2 < SMALL_ANGLE**2
     t = np.sqrt(np.where(small, 1.0, t2))

@@ -19,7 +19,8 @@ from pathlib import Path
 
 from so3jax.commands import compare, fly, identify, paper, sweep, tune
 from so3jax.commands.common import _Parser
-from so3jax.parallel import xla_flags as _xla_flags, distributed
+from so3jax.parallel import distributed
+from so3jax.parallel import xla_flags as _xla_flags
 
 COMMANDS = (paper, fly, tune, sweep, compare, identify)  # in the order --help lists them
 
@@ -53,7 +54,7 @@ def configure_jax(precision: str) -> None:
     ~/.cache/so3jax/xla (at most 2 GiB where ``filelock`` is installed, which JAX's
     eviction needs); SO3JAX_CACHE_DIR= (empty) turns it off, and a cache the user
     configured for JAX is left as it is."""
-    import jax
+    import jax  # here: configured at run time, after main() sets XLA's flags
 
     jax.config.update("jax_enable_x64", precision == "float64")
     if jax.config.jax_compilation_cache_dir is None:

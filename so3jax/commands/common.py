@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import argparse
 
+from so3jax.components import registry as components
+from so3jax.controllers import registry
+
 
 class _Parser(argparse.ArgumentParser):
     """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the usage."""
@@ -16,9 +19,6 @@ class _Parser(argparse.ArgumentParser):
 def registered(tunable: bool = False) -> str:
     """The registered names a mission chooses among (a command's --help epilog), read from
     the registries; ``tunable``: the controllers whose gains ``tune`` can tune."""
-    from so3jax.components import registry as components
-    from so3jax.controllers import registry
-
     laws = ", ".join(registry.names(tunable=True) if tunable else registry.names())
     return (f"registered {'tunable controllers (tune.controller)' if tunable else 'controllers'}: {laws}; "
             f"sensors ([sensors.NAME]): {', '.join(components.names('sensor'))}; "
@@ -28,8 +28,6 @@ def registered(tunable: bool = False) -> str:
 
 def controllers_help(default: str) -> str:
     """--controllers' help: the registered controller names."""
-    from so3jax.controllers import registry
-
     return f"comma-separated controllers among: {', '.join(registry.names())} (default: {default})"
 
 

@@ -9,6 +9,10 @@ from pathlib import Path
 
 from so3jax.commands.common import add_memory_argument, add_precision_argument, controllers_help, registered
 from so3jax.jobs import fly
+from so3jax.missions import mission as missions
+from so3jax.results import runfolder
+from so3jax.results.io import dumps, save_npz, write_json
+from so3jax.sim import memory
 
 
 def register(subparsers) -> None:
@@ -45,18 +49,12 @@ def overrides(args) -> list[str]:
 
 
 def run(args) -> int:
-    from so3jax.missions import mission as missions
-    from so3jax.results import runfolder
-
     mission = missions.load(args.mission, overrides(args))
     with runfolder.claim(args.out, "fly", vars(args)):
         return _fly_into(args, mission)
 
 
 def _fly_into(args, mission) -> int:
-    from so3jax.results.io import dumps, save_npz, write_json
-    from so3jax.sim import memory
-
     scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
     budget = memory.check(fly.memory_needed(mission, scenario, loop), memory.from_args(args),
                           f"T = {mission.T:g} s at record_every = {mission.record_every}",

@@ -7,11 +7,17 @@ from __future__ import annotations
 import json
 import math
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
 
 from so3jax.commands.common import add_precision_argument
+from so3jax.jobs.identify import METHODS, inertia, telemetry
+from so3jax.jobs.identify import report as reports
+from so3jax.missions import mission as missions
+from so3jax.results import runfolder
+from so3jax.results.io import dumps, write_json, write_text
 
 DISTURBANCE = {"none": -1, "constant": 0, "linear": 1, "quadratic": 2, "cubic": 3}
 DEFAULT_DISTURBANCE = {"regression": "linear", "simulation": "cubic"}
@@ -37,7 +43,8 @@ def register(subparsers) -> None:
     p.add_argument("--initial-inertia", metavar="J",
                    help="simulation: first guess, a number (isotropic) or a 3x3 JSON list [kg m^2] "
                         "(default: the regression's estimate)")
-    p.add_argument("--out", type=Path, default=Path("results/identify"), help="output folder (default results/identify)")
+    p.add_argument("--out", type=Path, default=Path("results/identify"),
+                   help="output folder (default results/identify)")
     p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     p.add_argument("--no-figures", action="store_true", help="skip the residual figure")
     add_precision_argument(p)
@@ -55,7 +62,6 @@ def _initial(text):
         value = value * np.eye(3)
     if value.shape != (3, 3) or not np.all(np.isfinite(value)):
         raise ValueError(f"--initial-inertia must be a number or a 3x3 list of finite numbers, got shape {value.shape}")
-    from so3jax.jobs.identify import inertia
 
     if not inertia.is_physical(value):
         raise ValueError("--initial-inertia is not a physical inertia (symmetric, triangle inequality)")
@@ -72,10 +78,6 @@ def _check(args) -> None:
 
 
 def run(args) -> int:
-    from so3jax.missions import mission as missions
-    from so3jax.results import runfolder
-    from so3jax.jobs.identify import telemetry
-
     _check(args)
     initial = _initial(args.initial_inertia)
     mission = missions.load(args.mission)
@@ -87,11 +89,6 @@ def run(args) -> int:
 
 
 def _identify_into(args, tm, initial) -> int:
-    import time
-
-    from so3jax.jobs.identify import METHODS, report as reports
-    from so3jax.results.io import dumps, write_json, write_text
-
     disturbance = args.disturbance or DEFAULT_DISTURBANCE[args.method]
     options = dict(bias=not args.no_bias, degree=DISTURBANCE[disturbance])
     if args.method == "regression":
@@ -104,7 +101,8 @@ def _identify_into(args, tm, initial) -> int:
     fit = METHODS[args.method](tm, **options)
     wall = time.perf_counter() - start
     report = reports.summary(fit)
-    report["config"] = {"telemetry": str(args.telemetry), "mission": None if args.mission is None else str(args.mission),
+    report["config"] = {"telemetry": str(args.telemetry),
+                        "mission": None if args.mission is None else str(args.mission),
                         "method": args.method, "bias": options["bias"], "disturbance": disturbance,
                         **({"interval_s": args.interval} if args.method == "regression" else
                            {"window_s": args.window, "initial_inertia": None if initial is None else initial.tolist()}),

@@ -8,6 +8,10 @@ from pathlib import Path
 
 from so3jax.commands.common import add_memory_argument, add_precision_argument, registered
 from so3jax.jobs import paper
+from so3jax.jobs.fly import fly
+from so3jax.results import runfolder
+from so3jax.results.io import dumps, write_json
+from so3jax.sim import memory
 
 
 def register(subparsers) -> None:
@@ -45,18 +49,12 @@ def overrides(args) -> list[str]:
 
 
 def run(args) -> int:
-    from so3jax.results import runfolder
-
     mission = paper.load_mission(overrides(args))  # every check before the output folder exists
     with runfolder.claim(args.out, "paper", {"mission": mission.describe(), "precision": args.precision}):
         return _run(args, mission)
 
 
 def _run(args, mission) -> int:
-    from so3jax.jobs.fly import fly
-    from so3jax.results.io import dumps, write_json
-    from so3jax.sim import memory
-
     scenario = mission.scenario(args.precision)
     budget = memory.check(paper.memory_needed(mission, scenario), memory.from_args(args),
                           f"--T {mission.T:g} at --record-every {mission.record_every}",

@@ -9,26 +9,30 @@ import warnings
 from pathlib import Path
 
 from so3jax.commands.common import add_memory_argument, add_precision_argument, controllers_help, registered
-from so3jax.parallel import distributed
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.sweep.config import load_config
 from so3jax.jobs.sweep.engine import LAYOUTS, run_sweep
 from so3jax.jobs.sweep.summary import format_summary
+from so3jax.parallel import distributed
+from so3jax.sim import memory
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "sweep",
         help="Monte Carlo robustness sweep of a mission (sharded over all devices)",
-        description="Monte Carlo robustness sweep: a mission dispersed on its own leaves x its controllers, paired by sample.",
+        description="Monte Carlo robustness sweep: a mission dispersed on its own leaves x its controllers, "
+                    "paired by sample.",
         epilog=registered(),
     )
     p.add_argument("config", nargs="?", type=Path,
-                   help="sweep file: a mission, [sweep] and [dispersions] (default: the built-in one, = sweeps/default.toml)")
+                   help="sweep file: a mission, [sweep] and [dispersions] "
+                        "(default: the built-in one, = sweeps/default.toml)")
     p.add_argument("--samples", type=int, help="number of samples")
     p.add_argument("--T", type=float, help="horizon [s] (the mission's T)")
     p.add_argument("--controllers", help=controllers_help("the mission's"))
-    p.add_argument("--chunk", type=int, help="samples per batch (at least 8 per device, a multiple of the device count)")
+    p.add_argument("--chunk", type=int,
+                   help="samples per batch (at least 8 per device, a multiple of the device count)")
     p.add_argument("--seed", type=int, help="sampling seed")
     p.add_argument(
         "--set",
@@ -42,7 +46,8 @@ def register(subparsers) -> None:
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
     group = distributed.add_arguments(p)
     group.add_argument("--layout", choices=LAYOUTS, default="chunks",
-                       help="how processes share the sweep: whole chunks per process (default), or each chunk over every process's devices")
+                       help="how processes share the sweep: whole chunks per process (default), "
+                            "or each chunk over every process's devices")
     add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=run)
@@ -59,7 +64,6 @@ def run(args: argparse.Namespace) -> int:
     with warnings.catch_warnings():
         warnings.simplefilter("once", InertiaWarning)
         config = load_config(args.config, tuple(overrides))
-    from so3jax.sim import memory
 
     summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args), layout=args.layout)
     if distributed.writer():

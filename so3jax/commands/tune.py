@@ -7,12 +7,12 @@ import sys
 from pathlib import Path
 
 from so3jax.commands.common import add_precision_argument, registered
-from so3jax.missions import config as cfg
-from so3jax.parallel import distributed
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import load_config
 from so3jax.jobs.tune.optimizers import NonFiniteGradientError
 from so3jax.jobs.tune.validation import markdown_table
+from so3jax.missions import config as cfg
+from so3jax.parallel import distributed
 
 DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
 

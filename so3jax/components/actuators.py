@@ -19,10 +19,9 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.base import Actuator, StoredMomentum, _no_limit
-from so3jax.core import checks
-from so3jax.core import so3
-from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.core import checks, so3
 from so3jax.core.params import Param
+from so3jax.core.pytree import pytree_dataclass, static_field
 
 _UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
@@ -259,7 +258,8 @@ class Wheels(Actuator):
 
     def derivative(self, state, held, Omega, Omega_dot):
         """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (docs/model.md §8.4)."""
-        return held.u / _per_wheel(self._plant_spin_inertia(), Omega) - so3.rmatvec(self._axes(Omega, plant=True), Omega_dot)
+        return (held.u / _per_wheel(self._plant_spin_inertia(), Omega)
+                - so3.rmatvec(self._axes(Omega, plant=True), Omega_dot))
 
     def effort(self, held):
         """sum_i u_i^2 [N^2 m^2]."""
@@ -350,7 +350,8 @@ def _wheel_values(values: dict) -> dict:
                          f"got shape {np.shape(out['misalignment'])}")
     motor = values["motor_torque"]
     if motor is not None and np.shape(motor) != (n,):
-        raise ValueError(f"actuator.wheels.motor_torque [N m] must hold {n} values (one per wheel), got {np.size(motor)}")
+        raise ValueError(f"actuator.wheels.motor_torque [N m] must hold {n} values (one per wheel), "
+                         f"got {np.size(motor)}")
     return out
 
 

@@ -19,11 +19,9 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.base import Estimate, Estimator
-
-from so3jax.core import so3
-from so3jax.core import checks
-from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.core import checks, so3
 from so3jax.core.params import Param
+from so3jax.core.pytree import pytree_dataclass, static_field
 
 
 def _batch(x, core_ndim, batch_shape, dtype):
@@ -187,7 +185,8 @@ class MEKF(Estimator):
             if v is None:
                 continue
             if v.shape != () or not np.isfinite(v) or v < 0:
-                raise ValueError(f"estimator {name} must be a finite non-negative number, got {checks.short(v.tolist())}")
+                raise ValueError(f"estimator {name} must be a finite non-negative number, "
+                                 f"got {checks.short(v.tolist())}")
         t = checks.concrete(self.theta0, "estimator theta0 [rad]")
         if t is not None and (t.shape != (3,) or not np.all(np.isfinite(t))):
             raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {checks.short(t.tolist())}")

@@ -9,18 +9,15 @@ Arrays follow :mod:`so3jax.core.so3` (batch axes last); parameters have no batch
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.base import Measurements, Sensor
-
-from so3jax.core import so3
-from so3jax.core import checks
-from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.core import checks, so3
 from so3jax.core.params import Param
+from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.dynamics.disturbance import noise_components
 
 GYRO_WHITE, GYRO_BIAS_WALK, STAR_TRACKER = 1, 2, 3  # noise streams s (docs/model.md §8.2)

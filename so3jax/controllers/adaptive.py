@@ -39,13 +39,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax.core import so3
-from so3jax.core._fusion import materialize
-from so3jax.core.params import Param
 from so3jax.controllers.base import Controller, hashable, tracking_error
 from so3jax.controllers.gains import PositiveDefinite, check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.core.params import Param
 
 
 class AdaptiveGains(NamedTuple):
@@ -238,7 +238,8 @@ class AdaptiveBackstepping(Controller):
             return tau, theta_dot
         d = theta_hat - self._nominal_like(theta_hat)
         if self.leakage != "none":
-            theta_dot = theta_dot - leakage_rate(d, self.leakage, self.sigma, self.theta_bound) * _gamma_columns(gains.Gamma, d)
+            leak = leakage_rate(d, self.leakage, self.sigma, self.theta_bound)
+            theta_dot = theta_dot - leak * _gamma_columns(gains.Gamma, d)
         if self.projection_bound is not None:
             theta_dot = project(d, theta_dot, gains.Gamma, self.projection_bound, self.projection_eps)
         return tau, theta_dot

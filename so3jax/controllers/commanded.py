@@ -17,10 +17,10 @@ from typing import Any, NamedTuple
 
 import jax.numpy as jnp
 
-from so3jax.core import so3
 from so3jax.controllers.base import Controller, hashable
-from so3jax.core.params import Param
 from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.core import so3
+from so3jax.core.params import Param
 
 
 class NoGains(NamedTuple):

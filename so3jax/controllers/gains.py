@@ -62,7 +62,8 @@ class PositiveDefinite:
             return POSITIVE.check(name, value, batch_axes)
         n = self.n
         if value.shape[-2:] != (n, n):
-            raise ValueError(f"gain {name} must be a scalar, a ({n},) diagonal or a ({n}, {n}) matrix, got {value.shape}")
+            raise ValueError(f"gain {name} must be a scalar, a ({n},) diagonal or a ({n}, {n}) matrix, "
+                             f"got {value.shape}")
         if not np.allclose(value, np.swapaxes(value, -1, -2), rtol=1e-12, atol=0):
             raise ValueError(f"gain {name} is not symmetric")
         if np.any(np.linalg.eigvalsh(value) <= 0):

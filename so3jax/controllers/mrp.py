@@ -37,13 +37,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax.core import so3
-from so3jax.core._fusion import materialize
-from so3jax.core.params import Param
 from so3jax.controllers.base import Controller, hashable, inertial_terms, nominal_inertia, tracking_error
 from so3jax.controllers.gains import Nonnegative, check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.core.params import Param
 
 
 class MRPFeedbackGains(NamedTuple):

@@ -7,12 +7,12 @@ from typing import Any, NamedTuple
 
 import jax
 
-from so3jax.core import so3
-from so3jax.core._fusion import materialize
 from so3jax.controllers.base import Controller, hashable, inertial_terms, nominal_inertia, tracking_error
 from so3jax.controllers.gains import check_gains
-from so3jax.core.params import Param
 from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.core.params import Param
 
 J_HAT = Param("J_hat", None, "kg m^2", shapes=((3, 3),), doc="nominal inertia (default: the identity)")
 

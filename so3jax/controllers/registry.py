@@ -50,7 +50,8 @@ class ControllerSpec:
         """{field: allowed shapes} of every gain: ``shapes``' entry, else its domain's
         (:func:`so3jax.controllers.gains.gain_domain`), else the default's shape."""
         def allowed(f):
-            return self.shapes.get(f) or gain_domain(self.gains_type, f).shapes or (np.shape(getattr(self.defaults, f)),)
+            return (self.shapes.get(f) or gain_domain(self.gains_type, f).shapes
+                    or (np.shape(getattr(self.defaults, f)),))
 
         return {f: tuple(allowed(f)) for f in self.gains_type._fields}
 

@@ -35,13 +35,13 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax.core import so3
-from so3jax.core._fusion import materialize
-from so3jax.core.params import Param
 from so3jax.controllers.base import Controller, hashable, inertial_terms, nominal_inertia, tracking_error
 from so3jax.controllers.gains import check_gains
 from so3jax.controllers.pd import J_HAT
 from so3jax.controllers.registry import ControllerSpec, register
+from so3jax.core import so3
+from so3jax.core._fusion import materialize
+from so3jax.core.params import Param
 
 
 class SlidingModeGains(NamedTuple):
@@ -51,7 +51,8 @@ class SlidingModeGains(NamedTuple):
     phi: jax.Array  # rad/s: boundary layer width
 
 
-# k_s lam = k_R and k_s + lam ~ k_Omega of the paper's PD (its linearization with J_hat = I); eta, phi: a small boundary-layer term.
+# k_s lam = k_R and k_s + lam ~ k_Omega of the paper's PD (its linearization with J_hat = I);
+# eta, phi: a small boundary-layer term.
 DEFAULT_GAINS = SlidingModeGains(lam=0.5714 / 25.0, k_s=25.0, eta=0.01, phi=1e-3)
 
 BOUNDARIES = ("tanh", "sat")

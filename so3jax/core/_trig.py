@@ -71,8 +71,10 @@ def sin(x):
     return sincos(x)[0]
 
 
-_ATAN_HI = (4.63647609000806093515e-01, 7.85398163397448278999e-01, 9.82793723247329054082e-01, 1.57079632679489655800e00)
-_ATAN_LO = (2.26987774529616870924e-17, 3.06161699786838301793e-17, 1.39033110312309984516e-17, 6.12323399573676603587e-17)
+_ATAN_HI = (4.63647609000806093515e-01, 7.85398163397448278999e-01, 9.82793723247329054082e-01,
+            1.57079632679489655800e00)
+_ATAN_LO = (2.26987774529616870924e-17, 3.06161699786838301793e-17, 1.39033110312309984516e-17,
+            6.12323399573676603587e-17)
 # atan's odd and even parts in w = x^4, highest degree first
 _AT_ODD = (1.62858201153657823623e-02, 4.97687799461593236017e-02, 6.66107313738753120669e-02,
            9.09088713343650656196e-02, 1.42857142725034663711e-01, 3.33333333333329318027e-01)  # fmt: skip
@@ -92,8 +94,10 @@ def _atan_nonnegative(a):
     z = x * x
     w = z * z
     tail = x * (z * _horner(_AT_ODD, w) + w * _horner(_AT_EVEN, w))
-    hi = jnp.where(ranges[3], _ATAN_HI[3], jnp.where(ranges[2], _ATAN_HI[2], jnp.where(ranges[1], _ATAN_HI[1], _ATAN_HI[0])))
-    lo = jnp.where(ranges[3], _ATAN_LO[3], jnp.where(ranges[2], _ATAN_LO[2], jnp.where(ranges[1], _ATAN_LO[1], _ATAN_LO[0])))
+    hi = jnp.where(ranges[3], _ATAN_HI[3],
+                   jnp.where(ranges[2], _ATAN_HI[2], jnp.where(ranges[1], _ATAN_HI[1], _ATAN_HI[0])))
+    lo = jnp.where(ranges[3], _ATAN_LO[3],
+                   jnp.where(ranges[2], _ATAN_LO[2], jnp.where(ranges[1], _ATAN_LO[1], _ATAN_LO[0])))
     return jnp.where(ranges[0], hi - ((tail - lo) - x), x - tail)
 
 

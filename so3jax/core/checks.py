@@ -15,7 +15,8 @@ def table(d: dict, key: str, allowed, where: str = "") -> dict:
         raise ValueError(f"{where}{key} must be a table, got {short(t)}")  # noqa: TRY004 (bad input)
     unknown = set(t) - set(allowed)
     if unknown:
-        raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
+        raise ValueError(f"unknown key(s) in [{where}{key}]: {', '.join(sorted(unknown))}; "
+                         f"allowed: {', '.join(allowed)}")
     return t
 
 

@@ -8,9 +8,9 @@ R_k exp(hat(psi)). Vector-space states are advanced by classical RK4 alongside.
 
 from __future__ import annotations
 
-import jax
-
 from typing import NamedTuple
+
+import jax
 
 from so3jax.core import so3
 from so3jax.core._fusion import materialize

@@ -8,12 +8,11 @@ import numpy as np
 from jax.ad_checkpoint import checkpoint_name
 
 from so3jax.core import _trig
-
-from so3jax.dynamics import stepped
 from so3jax.core._erfinv import erf_inv
 from so3jax.core._fusion import materialize
-from so3jax.core.pytree import pytree_dataclass
 from so3jax.core._threefry import threefry2x32
+from so3jax.core.pytree import pytree_dataclass
+from so3jax.dynamics import stepped
 
 
 @pytree_dataclass
@@ -35,7 +34,8 @@ class SinusoidPlusNoise:
     def components(self, key, k, t_k):
         """d_k as its three axes (x, y, z), each of the key's batch shape [N m]: a block of
         steps drawn this way is three loops over the batch, not one that interleaves axes."""
-        sine = _trig.sin if stepped.per_trajectory(self.frequency, 0) else jnp.sin  # vectorized across a sweep's samples
+        # vectorized across a sweep's samples
+        sine = _trig.sin if stepped.per_trajectory(self.frequency, 0) else jnp.sin
         sinusoid = self.amplitude * sine(self.frequency * t_k)
         return tuple(sinusoid + self.noise_std * eta for eta in noise_components(key, k, jnp.result_type(t_k)))
 

@@ -24,7 +24,8 @@ def _real_dtype(x, what: str) -> None:
     except (TypeError, ValueError):
         dtype = None
     if dtype is None or dtype.kind not in "fiu":
-        raise TypeError(f"{what} must be a real numeric array, got {x!r}" + (f" of dtype {dtype}" if dtype is not None else ""))
+        raise TypeError(f"{what} must be a real numeric array, got {x!r}"
+                        + (f" of dtype {dtype}" if dtype is not None else ""))
 
 
 def _concrete(x) -> np.ndarray | None:
@@ -122,7 +123,8 @@ def check_inertia_profile(scenario, *, batch_last: bool = False) -> None:
     triangle inequality."""
     profile = scenario.inertia
     if not callable(profile):
-        raise TypeError(f"scenario.inertia must be an inertia profile J(t, phase) (see so3jax.dynamics.plant), got {profile!r}")
+        raise TypeError("scenario.inertia must be an inertia profile J(t, phase) (see so3jax.dynamics.plant), "
+                        f"got {profile!r}")
     check = getattr(profile, "check", None)
     if check is not None:
         check()

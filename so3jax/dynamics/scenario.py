@@ -94,7 +94,8 @@ def paper_scenario(
     scenario = Scenario(
         inertia=PaperInertia(J0, J1, as_array(J2), as_array(PAPER_DEPLOY_TIME), as_array(tau_J)),
         reference=reference,
-        disturbance=SinusoidPlusNoise(as_array(disturbance_amplitude), as_array(disturbance_frequency), as_array(noise_std)),
+        disturbance=SinusoidPlusNoise(as_array(disturbance_amplitude), as_array(disturbance_frequency),
+                                      as_array(noise_std)),
         R0=jnp.eye(3, dtype=dtype),
         Omega0=jnp.zeros(3, dtype),
         dt=dt,

@@ -81,7 +81,8 @@ def _inertia_constants(inertia, dt):
 
 def stage_terms(scenario, consts: Constants, t, phase, with_inverse: bool) -> tuple[StageTerms, ...]:
     """The time terms at t, t + dt/2, t + dt of a step starting at t [s] in ``phase``."""
-    R_d = (None,) * 3 if consts.step_rotations is None else _attitudes(scenario.reference, consts.step_rotations, t, phase)
+    R_d = ((None,) * 3 if consts.step_rotations is None
+           else _attitudes(scenario.reference, consts.step_rotations, t, phase))
     J, J_inv = (None,) * 3, (None,) * 3
     if consts.inertia is not None:
         J, J_inv = _inertias(scenario.inertia, consts.inertia, t, phase, with_inverse)

@@ -33,19 +33,26 @@ import json
 import sys
 import warnings
 from pathlib import Path
-
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import checks
-from so3jax.missions import config as cfg
-from so3jax.results import io, runfolder
-from so3jax.missions import mission as missions
 from so3jax.controllers import registry
-from so3jax.sim.metrics import cell
+from so3jax.core import checks
 from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.jobs.sweep.config import DEFAULT, config_from_dict
+from so3jax.jobs.sweep.engine import run_sweep
+from so3jax.jobs.tune.campaign import tune
+from so3jax.jobs.tune.config import describe as describe_campaign
+from so3jax.jobs.tune.config import parse_config
+from so3jax.jobs.tune.gains import gains_table, resolve_gains
+from so3jax.jobs.tune.validation import held_out
+from so3jax.missions import config as cfg
+from so3jax.missions import mission as missions
+from so3jax.results import io, runfolder
+from so3jax.sim.metrics import cell
+from so3jax.viz import compare as plots
 
 JOBS = ("tune", "sweep", "dispersions", "compare")
 TAILS = 95.0  # percentile of the tails compared [%]
@@ -98,8 +105,6 @@ def sweep_folder(index: int) -> str:
 
 def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     """A checked CompareConfig: every campaign and the sweep parse before any work."""
-    from so3jax.jobs.sweep.config import DEFAULT, config_from_dict
-
     if not isinstance(table, dict):
         raise ValueError(f"a comparison must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
     table = copy.deepcopy(table)
@@ -107,7 +112,8 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     if "tune" not in jobs or not isinstance(jobs["tune"], dict):
         raise ValueError("a comparison needs a [tune] table: the campaign every law shares")
     if "controller" in jobs["tune"]:
-        raise ValueError("tune.controller: a comparison tunes each of the mission's controllers; list them in controllers")
+        raise ValueError("tune.controller: a comparison tunes each of the mission's controllers; "
+                         "list them in controllers")
     options = checks.table(jobs, "compare", ("reference", "bootstrap", "seed", "candidates"))
     mission, _ = missions.load_job(table, base_dir, (), missions.PAPER)
     given = options.get("candidates")
@@ -148,9 +154,6 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
 
 def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_dir) -> Candidate:
     """A candidate of ``[compare.candidates]`` (or a mission's law, ``entry`` empty)."""
-    from so3jax.jobs.tune.config import parse_config
-    from so3jax.jobs.tune.gains import resolve_gains
-
     where = f"compare.candidates.{name}"
     entry = checks.table({"t": entry}, "t", ("controller", "gains", "tune", "against"), where)
     controller = checks.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
@@ -183,14 +186,12 @@ def load_config(path, overrides=()) -> CompareConfig:
 
 
 def describe(config: CompareConfig) -> dict:
-    from so3jax.jobs.tune.config import describe as describe_campaign
-    from so3jax.jobs.tune.gains import gains_table
-
     out = {"laws": list(config.laws), "reference": config.reference, "bootstrap": config.bootstrap,
            "seed": config.seed, "campaigns": {law: describe_campaign(c) for law, c in config.campaigns.items()},
            "sweep": io.to_builtin(config.sweep_table)}
     if config.given is not None:
-        out["candidates"] = {name: {"controller": c.controller, "gains": None if c.gains is None else gains_table(c.gains),
+        out["candidates"] = {name: {"controller": c.controller,
+                                    "gains": None if c.gains is None else gains_table(c.gains),
                                     "against": c.against} for name, c in config.candidates.items()}
     return out
 
@@ -219,7 +220,8 @@ def paired(x, y, resamples: int, rng: np.random.Generator) -> dict:
         "relative_change": {"mean": float(change.mean()), "ci95": _interval(change[index].mean(axis=1)),
                             "median": float(np.median(change))},
         "wins": {"share": float(wins.mean()), "ci95": _interval(wins[index].mean(axis=1))},
-        "tails": {f"p{TAILS:g}_reference": float(np.percentile(x, TAILS)), f"p{TAILS:g}": float(np.percentile(y, TAILS)),
+        "tails": {f"p{TAILS:g}_reference": float(np.percentile(x, TAILS)),
+                  f"p{TAILS:g}": float(np.percentile(y, TAILS)),
                   "difference": float(np.percentile(y, TAILS) - np.percentile(x, TAILS)), "ci95": _interval(tails)},
     }
 
@@ -265,7 +267,8 @@ def markdown(result: dict) -> str:
     """The comparison's table."""
     ref = result["reference"]
     lines = [
-        f"| law | tuned gains | held-out RMSE [rad/s] | held-out effort [N² m² s] | sweep RMSE median | sweep RMSE p{TAILS:g} "
+        f"| law | tuned gains | held-out RMSE [rad/s] | held-out effort [N² m² s] | sweep RMSE median "
+        f"| sweep RMSE p{TAILS:g} "
         f"| RMSE change vs {ref} (mean, 95 % CI) | wins vs {ref} (95 % CI) | diverged |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
@@ -297,10 +300,6 @@ def pairs(config: CompareConfig) -> list:
 def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
     """Tune every candidate (or judge its fixed gains on the held-out scenarios), sweep them
     at their gains, pair them: the comparison's report."""
-    from so3jax.jobs.tune.campaign import tune
-    from so3jax.jobs.tune.validation import held_out
-    from so3jax.viz import compare as plots
-
     out = Path(out)
     with runfolder.claim(out, "compare", describe(config), resume=resume) as folder:
         folder.start()  # the folder (a previous comparison's files gone, unless resumed) before its parts claim theirs
@@ -330,9 +329,6 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
     """Sweep candidates of distinct laws at their gains into ``out``: the samples' columns,
     each law's renamed after its candidate; ``seen``: the columns of the comparison's other
     sweeps, whose samples these must equal."""
-    from so3jax.jobs.sweep.config import config_from_dict
-    from so3jax.jobs.sweep.engine import run_sweep
-
     candidates = {config.candidates[name].controller: name for name in names}  # controller -> candidate
     table = copy.deepcopy(config.sweep_table)
     table["controllers"] = list(candidates)

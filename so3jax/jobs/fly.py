@@ -10,10 +10,17 @@ import time
 import warnings
 from pathlib import Path
 
+import jax
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.sim.metrics import cell
+from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.jobs.identify import telemetry
+from so3jax.parallel import devices
+from so3jax.results.io import save_figures, save_npz, to_builtin
+from so3jax.sim import memory
+from so3jax.sim.metrics import cell, reached_phases, reported
+from so3jax.sim.rollout import simulate as simulate_rollout
 
 PHASE_LABELS = ("capture", "deployment", "detumble")
 METRICS = ("rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase", "max_angle_phase",
@@ -28,12 +35,6 @@ def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
     """Every controller of the mission, side by side on the CPU devices
     (:func:`so3jax.parallel.devices.side_by_side`: compilations in parallel). Returns {name:
     Result with NumPy leaves} and the wall time [s], compile included."""
-    import jax
-
-    from so3jax.dynamics.inertia import InertiaWarning
-    from so3jax.parallel import devices
-    from so3jax.sim.rollout import simulate as simulate_rollout
-
     scenario, loop = mission.scenario(dtype), mission.loop(dtype)
 
     def simulate(name):
@@ -51,8 +52,6 @@ def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
 
 def memory_needed(mission, scenario, loop) -> int:
     """The memory [bytes] every controller's rollout needs (:mod:`so3jax.sim.memory`)."""
-    from so3jax.sim import memory
-
     return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
                for name in mission.controllers)
 
@@ -60,9 +59,6 @@ def memory_needed(mission, scenario, loop) -> int:
 def report(mission, result) -> dict:
     """The metrics of docs/model.md §6 (phases the horizon never reached omitted) and the flight metrics, as
     JSON-ready data: every metric of a diverged run None (null), the run flagged diverged."""
-    from so3jax.results.io import to_builtin
-    from so3jax.sim.metrics import reached_phases, reported
-
     m = result.metrics._asdict()
     diverged = bool(m["diverged"])
     reached = sum(reached_phases(mission.scenario().steps_per_phase))
@@ -145,9 +141,6 @@ def trajectory_arrays(results: dict) -> dict:
 def write_telemetry(out: Path, mission, results: dict) -> str:
     """OUT/telemetry/NAME.npz per controller (:mod:`so3jax.jobs.identify.telemetry`'s format),
     where the loop has a gyro and a star tracker; what the summary line lists."""
-    from so3jax.jobs.identify import telemetry
-    from so3jax.results.io import save_npz
-
     if not telemetry.recorded(mission):
         return ""
     for name, r in results.items():
@@ -157,7 +150,6 @@ def write_telemetry(out: Path, mission, results: dict) -> str:
 
 def write_figures(out: Path, mission, results: dict) -> list[Path]:
     """The mission's figures (:func:`so3jax.viz.fly.figures`) into ``out``."""
-    from so3jax.viz import fly as plots
-    from so3jax.results.io import save_figures
+    from so3jax.viz import fly as plots  # here: matplotlib only when drawing
 
     return save_figures(out, plots.figures(mission, {name: r.history for name, r in results.items()}))

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import jax
 import numpy as np
 
-from so3jax.sim.metrics import UNREACHED, cell
+from so3jax.missions import mission as missions
+from so3jax.results.io import save_figures
+from so3jax.sim import memory
+from so3jax.sim.metrics import UNREACHED, cell, phase_values, reported
 
 # Table II of the paper (effort in N^2 m^2 s; see docs/model.md §7.5).
 PAPER_TABLE = {"pd": {"rmse": 4.024e-3, "effort": 155.61}, "adaptive": {"rmse": 2.776e-3, "effort": 143.10}}
@@ -29,8 +33,6 @@ METRIC_NAMES = (
 def load_mission(overrides=()):
     """The paper's mission (:data:`so3jax.missions.mission.PAPER`, missions/paper.toml) with
     ``overrides`` (KEY=VALUE texts); its controllers must be the paper's two."""
-    from so3jax.missions import mission as missions
-
     m = missions.load(None, list(overrides), base=missions.PAPER)
     if m.controllers != CONTROLLERS:
         raise ValueError(f"controllers: so3jax paper compares {' and '.join(CONTROLLERS)} (Table II); "
@@ -40,8 +42,6 @@ def load_mission(overrides=()):
 
 def memory_needed(mission, scenario) -> int:
     """The memory [bytes] both controllers' rollouts need (:mod:`so3jax.sim.memory`)."""
-    from so3jax.sim import memory
-
     return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed,
                                      record_every=mission.record_every) for name in CONTROLLERS)
 
@@ -49,8 +49,6 @@ def memory_needed(mission, scenario) -> int:
 def metrics_dict(result, steps_per_phase=None) -> dict:
     """The metrics of docs/model.md §6 of one rollout: every value NaN when it diverged; per-phase values
     None for the phases the horizon never reached (all reached when steps_per_phase is None)."""
-    from so3jax.sim.metrics import phase_values, reported
-
     m = result.metrics._asdict()
     diverged = bool(m["diverged"])
     out = {}
@@ -110,8 +108,6 @@ def format_table(metrics: dict) -> str:
 
 def report(mission, scenario, results: dict, precision: str, wall: float, budget) -> dict:
     """metrics.json: each controller's metrics (:func:`metrics_dict`) and the run's configuration."""
-    import jax
-
     out = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
     out["config"] = {
         "T": mission.T,
@@ -134,7 +130,6 @@ def report(mission, scenario, results: dict, precision: str, wall: float, budget
 
 def write_figures(out: Path, results: dict, scenario) -> list[Path]:
     """Figs. 1-5 and the attitude error (:func:`so3jax.viz.paper.figures`) into ``out``."""
-    from so3jax.viz import paper as plots
-    from so3jax.results.io import save_figures
+    from so3jax.viz import paper as plots  # here: matplotlib only when drawing
 
     return save_figures(out, plots.figures({name: r.history for name, r in results.items()}, scenario))

@@ -38,6 +38,7 @@ from so3jax.core import checks
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop
+from so3jax.sim.rollout import rollout, rollout_batch
 
 STRUCTURED = {
     ("deployment", "tau_J"): "tau_J",
@@ -105,7 +106,8 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             fields[path[1]] = _inertia(value, where, fields[path[1]])
         elif key == "initial.attitude":
             t = checks.table({"t": value}, "t", ("max_angle_deg",), where)
-            fields["initial_angle_deg"] = checks.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg", 0.0, 180.0)
+            fields["initial_angle_deg"] = checks.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg",
+                                                        0.0, 180.0)
         elif key == "initial.rate":
             t = checks.table({"t": value}, "t", ("norm",), where)
             fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
@@ -114,7 +116,8 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
         elif path[0] in _LOOP_TABLES:
             leaves.append(_leaf(path, value, where, mission))
         else:
-            raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, orbit.n, "
+            raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
+                             "orbit.n, "
                              "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
                              "parameters of the mission's sensors, estimator and actuator")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
@@ -137,7 +140,8 @@ def _distribution(value, where: str) -> disp.Distribution:
 
 def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
     t = checks.table({"t": value}, "t", _INERTIA_KEYS, where)
-    changes = {name: _distribution(t[name], f"{where}.{name}") for name in ("scale", "axis_scale", "products") if name in t}
+    changes = {name: _distribution(t[name], f"{where}.{name}")
+               for name in ("scale", "axis_scale", "products") if name in t}
     if "rotation_deg" in t:
         changes["rotation_deg"] = checks.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
     return dataclasses.replace(default, **changes)
@@ -213,7 +217,8 @@ def inputs(samples: disp.Samples, dtype) -> tuple:
 # --- a sample's scenario and loop ------------------------------------------------------------
 
 
-def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every: int | None = None, estimator=None) -> dict:
+def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every: int | None = None,
+                   estimator=None) -> dict:
     """{metric: values} of a batch of samples of ``mission`` (hashable by its fingerprint: a
     static argument of jit) flown by ``controller`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
@@ -224,18 +229,18 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
     estimator that every sample shares (the noise levels the filter assumes, tuned).
     Pure: jit, grad and :func:`so3jax.parallel.devices.split` compose with it."""
-    from so3jax.sim.rollout import rollout, rollout_batch
-
     params, leaves = inputs
     m, dtype = mission, params.J0.dtype
     scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
-        return _results(rollout_batch(scenarios, controller, gains, params.seed, loop=shared_loop, record_every=record_every))
+        return _results(rollout_batch(scenarios, controller, gains, params.seed, loop=shared_loop,
+                                      record_every=record_every))
 
     def one(s, seed, values):
-        return _results(rollout(s, controller, gains, seed, loop=loop(m, {**shared, **values}, dtype), record_every=record_every))
+        return _results(rollout(s, controller, gains, seed, loop=loop(m, {**shared, **values}, dtype),
+                                record_every=record_every))
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 

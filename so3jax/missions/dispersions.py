@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.dynamics.inertia import check_inertia
 from so3jax.dynamics.orbit import orbital_rate
 from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
@@ -91,7 +92,8 @@ def parse_distribution(value, where: str) -> Distribution:
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return _checked(Fixed(float(value)), where)
     if not isinstance(value, dict) or "dist" not in value:
-        raise ValueError(f"{where}: expected a number or a table with 'dist' ({', '.join(DISTRIBUTIONS)}), got {value!r}")
+        raise ValueError(f"{where}: expected a number or a table with 'dist' ({', '.join(DISTRIBUTIONS)}), "
+                         f"got {value!r}")
     kind = DISTRIBUTIONS.get(value["dist"])
     if kind is None:
         raise ValueError(f"{where}: unknown distribution {value['dist']!r}; choose one of {', '.join(DISTRIBUTIONS)}")
@@ -111,7 +113,8 @@ def _checked(dist: Distribution, where: str) -> Distribution:
         raise ValueError(f"{where}: parameters must be finite, got {dist}")
     if isinstance(dist, Uniform) and dist.low > dist.high:
         raise ValueError(f"{where}: uniform needs low <= high, got {dist}")
-    if isinstance(dist, Normal) and dist.std < 0 or isinstance(dist, LogNormal) and (dist.sigma < 0 or dist.median <= 0):
+    if (isinstance(dist, Normal) and dist.std < 0
+            or isinstance(dist, LogNormal) and (dist.sigma < 0 or dist.median <= 0)):
         raise ValueError(f"{where}: needs std / sigma >= 0 and median > 0, got {dist}")
     return dist
 
@@ -147,8 +150,6 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
     """Every dispersed quantity's distribution in its domain (:func:`check_domain`), and
     the nominal inertias (docs/model.md §6; an InertiaWarning for one that breaks the triangle
     inequality, if ``warn``), before anything is drawn or compiled."""
-    from so3jax.dynamics.inertia import check_inertia
-
     for name, (where, low, strict) in DOMAINS.items():
         check_domain(getattr(d, name), where, low, strict)
     for J in ("J0", "J1", "J2"):
@@ -340,16 +341,19 @@ def _draw_block(d: Dispersions, words, max_draws: int):
     def pick(x):
         return x[np.arange(len(x)), first]
 
-    n, amplitude, frequency, noise_std = (dist.sample(*other.take(1))[:, 0] for dist in (d.n, d.amplitude, d.frequency, d.noise_std))
+    n, amplitude, frequency, noise_std = (dist.sample(*other.take(1))[:, 0]
+                                          for dist in (d.n, d.amplitude, d.frequency, d.noise_std))
     attitude_error = rotation_vector(*other.take(4), math.radians(d.initial_angle_deg))
     R0 = rotation_matrix(attitude_error)
     rate_u, rate_z = other.take(4)
-    Omega0 = d.initial_rate.sample(rate_u[:, :1], rate_z[:, :1]) * rate_z[:, 1:] / np.linalg.norm(rate_z[:, 1:], axis=-1, keepdims=True)
+    norm = np.linalg.norm(rate_z[:, 1:], axis=-1, keepdims=True)
+    Omega0 = d.initial_rate.sample(rate_u[:, :1], rate_z[:, :1]) * rate_z[:, 1:] / norm
     if d.disturbance_seed is None:
         seed = (words[:, 0] >> 1).astype(np.int32)
     else:
         seed = np.full(len(words), d.disturbance_seed, np.int32)
-    params = RolloutParams(pick(J0), pick(J1), pick(J2), pick(tau_J), n, amplitude, frequency, noise_std, R0, Omega0, seed)
+    params = RolloutParams(pick(J0), pick(J1), pick(J2), pick(tau_J), n, amplitude, frequency, noise_std, R0, Omega0,
+                           seed)
     scale = np.stack([pick(s0), pick(s1), pick(s2)], -1)
     return Samples(params, valid, (first + 1).astype(np.int32), scale, attitude_error)
 

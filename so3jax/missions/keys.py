@@ -47,7 +47,8 @@ KEYS = (
     Param("control.period", 0.1, "s", low=0.0, doc="control period (sampled mode), a whole number of steps dt"),
     Param("inertia.J", None, "kg m^2", shapes=((3, 3),),
           doc="a constant inertia J(t) = J throughout (excludes inertia.J0, J1, J2)"),
-    Param("inertia.J0.nominal", _matrix(PAPER_J0), "kg m^2", shapes=((3, 3),), doc="inertia at capture (the paper's J0)"),
+    Param("inertia.J0.nominal", _matrix(PAPER_J0), "kg m^2", shapes=((3, 3),),
+          doc="inertia at capture (the paper's J0)"),
     Param("inertia.J1.scale", 2.0, low=0.0, doc="deployed inertia J1 = scale J0"),
     Param("inertia.J1.nominal", None, "kg m^2", shapes=((3, 3),), doc="deployed inertia J1 (instead of a scale of J0)"),
     Param("inertia.J2.nominal", _matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),
@@ -59,7 +60,8 @@ KEYS = (
     Param("disturbance.noise_std", 0.025, "N m", low=0.0, doc="the white noise's standard deviation"),
     Param("initial.attitude", [0.0, 0.0, 0.0], "rad", shapes=((3,),),
           doc="R(0) = exp(hat(attitude)), a rotation vector (R_d(0) = I: the initial attitude error)"),
-    Param("initial.quaternion", None, shapes=((4,),), doc="R(0) as a unit quaternion [w, x, y, z] (instead of attitude)"),
+    Param("initial.quaternion", None, shapes=((4,),),
+          doc="R(0) as a unit quaternion [w, x, y, z] (instead of attitude)"),
     Param("initial.rate", [0.0, 0.0, 0.0], "rad/s", shapes=((3,),), doc="Omega(0), body frame"),
 )
 

@@ -21,17 +21,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.core import checks
-from so3jax.missions import build
-from so3jax.missions import config as cfg
-from so3jax.missions import keys
+from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
+from so3jax.core import checks
+from so3jax.dynamics.inertia import check_inertia
+from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
+from so3jax.missions import build, keys
+from so3jax.missions import config as cfg
 from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
 from so3jax.sim.loop import Loop, check_loop, check_wiring
-from so3jax.dynamics.inertia import check_inertia
-from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
-from so3jax.components.sensors import Sensors
 
 # docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
 # The mission's own keys are their declarations' defaults (so3jax.missions.keys), the
@@ -47,7 +46,8 @@ FLIGHT = {
 
 # docs/model.md §4-§5: the paper's experiment in the same schema: the controller reads the true state
 # in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
-PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"}, actuator={"kind": "ideal"})
+PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"},
+             actuator={"kind": "ideal"})
 
 _TOP = keys.TOP
 _TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "controller", "gains")
@@ -120,7 +120,8 @@ class Mission:
         # options fix results only for the laws flown and where given: a law registered
         # or left at its defaults elsewhere does not change what a mission is
         d["options"] = {name: values for name, values in d["options"].items()
-                        if name in self.controllers or to_builtin(values) != to_builtin(registry.parse_options(name, {}))}
+                        if name in self.controllers
+                        or to_builtin(values) != to_builtin(registry.parse_options(name, {}))}
         d["gains"] = {k: {f: np.asarray(v).tolist() for f, v in g._asdict().items()} for k, g in self.gains.items()}
         return to_builtin(d)
 
@@ -292,12 +293,14 @@ def _inertias(given: dict, full: dict):
         J = keys.parse("inertia.J", given["J"])
         return J, J, J, None, True
     inertia = checks.table({"inertia": full}, "inertia", keys.allowed("inertia"))
-    J0 = keys.parse("inertia.J0.nominal", checks.table(inertia, "J0", keys.allowed("inertia.J0"), "inertia.")["nominal"])
+    J0 = keys.parse("inertia.J0.nominal",
+                    checks.table(inertia, "J0", keys.allowed("inertia.J0"), "inertia.")["nominal"])
     J1_table = checks.table(inertia, "J1", keys.allowed("inertia.J1"), "inertia.")
     scale_default = keys.KEY["inertia.J1.scale"].default
     scale = None if "nominal" in J1_table else keys.parse("inertia.J1.scale", J1_table.get("scale", scale_default))
     J1 = keys.parse("inertia.J1.nominal", J1_table["nominal"]) if scale is None else scale * J0
-    J2 = keys.parse("inertia.J2.nominal", checks.table(inertia, "J2", keys.allowed("inertia.J2"), "inertia.")["nominal"])
+    J2 = keys.parse("inertia.J2.nominal",
+                    checks.table(inertia, "J2", keys.allowed("inertia.J2"), "inertia.")["nominal"])
     return J0, J1, J2, scale, False
 
 
@@ -312,7 +315,8 @@ def _initial(given: dict, full: dict) -> dict:
         raise ValueError("initial.attitude and initial.quaternion both give R(0): give one")
     q = keys.parse("initial.quaternion", given["quaternion"])
     if abs(np.linalg.norm(q) - 1.0) > 1e-9:
-        raise ValueError(f"initial.quaternion [w, x, y, z] must be a unit quaternion, got norm {np.linalg.norm(q):.12g}")
+        raise ValueError("initial.quaternion [w, x, y, z] must be a unit quaternion, "
+                         f"got norm {np.linalg.norm(q):.12g}")
     w, v = q[0], q[1:]
     sin_half = np.linalg.norm(v)
     angle = 2.0 * np.arctan2(sin_half, w)

@@ -23,11 +23,14 @@ from __future__ import annotations
 
 import contextlib
 import os
+import secrets
 import socket
 import sys
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 DEFAULT_TIMEOUT_S = 120
 
@@ -53,7 +56,8 @@ def add_arguments(parser):
     g.add_argument("--num-processes", type=int, metavar="N", help="number of processes (implies --distributed)")
     g.add_argument("--process-id", type=int, metavar="I", help="this process's index, 0 to N-1 (implies --distributed)")
     g.add_argument("--timeout", type=float, default=DEFAULT_TIMEOUT_S, metavar="S",
-                   help=f"seconds to wait for the other processes to join, or to answer once joined (default {DEFAULT_TIMEOUT_S})")
+                   help="seconds to wait for the other processes to join, or to answer once joined "
+                        f"(default {DEFAULT_TIMEOUT_S})")
     return g
 
 
@@ -90,7 +94,7 @@ def initialize(args) -> None:
     coordinator that cannot be reached within ``--timeout``, is a one-line ValueError."""
     if not requested(args):
         return
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     coordinator, n, i = (_setting(args, name) for name in _ENV)
     timeout = getattr(args, "timeout", DEFAULT_TIMEOUT_S)
@@ -103,7 +107,8 @@ def initialize(args) -> None:
     if coordinator is not None and (":" not in coordinator or not coordinator.rsplit(":", 1)[1].isdigit()):
         raise ValueError(f"--coordinator must read HOST:PORT, got {coordinator!r}")
     if _cluster_tasks() == 1 and None in (coordinator, n, i):
-        raise ValueError("outside SLURM or Open MPI, a distributed run needs --coordinator, --num-processes and --process-id")
+        raise ValueError("outside SLURM or Open MPI, a distributed run needs --coordinator, --num-processes "
+                         "and --process-id")
     if coordinator is not None and i not in (None, 0):
         _reach(coordinator, i, timeout)  # the runtime aborts the process when it cannot: fail first, in one line
     if i == 0:
@@ -128,7 +133,8 @@ def initialize(args) -> None:
     except Exception as err:  # the runtime's errors are XlaRuntimeError/RuntimeError with long texts
         first = str(err).strip().splitlines()[0][:300] if str(err).strip() else type(err).__name__
         raise ValueError(
-            f"process {i if i is not None else '?'} could not join the run at {coordinator or 'the cluster coordinator'} "
+            f"process {i if i is not None else '?'} could not join the run at "
+            f"{coordinator or 'the cluster coordinator'} "
             f"within {timeout:g} s ({first}); start process 0 first and check --coordinator"
         ) from None
     finally:
@@ -170,14 +176,14 @@ def _reach(coordinator: str, i: int, timeout: float) -> None:
 
 def writer() -> bool:
     """Whether this process writes the run's shared files (process 0)."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     return jax.process_index() == 0
 
 
 def active() -> bool:
     """Whether this process is one of several joined processes."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     return jax.distributed.is_initialized() and jax.process_count() > 1
 
@@ -199,14 +205,13 @@ def _exchange(value: int, what: str):
 
 def _allgather(value: int):
     """Every process's int32 ``value``, in process order."""
-    import numpy as np
-    from jax.experimental import multihost_utils
+    from jax.experimental import multihost_utils  # here: the CLI imports this module before JAX is configured
 
     return np.asarray(multihost_utils.process_allgather(np.int32(value))).reshape(-1)
 
 
 def _me() -> str:
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     return f"{jax.process_index()} of {jax.process_count()}"
 
@@ -225,9 +230,6 @@ def check_shared(folder) -> None:
     process otherwise (no-op for one process)."""
     if not active():
         return
-    import secrets
-
-    import numpy as np
 
     what = "checking the output folder"
     path = Path(folder) / ".so3jax-shared"
@@ -253,7 +255,7 @@ def check_shared(folder) -> None:
 def collective(what: str):
     """Context: a JaxRuntimeError inside a multi-process step becomes a PeerFailure that
     names this process and ``what`` it was computing (one line, no traceback)."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     try:
         yield
@@ -298,7 +300,7 @@ def _shutdown(code: int) -> None:
     Process 0 skips it when its only peer's connection has closed (that process exited);
     a peer gone during it leaves process 0 waiting until the service sees none of the
     others attached. Every wait ends at --timeout."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     if jax.process_index() != 0:
         with contextlib.suppress(Exception):  # an error that did not abort: this process leaves anyway
@@ -316,8 +318,8 @@ def _shutdown(code: int) -> None:
 def _wait_detached() -> None:
     """Process 0: wait until the coordination service sees none of the others attached
     (a process that shut down at once, one that exited after its heartbeat timeout)."""
-    import jax
-    from jax.experimental import multihost_utils
+    import jax  # here: the CLI imports this module before JAX is configured
+    from jax.experimental import multihost_utils  # here: the CLI imports this module before JAX is configured
 
     devices = jax.devices()
     while True:
@@ -344,7 +346,7 @@ def leave(code: int) -> int:
     stdout and stderr flushed, detached in order (see :func:`_shutdown`), ``os._exit`` —
     the runtime's own shutdown at interpreter exit, which aborts a process whose
     coordinator left first, never runs. Returns ``code`` for a one-process run."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     if not jax.distributed.is_initialized():
         return code
@@ -357,7 +359,7 @@ def leave(code: int) -> int:
 def finish() -> None:
     """End a multi-process run that goes on in Python afterwards: every process meets
     (:func:`agree`), then detaches in order, process 0 last. No-op for one process."""
-    import jax
+    import jax  # here: the CLI imports this module before JAX is configured
 
     if not jax.distributed.is_initialized():
         return

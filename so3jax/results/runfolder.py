@@ -95,7 +95,8 @@ def _acquire(path: Path, owner: dict) -> None:
             except (OSError, ValueError, KeyError, TypeError):
                 if not path.exists():
                     continue  # released meanwhile
-                raise ValueError(f"{path} is not a valid lock file; remove it if no so3jax run uses {path.parent}") from None
+                raise ValueError(f"{path} is not a valid lock file; "
+                                 f"remove it if no so3jax run uses {path.parent}") from None
             if host == owner["host"] and not _alive(pid):
                 print(
                     f"so3jax: warning: {path.parent} was locked by process {pid}, which is gone; taking the lock over",
@@ -106,7 +107,8 @@ def _acquire(path: Path, owner: dict) -> None:
                 continue
             since = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(held.get("since", 0)))
             raise ValueError(
-                f"{path.parent} is in use by so3jax {held.get('command', '?')} (process {pid} on {host}, since {since}); "
+                f"{path.parent} is in use by so3jax {held.get('command', '?')} "
+                f"(process {pid} on {host}, since {since}); "
                 f"wait for it or choose another --out (remove {path} only if that process is gone)"
             ) from None
         with os.fdopen(fd, "w") as f:

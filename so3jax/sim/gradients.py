@@ -31,10 +31,10 @@ import jax
 import jax.numpy as jnp
 
 from so3jax.controllers import Controller
+from so3jax.dynamics.scenario import Scenario
 from so3jax.sim.loop import PAPER_LOOP, Loop
 from so3jax.sim.metrics import Metrics
 from so3jax.sim.rollout import rollout_batch
-from so3jax.dynamics.scenario import Scenario
 
 MODES = ("forward", "reverse")
 

@@ -30,22 +30,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import _trig, so3
-
-from so3jax.sim import metrics
-
-from so3jax.dynamics import plant, stepped
-from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.components import registry as components
 from so3jax.components.actuators import Ideal
 from so3jax.components.base import Actuator, Estimate, Estimator
-from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
 from so3jax.components.estimators import Truth
-from so3jax.core.integrate import OnSO3, rk4_step
-from so3jax.dynamics.plant import inertia_rate
-from so3jax.dynamics.inertia import _concrete
-from so3jax.dynamics.scenario import Scenario
 from so3jax.components.sensors import Sensors
+from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
+from so3jax.core import _trig, so3
+from so3jax.core.integrate import OnSO3, rk4_step
+from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.dynamics import plant, stepped
+from so3jax.dynamics.inertia import _concrete
+from so3jax.dynamics.plant import inertia_rate
+from so3jax.dynamics.scenario import Scenario
+from so3jax.sim import metrics
 
 
 @pytree_dataclass
@@ -303,7 +301,8 @@ def check_loop(loop: Loop, inertias: dict) -> None:
         for name, J in inertias.items():
             J = _concrete(J)
             if J is not None and np.any(np.linalg.eigvalsh(J - spin) <= 0):
-                raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) is not positive definite")
+                raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) "
+                                 "is not positive definite")
 
 
 def check_wiring(continuous: bool, sensors: tuple, measured: tuple, estimator: type[Estimator], name: str) -> None:
@@ -315,7 +314,8 @@ def check_wiring(continuous: bool, sensors: tuple, measured: tuple, estimator: t
     reads the truth, a mission's sensor left out reads nothing); name: the estimator's."""
     if continuous:
         if sensors or not estimator.reads_truth:
-            raise ValueError("a continuous-time controller (control.mode = 'continuous') reads the true state: it takes "
+            raise ValueError("a continuous-time controller (control.mode = 'continuous') reads the true state: "
+                             "it takes "
                              "no sensors (sensors.NAME=false) and an estimator that reads the truth "
                              "(estimator.kind='truth'); sensors and other estimators need a control period")
         return

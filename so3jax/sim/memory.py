@@ -9,6 +9,9 @@ import re
 import jax
 import numpy as np
 
+from so3jax.sim.loop import PAPER_LOOP
+from so3jax.sim.rollout import rollout
+
 # Outputs are held twice at their peak: XLA's result buffer and the NumPy copy made of it.
 COPIES = 2
 _UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
@@ -59,9 +62,6 @@ def outputs(fn, *args) -> int:
 
 def simulate_bytes(scenario, controller, gains, seed=0, loop=None, record_every=None) -> int:
     """Bytes ``so3jax.simulate`` with these arguments holds at its peak (its results)."""
-    from so3jax.sim.loop import PAPER_LOOP
-    from so3jax.sim.rollout import rollout
-
     def run(scenario, gains, seed, loop):
         return rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every)
 

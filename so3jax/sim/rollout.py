@@ -23,14 +23,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import actuators
-
-from so3jax.sim import flight_metrics, metrics
-
-from so3jax.core import so3
-
-from so3jax.dynamics import stepped
 from so3jax.controllers.base import Controller, Feedback, tracking_error
 from so3jax.controllers.gains import check_gains
+from so3jax.core import so3
+from so3jax.dynamics import stepped
+from so3jax.dynamics.disturbance import NOISE
+from so3jax.dynamics.scenario import Scenario, check_scenario
+from so3jax.sim import flight_metrics, metrics
 from so3jax.sim.loop import (
     PAPER_LOOP,
     Loop,
@@ -44,8 +43,6 @@ from so3jax.sim.loop import (
     tick,
     time,
 )
-from so3jax.dynamics.disturbance import NOISE
-from so3jax.dynamics.scenario import Scenario, check_scenario
 
 
 class History(NamedTuple):
@@ -141,7 +138,8 @@ def check_inputs(
     if isinstance(seed, bool) or seed_dtype.kind not in "iu":
         raise TypeError(f"seed must be an integer or an array of integers, got {seed!r}")
     if not isinstance(controller, Controller):
-        raise TypeError(f"controller must be a so3jax Controller (e.g. so3jax.geometric_pd()), got {type(controller).__name__}")
+        raise TypeError("controller must be a so3jax Controller (e.g. so3jax.geometric_pd()), "
+                        f"got {type(controller).__name__}")
     expected = getattr(controller, "gains_type", None)
     if expected is not None and not isinstance(gains, expected):
         raise TypeError(
@@ -235,7 +233,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
             state, k = carry[0], carry[1]
             seen = observe(scenario, controller, gains, state, k, loop)
             return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
-                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, _or_none(state.actuator),
+                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd,
+                           _or_none(state.actuator),
                            actuators.momentum(loop.actuator, state.actuator, state.Omega),
                            disturbance=disturbance_at(scenario, key, k))
 
@@ -372,7 +371,8 @@ def rollout_batch(
         try:
             leaf_axes = _axes_tree(axes_prefix, tree)
         except ValueError as err:
-            raise ValueError(f"{arg}_axes must be 0, None or a prefix of {arg}'s tree (0 or None per subtree): {err}") from None
+            raise ValueError(f"{arg}_axes must be 0, None or a prefix of {arg}'s tree "
+                             f"(0 or None per subtree): {err}") from None
         for (path, leaf), ax in zip(jax.tree_util.tree_flatten_with_path(tree)[0],
                                           jax.tree.leaves(leaf_axes, is_leaf=lambda x: x is None)):
             if ax == 0 and (jnp.ndim(leaf) == 0 or jnp.shape(leaf)[0] != seeds.shape[0]):

@@ -25,7 +25,7 @@ def figure(config, columns: dict, pairs: list):
     """RMSE CDF per candidate over the sweep; the paired relative change of each (candidate,
     other) of ``pairs`` (:func:`so3jax.jobs.compare.pairs`). ``config``: the comparison
     (its ``laws``, ``reference`` and, where given, ``candidates``)."""
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here: importing so3jax sets no backend (tests/test_imports.py)
 
     fig, (cdf, change) = plt.subplots(1, 2, figsize=(11, 4))
     ref = config.reference
@@ -40,7 +40,8 @@ def figure(config, columns: dict, pairs: list):
     data = []
     for law, other in pairs:
         both = (columns[f"{law}_diverged"] == 0) & (columns[f"{other}_diverged"] == 0)
-        data.append(100 * (columns[f"{law}_rmse"][both] - columns[f"{other}_rmse"][both]) / columns[f"{other}_rmse"][both])
+        data.append(100 * (columns[f"{law}_rmse"][both] - columns[f"{other}_rmse"][both])
+                    / columns[f"{other}_rmse"][both])
     change.boxplot(data, whis=(5, 95), showfliers=False)
     change.set_xticks(range(1, len(pairs) + 1), [styles_[law]["label"] + ("" if other == ref else f"\nvs {other}")
                                                  for law, other in pairs])

@@ -10,8 +10,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from so3jax.core import so3
-from so3jax.viz.styles import style as controller_style
 from so3jax.viz.plots import AXES, shade_phases
+from so3jax.viz.styles import style as controller_style
 
 
 def _frame(ax, phase_times, T, ylabel):

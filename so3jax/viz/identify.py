@@ -5,10 +5,10 @@ from __future__ import annotations
 
 def residuals_figure(fit):
     """Each residual series of a fit against time, per axis."""
-    import matplotlib
+    import matplotlib  # here: importing so3jax sets no backend (tests/test_imports.py)
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here: importing so3jax sets no backend (tests/test_imports.py)
 
     series = {k: v for k, v in fit["residuals"].items() if k != "t"}
     fig, axes = plt.subplots(len(series), 1, figsize=(8, 2.6 * len(series)), sharex=True, squeeze=False)

@@ -5,8 +5,8 @@ Each figure ends at the horizon T [s] when given (else at the last sample): x ax
 
 from __future__ import annotations
 
-from matplotlib.figure import Figure
 import numpy as np
+from matplotlib.figure import Figure
 
 from so3jax.viz.styles import style
 
@@ -20,7 +20,8 @@ def shade_phases(ax, phase_times, t_end):
     bounds = (0.0,) + tuple(p for p in phase_times if p < t_end) + (t_end,)
     for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
         ax.axvspan(a, b, color=PHASE_COLORS[p % len(PHASE_COLORS)], zorder=0, lw=0)
-        ax.text((a + b) / 2, 1.0, f"phase {p + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom", fontsize=8)
+        ax.text((a + b) / 2, 1.0, f"phase {p + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom",
+                fontsize=8)
     ax.set_xlim(0.0, t_end)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from so3jax.viz.styles import style
+
 
 def _log_if_wide(ax, axis: str, values) -> None:
     """Log scale where the values span more than a decade (else log ticks crowd)."""
@@ -14,9 +16,8 @@ def _log_if_wide(ax, axis: str, values) -> None:
 def figures(config, cols: dict, phases: list) -> dict:
     """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale.
     config: the sweep's ``SweepConfig``; phases: (index, name) of the phases the horizon reaches."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
-    from so3jax.viz.styles import style
 
     names = config.controllers
     color = {c: {"color": style(c).get("color"), "label": style(c)["label"]} for c in names}
@@ -45,7 +46,8 @@ def figures(config, cols: dict, phases: list) -> dict:
         fig.suptitle(title)
     panels = [("J0_trace_ratio", "rmse", "capture inertia scale tr(J0)/tr(J0 nominal)", "mission RMSE [rad/s]")]
     if any(name == "detumble" for _, name in phases):
-        panels.append(("J2_trace_ratio", "rmse_detumble", "docked inertia scale tr(J2)/tr(J2 nominal)", "detumble RMSE [rad/s]"))
+        panels.append(("J2_trace_ratio", "rmse_detumble", "docked inertia scale tr(J2)/tr(J2 nominal)",
+                       "detumble RMSE [rad/s]"))
     scatter = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
     for ax, (x, y, xlabel, ylabel) in zip(scatter.subplots(1, len(panels), squeeze=False)[0], panels):
         for c in names:
@@ -77,7 +79,7 @@ FLIGHT_PANELS = (
 def _flight_figure(config, cols: dict, good: dict, color: dict, title: str):
     """Estimation error against star-tracker noise, time at a limit against the torque
     limit: the panels whose parameter the sweep disperses (None: none)."""
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
     panels = []
     for x, xlabel, x_scale, y, ylabel, y_scale in FLIGHT_PANELS:

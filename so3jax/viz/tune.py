@@ -6,8 +6,9 @@ from pathlib import Path
 
 from so3jax.results import io
 
+
 def plot_history(out: Path, rows: list[dict], gain_names: list[str]) -> None:
-    from matplotlib.figure import Figure
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
     it = [r["iteration"] for r in rows]
     fig = Figure(figsize=(10, 6.5))

@@ -8,13 +8,15 @@ from pathlib import Path
 
 import numpy as np
 
+from so3jax.controllers import registry
+from so3jax.jobs.identify import inertia
+from so3jax.results.io import save_figures, to_builtin
+from so3jax.viz import identify as plots
+
 
 def summary(fit) -> dict:
     """The estimate as JSON-ready data: J and its entries' covariance, principal moments and
     axes with 1 sigma, the bias and disturbance with theirs, the residuals' RMS."""
-    from so3jax.jobs.identify import inertia
-    from so3jax.results.io import to_builtin
-
     lam, V, lam_std, axis_std = inertia.principal(fit["J"], fit["theta_cov"])
     out = {"J": fit["J"], "J_entries": list(inertia.ENTRIES), "J_entries_std": np.sqrt(np.diag(fit["theta_cov"])),
            "J_entries_covariance": fit["theta_cov"],
@@ -22,7 +24,8 @@ def summary(fit) -> dict:
            "principal_axes": V, "principal_axes_std_deg": np.degrees(axis_std),
            "bias": fit["bias"], "bias_std": None if fit["bias"] is None else np.sqrt(np.diag(fit["bias_cov"])),
            "disturbance": fit["disturbance"],
-           "disturbance_std": None if fit["disturbance"] is None else np.sqrt(np.diag(fit["disturbance_cov"])).reshape(-1, 3),
+           "disturbance_std": (None if fit["disturbance"] is None
+                               else np.sqrt(np.diag(fit["disturbance_cov"])).reshape(-1, 3)),
            "residual_rms": fit["residual_rms"], "iterations": fit["iterations"], "converged": fit["converged"]}
     for key in ("intervals", "windows", "sigma_gyro", "sigma_star", "sigma_momentum_jump", "warning"):
         if key in fit:
@@ -33,10 +36,9 @@ def summary(fit) -> dict:
 def j_hat_toml(J, report) -> str:
     """A [controller.NAME] J_hat block per law that takes a nominal inertia, ready to paste
     into a mission file."""
-    from so3jax.controllers import registry
-
     rows = ", ".join("[" + ", ".join(f"{x:.10g}" for x in row) + "]" for row in np.asarray(J))
-    lines = [f"# J_hat identified by so3jax identify ({report['config']['method']}) from {report['config']['telemetry']}",
+    lines = [f"# J_hat identified by so3jax identify ({report['config']['method']}) "
+             f"from {report['config']['telemetry']}",
              f"# principal moments {', '.join(f'{m:.6g}' for m in report['principal_moments'])} kg m^2, "
              f"1 sigma {', '.join(f'{s:.2g}' for s in report['principal_moments_std'])}"]
     for name in registry.names():
@@ -54,7 +56,8 @@ def format_report(r) -> str:
         f"{m:.4f} +- {s:.3g}" for m, s in zip(r["principal_moments"], r["principal_moments_std"])))
     axes = np.asarray(r["principal_axes"])
     for i in range(3):
-        lines.append(f"  axis {i + 1}: [{', '.join(f'{x:+.5f}' for x in axes[:, i])}] +- {r['principal_axes_std_deg'][i]:.3g} deg")
+        lines.append(f"  axis {i + 1}: [{', '.join(f'{x:+.5f}' for x in axes[:, i])}] "
+                     f"+- {r['principal_axes_std_deg'][i]:.3g} deg")
     if r["bias"] is not None:
         lines.append("gyro bias [deg/h]: " + ", ".join(
             f"{math.degrees(b) * 3600:.4f} +- {math.degrees(s) * 3600:.2g}" for b, s in zip(r["bias"], r["bias_std"])))
@@ -67,7 +70,4 @@ def format_report(r) -> str:
 
 def write_figures(out: Path, fit) -> list:
     """residuals.png (:func:`so3jax.viz.identify.residuals_figure`) into ``out``."""
-    from so3jax.results.io import save_figures
-    from so3jax.viz import identify as plots
-
     return save_figures(out, {"residuals.png": plots.residuals_figure(fit)})

@@ -27,6 +27,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.results.io import save_npz
+
 REQUIRED = ("t", "gyro", "attitude")
 OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia")
 
@@ -36,7 +38,8 @@ class Telemetry(NamedTuple):
     gyro: np.ndarray  # (N, 3) rad/s
     R: np.ndarray  # (N, 3, 3) star-tracker attitude, body -> inertial
     valid: np.ndarray  # (N,) bool: a star-tracker sample
-    wheel_momentum: np.ndarray  # (N, 3) N m s: G_s J_s Omega_w, the wheels' momentum at rest in the body (zeros without)
+    # (N, 3) N m s: G_s J_s Omega_w, the wheels' momentum at rest in the body (zeros without)
+    wheel_momentum: np.ndarray
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -82,7 +85,8 @@ def _array(data, name, path, ndim, last=None, dtype=float):
         raise ValueError(f"{path}: {name} must have shape {want}, got {a.shape}")
     if dtype is float and not np.all(np.isfinite(a)):
         rows = np.unique(np.nonzero(~np.isfinite(a))[0])
-        raise ValueError(f"{path}: {name} has {len(rows)} non-finite sample(s) (NaN or inf), the first at row {rows[0]}")
+        raise ValueError(f"{path}: {name} has {len(rows)} non-finite sample(s) (NaN or inf), "
+                         f"the first at row {rows[0]}")
     return a
 
 
@@ -125,14 +129,16 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
     norm = np.linalg.norm(q, axis=1)
     if np.any(np.abs(norm - 1.0) > 1e-6):
         row = int(np.argmax(np.abs(norm - 1.0)))
-        raise ValueError(f"{path}: attitude must hold unit quaternions [w, x, y, z]; row {row} has norm {norm[row]:.9g}")
+        raise ValueError(f"{path}: attitude must hold unit quaternions [w, x, y, z]; "
+                         f"row {row} has norm {norm[row]:.9g}")
     valid = np.ones(N, bool)
     if "attitude_valid" in data:
         valid = _array(data, "attitude_valid", path, 1, dtype=bool)
         if len(valid) != N:
             raise ValueError(f"{path}: attitude_valid has {len(valid)} samples, t has {N}")
         if valid.sum() < 2:
-            raise ValueError(f"{path}: attitude_valid marks {valid.sum()} star-tracker sample(s); at least 2 are needed")
+            raise ValueError(f"{path}: attitude_valid marks {valid.sum()} star-tracker sample(s); "
+                             "at least 2 are needed")
     h = np.zeros((N, 3))
     if "wheel_speed" in data:
         speed = _array(data, "wheel_speed", path, 2)
@@ -147,7 +153,8 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
         elif wheels is not None:
             axes, spin = (np.asarray(x, float) for x in wheels)
         else:
-            raise ValueError(f"{path}: wheel_speed needs the wheels' geometry: wheel_axes and spin_inertia, or a mission")
+            raise ValueError(f"{path}: wheel_speed needs the wheels' geometry: wheel_axes and spin_inertia, "
+                             "or a mission")
         spin = np.broadcast_to(spin, (axes.shape[1],)) if axes.ndim == 2 else spin
         if axes.shape != (3, n) or spin.shape != (n,):
             raise ValueError(f"{path}: {n} wheel speeds need wheel_axes (3, {n}) and spin_inertia ({n},), "
@@ -162,8 +169,6 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
 
 def save(path, t, gyro, R, valid=None, wheel_speed=None, wheel_axes=None, spin_inertia=None) -> None:
     """Write a telemetry file (atomically) from arrays in the module's units; R (N, 3, 3)."""
-    from so3jax.results.io import save_npz
-
     arrays = {"t": np.asarray(t, float), "gyro": np.asarray(gyro, float), "attitude": matrix_to_quaternion(R)}
     if valid is not None:
         arrays["attitude_valid"] = np.asarray(valid, bool)
@@ -181,21 +186,21 @@ def recorded(mission) -> bool:
 
 def from_run(mission, history, seed) -> dict:
     """The telemetry arrays (the file's fields) of one simulated flight: the sensors' readings
-    at the recorded ticks, regenerated from the recorded true state with the run's noise
-    (docs/model.md §8.2's recipe: the same draws the estimator saw), the tachometers' wheel speeds and
-    the wheels as the flight software knows them. Needs the sampled wiring with a gyro and
-    a star tracker, and a history recorded at ticks."""
+    at the recorded ticks, the tachometers' wheel speeds and the wheels as the flight software
+    knows them. The gyro's reading is the estimator's rate plus its bias estimate (the
+    reading it was given, to round-off: omega_m = Omega_hat + b_hat, docs/model.md (8.7)); the
+    star tracker's is regenerated from the recorded true attitude with the run's noise
+    (docs/model.md §8.2's recipe: the draws the estimator saw). Needs the sampled wiring with
+    a gyro and a star tracker, and a history recorded at ticks."""
     if not recorded(mission):
         raise ValueError("telemetry needs the sampled wiring with a gyro and a star tracker")
-    loop = mission.loop()
-    gyro, tracker = loop.sensors.rate, loop.sensors.attitude
+    tracker = mission.loop().sensors.attitude
     t = np.asarray(history.t, float)
     j = np.rint(t / mission.period).astype(np.int64)
-    as_array = lambda x: jnp.asarray(np.asarray(x, float))
-    omega_m, R_m, valid = _readings(gyro, tracker, jax.random.key(seed), jnp.asarray(mission.period),
-                                    as_array(history.R), as_array(history.Omega), as_array(history.bias),
-                                    jnp.asarray(j, jnp.uint32))
-    arrays = {"t": t, "gyro": np.asarray(omega_m), "attitude": matrix_to_quaternion(np.asarray(R_m)),
+    omega_m = np.asarray(history.Omega_hat, float) + np.asarray(history.bias_hat, float)
+    R_m, valid = _star_tracker(tracker, jax.random.key(seed), jnp.asarray(mission.period),
+                               jnp.asarray(np.asarray(history.R, float)), jnp.asarray(j, jnp.uint32))
+    arrays = {"t": t, "gyro": omega_m, "attitude": matrix_to_quaternion(np.asarray(R_m)),
               "attitude_valid": np.asarray(valid, bool)}
     wheels = mission.actuator.get("wheels") if mission.actuator["kind"] == "wheels" else None
     if wheels is not None:
@@ -206,12 +211,10 @@ def from_run(mission, history, seed) -> dict:
 
 
 @jax.jit
-def _readings(gyro, tracker, key, period, R, Omega, bias, j):
-    """The gyro's and star tracker's readings at ticks j (M,) of the true R (M, 3, 3),
-    Omega (M, 3) and bias (M, 3)."""
-    def measure(R, Omega, bias, j):
-        _, omega_m = gyro.measure(bias, R, Omega, key, j, period)
-        _, (R_m, valid) = tracker.measure((), R, Omega, key, j, period)
-        return omega_m, R_m, valid
+def _star_tracker(tracker, key, period, R, j):
+    """The star tracker's readings (R_m (M, 3, 3), valid (M,)) at ticks j (M,) of the true R (M, 3, 3)."""
+    def measure(R, j):
+        _, (R_m, valid) = tracker.measure((), R, None, key, j, period)
+        return R_m, valid
 
-    return jax.vmap(measure)(R, Omega, bias, j)
+    return jax.vmap(measure)(R, j)

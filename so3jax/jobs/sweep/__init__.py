@@ -26,7 +26,6 @@ the devices, run_sweep), storage (output folder, chunk files, resume, outputs),
 summary (per-sample table, statistics); the figures are drawn by :mod:`so3jax.viz.sweep`.
 """
 
-from so3jax.sim.metrics import Metrics
 from so3jax.jobs.sweep.config import (
     DEFAULT,
     SweepConfig,
@@ -44,9 +43,14 @@ from so3jax.jobs.sweep.engine import (
     run_sweep,
     simulate_batch,
 )
-from so3jax.jobs.sweep.storage import _take  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
-from so3jax.jobs.sweep.storage import load_chunks, write_csv, write_outputs
+from so3jax.jobs.sweep.storage import (
+    _take,  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
+    load_chunks,
+    write_csv,
+    write_outputs,
+)
 from so3jax.jobs.sweep.summary import PHASE_NAMES, STAT_NAMES, columns, diverged, format_summary, summarize
+from so3jax.sim.metrics import Metrics
 from so3jax.viz.sweep import figures
 
 __all__ = [

@@ -33,7 +33,8 @@ DEFAULT = {
         "orbit": {"n": {"dist": "uniform", "low": 1.0381e-3, "high": 1.1314e-3}},
         "disturbance": {"amplitude": {"dist": "uniform", "low": 0.05, "high": 0.15},
                         "noise_std": {"dist": "uniform", "low": 0.0125, "high": 0.0375}},
-        "initial": {"attitude": {"max_angle_deg": 30.0}, "rate": {"norm": {"dist": "uniform", "low": 0.0, "high": 0.005}}},
+        "initial": {"attitude": {"max_angle_deg": 30.0},
+                    "rate": {"norm": {"dist": "uniform", "low": 0.0, "high": 0.005}}},
     },
 }
 _SWEEP_KEYS = tuple(DEFAULT["sweep"])
@@ -90,9 +91,11 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     mission, jobs = missions.load_job(d, base_dir, ("sweep", "dispersions"), missions.PAPER)
     sweep = checks.table(jobs, "sweep", _SWEEP_KEYS)
     values = dict(DEFAULT["sweep"], **sweep)
-    top = {key: checks.number(values[key], f"sweep.{key}", low=1, integer=True) for key in ("samples", "chunk", "max_draws")}
+    top = {key: checks.number(values[key], f"sweep.{key}", low=1, integer=True)
+           for key in ("samples", "chunk", "max_draws")}
     top["seed"] = checks.number(values["seed"], "sweep.seed", low=0, high=2**32 - 1, integer=True)
-    top["divergence_angle_deg"] = checks.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg", 0.0, 180.0)
+    top["divergence_angle_deg"] = checks.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg",
+                                                0.0, 180.0)
     top["limit_share"] = checks.number(values["limit_share"], "sweep.limit_share", 0.0, 1.0)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
     dispersions, leaves = dispersed.parse(table, mission)

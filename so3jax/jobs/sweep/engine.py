@@ -13,19 +13,19 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import multihost_utils
 from jax.sharding import Mesh
 
-from so3jax.parallel import devices, distributed
-
-from so3jax.missions import dispersed
-from so3jax.missions.mission import Mission
-
-from so3jax.results import runfolder
-from so3jax.results.io import save_npz
 from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.jobs.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
 from so3jax.jobs.sweep.summary import summarize
+from so3jax.missions import dispersed
+from so3jax.missions.mission import Mission
+from so3jax.parallel import devices, distributed
+from so3jax.results import runfolder
+from so3jax.results.io import save_npz
+from so3jax.sim import memory
 
 MIN_SHARD = 8  # samples per device and batch, at least
 LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
@@ -59,15 +59,13 @@ def run_chunk(inputs, gains, controller: str, mission: Mission, mesh: Mesh) -> d
     exchange their results. inputs: (RolloutParams, dispersed component values)."""
     out = simulate_batch(*devices.place((inputs, gains), mesh), controller=controller, mission=mission, mesh=mesh)
     if not out["rmse"].is_fully_addressable:  # a mesh of several processes
-        from jax.experimental import multihost_utils
-
         out = multihost_utils.process_allgather(out, tiled=True)
     return {k: np.asarray(v) for k, v in out.items()}
 
 
 def run_sweep(
-    config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None, max_memory: int | None = None,
-    layout: str = "chunks",
+    config: SweepConfig, out: Path, *, resume: bool = False, progress: bool | None = None,
+    max_memory: int | None = None, layout: str = "chunks",
 ) -> dict:
     """Run (or finish, with resume) a sweep; write the output folder; return the summary.
     ``max_memory`` [bytes] (default: the memory available) bounds the run's estimate.
@@ -87,8 +85,6 @@ def run_sweep(
 
 def memory_needed(config: SweepConfig, inputs, chunk: int) -> int:
     """Bytes a sweep holds at its peak: one chunk's inputs and outputs, and the results table."""
-    from so3jax.sim import memory
-
     dtype = jnp.result_type(float)
     first = jax.tree.map(lambda x: x[:1], inputs)
     per_sample = 0
@@ -101,9 +97,7 @@ def memory_needed(config: SweepConfig, inputs, chunk: int) -> int:
 
 
 def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory, layout: str) -> dict:
-    from tqdm import tqdm
-
-    from so3jax.sim import memory
+    from tqdm import tqdm  # here: only a run that shows progress needs it
 
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     # every check before the first file (sweep.json): a refused sweep writes nothing
@@ -114,8 +108,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     n_steps = steps_for_horizon(config.T, config.dt)
     mesh = batch_mesh(layout)
     chunk = padded_chunk(config.chunk, mesh.size)
-    budget = memory.check(memory_needed(config, inputs, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
-                          "lower --chunk or --samples")
+    budget = memory.check(memory_needed(config, inputs, chunk), max_memory,
+                          f"--chunk {chunk} of {config.samples} samples", "lower --chunk or --samples")
     fingerprint = _prepare_out(out, config, resume)
     processes = jax.process_count()
     share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each
@@ -159,7 +153,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
                 with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
                     metrics = early.pop(i).result() if i in early else compute(controller, index)
                 if distributed.writer() or share:
-                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint), index=index, **{k: v[: len(index)] for k, v in metrics.items()})
+                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint),
+                             index=index, **{k: v[: len(index)] for k, v in metrics.items()})
                 if share:  # count every process's saved chunks
                     saved = {path.name for path in (out / "chunks").glob("*.npz")}
                     bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)

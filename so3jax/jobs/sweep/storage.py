@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 import re
@@ -14,14 +15,15 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
+from so3jax.jobs.sweep.summary import _row, columns, format_summary, reached_phases
 from so3jax.missions import dispersions as disp
 from so3jax.parallel import distributed
 from so3jax.results import runfolder
-from so3jax.results.io import save_figure, save_npz, write_json, write_text
+from so3jax.results.io import save_figure, save_npz, to_builtin, write_json, write_text
 from so3jax.sim.metrics import Metrics
-from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.viz.sweep import figures
-from so3jax.jobs.sweep.summary import _row, columns, format_summary, reached_phases
+
 
 def _take(claims: Path, controller: str, first: int) -> bool:
     """Whether this process takes the chunk (controller, first): the first process to create
@@ -56,7 +58,8 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
         except Exception as err:  # a truncated or foreign file: zip, pickle or key errors
             raise runfolder.corrupt(path, err, remedy) from None
         if str(chunk["fingerprint"]) != fingerprint:
-            raise ValueError(f"{path} belongs to another sweep (fingerprint {chunk['fingerprint']}, this one {fingerprint}); use another --out")
+            raise ValueError(f"{path} belongs to another sweep (fingerprint {chunk['fingerprint']}, "
+                             f"this one {fingerprint}); use another --out")
         keep = chunk["index"] < n_samples
         index = chunk["index"][keep]
         r = results.setdefault(match.group(1), {"done": np.zeros(n_samples, bool)})
@@ -80,24 +83,23 @@ def _fingerprint(config: SweepConfig) -> dict:
 
 def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
     """Check the run description in OUT/sweep.json against this sweep's; returns its fingerprint."""
-    from so3jax.results.io import to_builtin
-
     description = to_builtin(_fingerprint(config))
     description["fingerprint"] = runfolder.fingerprint(description)
     stamp = out / "sweep.json"
     has_chunks = any((out / "chunks").glob("*.npz"))
     if resume and stamp.exists():
-        import json
-
         try:
             previous = json.loads(stamp.read_text())
         except (OSError, ValueError) as err:
             raise runfolder.corrupt(stamp, err, "delete the folder or choose another --out") from None
-        changed = sorted(k for k in set(previous) | set(description) if k != "fingerprint" and previous.get(k) != description.get(k))
+        changed = sorted(k for k in set(previous) | set(description)
+                         if k != "fingerprint" and previous.get(k) != description.get(k))
         if changed:
-            raise ValueError(f"--resume: {out} holds a sweep with other settings ({', '.join(changed)}); use another --out")
+            raise ValueError(f"--resume: {out} holds a sweep with other settings ({', '.join(changed)}); "
+                             "use another --out")
     elif resume and has_chunks:
-        raise ValueError(f"--resume: {stamp} is missing, so the chunks in {out} cannot be matched to this sweep; use another --out")
+        raise ValueError(f"--resume: {stamp} is missing, so the chunks in {out} cannot be matched to this sweep; "
+                         "use another --out")
     elif not resume and has_chunks:
         if runfolder.incomplete(out) is None and (out / "summary.json").exists():
             raise ValueError(f"{out} holds a finished sweep; choose another --out, or delete {out} to run it again")

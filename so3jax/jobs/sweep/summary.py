@@ -9,10 +9,10 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersions as disp
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics, cell, finite_values, reported
-from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 
 PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
@@ -66,7 +66,8 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     cols.update({f"Omega0_{a}": p.Omega0[:, i] for i, a in enumerate("xyz")})
     for key, value in samples.leaves.items():  # dispersed component parameters
         flat = value.reshape(len(value), -1)
-        cols.update({key: flat[:, 0]} if value.ndim == 1 else {f"{key}_{i + 1}": flat[:, i] for i in range(flat.shape[1])})
+        cols.update({key: flat[:, 0]} if value.ndim == 1
+                    else {f"{key}_{i + 1}": flat[:, i] for i in range(flat.shape[1])})
     phases = reached_phases(config)
     n = len(p.seed)
     flight = flight_fields(results)
@@ -169,7 +170,8 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
                 }
             if f"{a}_attitude_estimation_rms" in cols:  # flight metrics: differences in their units
                 pair["flight_difference"] = {
-                    metric: dict(zip(("mean", "p5", "p50", "p95"), _quantiles(cols[f"{b}_{metric}"][both] - cols[f"{a}_{metric}"][both])))
+                    metric: dict(zip(("mean", "p5", "p50", "p95"),
+                                     _quantiles(cols[f"{b}_{metric}"][both] - cols[f"{a}_{metric}"][both])))
                     for metric in FLIGHT
                 }
             summary["paired"][f"{b}_vs_{a}"] = pair
@@ -228,7 +230,8 @@ def format_summary(summary: dict) -> str:
                 continue
             lines.append(
                 f"- {metric}: {b} lower in {100 * frac:.1f} % of samples; change {b}/{a} - 1: "
-                f"median {100 * q['p50']:+.1f} %, 5-95 % [{100 * q['p5']:+.1f} %, {100 * q['p95']:+.1f} %], mean {100 * q['mean']:+.1f} %"
+                f"median {100 * q['p50']:+.1f} %, 5-95 % [{100 * q['p5']:+.1f} %, {100 * q['p95']:+.1f} %], "
+                f"mean {100 * q['mean']:+.1f} %"
             )
         for metric, q in pair.get("flight_difference", {}).items():
             if q["mean"] is not None:

@@ -36,6 +36,34 @@ gains), campaign (the loop, resume), validation (held-out report, markdown); his
 is drawn by :mod:`so3jax.viz.tune`.
 """
 
+from so3jax.jobs.tune.campaign import tune
+from so3jax.jobs.tune.config import (
+    _SECTIONS,  # noqa: F401 (tests walk the config's sections)
+    COST_MODES,
+    METHODS,
+    OBJECTIVES,
+    TUNE,
+    CostConfig,
+    ESConfig,
+    OptimizerConfig,
+    ScenarioSet,
+    TuneConfig,
+    describe,
+    load_config,
+    make_optimizer,
+    parse_config,
+    tune_table,
+    validate,
+)
+from so3jax.jobs.tune.cost import (
+    CostRefs,
+    Evaluation,
+    _batch_metrics,  # noqa: F401 (tests: the cost's metrics without the gradient)
+    cost_and_grad,
+    cvar,
+    population_costs,
+    scenario_costs,
+)
 from so3jax.jobs.tune.gains import (
     CONTROLLERS,
     GAIN_TYPES,
@@ -47,33 +75,18 @@ from so3jax.jobs.tune.gains import (
     to_gains,
     to_params,
 )
-from so3jax.jobs.tune.config import (
-    COST_MODES,
-    METHODS,
-    OBJECTIVES,
-    CostConfig,
-    ESConfig,
-    OptimizerConfig,
-    TUNE,
-    ScenarioSet,
-    TuneConfig,
-    describe,
-    load_config,
-    make_optimizer,
-    parse_config,
-    tune_table,
-    validate,
-)
-from so3jax.jobs.tune.config import _SECTIONS  # noqa: F401 (tests walk the config's sections)
-from so3jax.jobs.tune.cost import CostRefs, Evaluation, cost_and_grad, cvar, population_costs, scenario_costs
-from so3jax.jobs.tune.cost import _batch_metrics  # noqa: F401 (tests: the cost's metrics without the gradient)
 from so3jax.jobs.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
 from so3jax.jobs.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate
-from so3jax.jobs.tune.storage import CHECKPOINT, check_fingerprint, load_checkpoint, save_checkpoint, write_history
-from so3jax.jobs.tune.storage import _best_row  # noqa: F401 (tests)
-from so3jax.viz.tune import plot_history
+from so3jax.jobs.tune.storage import (
+    CHECKPOINT,
+    _best_row,  # noqa: F401 (tests)
+    check_fingerprint,
+    load_checkpoint,
+    save_checkpoint,
+    write_history,
+)
 from so3jax.jobs.tune.validation import markdown_table, validate_gains
-from so3jax.jobs.tune.campaign import tune
+from so3jax.viz.tune import plot_history
 
 __all__ = [
     "CHECKPOINT",

@@ -12,29 +12,36 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from so3jax.parallel import distributed
-
-from so3jax.results import io, runfolder
-from so3jax.parallel.devices import place
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.jobs.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
 from so3jax.jobs.tune.gains import gain_columns, resolve_gains, to_gains, to_params, with_estimator
-from so3jax.jobs.tune.optimizers import ESState, GradientState, NonFiniteGradientError, _optax_step, es_candidates, es_select
-from so3jax.viz.tune import plot_history
+from so3jax.jobs.tune.optimizers import (
+    ESState,
+    GradientState,
+    NonFiniteGradientError,
+    _optax_step,
+    es_candidates,
+    es_select,
+)
 from so3jax.jobs.tune.problem import batch_at, build_problem, cost_refs, evaluate, mission_of
 from so3jax.jobs.tune.storage import (
     CHECKPOINT,
     _best_row,
     _description,
-    check_fingerprint,
     _gains_from_row,
     _row,
     _write_best,
+    check_fingerprint,
     load_checkpoint,
     save_checkpoint,
     write_history,
 )
 from so3jax.jobs.tune.validation import validate_gains
+from so3jax.parallel import distributed
+from so3jax.parallel.devices import place
+from so3jax.results import io, runfolder
+from so3jax.viz.tune import plot_history
+
 
 def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True) -> dict:
     """Run (or resume) a tuning campaign into folder ``out``; returns validation.json's content.
@@ -49,7 +56,7 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
 
 
 def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
-    from tqdm import tqdm
+    from tqdm import tqdm  # here: only a run that shows progress needs it
 
     distributed.check_shared(out)  # every process reads the checkpoint to resume
     checkpoint = out / CHECKPOINT
@@ -63,7 +70,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     controller = config.mission.controller(config.controller)[0]
     dtype = problem.scenario.R0.dtype
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
-    initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype) for n in config.estimator})
+    initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype)
+                                       for n in config.estimator})
     n_train = config.train.samples or problem.train.seed.shape[0]
     mode = config.cost.mode
     mission = mission_of(problem)

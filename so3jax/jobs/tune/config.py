@@ -14,11 +14,13 @@ import jax
 import jax.numpy as jnp
 import optax
 
+from so3jax.components import registry as components
 from so3jax.core import checks
+from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
 from so3jax.missions import config as cfg
+from so3jax.missions import dispersed
 from so3jax.missions import mission as missions
 from so3jax.sim.gradients import MODES
-from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
 
 TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
 COST_MODES = ("weighted", "equal_effort")
@@ -92,7 +94,8 @@ class TuneConfig:
     es: ESConfig = ESConfig()
     objective: str = "mean"  # over the batch's scenario costs: "mean", or "cvar" (the worst 1 - alpha share's mean)
     alpha: float = 0.9  # the CVaR level
-    dispersions: dict | None = None  # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
+    # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
+    dispersions: dict | None = None
     estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
     mission: Any = None  # so3jax.missions.mission.Mission
 
@@ -132,9 +135,11 @@ def _build(cls, table: dict, prefix: str, **extra):
         elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
-            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, got {checks.short(value)}")
+            raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, "
+                             f"got {checks.short(value)}")
         elif key == "estimator":
-            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, got {checks.short(value)}")
+            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, "
+                             f"got {checks.short(value)}")
         values[key] = value
     return cls(**values, **extra)
 
@@ -277,8 +282,6 @@ def _check_dispersions(config: TuneConfig) -> None:
     """[tune.dispersions]: parsed against the mission; then each scenario set names one
     sampling seed and its sample count, with no inertia scales, and the method is the
     gradient's (the ES's elitist selection would compare costs across batches)."""
-    from so3jax.missions import dispersed
-
     for section in ("train", "validation"):
         s = getattr(config, section)
         if config.dispersions is None:
@@ -305,8 +308,6 @@ def _check_dispersions(config: TuneConfig) -> None:
 
 def tunable_estimator(mission) -> tuple:
     """The parameters of the mission's estimator that can be tuned: positive real numbers."""
-    from so3jax.components import registry as components
-
     kind = mission.estimator["kind"]
     return tuple(p.name for p in components.get("estimator", kind).params
                  if p.shapes == ((),) and p.low >= 0.0 and not (p.integer or p.boolean or p.choices))

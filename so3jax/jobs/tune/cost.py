@@ -10,13 +10,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax.parallel import devices
-
+from so3jax.jobs.tune.gains import split, to_gains
 from so3jax.missions import dispersed
+from so3jax.parallel import devices
 from so3jax.sim.gradients import batch_metrics, value_and_grad
 from so3jax.sim.loop import PAPER_LOOP
 from so3jax.sim.metrics import Metrics
-from so3jax.jobs.tune.gains import split, to_gains
 
 
 class CostRefs(NamedTuple):

@@ -1,5 +1,5 @@
-"""Tunable controllers and their gains: reading gains
-("mission", "paper", a table, a best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
+"""Tunable controllers and their gains: reading gains ("mission", "paper", a table, a
+best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
 gains as tables and columns."""
 
 from __future__ import annotations
@@ -9,14 +9,13 @@ import json
 import warnings
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import checks
-from so3jax.results import runfolder
 from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
+from so3jax.core import checks
+from so3jax.results import runfolder
 
 # One instance per controller with its default options, so that jit caches hit across runs.
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
@@ -116,7 +115,8 @@ def with_estimator(gains, values: dict):
     base = type(gains)
     key = (base, tuple(values))
     if key not in _TUNED:
-        tuned = collections.namedtuple(f"{base.__name__}AndEstimator", base._fields + tuple(ESTIMATOR + n for n in values))
+        fields = base._fields + tuple(ESTIMATOR + n for n in values)
+        tuned = collections.namedtuple(f"{base.__name__}AndEstimator", fields)
         tuned.domains, tuned.law_gains = getattr(base, "domains", {}), base
         _TUNED[key] = tuned
     return _TUNED[key](*gains, *values.values())
@@ -139,7 +139,8 @@ def gains_table(gains) -> dict:
 def tables(tuned) -> dict:
     """{"gains": the law's gains, "estimator": its tuned parameters (where any)}."""
     believed = split(tuned)[1]
-    return {"gains": gains_table(tuned), **({"estimator": {k: float(v) for k, v in believed.items()}} if believed else {})}
+    estimator = {"estimator": {k: float(v) for k, v in believed.items()}} if believed else {}
+    return {"gains": gains_table(tuned), **estimator}
 
 
 def gain_columns(gains) -> dict:

@@ -15,6 +15,7 @@ from jax.flatten_util import ravel_pytree
 from so3jax.jobs.tune.cost import Evaluation
 from so3jax.jobs.tune.gains import project
 
+
 class GradientState(NamedTuple):
     params: Any
     opt_state: Any

@@ -12,16 +12,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import Mesh
 
-from so3jax.parallel import devices
-
-from so3jax.missions import dispersed
-from so3jax.parallel.devices import place
-from so3jax.sim.gradients import Batch, checkpoint_steps, make_batch
-from so3jax.sim.loop import Loop
 from so3jax.dynamics.scenario import Scenario
 from so3jax.jobs.tune.config import TuneConfig
 from so3jax.jobs.tune.cost import CostRefs, _batch_metrics, batch_mean
 from so3jax.jobs.tune.gains import resolve_gains
+from so3jax.missions import dispersed
+from so3jax.parallel import devices
+from so3jax.parallel.devices import place
+from so3jax.sim.gradients import Batch, checkpoint_steps, make_batch
+from so3jax.sim.loop import Loop
 
 
 class DispersedBatch(NamedTuple):

@@ -14,10 +14,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.results import io, runfolder
 from so3jax.jobs.tune.config import TuneConfig, describe
 from so3jax.jobs.tune.cost import CostRefs, Evaluation
 from so3jax.jobs.tune.gains import gain_columns, tables
+from so3jax.results import io, runfolder
 
 CHECKPOINT = "checkpoint.npz"
 

@@ -7,12 +7,13 @@ import math
 
 import numpy as np
 
-from so3jax.results import io
-from so3jax.sim.metrics import cell, finite_values, reported
 from so3jax.jobs.tune.config import TuneConfig
 from so3jax.jobs.tune.cost import CostRefs, _summary
 from so3jax.jobs.tune.gains import gains_table, resolve_gains, tables
 from so3jax.jobs.tune.problem import Problem, build_problem, evaluate
+from so3jax.results import io
+from so3jax.sim.metrics import cell, finite_values, reported
+
 
 def _metrics_table(metrics, valid=None) -> dict:
     """Per-scenario RMSE and effort (None for a diverged scenario, flagged in ``diverged``)
@@ -73,7 +74,8 @@ def held_out(config: TuneConfig, gains) -> dict:
     problem = build_problem(config)
     metrics = evaluate(problem, gains, problem.validation)
     report = {"controller": config.controller, "scenarios": _scenarios(config, problem),
-              "tuned": {"gains": gains_table(gains), **_metrics_table(metrics, getattr(problem.validation, "valid", None))}}
+              "tuned": {"gains": gains_table(gains),
+                        **_metrics_table(metrics, getattr(problem.validation, "valid", None))}}
     if config.cost.budget_controller is not None:
         report["budget"], _ = _budget(config, problem)
     return io.to_builtin(report)
