@@ -15,7 +15,7 @@ from so3jax.jobs import tune
 from so3jax.results import runfolder
 
 ROOT = Path(__file__).resolve().parents[1]
-HOLD = ("import sys, time\nfrom so3jax import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep') as run:\n"
+HOLD = ("import sys, time\nfrom so3jax.results import runfolder\nwith runfolder.claim(sys.argv[1], 'sweep') as run:\n"
         "    run.start()\n    print('locked', flush=True)\n    time.sleep(120)\n")
 
 
