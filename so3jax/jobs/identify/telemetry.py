@@ -11,11 +11,16 @@ Arrays (SI units, body frame; N samples at the control ticks):
                             (tachometers)
     wheel_axes      (3, n)  optional: unit spin axes as columns, body frame
     spin_inertia    (n,)    kg m^2, optional: each wheel's spin inertia
+    gyro_output     ()      str, optional: "rate" (the default: the gyro samples the rate at t)
+                            or "increment" (a rate-integrating gyro: the mean rate over the
+                            control period ending at t, docs/model.md §8.2)
 
 With ``wheel_speed``, the wheels' geometry comes from ``wheel_axes`` and ``spin_inertia``,
-else from a mission's ``[actuator.wheels]``. Rows without a star-tracker sample still hold
-a unit quaternion (any: it is not read). ``so3jax fly`` writes this file for every
-controller it flies (``OUT/telemetry/NAME.npz``); real telemetry is converted to it.
+else from a mission's ``[actuator.wheels]``. The identification models a gyro that samples
+the rate (docs/model.md §17.1): telemetry of a rate-integrating gyro is refused. Rows
+without a star-tracker sample still hold a unit quaternion (any: it is not read).
+``so3jax fly`` writes this file for every controller it flies
+(``OUT/telemetry/NAME.npz``); real telemetry is converted to it.
 """
 
 from __future__ import annotations
@@ -30,7 +35,8 @@ import numpy as np
 from so3jax.results.io import save_npz
 
 REQUIRED = ("t", "gyro", "attitude")
-OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia")
+OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia", "gyro_output")
+GYRO_OUTPUTS = ("rate", "increment")
 
 
 class Telemetry(NamedTuple):
@@ -113,6 +119,12 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
     unknown = sorted(set(data) - set(REQUIRED) - set(OPTIONAL))
     if unknown:
         raise ValueError(f"{path}: unknown field(s) {', '.join(unknown)} (known: {', '.join(REQUIRED + OPTIONAL)})")
+    output = data.get("gyro_output", np.asarray("rate"))
+    if np.shape(output) != () or str(output) not in GYRO_OUTPUTS:
+        raise ValueError(f"{path}: gyro_output must be one of {', '.join(GYRO_OUTPUTS)}, got {output!r}")
+    if str(output) == "increment":
+        raise ValueError(f"{path}: the gyro delivers angle increments (gyro_output = 'increment'); identification "
+                         "models a gyro that samples the rate: fly the manoeuvre with sensors.gyro.output = \"rate\"")
     t = _array(data, "t", path, 1)
     N = len(t)
     if N < 3:
@@ -202,6 +214,8 @@ def from_run(mission, history, seed) -> dict:
                                jnp.asarray(np.asarray(history.R, float)), jnp.asarray(j, jnp.uint32))
     arrays = {"t": t, "gyro": omega_m, "attitude": matrix_to_quaternion(np.asarray(R_m)),
               "attitude_valid": np.asarray(valid, bool)}
+    if "gyro" in mission.sensors:
+        arrays["gyro_output"] = np.asarray(mission.sensors["gyro"]["output"])
     wheels = mission.actuator.get("wheels") if mission.actuator["kind"] == "wheels" else None
     if wheels is not None:
         axes = np.asarray(wheels["axes"], float).T  # the mission lists one axis per wheel
