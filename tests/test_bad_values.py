@@ -283,7 +283,7 @@ def test_component_bad_parameter(loop, path, field, what, bad):
 @pytest.mark.parametrize(
     "overrides,message",
     [
-        (["actuator.wheels.initial_speed=700.0"], "wheel initial_speed [rad/s] must not exceed max_speed"),
+        (["actuator.wheels.initial_speed=700.0"], "initial_speed [rad/s] must not exceed actuator.wheels.max_speed"),
         (["actuator.wheels.initial_speed=[0.0, -628.5, 0.0, 0.0]"], "(wheel 2: -628.5 against 628)"),
         (["T=0.05"], "control.period = 0.1 s is longer than the horizon T = 0.05 s"),
         (["T=0.25"], "T (horizon) = 0.25 s is not a whole number of control periods"),
@@ -308,7 +308,7 @@ def test_library_wheels_refuse_an_initial_speed_over_the_limit():
     from so3jax.components.actuators import Wheels, pyramid_axes
 
     wheels = Wheels(pyramid_axes(), np.full(4, 0.16), np.full(4, 0.25), np.full(4, 100.0), np.r_[0.0, 150.0, 0.0, 0.0])
-    message = r"wheel initial_speed .* must not exceed max_speed .*\(wheel 2: 150 against 100\)"
+    message = r"initial_speed .* must not exceed .*max_speed .*\(wheel 2: 150 against 100\)"
     with pytest.raises(ValueError, match=message):
         wheels.check()
 

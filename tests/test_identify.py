@@ -197,7 +197,7 @@ def fly(mission):
 
 def run(history, i):
     """Seed i's history."""
-    return history._replace(**{k: v[i] for k, v in history._asdict().items() if v is not None})
+    return jax.tree.map(lambda x: x[i], history)
 
 
 @pytest.fixture(scope="module")

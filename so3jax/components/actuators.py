@@ -299,8 +299,8 @@ class Wheels(Actuator):
         speed, limit = _values(self.initial_speed), _values(self.max_speed)
         if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
             i = int(np.argmax(np.abs(speed) > limit))
-            raise ValueError(f"wheel initial_speed [rad/s] must not exceed max_speed in magnitude "
-                             f"(wheel {i + 1}: {speed[i]:g} against {limit[i]:g})")
+            raise ValueError("actuator.wheels.initial_speed [rad/s] must not exceed actuator.wheels.max_speed in "
+                             f"magnitude (wheel {i + 1}: {speed[i]:g} against {limit[i]:g})")
         if not isinstance(self.momentum_compensation, bool):
             raise ValueError(f"wheel momentum_compensation must be True or False, got {self.momentum_compensation!r}")
         G = _values(self.axes)

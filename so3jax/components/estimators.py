@@ -19,6 +19,7 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.base import Estimate, Estimator
+from so3jax.components.sensors import GYRO_OUTPUTS
 from so3jax.core import checks, so3
 from so3jax.core.params import Param
 from so3jax.core.pytree import pytree_dataclass, static_field
@@ -190,6 +191,8 @@ class MEKF(Estimator):
         t = checks.concrete(self.theta0, "estimator theta0 [rad]")
         if t is not None and (t.shape != (3,) or not np.all(np.isfinite(t))):
             raise ValueError(f"estimator theta0 must be 3 finite numbers [rad], got {checks.short(t.tolist())}")
+        if not isinstance(self.gyro, str) or self.gyro not in GYRO_OUTPUTS:
+            raise ValueError(f"estimator gyro must be one of {', '.join(GYRO_OUTPUTS)}, got {checks.short(self.gyro)}")
         sigma_st = checks.concrete(self.sigma_st, "estimator sigma_st")
         if sigma_st is not None and float(sigma_st) == 0.0:
             raise ValueError("estimator 'mekf' needs a star tracker with sigma > 0")
@@ -220,7 +223,7 @@ components.register(components.ComponentSpec(
         Param("arw", None, "rad/sqrt(s)", low=0.0, doc="assumed gyro sigma_v (default: the gyro's)"),
         Param("rrw", None, "rad/s^(3/2)", low=0.0, doc="assumed gyro sigma_u (default: the gyro's)"),
         Param("sigma_st", None, "rad", low=0.0, doc="assumed star-tracker sigma (default: the star tracker's)"),
-        Param("gyro", None, choices=("increment", "rate"),
+        Param("gyro", None, choices=GYRO_OUTPUTS,
               doc="what the gyro delivers: its angle increment over a period, or its rate at the tick "
                   "(default: the gyro's output; a rate sensor that does not say: rate)"),
     ),

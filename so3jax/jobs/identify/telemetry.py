@@ -32,11 +32,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.components.sensors import GYRO_OUTPUTS
 from so3jax.results.io import save_npz
 
 REQUIRED = ("t", "gyro", "attitude")
 OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia", "gyro_output")
-GYRO_OUTPUTS = ("rate", "increment")
 
 
 class Telemetry(NamedTuple):
