@@ -69,7 +69,7 @@ def test_default_config_file_is_the_builtin_default():
         from_file = sweep.load_config(ROOT / "sweeps" / "default.toml")
         assert from_file == sweep.load_config(None)
         assert sweep.config_from_dict(sweep.config_to_dict(from_file)) == from_file
-    assert from_file.mission.describe() == sj.mission.load(ROOT / "missions" / "paper.toml").describe()
+    assert from_file.mission.describe() == sj.load_mission(ROOT / "missions" / "paper.toml").describe()
 
 
 @pytest.mark.parametrize(

@@ -17,7 +17,8 @@ from so3jax.components import registry as components
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.identify import telemetry
 from so3jax.parallel import devices
-from so3jax.results.io import save_figures, save_npz, to_builtin
+from so3jax.results import io
+from so3jax.results.io import save_npz, to_builtin
 from so3jax.sim import memory
 from so3jax.sim.metrics import cell, reached_phases, reported
 from so3jax.sim.rollout import simulate as simulate_rollout
@@ -152,4 +153,4 @@ def write_figures(out: Path, mission, results: dict) -> list[Path]:
     """The mission's figures (:func:`so3jax.viz.fly.figures`) into ``out``."""
     from so3jax.viz import fly as plots  # here: matplotlib only when drawing
 
-    return save_figures(out, plots.figures(mission, {name: r.history for name, r in results.items()}))
+    return io.save_figures(out, plots.figures(mission, {name: r.history for name, r in results.items()}))

@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 from so3jax.missions import mission as missions
-from so3jax.results.io import save_figures
+from so3jax.results import io
 from so3jax.sim import memory
 from so3jax.sim.metrics import UNREACHED, cell, phase_values, reported
 
@@ -132,4 +132,4 @@ def write_figures(out: Path, results: dict, scenario) -> list[Path]:
     """Figs. 1-5 and the attitude error (:func:`so3jax.viz.paper.figures`) into ``out``."""
     from so3jax.viz import paper as plots  # here: matplotlib only when drawing
 
-    return save_figures(out, plots.figures({name: r.history for name, r in results.items()}, scenario))
+    return io.save_figures(out, plots.figures({name: r.history for name, r in results.items()}, scenario))

@@ -10,7 +10,8 @@ import numpy as np
 
 from so3jax.controllers import registry
 from so3jax.jobs.identify import inertia
-from so3jax.results.io import save_figures, to_builtin
+from so3jax.results import io
+from so3jax.results.io import to_builtin
 from so3jax.viz import identify as plots
 
 
@@ -70,4 +71,4 @@ def format_report(r) -> str:
 
 def write_figures(out: Path, fit) -> list:
     """residuals.png (:func:`so3jax.viz.identify.residuals_figure`) into ``out``."""
-    return save_figures(out, {"residuals.png": plots.residuals_figure(fit)})
+    return io.save_figures(out, {"residuals.png": plots.residuals_figure(fit)})
