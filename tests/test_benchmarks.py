@@ -207,6 +207,23 @@ def test_sweep_benchmark_runs_as_committed():
     assert report["full_sweep"]["by_devices"]["1"]["median_trajectory_steps_per_s"]["pd"] > 0
 
 
+def test_sweep_wall_names_its_file_by_the_cpu():
+    from benchmarks.sweep_wall import slug
+
+    assert slug("Intel(R) Xeon(R) Processor") == "intel-xeon"
+    assert slug("AMD EPYC 7B13 64-Core Processor") == "amd-epyc-7b13-64core"
+    assert slug("Intel(R) Core(TM) i7-1185G7 @ 3.00GHz") == "intel-core-i71185g7"
+
+
+@pytest.mark.slow
+def test_sweep_wall_runs_as_committed(tmp_path):
+    """benchmarks/sweep_wall.py on a tiny sweep: a cold and a warm run of the installed command."""
+    report = _run_benchmark("benchmarks.sweep_wall", "--out", str(tmp_path / "wall.json"), "--sweep-args",
+                            "--samples", "8", "--T", "0.2", "--controllers", "pd")
+    assert [r["cache"] for r in report["runs"]] == ["cold", "warm"]
+    assert all(r["wall_s"] > 0 for r in report["runs"]) and report["cpu"]
+
+
 @pytest.mark.slow
 def test_sweep_profile_runs_as_committed():
     report = _run_benchmark("benchmarks.sweep_profile", "--batch", "8", "--T", "0.05", "--rounds", "1",
