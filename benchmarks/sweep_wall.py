@@ -6,8 +6,9 @@ compilation cache) and warm (the cache the cold run filled), each in its own pro
     python benchmarks/sweep_wall.py --sweep-args --samples 8 --T 0.2      # a tiny sweep (a smoke test)
 
 Each run is ``SO3JAX_CACHE_DIR=CACHE so3jax sweep CONFIG --out OUT`` in a fresh
-interpreter (the installed command), timed from the outside. The sweep's own lines on
-stderr give its compile and loop times where it prints them. Prints one JSON object and
+interpreter (the installed command), timed from the outside; the sweep's own timing of its
+loop over chunks (``summary.json``'s ``run``, compilation of the first chunks included)
+beside it. Prints one JSON object and
 writes it to ``benchmarks/results/sweep-<config>-wall-cpu-<cores>core-<cpu>.json``
 (the CPU model from ``lscpu``).
 """
@@ -65,14 +66,18 @@ def one_run(config: Path, cache: str, label: str, extra: list) -> dict:
                           env=env, capture_output=True, text=True, check=False)
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    try:
+        run = json.loads((out / "summary.json").read_text())["run"]  # the sweep's own timing of its loop
+    except (OSError, KeyError, ValueError):
+        run = {}
     shutil.rmtree(out.parent, ignore_errors=True)
     if proc.returncode != 0:
         raise SystemExit(f"so3jax sweep failed ({proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}")
-    timing = [line for line in proc.stderr.splitlines() if re.search(r"\d+(\.\d+)? ?s\b", line)]
-    return {"cache": label, "wall_s": round(wall, 2), "cpu_s": round((after.ru_utime - before.ru_utime)
-                                                                     + (after.ru_stime - before.ru_stime), 2),
+    return {"cache": label, "wall_s": round(wall, 2), "sweep_loop_s": run.get("wall_s"),
+            "trajectory_steps_per_s": run.get("trajectory_steps_per_s"), "devices": run.get("devices"),
+            "cpu_s": round((after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), 2),
             "max_rss_kb": after.ru_maxrss, "load_avg_start": [round(x, 2) for x in load],
-            "load_avg_end": [round(x, 2) for x in os.getloadavg()], "sweep_timing_lines": timing[-6:]}
+            "load_avg_end": [round(x, 2) for x in os.getloadavg()]}
 
 
 def main(argv=None) -> int:
