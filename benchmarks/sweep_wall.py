@@ -101,7 +101,8 @@ def main(argv=None) -> int:
     cpus = len(os.sched_getaffinity(0))
     model = cpu_model()
     record = {
-        "command": "python benchmarks/sweep_wall.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        "command": (f"XLA_FLAGS='{os.environ['XLA_FLAGS']}' " if os.environ.get("XLA_FLAGS") else "")
+        + "python benchmarks/sweep_wall.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "what": f"so3jax sweep {args.config.name} {' '.join(args.sweep_args)} from the installed command, each run "
                 "in a fresh process: cold (an empty compilation cache: compilation included), then warm (the cache "
                 "the cold run filled)",

@@ -24,9 +24,6 @@ The horizon is short (T = 300 s, the first 60 s left out), dt = the control peri
 step per tick: exact enough at these rates), and a record every 10 ticks keeps the
 histories small; all seeds are fixed, so the tests are deterministic. Each case is one
 compiled program at most: the torque-free cases share one (their differences are values).
-
-The tests flown with the rate-integrating gyro (``sensors.gyro.output = "increment"``) are
-skipped where the mission parser refuses that key (a tree before that gyro).
 """
 
 import jax
@@ -53,19 +50,6 @@ CASES = {  # on the flight mission's defaults (missions/flight.toml)
     "tumbling": TORQUE_FREE + [f"inertia.J={J0}", f"initial.rate={RATE}"],  # the rate changes within a period
     "flight_pd": ['controllers=["pd"]'],  # the paper's inertia profile, disturbance, wheels
 }
-
-
-def gyro_output_known() -> bool:
-    try:
-        sj.load_mission(None, ['sensors.gyro.output="increment"'])
-    except ValueError:
-        return False
-    return True
-
-
-INTEGRATING = gyro_output_known()
-needs_integrating_gyro = pytest.mark.skipif(
-    not INTEGRATING, reason="sensors.gyro.output is refused by the mission parser (no rate-integrating gyro yet)")
 
 
 def mission(case: str, gyro: str | None, *extra: str):
@@ -120,7 +104,6 @@ def flown():
     return nees
 
 
-@needs_integrating_gyro
 @pytest.mark.parametrize("case", CASES)
 def test_mekf_is_consistent_with_the_integrating_gyro(flown, case):
     for block, (inside, mean, ok) in verdicts(flown(case, "increment")).items():
@@ -129,8 +112,8 @@ def test_mekf_is_consistent_with_the_integrating_gyro(flown, case):
 
 def test_a_filter_assuming_a_tenth_of_the_gyro_noise_is_flagged(flown):
     """The property can fail: the still body, the filter's angle random walk 1/10 of the
-    gyro's (the default gyro's output: the integrating one where it exists)."""
-    gyro = "increment" if INTEGRATING else None
+    rate-integrating gyro's."""
+    gyro = "increment"
     arw = mission("still", gyro).sensors["gyro"]["arw"]
     result = verdicts(flown("still", gyro, f"estimator.mekf.arw={arw / 10!r}"))
     assert not result["attitude"][2], result
@@ -140,6 +123,6 @@ def test_a_filter_assuming_a_tenth_of_the_gyro_noise_is_flagged(flown):
 def test_a_sampled_rate_gyro_is_flagged_when_the_rate_changes_within_a_period(flown):
     """The inconsistency the rate-integrating gyro removes: the filter propagates the rate
     sampled at the tick as constant over the period while the tumbling body's rate turns."""
-    gyro = "rate" if INTEGRATING else None
+    gyro = "rate"
     result = verdicts(flown("tumbling", gyro))
     assert not result["attitude"][2] and result["attitude"][1] > 30.0, result
