@@ -178,3 +178,16 @@ def test_argument_errors_are_one_line(argv, capsys):
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("so3jax") and ": error: " in err[0] and "--help" in err[0]
+
+
+@pytest.mark.parametrize("argv", [["fly"], ["paper"], ["sweep"], ["identify", "telemetry.npz"], ["tune", "c.toml"],
+                                  ["compare", "c.toml"]])
+def test_an_empty_output_folder_is_refused(argv, tmp_path, monkeypatch, capsys):
+    """--out "" would name the current directory: one line, exit 2, nothing written there."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exit_:
+        cli.main([*argv, "--out", ""])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "argument --out: must name a folder" in err[0]
+    assert list(tmp_path.iterdir()) == []

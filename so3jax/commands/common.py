@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from so3jax.components import registry as components
 from so3jax.controllers import registry
@@ -46,3 +47,10 @@ def add_memory_argument(parser: argparse.ArgumentParser) -> None:
         metavar="SIZE",
         help="refuse a run estimated to need more memory than SIZE, e.g. 4G (default: the memory available)",
     )
+
+
+def output_folder(text: str) -> Path:
+    """--out's type: a folder's path; an empty one is refused (it would name the current directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("must name a folder; an empty path would be the current directory")
+    return Path(text)

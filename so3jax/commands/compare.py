@@ -6,7 +6,7 @@ from __future__ import annotations
 import warnings
 from pathlib import Path
 
-from so3jax.commands.common import add_precision_argument, registered
+from so3jax.commands.common import add_precision_argument, output_folder, registered
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs import compare
 from so3jax.missions import config as cfg
@@ -31,7 +31,7 @@ def register(subparsers) -> None:
         epilog=registered(tunable=True))
     parser.add_argument("config", help="comparison file (TOML): a mission whose controllers are compared, [tune], "
                         "[sweep], [dispersions], [compare]; e.g. comparisons/paper.toml")
-    parser.add_argument("--out", help="run folder (default results/compare/NAME for NAME.toml)")
+    parser.add_argument("--out", type=output_folder, help="run folder (default results/compare/NAME for NAME.toml)")
     parser.add_argument("--resume", action="store_true", help="finish the comparison in --out, keeping what it holds")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override an entry with a TOML value: a mission key (T=100.0), tune.*, sweep.*, compare.*")

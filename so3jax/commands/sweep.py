@@ -8,7 +8,13 @@ import sys
 import warnings
 from pathlib import Path
 
-from so3jax.commands.common import add_memory_argument, add_precision_argument, controllers_help, registered
+from so3jax.commands.common import (
+    add_memory_argument,
+    add_precision_argument,
+    controllers_help,
+    output_folder,
+    registered,
+)
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.sweep.config import load_config
 from so3jax.jobs.sweep.engine import LAYOUTS, run_sweep
@@ -42,7 +48,8 @@ def register(subparsers) -> None:
         help="override an entry with a TOML value: a mission key (T=100.0), sweep.KEY or dispersions.LEAF, "
         "e.g. --set 'dispersions.deployment.tau_J={dist=\"normal\", mean=300, std=30}'",
     )
-    p.add_argument("--out", type=Path, default=Path("results/sweep"), help="output folder (default results/sweep)")
+    p.add_argument("--out", type=output_folder, default=Path("results/sweep"),
+                   help="output folder (default results/sweep)")
     p.add_argument("--resume", action="store_true", help="finish the sweep in --out, keeping its finished chunks")
     group = distributed.add_arguments(p)
     group.add_argument("--layout", choices=LAYOUTS, default="chunks",

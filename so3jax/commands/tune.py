@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from so3jax.commands.common import add_precision_argument, registered
+from so3jax.commands.common import add_precision_argument, output_folder, registered
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import load_config
 from so3jax.jobs.tune.optimizers import NonFiniteGradientError
@@ -47,7 +47,7 @@ def register(subparsers) -> None:
                         "e.g. tuning/adaptive_equal_effort.toml")
     parser.add_argument("--iterations", type=int, help="number of iterations (overrides tune.iterations)")
     parser.add_argument("--T", type=float, help="horizon [s] (overrides the mission's T)")
-    parser.add_argument("--out", help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
+    parser.add_argument("--out", type=output_folder, help=f"run folder (default {DEFAULT_OUT}/NAME for NAME.toml)")
     parser.add_argument("--resume", action="store_true", help="continue the run saved in the run folder")
     parser.add_argument(
         "--set",
