@@ -95,8 +95,7 @@ class IntegratingGyro(Sensor):
 
     def init(self, batch_shape, dtype):
         """(b_0, b_0, I): the previous tick's bias and attitude are not read at tick 0."""
-        b = jnp.asarray(self.bias0).astype(dtype)
-        b = jnp.broadcast_to(b.reshape((3,) + (1,) * len(batch_shape)), (3, *batch_shape))
+        b = Gyro.init(self, batch_shape, dtype)  # b_0 as (3, *batch_shape), as the sampled-rate gyro's
         return b, b, so3.eye_like(b)
 
     def measure(self, state, R, Omega, key, j, period):
@@ -116,10 +115,7 @@ class IntegratingGyro(Sensor):
         """The true bias b_j (3, *b) [rad/s] at the tick about to be measured."""
         return state[1]
 
-    def check(self) -> None:
-        _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
-        _check("sensors.gyro.rrw [rad/s^(3/2)]", self.rrw)
-        _check("sensors.gyro.bias0 [rad/s]", self.bias0, (3,))
+    check = Gyro.check  # the same parameters, the same checks
 
 
 @pytree_dataclass
