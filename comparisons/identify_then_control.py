@@ -38,9 +38,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-# the recorded results were flown with the gyro sampling the rate at each tick (docs/model.md (8.2')),
-# which identification models
-SAMPLED_RATE_GYRO = 'sensors.gyro.output="rate"'
 
 
 def main(argv=None) -> int:
@@ -62,7 +59,7 @@ def main(argv=None) -> int:
     from so3jax.missions.dispersions import draw_samples
 
     started = time.perf_counter()
-    post = missions.load(ROOT / "missions" / "post_docking.toml", [SAMPLED_RATE_GYRO])
+    post = missions.load(ROOT / "missions" / "post_docking.toml")
     sweep = load_config(ROOT / "sweeps" / "default.toml")
     J = draw_samples(sweep.dispersions, sweep.seed, args.samples, sweep.max_draws).params.J2
     seeds = np.arange(args.samples)
@@ -99,7 +96,7 @@ def main(argv=None) -> int:
                                "axis_error_deg_median": float(np.degrees(np.median(err_axis))),
                                "axis_error_deg_max": float(np.degrees(err_axis.max()))}
         progress(f"{key}: pd with the identified inertia")
-        rest = missions.load(ROOT / "missions" / "post_docking.toml", [f"T={post.T - T_id!r}", SAMPLED_RATE_GYRO])
+        rest = missions.load(ROOT / "missions" / "post_docking.toml", [f"T={post.T - T_id!r}"])
         second = fly(rest, "pd", J, J_hat, first["R"], first["Omega"], first["wheels"], seeds + 10**6, args.chunk)
         n1, n2 = round(T_id / post.dt), round((post.T - T_id) / post.dt)
         rmse = np.sqrt((n1 * first["rmse"] ** 2 + n2 * second["rmse"] ** 2) / (n1 + n2))

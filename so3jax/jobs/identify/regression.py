@@ -18,6 +18,12 @@ they stay strongly correlated with the regressors. Instrumental variables rather
 total least squares, because TLS assumes equal independent noise in every column, and here
 the columns mix rates, attitudes, times and exact wheel speeds.
 
+A rate-integrating gyro's reading m_k, its increment over the interval Delta_k ending at
+t_k divided by Delta_k, is the rate at the interval's midpoint to O(Delta_k^2): the equation
+then reads each sample at t_k - Delta_k / 2, with the attitude carried back by the reading,
+R_k exp(-hat(m_k) Delta_k / 2) (the bias's share, Delta_k b / 2, is left out: ~1e-5 rad) and
+the wheels' momentum interpolated (:func:`at_midpoints`).
+
 The instrumental-variable estimate is computed as two-stage least squares, then refined
 over the log-Cholesky parameters of J (:mod:`so3jax.jobs.identify.inertia`), so that the
 estimate is physical by construction; where the unconstrained one is physical, both agree.
@@ -31,6 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.core import so3
 from so3jax.jobs.identify import fit, inertia
 
 
@@ -48,6 +55,20 @@ def blocks(t, valid, interval: float) -> list[np.ndarray]:
 def normalized_time(t):
     """s = (t - t_0) / (t_N - t_0), the disturbance polynomial's variable."""
     return (t - t[0]) / (t[-1] - t[0])
+
+
+def at_midpoints(tm):
+    """Telemetry of a rate-integrating gyro read at its intervals' midpoints (the module's
+    docstring); the first row, with no wheel momentum before it, is left out."""
+    if tm.gyro_output != "increment":
+        return tm
+    half = 0.5 * tm.gyro_interval[1:]
+    back = np.asarray(so3.exp(jnp.asarray(-(tm.gyro[1:] * half[:, None]).T)))  # (3, 3, N - 1)
+    R = np.einsum("nij,jkn->nik", tm.R[1:], back)
+    frac = (half / np.diff(tm.t))[:, None]
+    h = tm.wheel_momentum[1:] - frac * np.diff(tm.wheel_momentum, axis=0)
+    return tm._replace(t=tm.t[1:] - half, gyro=tm.gyro[1:], R=R, valid=tm.valid[1:], wheel_momentum=h,
+                       gyro_output="rate", gyro_interval=None)
 
 
 def _per_sample(tm, degree: int) -> dict:
@@ -88,6 +109,7 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     block's even-numbered samples form the equation, its odd-numbered ones the
     instruments (``instruments=False``: every sample in the equation, ordinary least
     squares)."""
+    tm = at_midpoints(tm)
     groups = blocks(tm.t, tm.valid, interval)
     k = 6 + (3 if bias else 0) + 3 * (degree + 1)
     if len(groups) - 1 < k // 3 + 1:

@@ -13,10 +13,12 @@ d a disturbance torque fixed in the body, polynomial in s = (t - t_0) / (t_N - t
 of ``window`` seconds, each with its own initial attitude and momentum as free parameters,
 so that a wrong inertia never integrates for long (no divergence from a poor first guess)
 and the disturbance's noise, which the model cannot know, accumulates only within a window.
-Residuals: the gyro's reading against Omega + b, and the star tracker's attitude against
-R (its rotation vector), each divided by its noise level, estimated from the data's
-second differences. Unknowns: the log-Cholesky parameters of J (physical by construction),
-the gyro bias b, the disturbance's coefficients, and 6 per window.
+Residuals: the gyro's reading against Omega + b (a rate-integrating gyro's against
+log(R_k^T R_{k+1})^v / Delta + b, the model's own increment over the sample interval,
+docs/model.md (8.2)), and the star tracker's attitude against R (its rotation vector), each
+divided by its noise level, estimated from the data's second differences. Unknowns: the
+log-Cholesky parameters of J (physical by construction), the gyro bias b, the disturbance's
+coefficients, and 6 per window.
 """
 
 from __future__ import annotations
@@ -62,6 +64,10 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     h = float(np.median(np.diff(t)))
     if np.max(np.abs(np.diff(t) - h)) > 1e-6 * h:
         raise ValueError("the simulation method needs uniformly spaced samples (t)")
+    increment = tm.gyro_output == "increment"
+    if increment and np.max(np.abs(tm.gyro_interval[1:] - h)) > 1e-6 * h:
+        raise ValueError(f"the simulation method reads a rate-integrating gyro's increments over the sample "
+                         f"interval ({h:g} s); these cover {np.median(tm.gyro_interval):g} s: the regression method")
     K = max(int(round(window / h)) + 1, 3)
     n_w = len(t) // K
     k_d = 3 * (degree + 1)
@@ -79,18 +85,20 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
         if not inertia.is_physical(J0):
             raise ValueError("the initial inertia is not physical")
     # each window's K samples and the next window's first (where its momentum must arrive)
-    take = np.minimum(np.arange(n_w)[:, None] * K + np.arange(K + 1)[None], len(t) - 1)
+    rows = np.arange(n_w)[:, None] * K + np.arange(K + 1)[None]
+    take = np.minimum(rows, len(t) - 1)
     cut = lambda x: jnp.asarray(x[take])
     s = regression.normalized_time(t)
     first_valid = np.array([np.argmax(tm.valid[i * K:(i + 1) * K]) for i in range(n_w)])
     data = dict(gyro=cut(tm.gyro), R=cut(tm.R), valid=cut(tm.valid.astype(float)), h=cut(tm.wheel_momentum), s=cut(s),
+                in_record=jnp.asarray((rows < len(t)).astype(float)),
                 R_ref=jnp.asarray(tm.R[np.arange(n_w) * K + first_valid]),
                 scale=jnp.asarray([h, t[-1] - t[0], 1.0 / sigma_g, 1.0 / sigma_st, 0.0]))
     start = np.arange(n_w) * K
     L0 = (tm.gyro[start] - b0) @ J0.T + tm.wheel_momentum[start]
     local0 = np.concatenate([np.zeros((n_w, 3)), L0], axis=1)
     p0 = np.concatenate([inertia.to_params(J0), b0 if bias else np.zeros(0), d0, local0.reshape(-1)])
-    static = dict(n_g=n_g, bias=bias, degree=degree)
+    static = dict(n_g=n_g, bias=bias, degree=degree, increment=increment)
     # Windows are joined by the momentum's continuity, each jump weighted by its own
     # scatter (the disturbance's noise, which the model does not know): a first fit
     # without the joins, then the joins at the scatter they leave, twice.
@@ -111,9 +119,12 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     cov = H_inv @ (scores.T @ scores) @ H_inv * n_w / max(n_w - 1, 1)
     r = np.asarray(_residuals(jnp.asarray(solution.p), data, **static)[0]).reshape(n_w * K, 2, 3)
     star = np.where(tm.valid[: n_w * K, None], r[:, 1] * sigma_st, np.nan)
+    gyro = r[:, 0] * sigma_g
+    if increment:  # row k's gyro residual is the reading at sample k + 1's
+        gyro = np.concatenate([np.full((1, 3), np.nan), gyro[:-1]])
     out = fit.estimate(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
                        residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
-                       residuals={"t": t[: n_w * K], "gyro [rad/s]": r[:, 0] * sigma_g, "star tracker [rad]": star})
+                       residuals={"t": t[: n_w * K], "gyro [rad/s]": gyro, "star tracker [rad]": star})
     out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
     if n_w < 2 * n_g:
         out["warning"] = (f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
@@ -121,8 +132,9 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     return out
 
 
-def _window_residual(g, local, w, bias: bool, degree: int):
-    """The weighted residuals (K * 6,) of one window (gyro then star tracker per sample)
+def _window_residual(g, local, w, bias: bool, degree: int, increment: bool):
+    """The weighted residuals (K * 6,) of one window (gyro then star tracker per sample; with
+    a rate-integrating gyro, row k's gyro residual is that of the reading at sample k + 1)
     and its momentum propagated to the next window's first sample (3,) [N m s]."""
     h, span, weight_g, weight_a, _ = w["scale"]
     J = inertia.from_params(g[:6])
@@ -146,10 +158,15 @@ def _window_residual(g, local, w, bias: bool, degree: int):
     R0 = w["R_ref"] @ so3.exp(local[:3])
     _, (Rs, Ls) = jax.lax.scan(step, (R0, local[3:]), jnp.arange(w["gyro"].shape[0] - 1))
     L_end = Ls[-1]
-    Rs = jnp.concatenate([R0[None], Rs[:-1]])
-    Ls = jnp.concatenate([local[3:][None], Ls[:-1]])
-    Omega = (Ls - w["h"][:-1]) @ J_inv.T
-    r_g = (w["gyro"][:-1] - Omega - b) * weight_g
+    path = jnp.concatenate([R0[None], Rs])  # at the window's K samples and the next window's first
+    Rs = path[:-1]
+    if increment:
+        model = jax.vmap(lambda Ra, Rb: so3.log(Ra.T @ Rb))(path[:-1], path[1:]) / h
+        r_g = (w["gyro"][1:] - model - b) * weight_g * w["in_record"][1:, None]
+    else:
+        Ls = jnp.concatenate([local[3:][None], Ls[:-1]])
+        Omega = (Ls - w["h"][:-1]) @ J_inv.T
+        r_g = (w["gyro"][:-1] - Omega - b) * weight_g
     err = jax.vmap(lambda Rm, Rp: so3.log(Rp.T @ Rm))(w["R"][:-1], Rs)
     r_a = err * weight_a * w["valid"][:-1, None]
     return jnp.concatenate([r_g, r_a], axis=1).reshape(-1), L_end
@@ -164,30 +181,30 @@ def _shared(data):
     return {k: v for k, v in data.items() if k != "scale"}
 
 
-def _residuals(p, data, n_g, bias, degree):
+def _residuals(p, data, n_g, bias, degree, increment):
     """(per-window residuals (n_w, 6 K), each window's momentum at the next one's start (n_w, 3))."""
     g, local = _split(p, n_g)
-    per = lambda loc, w: _window_residual(g, loc, {**w, "scale": data["scale"]}, bias, degree)
+    per = lambda loc, w: _window_residual(g, loc, {**w, "scale": data["scale"]}, bias, degree, increment)
     return jax.vmap(per)(local, _shared(data))
 
 
-@partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
-def _jumps(p, data, n_g, bias, degree):
+@partial(jax.jit, static_argnames=("n_g", "bias", "degree", "increment"))
+def _jumps(p, data, n_g, bias, degree, increment):
     """L_end of window i - L(0) of window i + 1 (n_w - 1, 3) [N m s]."""
     _, local = _split(p, n_g)
-    L_end = _residuals(p, data, n_g, bias, degree)[1]
+    L_end = _residuals(p, data, n_g, bias, degree, increment)[1]
     return L_end[:-1] - local[1:, 3:]
 
 
-@partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
-def _cost(p, data, n_g, bias, degree):
-    r = _residuals(p, data, n_g, bias, degree)[0]
-    c = _jumps(p, data, n_g, bias, degree) * data["scale"][4]
+@partial(jax.jit, static_argnames=("n_g", "bias", "degree", "increment"))
+def _cost(p, data, n_g, bias, degree, increment):
+    r = _residuals(p, data, n_g, bias, degree, increment)[0]
+    c = _jumps(p, data, n_g, bias, degree, increment) * data["scale"][4]
     return 0.5 * (jnp.sum(r ** 2) + jnp.sum(c ** 2))
 
 
-@partial(jax.jit, static_argnames=("n_g", "bias", "degree"))
-def _evaluate(p, data, n_g, bias, degree):
+@partial(jax.jit, static_argnames=("n_g", "bias", "degree", "increment"))
+def _evaluate(p, data, n_g, bias, degree, increment):
     """(cost, H = A^T A, A^T r, the windows' scores (n_w, k)), H assembled from each
     window's Jacobian (global and its own 6 parameters) and the joins' (window i's
     parameters and the next window's momentum) without forming A."""
@@ -195,7 +212,7 @@ def _evaluate(p, data, n_g, bias, degree):
     n_w = local.shape[0]
     k = n_g + 6 * n_w
     def per(gg, loc, w):  # the outputs twice: differentiated, and as they are (one pass)
-        out = _window_residual(gg, loc, {**w, "scale": data["scale"]}, bias, degree)
+        out = _window_residual(gg, loc, {**w, "scale": data["scale"]}, bias, degree, increment)
         return out, out
 
     derivatives, (r, L_end) = jax.vmap(jax.jacfwd(per, argnums=(0, 1), has_aux=True),

@@ -12,13 +12,17 @@ Arrays (SI units, body frame; N samples at the control ticks):
     wheel_axes      (3, n)  optional: unit spin axes as columns, body frame
     spin_inertia    (n,)    kg m^2, optional: each wheel's spin inertia
     gyro_output     ()      str, optional: "rate" (the default: the gyro samples the rate at t)
-                            or "increment" (a rate-integrating gyro: the mean rate over the
-                            control period ending at t, docs/model.md §8.2)
+                            or "increment" (a rate-integrating gyro: its angle increment over
+                            the interval ending at t, divided by the interval, docs/model.md
+                            (8.2))
+    gyro_interval   () or (N,)  s, optional, with "increment": the interval each reading covers
+                            (default: the time since the previous row; the first row's as
+                            long as the second's)
 
 With ``wheel_speed``, the wheels' geometry comes from ``wheel_axes`` and ``spin_inertia``,
-else from a mission's ``[actuator.wheels]``. The identification models a gyro that samples
-the rate (docs/model.md §17.1): telemetry of a rate-integrating gyro is refused. Rows
-without a star-tracker sample still hold a unit quaternion (any: it is not read).
+else from a mission's ``[actuator.wheels]``. Both identification methods model either gyro
+(docs/model.md §17.1). Rows without a star-tracker sample still hold a unit quaternion
+(any: it is not read).
 ``so3jax fly`` writes this file for every controller it flies
 (``OUT/telemetry/NAME.npz``); real telemetry is converted to it.
 """
@@ -36,7 +40,7 @@ from so3jax.components.sensors import GYRO_OUTPUTS
 from so3jax.results.io import save_npz
 
 REQUIRED = ("t", "gyro", "attitude")
-OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia", "gyro_output")
+OPTIONAL = ("attitude_valid", "wheel_speed", "wheel_axes", "spin_inertia", "gyro_output", "gyro_interval")
 
 
 class Telemetry(NamedTuple):
@@ -46,6 +50,8 @@ class Telemetry(NamedTuple):
     valid: np.ndarray  # (N,) bool: a star-tracker sample
     # (N, 3) N m s: G_s J_s Omega_w, the wheels' momentum at rest in the body (zeros without)
     wheel_momentum: np.ndarray
+    gyro_output: str = "rate"  # "rate": Omega(t) + b; "increment": the mean rate over the interval ending at t
+    gyro_interval: np.ndarray | None = None  # (N,) s: the interval each increment reading covers
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -122,9 +128,6 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
     output = data.get("gyro_output", np.asarray("rate"))
     if np.shape(output) != () or str(output) not in GYRO_OUTPUTS:
         raise ValueError(f"{path}: gyro_output must be one of {', '.join(GYRO_OUTPUTS)}, got {output!r}")
-    if str(output) == "increment":
-        raise ValueError(f"{path}: the gyro delivers angle increments (gyro_output = 'increment'); identification "
-                         "models a gyro that samples the rate: fly the manoeuvre with sensors.gyro.output = \"rate\"")
     t = _array(data, "t", path, 1)
     N = len(t)
     if N < 3:
@@ -176,7 +179,18 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
         if np.any(np.abs(np.linalg.norm(axes, axis=0) - 1.0) > 1e-6):
             raise ValueError(f"{path}: wheel_axes must be unit vectors (columns)")
         h = speed @ (axes * spin).T
-    return Telemetry(t, gyro, quaternion_to_matrix(q), valid, h)
+    interval = None
+    if "gyro_interval" in data:
+        if str(output) != "increment":
+            raise ValueError(f"{path}: gyro_interval is read with gyro_output = 'increment' only")
+        interval = np.asarray(data["gyro_interval"], float)
+        if interval.ndim == 0:
+            interval = np.full(N, float(interval))
+        if interval.shape != (N,) or not np.all(np.isfinite(interval) & (interval > 0)):
+            raise ValueError(f"{path}: gyro_interval must be one positive number of seconds or one per sample ({N},)")
+    elif str(output) == "increment":
+        interval = np.diff(t, prepend=2 * t[0] - t[1])
+    return Telemetry(t, gyro, quaternion_to_matrix(q), valid, h, str(output), interval)
 
 
 def save(path, t, gyro, R, valid=None, wheel_speed=None, wheel_axes=None, spin_inertia=None) -> None:
@@ -202,8 +216,10 @@ def from_run(mission, history, seed) -> dict:
     knows them. The gyro's reading is the estimator's rate plus its bias estimate (the
     reading it was given, to round-off: omega_m = Omega_hat + b_hat, docs/model.md (8.7)); the
     star tracker's is regenerated from the recorded true attitude with the run's noise
-    (docs/model.md §8.2's recipe: the draws the estimator saw). Needs the sampled wiring with
-    a gyro and a star tracker, and a history recorded at ticks."""
+    (docs/model.md §8.2's recipe: the draws the estimator saw). A rate-integrating gyro's
+    readings cover one control period (``gyro_interval``), and tick 0, which has none, is
+    left out. Needs the sampled wiring with a gyro and a star tracker, and a history
+    recorded at ticks."""
     if not recorded(mission):
         raise ValueError("telemetry needs the sampled wiring with a gyro and a star tracker")
     tracker = mission.loop().sensors.attitude
@@ -214,12 +230,17 @@ def from_run(mission, history, seed) -> dict:
                                jnp.asarray(np.asarray(history.R, float)), jnp.asarray(j, jnp.uint32))
     arrays = {"t": t, "gyro": omega_m, "attitude": matrix_to_quaternion(np.asarray(R_m)),
               "attitude_valid": np.asarray(valid, bool)}
-    if "gyro" in mission.sensors:
-        arrays["gyro_output"] = np.asarray(mission.sensors["gyro"]["output"])
     wheels = mission.actuator.get("wheels") if mission.actuator["kind"] == "wheels" else None
     if wheels is not None:
+        arrays["wheel_speed"] = np.asarray(history.actuator, float)
+    output = mission.sensors.get("gyro", {}).get("output", "rate")
+    if output == "increment":
+        arrays = {k: v[j > 0] for k, v in arrays.items()}
+        arrays["gyro_interval"] = np.asarray(mission.period, float)
+    arrays["gyro_output"] = np.asarray(output)
+    if wheels is not None:
         axes = np.asarray(wheels["axes"], float).T  # the mission lists one axis per wheel
-        arrays.update(wheel_speed=np.asarray(history.actuator, float), wheel_axes=axes,
+        arrays.update(wheel_axes=axes,
                       spin_inertia=np.broadcast_to(np.asarray(wheels["spin_inertia"], float), (axes.shape[1],)).copy())
     return arrays
 
