@@ -26,15 +26,16 @@ def _angle(R):
 
 def attitude_figure(histories, phase_times, T):
     """True vs estimated attitude error |log(R_d^T R)|, |log(R_d^T R_hat)|, and the
-    estimation error |log(R_hat^T R)| [deg]."""
+    estimation error |log(R_hat^T R)| [deg]. The truth is drawn thin in the law's line
+    style on top of its estimate, a wide faint solid band of the same colour."""
     fig = Figure(figsize=(10, 6.5))
     top, bottom = fig.subplots(2, 1, sharex=True)
     for name, h in histories.items():
         style = controller_style(name)
-        top.plot(h.t, np.degrees(h.angle), lw=1.0, **style)
         estimated = _angle(np.einsum("mji,mjk->mik", h.R_d, h.R_hat))
-        top.plot(h.t, np.degrees(estimated), lw=0.8, alpha=0.7, color=style.get("color"), ls=":",
+        top.plot(h.t, np.degrees(estimated), lw=4.0, alpha=0.3, ls="-", color=style.get("color"), zorder=2,
                  label=f"{style['label']} (estimated)")
+        top.plot(h.t, np.degrees(h.angle), lw=0.8, zorder=3, **{**style, "label": f"{style['label']} (true)"})
         bottom.plot(h.t, np.degrees(_angle(np.einsum("mji,mjk->mik", h.R_hat, h.R))), lw=1.0, **style)
     top.set_yscale("log")
     bottom.set_yscale("log")
@@ -42,7 +43,7 @@ def attitude_figure(histories, phase_times, T):
     _frame(bottom, phase_times, T, "|log(R̂ᵀR)| [deg]")
     top.legend(fontsize=8)
     bottom.set_xlabel("t [s]")
-    top.set_title("Attitude error: true (solid) and as estimated (dotted)", pad=14)
+    top.set_title("Attitude error: true (thin) and as estimated (wide, faint)", pad=14)
     bottom.set_title("Attitude estimation error", pad=14)
     return fig
 
@@ -103,26 +104,26 @@ def wheel_speed_figure(histories, phase_times, T, max_speed):
         h = histories[name]
         for i in range(h.actuator.shape[1]):
             ax.plot(h.t, h.actuator[:, i], lw=1.0, label=f"wheel {i + 1}")
-        for limit in np.unique(max_speed):
-            ax.axhline(limit, color="k", ls="--", lw=0.8)
+        for n, limit in enumerate(np.unique(max_speed)):
+            ax.axhline(limit, color="k", ls="--", lw=0.8, label="speed limit ±Ω_max" if n == 0 else None)
             ax.axhline(-limit, color="k", ls="--", lw=0.8)
         _frame(ax, phase_times, T, "Ω_w [rad/s]")
         ax.set_title(controller_style(name)["label"], pad=14)
         ax.legend(fontsize=8, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("t [s]")
-    fig.suptitle("Wheel speeds (dashed: limits)")
+    fig.suptitle("Wheel speeds")
     return fig
 
 
 def momentum_figure(histories, phase_times, T, capacity):
     """Wheel momentum h_w in the body frame per axis [N m s], and the wheels' capacity
-    (the largest |h_w| along a body axis, dashed)."""
+    h_max (the largest |h_w| along a body axis, dashed)."""
     fig = Figure(figsize=(10, 7.5))
     axes = fig.subplots(3, 1, sharex=True)
     for i, ax in enumerate(axes):
         for name, h in histories.items():
             ax.plot(h.t, h.momentum[:, i], lw=1.0, **controller_style(name))
-        ax.axhline(capacity[i], color="k", ls="--", lw=0.8)
+        ax.axhline(capacity[i], color="k", ls="--", lw=0.8, label="capacity ±h_max")
         ax.axhline(-capacity[i], color="k", ls="--", lw=0.8)
         _frame(ax, phase_times, T, f"h_w {AXES[i]} [N m s]")
     axes[0].legend(fontsize=8, loc="upper right")

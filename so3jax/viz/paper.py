@@ -10,11 +10,11 @@ def figures(histories: dict, scenario) -> dict:
     inertia shown) over the scenario's phases and horizon."""
     h = histories["pd"]
     phases, T = scenario.phase_times, scenario.horizon
-    t_capture = phases[-1] if phases else T
+    t_last = phases[-1] if phases else T  # the last phase's start (the paper's: docking)
     return {
         "fig1_inertia.png": plots.inertia_figure(h.t, h.J, phases, T),
         "fig2_angular_velocity.png": plots.rate_figure(histories, phases, T),
-        "fig3_tracking_error.png": plots.rate_error_figure(histories, phases, t_capture, T),
+        "fig3_tracking_error.png": plots.rate_error_figure(histories, phases, t_last, T),
         "fig4_torque.png": plots.torque_figure(histories, phases, T),
         "fig5_torque_norm.png": plots.torque_norm_figure(histories, phases, T),
         "fig6_attitude_error.png": plots.attitude_error_figure(histories, phases, T),

@@ -30,15 +30,25 @@ def _end(histories, T):
     return float(T) if T is not None else float(next(iter(histories.values())).t[-1])
 
 
+def principal_moments(J):
+    """Eigenvalues of J (M, 3, 3) [kg m^2], ascending (M, 3); NaN where J is not finite."""
+    J = np.asarray(J, dtype=float)
+    moments = np.full(J.shape[:-1], np.nan)
+    finite = np.isfinite(J).all(axis=(-2, -1))
+    moments[finite] = np.linalg.eigvalsh(J[finite])
+    return moments
+
+
 def inertia_figure(t, J, phase_times, T=None):
-    """Fig. 1: entries of J(t) [kg m^2]; J: (M, 3, 3); up to the horizon T [s]."""
+    """Fig. 1: principal moments (eigenvalues) and products of inertia (off-diagonal
+    entries) of J(t) [kg m^2]; J: (M, 3, 3); up to the horizon T [s]."""
     fig = Figure(figsize=(11, 3.8))
-    diag, off = fig.subplots(1, 2, sharex=True)
-    for i, a in enumerate(AXES):
-        diag.plot(t, J[:, i, i], label=f"J{a}{a}")
+    moments, off = fig.subplots(1, 2, sharex=True)
+    for i, lam in enumerate(principal_moments(J).T):
+        moments.plot(t, lam, label=f"λ{i + 1}")
     for i, j in ((0, 1), (0, 2), (1, 2)):
         off.plot(t, J[:, i, j], label=f"J{AXES[i]}{AXES[j]}")
-    for ax, title in ((diag, "principal moments"), (off, "products of inertia")):
+    for ax, title in ((moments, "principal moments (eigenvalues, λ1 ≤ λ2 ≤ λ3)"), (off, "products of inertia")):
         shade_phases(ax, phase_times, float(t[-1]) if T is None else float(T))
         ax.set(xlabel="t [s]", ylabel="[kg m²]")
         ax.set_title(title, pad=14)
@@ -75,11 +85,19 @@ def rate_figure(histories, phase_times, T=None):
     )
 
 
+def phases_before(phase_times, t_end) -> str:
+    """The phases shown up to t_end [s]: "phase 1" or "phases 1–n"."""
+    n = 1 + sum(p < t_end for p in phase_times)
+    return "phase 1" if n == 1 else f"phases 1–{n}"
+
+
 def rate_error_figure(histories, phase_times, t_max, T=None):
-    """Fig. 3: Omega - Omega_d before capture [rad/s]."""
+    """Fig. 3: Omega - Omega_d [rad/s] up to t_max [s] (the paper's: docking, so phases
+    1-2, capture and deployment)."""
+    t_end = min(_end(histories, T), float(t_max))
     return _per_axis(
         histories, phase_times, lambda h: h.Omega - h.Omega_d, "Ω − Ω_d [rad/s]",
-        "Angular velocity tracking error before capture", t_max, T=T,
+        f"Angular velocity tracking error in {phases_before(phase_times, t_end)} (t < {t_end:g} s)", t_max, T=T,
     )
 
 

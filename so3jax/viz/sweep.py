@@ -17,7 +17,7 @@ def figures(config, cols: dict, phases: list) -> dict:
     """CDFs and histograms of RMSE and effort per controller; RMSE against inertia scale.
     config: the sweep's ``SweepConfig``; phases: (index, name) of the phases the horizon reaches."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
-
+    from matplotlib.ticker import MaxNLocator
 
     names = config.controllers
     color = {c: {"color": style(c).get("color"), "label": style(c)["label"]} for c in names}
@@ -41,6 +41,8 @@ def figures(config, cols: dict, phases: list) -> dict:
                     ax.hist(v, bins=bins, histtype="step", **color[c])
             ax.set_xlabel(label)
             ax.set_ylabel("fraction of samples" if kind == "cdf" else "samples")
+            if kind == "hist":
+                ax.yaxis.set_major_locator(MaxNLocator(integer=True))  # counts
             ax.grid(alpha=0.3)
             ax.legend()
         fig.suptitle(title)
