@@ -79,6 +79,9 @@ def main(argv=None) -> int:
         except ValueError as err:  # bad input (docs/model.md §6): a message, not a traceback
             print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
             code = distributed.agree(2)
+        except OSError as err:  # the system refused a file (a full disk, quota, read-only, permission): one line
+            print(f"so3jax {args.command}: error: {os_error(err)}", file=sys.stderr)
+            code = distributed.agree(2)
         except distributed.PeerFailure as err:  # another process of a multi-process run stopped
             print(f"so3jax {args.command}: error: {err}", file=sys.stderr)
             code = 1
@@ -91,6 +94,11 @@ def main(argv=None) -> int:
             traceback.print_exc()
             code = distributed.agree(1)
     return distributed.leave(code)
+
+
+def os_error(err: OSError) -> str:
+    """An OSError in one line: what the system said, and of which file."""
+    return f"{err.strerror or err}: {err.filename}" if err.filename else f"{err.strerror or err}"
 
 
 def _warning_printer(command: str):

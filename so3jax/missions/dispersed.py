@@ -18,7 +18,13 @@ distributions and keep :mod:`so3jax.missions.dispersions`' variate layout:
 Every other leaf is a parameter of a flown sensor, estimator or actuator: each element
 of its value is drawn independently from its own variates, ``fold_in(fold_in(key(seed),
 k), crc32(leaf))``, so adding or removing a dispersion moves no other. A sample with a
-value outside the parameter's declared domain is rejected (never simulated). The
+value outside the parameter's declared domain is rejected (never simulated), and so is
+one that breaks a bound a component's own check sets between two of its parameters
+(:data:`MAGNITUDE_LIMITS`: a wheel's initial speed within its speed limit, as ``fly``
+checks it): a sample's mission passes the checks of a flown one. A distribution that
+cannot keep within such a bound, by :func:`~so3jax.missions.dispersions.check_domain`'s
+rule against the least limit drawn (:func:`~so3jax.missions.dispersions.least`), is
+refused before anything is drawn; its tails are rejected sample by sample. The
 estimator keeps the noise levels the mission's nominal sensors report: the hardware is
 dispersed, not what the filter assumes.
 """
@@ -38,6 +44,7 @@ from so3jax.core import checks
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop
+from so3jax.sim import memory
 from so3jax.sim.rollout import rollout, rollout_batch
 
 STRUCTURED = {
@@ -49,18 +56,25 @@ STRUCTURED = {
 }
 _INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products")
 _LOOP_TABLES = ("sensors", "estimator", "actuator")
+# A component parameter whose magnitude its component's check bounds by another of its
+# parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
+MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
 
 
 @dataclasses.dataclass(frozen=True)
 class Leaf:
     """A dispersed component parameter: its dotted key, distribution, the shape of the
-    mission's value, and the parameter's domain [low, high]."""
+    mission's value, and the parameter's domain [low, high]. bound: (parameter, its
+    mission value, limit, its mission value), flattened, of a :data:`MAGNITUDE_LIMITS`
+    pair this leaf is either side of (each sample's |parameter| <= limit, element by
+    element, the dispersed side's drawn values in place of the mission's)."""
 
     key: str
     dist: disp.Distribution
     shape: tuple
     low: float
     high: float
+    bound: tuple | None = None
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
@@ -125,7 +139,40 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
     dispersions = disp.Dispersions(**fields)
     disp.check(dispersions, warn=False)
-    return dispersions, tuple(leaves)
+    return dispersions, _bounded(tuple(leaves), mission)
+
+
+def _bounded(leaves: tuple, mission: Mission) -> tuple:
+    """The leaves, each side of a :data:`MAGNITUDE_LIMITS` pair given its bound; ValueError
+    where a distribution cannot keep within it (against the least limit drawn)."""
+    by_key = {leaf.key: leaf for leaf in leaves}
+    for key, limit_key in MAGNITUDE_LIMITS.items():
+        value, limit = by_key.get(key), by_key.get(limit_key)
+        if value is None and limit is None:
+            continue
+        nominal, nominal_limit = _flown(mission, key), _flown(mission, limit_key)
+        if value is not None:
+            least = disp.least(limit.dist) if limit is not None else float(np.min(nominal_limit))
+            disp.check_magnitude(value.dist, f"dispersions.{key}", least,
+                                 f"the least {limit_key}{' drawn' if limit is not None else ''}")
+        else:
+            disp.check_domain(limit.dist, f"dispersions.{limit_key} (the limit of {key})",
+                              float(np.max(np.abs(nominal))), strict=False)
+        bound = (key, _flat(nominal), limit_key, _flat(nominal_limit))
+        for leaf in (value, limit):
+            if leaf is not None:
+                by_key[leaf.key] = dataclasses.replace(leaf, bound=bound)
+    return tuple(by_key[leaf.key] for leaf in leaves)
+
+
+def _flown(mission: Mission, key: str):
+    """The mission's value of a flown component's parameter (a dotted key)."""
+    table, name, param = key.split(".")
+    return (mission.sensors if table == "sensors" else getattr(mission, table))[name][param]
+
+
+def _flat(x) -> tuple:
+    return tuple(np.asarray(x, float).ravel().tolist())
 
 
 def _matrix(J) -> tuple:
@@ -195,7 +242,19 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
         x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))
         values[leaf.key] = x
         valid &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
+    for leaf in leaves:
+        if leaf.bound is not None:
+            valid &= within_bound(leaf.bound, values, n_samples)
     return values, valid
+
+
+def within_bound(bound: tuple, values: dict, n_samples: int) -> np.ndarray:
+    """(N,) whether each sample keeps |parameter| <= limit, element by element (a leaf's
+    bound; ``values``: the drawn leaves, the mission's value of the side not drawn)."""
+    key, nominal, limit_key, nominal_limit = bound
+    x = np.reshape(values[key], (n_samples, -1)) if key in values else np.asarray(nominal)
+    limit = np.reshape(values[limit_key], (n_samples, -1)) if limit_key in values else np.asarray(nominal_limit)
+    return np.all(np.reshape(np.abs(x) <= limit, (n_samples, -1)), axis=1)
 
 
 def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int, max_draws: int,
@@ -212,6 +271,23 @@ def inputs(samples: disp.Samples, dtype) -> tuple:
     """(RolloutParams, {leaf: values}) of the samples, reals in dtype: :func:`sample_metrics`' inputs."""
     as_dtype = lambda x: x.astype(dtype) if x.dtype.kind == "f" else x
     return jax.tree.map(as_dtype, samples.params), {k: as_dtype(v) for k, v in samples.leaves.items()}
+
+
+def input_shapes(leaves: tuple, n_samples: int, dtype) -> tuple:
+    """The shapes and dtypes (``jax.ShapeDtypeStruct``) of :func:`inputs` of n_samples
+    samples, from the leaves alone: nothing drawn or compiled."""
+    def struct(shape, dtype):
+        return jax.ShapeDtypeStruct((n_samples, *shape), dtype)
+
+    params = disp.RolloutParams(*(struct(shape, np.int32 if name == "seed" else dtype)
+                                  for name, shape in zip(disp.RolloutParams._fields, disp.PARAM_SHAPES)))
+    return params, {leaf.key: struct(leaf.shape, dtype) for leaf in leaves}
+
+
+def samples_bytes(leaves: tuple, n_samples: int, dtype) -> int:
+    """Bytes n_samples drawn samples hold: their values in float64 (:func:`draw`) and as
+    a run's inputs in ``dtype`` (:func:`inputs`)."""
+    return sum(memory.nbytes(input_shapes(leaves, n_samples, d)) for d in (np.float64, dtype))
 
 
 # --- a sample's scenario and loop ------------------------------------------------------------

@@ -32,6 +32,7 @@ from so3jax.dynamics.orbit import orbital_rate
 from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
 BLOCK = 512  # samples per call of the (compiled) word generator
+MAX_SAMPLES = 2**32  # samples 0 .. 2^32 - 1: sample k's words are keyed by k as a 32-bit integer
 OTHER_VARIATES = 12  # n, amplitude, frequency, noise_std, initial attitude (4) and rate (4)
 PHYSICAL_VARIATES = 3 * 11 + 1  # per attempt: J0, J1, J2 (11 each), tau_J
 
@@ -134,6 +135,31 @@ def check_domain(dist: Distribution, where: str, low: float = 0.0, strict: bool 
     if not ok:
         raise ValueError(f"{where} must be {'>' if strict else '>='} {low:g}: {describe(dist)} is outside that domain")
     return dist
+
+
+def check_magnitude(dist: Distribution, where: str, limit: float, limit_name: str) -> Distribution:
+    """ValueError unless ``dist`` draws values of magnitude at most ``limit`` by
+    :func:`check_domain`'s rule: a fixed value, or a uniform's whole range, in [-limit,
+    limit]; a normal's mean, or a lognormal's median, in it (their tails beyond are
+    rejected, sample by sample). limit_name: what bounds it, for the message."""
+    ok = {
+        Fixed: lambda d: abs(d.value) <= limit,
+        Uniform: lambda d: -limit <= d.low and d.high <= limit,
+        Normal: lambda d: abs(d.mean) <= limit,
+        LogNormal: lambda d: d.median <= limit,
+    }[type(dist)](dist)
+    if not ok:
+        raise ValueError(f"{where} must not exceed {limit_name} = {limit:g} in magnitude: {describe(dist)} "
+                         "draws beyond it")
+    return dist
+
+
+def least(dist: Distribution) -> float:
+    """The least value :func:`check_domain`'s rule counts ``dist`` to draw: a fixed value,
+    a uniform's low end, a normal's mean, a lognormal's median (a tail below is rejected,
+    sample by sample, where a check needs it)."""
+    return {Fixed: lambda d: d.value, Uniform: lambda d: d.low, Normal: lambda d: d.mean,
+            LogNormal: lambda d: d.median}[type(dist)](dist)
 
 
 # The domain of each dispersed quantity (Dispersions field: config name, low, strict).
@@ -243,6 +269,10 @@ class RolloutParams(NamedTuple):
     R0: np.ndarray  # (3, 3)
     Omega0: np.ndarray  # (3,) rad/s
     seed: np.ndarray  # int32, disturbance noise seed
+
+
+# One sample's shape of each RolloutParams field (reals in the run's dtype, seed int32).
+PARAM_SHAPES = RolloutParams((3, 3), (3, 3), (3, 3), (), (), (), (), (), (3, 3), (3,), ())
 
 
 class Samples(NamedTuple):

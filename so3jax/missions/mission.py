@@ -30,6 +30,7 @@ from so3jax.missions import build, keys
 from so3jax.missions import config as cfg
 from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
+from so3jax.sim import memory
 from so3jax.sim.loop import Loop, check_loop, check_wiring
 
 # docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
@@ -217,7 +218,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
 
     T = keys.parse("T", full["T"])  # a number here; positive and a multiple of dt below
     dt = keys.parse("dt", full["dt"])
-    n_steps = steps_for_horizon(T, dt)
+    n_steps = memory.check_steps(steps_for_horizon(T, dt), f"T = {T:g} s at dt = {dt:g} s", "shorten T")
     seed = keys.parse("seed", full["seed"])
     record_every = keys.parse("record_every", full["record_every"])
     controllers = keys.parse("controllers", full["controllers"])

@@ -1,8 +1,10 @@
 """Memory a run will need, estimated before anything compiles (``jax.eval_shape`` traces
-the computation for its output shapes only), against the memory the machine has free."""
+the computation for its output shapes only), against the memory the machine has free; and
+the most steps a rollout can count."""
 
 from __future__ import annotations
 
+import math
 import os
 import re
 
@@ -14,6 +16,8 @@ from so3jax.sim.rollout import rollout
 
 # Outputs are held twice at their peak: XLA's result buffer and the NumPy copy made of it.
 COPIES = 2
+# A rollout counts its steps in int32; a last block may overrun the horizon by up to N steps.
+MAX_STEPS = 2**30
 _UNITS = {"": 1, "k": 1 << 10, "m": 1 << 20, "g": 1 << 30, "t": 1 << 40}
 
 
@@ -52,7 +56,7 @@ def fmt(n: int) -> str:
 
 def nbytes(tree) -> int:
     """Bytes of every array (or ShapeDtypeStruct) leaf of a pytree."""
-    return sum(int(np.prod(x.shape)) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree))
+    return sum(math.prod(x.shape) * np.dtype(x.dtype).itemsize for x in jax.tree.leaves(tree))
 
 
 def outputs(fn, *args) -> int:
@@ -82,3 +86,11 @@ def check(needed: int, limit: int | None, what: str, advice: str) -> dict:
     if needed > limit:
         raise ValueError(f"{what} needs about {fmt(needed)} of memory, more than the {fmt(limit)} {source}; {advice}")
     return {"estimate_bytes": int(needed), "limit_bytes": limit}
+
+
+def check_steps(n_steps: int, what: str, advice: str) -> int:
+    """Refuse (ValueError) a horizon of more than MAX_STEPS steps, which a rollout cannot
+    count; returns ``n_steps``."""
+    if n_steps > MAX_STEPS:
+        raise ValueError(f"{what} is {n_steps:.3g} steps, more than the {MAX_STEPS} a rollout can count; {advice}")
+    return n_steps

@@ -21,6 +21,7 @@ from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.jobs.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
 from so3jax.jobs.sweep.summary import summarize
 from so3jax.missions import dispersed
+from so3jax.missions.dispersions import MAX_SAMPLES
 from so3jax.missions.mission import Mission
 from so3jax.parallel import devices, distributed
 from so3jax.results import runfolder
@@ -76,27 +77,45 @@ def run_sweep(
     same program on a shard of the same samples."""
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
+    mesh = batch_mesh(layout)
+    chunk = padded_chunk(config.chunk, mesh.size)
+    budget = check_size(config, chunk, max_memory)
     settings = dict(config_to_dict(config), mission=config.mission.describe())
     with runfolder.claim(out, "sweep", settings, resume=resume, lock=distributed.writer()) as run:
         if jax.process_count() > 1:
             run.start()  # the folder every process must see (distributed.check_shared)
-        return _run_sweep(config, run.out, resume, progress, max_memory, layout)
+        return _run_sweep(config, run.out, resume, progress, layout, mesh, chunk, budget)
 
 
-def memory_needed(config: SweepConfig, inputs, chunk: int) -> int:
-    """Bytes a sweep holds at its peak: one chunk's inputs and outputs, and the results table."""
+def check_size(config: SweepConfig, chunk: int, max_memory: int | None) -> dict:
+    """Refuse (ValueError) a sweep whose horizon a rollout cannot count, or whose samples
+    and chunks need more memory than ``max_memory`` [bytes] (None: what is available),
+    before anything is drawn, compiled or written; returns the memory budget."""
+    memory.check_steps(steps_for_horizon(config.T, config.dt), f"T = {config.T:g} s at dt = {config.dt:g} s",
+                       "shorten --T")
+    if config.samples > MAX_SAMPLES:
+        raise ValueError(f"sweep.samples = {config.samples} is more than the {MAX_SAMPLES} samples a sampling seed "
+                         "numbers; lower --samples")
+    return memory.check(memory_needed(config, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
+                        "lower --chunk or --samples")
+
+
+def memory_needed(config: SweepConfig, chunk: int) -> int:
+    """Bytes a sweep holds at its peak, from shapes alone (nothing drawn or compiled): the
+    drawn samples, one chunk's inputs and outputs, and the results table."""
     dtype = jnp.result_type(float)
-    first = jax.tree.map(lambda x: x[:1], inputs)
+    first = dispersed.input_shapes(config.leaves, 1, dtype)
     per_sample = 0
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         run = functools.partial(simulate_batch, controller=controller, mission=config.mission)
         per_sample = max(per_sample, memory.outputs(run, first, gains) + memory.nbytes(first))
-    table = config.samples * len(config.controllers) * (per_sample + memory.nbytes(first))
-    return chunk * per_sample + table
+    table = config.samples * len(config.controllers) * per_sample
+    return chunk * per_sample + table + dispersed.samples_bytes(config.leaves, config.samples, dtype)
 
 
-def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memory, layout: str) -> dict:
+def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: str, mesh: Mesh, chunk: int,
+               budget: dict) -> dict:
     from tqdm import tqdm  # here: only a run that shows progress needs it
 
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
@@ -106,10 +125,6 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, max_memor
     inputs = dispersed.inputs(samples, dtype)
     valid = np.flatnonzero(samples.valid)
     n_steps = steps_for_horizon(config.T, config.dt)
-    mesh = batch_mesh(layout)
-    chunk = padded_chunk(config.chunk, mesh.size)
-    budget = memory.check(memory_needed(config, inputs, chunk), max_memory,
-                          f"--chunk {chunk} of {config.samples} samples", "lower --chunk or --samples")
     fingerprint = _prepare_out(out, config, resume)
     processes = jax.process_count()
     share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each

@@ -191,7 +191,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         bar.close()
 
     if distributed.writer():
-        plot_history(out, rows, list(gain_columns(initial)))
+        plot_history(out, rows, list(gain_columns(initial)),
+                     budget=np.asarray(refs.effort) if mode == "equal_effort" else None)
     best_row = _best_row(rows, config.dispersions is not None)
     report = validate_gains(config, problem, initial, _gains_from_row(best_row, initial), refs)
     report["training"] = {

@@ -16,10 +16,13 @@ import optax
 
 from so3jax.components import registry as components
 from so3jax.core import checks
+from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
+from so3jax.missions import dispersions as disp
 from so3jax.missions import mission as missions
+from so3jax.sim import memory
 from so3jax.sim.gradients import MODES
 
 TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
@@ -239,6 +242,11 @@ def validate(config: TuneConfig) -> None:
             raise ValueError(f"config key {_key(section + '.inertia_scales')!r} must be a non-empty list")
         for scale in scenarios.inertia_scales:
             _positive(f"{section}.inertia_scales", scale)
+    if not isinstance(config.mission, missions.Mission):
+        got = checks.short(config.mission)
+        raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
+    m = config.mission
+    memory.check_steps(steps_for_horizon(m.T, m.dt), f"T = {m.T:g} s at dt = {m.dt:g} s", "shorten --T")
     _check_dispersions(config)
     _check_estimator(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
@@ -259,9 +267,6 @@ def validate(config: TuneConfig) -> None:
     if config.diagonal_gamma and not diagonals(config.controller):
         raise ValueError(f"config key {_key('diagonal_gamma')!r}: no gain of the {config.controller} controller "
                          "may be a diagonal")
-    if not isinstance(config.mission, missions.Mission):
-        got = checks.short(config.mission)
-        raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
     for key, controller, spec in (
         ("initial_gains", config.controller, config.initial_gains),
         ("cost.budget_gains", cost.budget_controller, cost.budget_gains),
@@ -301,9 +306,26 @@ def _check_dispersions(config: TuneConfig) -> None:
         raise ValueError(f"config key {_key('dispersions')!r} needs {_key('method')} = \"gradient\": a fresh batch "
                          "every iteration, where the ES's elitist selection would compare costs of different batches")
     try:
-        dispersed.parse(config.dispersions, config.mission)
+        _, leaves = dispersed.parse(config.dispersions, config.mission)
     except ValueError as err:
         raise ValueError(f"{_key('dispersions')}: {err}") from None
+    _check_samples(config, leaves)
+
+
+def _check_samples(config: TuneConfig, leaves: tuple) -> None:
+    """The dispersed missions a campaign draws: sample indices within
+    :data:`~so3jax.missions.dispersions.MAX_SAMPLES` (training: samples x iterations), and
+    each batch within the memory available, before anything is drawn."""
+    for section, count in (("train", config.train.samples * config.iterations),
+                           ("validation", config.validation.samples)):
+        if count > disp.MAX_SAMPLES:
+            raise ValueError(f"{_key(section + '.samples')} draws {count} dispersed missions"
+                             f"{' over the iterations' if section == 'train' else ''}, more than the "
+                             f"{disp.MAX_SAMPLES} a sampling seed numbers; lower it")
+        samples = getattr(config, section).samples
+        memory.check(dispersed.samples_bytes(leaves, samples, jnp.result_type(float)), None,
+                     f"{_key(section + '.samples')} = {samples} dispersed missions",
+                     f"lower {_key(section + '.samples')}")
 
 
 def tunable_estimator(mission) -> tuple:
