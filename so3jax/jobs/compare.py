@@ -22,7 +22,8 @@ further sweeps ``OUT/sweep_2``, ... of the same samples), then pairs each candid
 the reference sample by sample (``OUT/compare.json``, ``compare.md``, ``compare.png``):
 the relative RMSE change (y - x) / x, its mean with a 95 % percentile-bootstrap
 interval, the share of samples where it wins with its interval, and the tails (95th
-percentiles and their difference, with its interval). Each part resumes with ``--resume``.
+percentiles and their difference, with its interval). Each part resumes with ``--resume``,
+under the settings of the run the folder holds (another setting is refused, naming it).
 """
 
 from __future__ import annotations
@@ -51,11 +52,15 @@ from so3jax.jobs.tune.validation import held_out
 from so3jax.missions import config as cfg
 from so3jax.missions import mission as missions
 from so3jax.results import io, runfolder
+from so3jax.sim import memory
 from so3jax.sim.metrics import cell
 from so3jax.viz import compare as plots
 
 JOBS = ("tune", "sweep", "dispersions", "compare")
 TAILS = 95.0  # percentile of the tails compared [%]
+# bytes per resampled value at the peak of `paired`: the indices, a resampled column and
+# the copy np.percentile sorts (8 each), and a margin for the arrays of one value per resample
+BOOTSTRAP_BYTES = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -143,6 +148,7 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     seed = checks.number(options.get("seed", 0), "compare.seed", low=0, high=2**32 - 1, integer=True)
     sweep_table = {**table, **{k: jobs[k] for k in ("sweep", "dispersions") if k in jobs}}
     judged = config_from_dict(sweep_table, base_dir)  # the sweep's errors before any tuning
+    check_bootstrap(bootstrap, judged.samples)
     if jobs["tune"].get("dispersions") == "sweep":
         for name, c in candidates.items():
             for part in ("train", "validation"):
@@ -150,6 +156,14 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
                     raise ValueError(f"tune.{part}.seeds: the sampling seed of the sweep ({judged.seed}) would tune "
                                      f"{name} on the missions that judge it; choose another")
     return CompareConfig(laws, candidates, sweep_table, Path(base_dir), reference, bootstrap, seed, given)
+
+
+def check_bootstrap(resamples: int, samples: int) -> None:
+    """Refuse (ValueError, one line) before any work a bootstrap whose ``resamples`` of the
+    sweep's ``samples`` would not fit in the memory available."""
+    per_resample = BOOTSTRAP_BYTES * samples  # [bytes]
+    memory.check(resamples * per_resample, None, f"compare.bootstrap = {resamples} (resamples of {samples} samples)",
+                 f"lower compare.bootstrap to at most {memory.available() // per_resample}")
 
 
 def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_dir) -> Candidate:
@@ -301,7 +315,7 @@ def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
     """Tune every candidate (or judge its fixed gains on the held-out scenarios), sweep them
     at their gains, pair them: the comparison's report."""
     out = Path(out)
-    with runfolder.claim(out, "compare", describe(config), resume=resume) as folder:
+    with runfolder.claim(out, "compare", describe(config), resume=resume, may_change=()) as folder:
         folder.start()  # the folder (a previous comparison's files gone, unless resumed) before its parts claim theirs
         reports = {}
         for i, (name, c) in enumerate(config.candidates.items()):

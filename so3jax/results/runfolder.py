@@ -12,13 +12,17 @@ so a run refused by any check (bad values, memory, horizon) leaves nothing behin
 While a run writes, ``out/.so3jax.lock`` (pid, host, command) keeps a second run out (a
 lock left by a process that died on this host is reported and taken over), and
 ``out/manifest.json`` records the run: command, settings and their fingerprint, start
-and finish times, the files it wrote (a name ending in "/" is a folder it owns), and
-``complete``, false from its first file until the block ends without an error. A run
-that starts writing into a folder holding another run's manifest removes the files it
-lists, as a set (saying so when that manifest is incomplete: an interrupted or stopped
-run) and names, in one warning line, the files no manifest lists, which it leaves alone.
+(entering the claim, before the work) and finish times, the files it wrote (a name
+ending in "/" is a folder it owns), and ``complete``, false from its first file until the
+block ends without an error. A run that starts writing into a folder holding another
+run's manifest removes the files it lists, as a set (saying so when that manifest is
+incomplete: an interrupted or stopped run) and names, in one warning line, the files no
+manifest lists, which it leaves alone.
 A resumed run (``resume=True``, same command) keeps the listed files and goes on with
-their manifest.
+their manifest, which it leaves as it is until it writes a file: a resume refused before
+then leaves the folder as it was. Where the job names the settings a resume may change
+(``may_change``), a resume under any other changed setting is refused before the block,
+naming them, so the manifest always describes the files the folder holds.
 """
 
 from __future__ import annotations
@@ -143,6 +147,27 @@ def _now() -> str:
     return time.strftime("%Y-%m-%dT%H:%M:%S%z")
 
 
+def changed_settings(previous, current, prefix: str = "") -> list:
+    """The dotted names of the settings that differ between two settings tables (a
+    list compared as a whole), sorted."""
+    if not (isinstance(previous, dict) and isinstance(current, dict)):
+        return [] if previous == current else [prefix or "settings"]
+    names = []
+    for key in sorted(set(previous) | set(current)):
+        name = f"{prefix}.{key}" if prefix else key
+        if key not in previous or key not in current:
+            names.append(name)
+        else:
+            names += changed_settings(previous[key], current[key], name)
+    return names
+
+
+def _listed(names: list, limit: int = 6) -> str:
+    """Names joined by commas, at most ``limit`` of them."""
+    more = f" and {len(names) - limit} more" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
+
+
 def _owned_name(name: str) -> bool:
     """A manifest entry naming something directly in the folder (never outside it)."""
     bare = name[:-1] if name.endswith("/") else name
@@ -152,22 +177,34 @@ def _owned_name(name: str) -> bool:
 class Run:
     """One run's hold on its output folder (see the module docstring); ``out`` is the Path."""
 
-    def __init__(self, out: Path, command: str, settings, resume: bool, writer: bool):
+    def __init__(self, out: Path, command: str, settings, resume: bool, writer: bool, may_change=None):
 
         self.out, self.command, self.resume, self.writer = out, command, resume, writer
+        self.may_change = None if may_change is None else tuple(may_change)
+        self.started = _now()  # the run starts here, before its work; its first file may come much later
         settings = {k: v for k, v in dict(settings or {}).items() if not callable(v)}
         self.settings = json.loads(json.dumps(io.to_builtin(settings), default=str))  # paths as text
         self.root = os.path.abspath(out)
         self.manifest = None  # this run's, once it writes
+        self.saved = False  # whether the folder's manifest is this run's
         self.locked = None  # the lock's owner record, while this run holds it
 
     def check(self) -> None:
-        """Refuse a folder that holds another command's run (ValueError, one line)."""
+        """Refuse a folder that holds another command's run, or (resuming, where the job
+        names the settings a resume may change) a run of other settings (ValueError, one line)."""
         previous = read_manifest(self.out) if self.out.is_dir() else None
-        if previous is not None and previous["command"] != self.command:
+        if previous is None:
+            return
+        if previous["command"] != self.command:
             state = "a complete" if previous["complete"] else "an incomplete"
             raise ValueError(f"{self.out} holds {state} so3jax {previous['command']} run; choose another --out, "
                              f"or delete {self.out} to reuse it")
+        if self.resume and self.may_change is not None:
+            changed = [name for name in changed_settings(previous.get("settings"), self.settings)
+                       if not any(name == key or name.startswith(key + ".") for key in self.may_change)]
+            if changed:
+                raise ValueError(f"--resume: {self.out} holds a so3jax {self.command} run with other settings "
+                                 f"({_listed(changed)}); resume it with its own settings, or choose another --out")
 
     def lock(self) -> None:
         if self.writer and self.locked is None:
@@ -177,7 +214,8 @@ class Run:
 
     def start(self) -> Path:
         """Create the folder, lock it and open this run's manifest (complete: false),
-        replacing the files of the manifest the folder holds; once, on the run's first file. Other processes
+        replacing the files of the manifest the folder holds; once, on the run's first file. A resumed
+        run keeps them, and the folder's manifest until its first file (:meth:`record`). Other processes
         of a multi-process run (not the writer) do nothing here."""
         with _GUARD:
             if self.manifest is not None or not self.writer:
@@ -190,15 +228,18 @@ class Run:
             self.lock()
             self.check()
             previous = read_manifest(self.out)
-            if previous is not None and self.resume and previous["command"] == self.command:
+            resumed = previous is not None and self.resume and previous["command"] == self.command
+            if resumed:
                 files = [name for name in previous["files"] if _owned_name(name)]
             else:
                 self._replace(previous)
                 files = []
+            started = previous.get("started", self.started) if resumed else self.started
             self.manifest = {"command": self.command, "settings": self.settings,
-                             "fingerprint": fingerprint(self.settings), "started": _now(), "finished": None,
+                             "fingerprint": fingerprint(self.settings), "started": started, "finished": None,
                              "complete": False, "files": files}
-            self._save()
+            if not resumed:
+                self._save()
             return self.out
 
     def _replace(self, previous: dict | None) -> None:
@@ -227,8 +268,9 @@ class Run:
         print(f"so3jax {self.command}: warning: {text}", file=sys.stderr, flush=True)
 
     def _save(self, manifest: dict | None = None) -> None:
-
+        """Write this run's manifest (or ``manifest``, another run's) into the folder."""
         io.write_json(self.out / MANIFEST, self.manifest if manifest is None else manifest)
+        self.saved = manifest is None
 
     def record(self, path) -> None:
         """List ``path`` (inside the folder) in the manifest, starting the run first."""
@@ -238,8 +280,10 @@ class Run:
             return
         with _GUARD:
             self.start()
-            if name not in self.manifest["files"]:
+            listed = name in self.manifest["files"]
+            if not listed:
                 self.manifest["files"].append(name)
+            if not (listed and self.saved):  # a resumed run's manifest is the folder's from its first file
                 self._save()
 
     def finish(self) -> None:
@@ -274,10 +318,12 @@ def writing(path) -> None:
 
 
 @contextlib.contextmanager
-def claim(out, command: str, settings=None, *, resume: bool = False, lock: bool = True):
+def claim(out, command: str, settings=None, *, resume: bool = False, lock: bool = True, may_change=None):
     """Check ``out`` and hold it for the block's run; yields the :class:`Run` (``.out`` is
     the Path). ``settings`` (a dict, e.g. ``vars(args)``) go to the manifest;
-    ``resume=True`` continues the run of the same command the folder holds. The folder is
+    ``resume=True`` continues the run of the same command the folder holds; ``may_change``
+    (dotted names of settings, e.g. ``("sweep.samples",)``; None: the job checks its own
+    files) are those a resume may change, any other changed setting refuses it. The folder is
     created, locked and listed when the block writes its first file (or calls
     ``run.start()``); the manifest is marked complete when the block ends without an error.
 
@@ -285,7 +331,7 @@ def claim(out, command: str, settings=None, *, resume: bool = False, lock: bool 
     checks the folder (the writer keeps its lock and manifest).
     """
     out = check_writable(out)
-    run = Run(out, command, settings, resume, lock)
+    run = Run(out, command, settings, resume, lock, may_change)
     try:
         if out.is_dir():
             run.lock()  # an existing folder is held from the start; a new one when it is made
