@@ -50,9 +50,8 @@ def read_toml(path) -> dict:
         raise ValueError(f"config file {path} is not valid TOML: {err}") from None
 
 
-def load(path=None, overrides=()) -> dict:
-    """The tables of ``path`` (or {}), with ``KEY=VALUE`` overrides applied (dotted keys)."""
-    d = read_toml(path) if path is not None else {}
+def override(d: dict, overrides=()) -> dict:
+    """d (changed in place) with ``KEY=VALUE`` overrides applied (dotted keys)."""
     for item in overrides:
         set_dotted(d, *parse_override(item))
     return d

@@ -7,14 +7,17 @@ a :class:`~so3jax.sim.loop.Loop` and controllers.
 The loop's components are read through their registrations (:mod:`so3jax.components.registry`,
 :mod:`so3jax.controllers.registry`): ``[sensors.NAME]`` (a table, or false to leave a
 sensor out), ``[estimator] kind`` with ``[estimator.NAME]``, ``[actuator] kind`` with
-``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]``. Without a
-file, the flight mission of docs/model.md §8.5 (``missions/flight.toml`` spells it out).
+``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]`` (a table, or
+the path of a best_gains.json written by ``so3jax tune``). Without a file, the flight
+mission of docs/model.md §8.5 (``missions/flight.toml`` spells it out).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
+import json
+import warnings
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -242,13 +245,15 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
     gains_table = checks.table(full, "gains", registry.names())
     gains = {}
-    for name in registry.names():  # every table given is checked, also of a controller not flown
-        spec = registry.get(name)
-        g = checks.gains(gains_table.get(name, {}), spec.defaults, spec.gain_shapes(), f"gains.{name}")
-        try:
-            spec.check(g)
-        except (TypeError, ValueError) as err:
-            raise ValueError(f"[gains.{name}]: {err}") from None
+    for name in registry.names():  # every table or file given is checked, also of a controller not flown
+        given = gains_table.get(name, {})
+        if isinstance(given, str):
+            try:
+                g = gains_file(given, name)
+            except ValueError as err:
+                raise ValueError(f"gains.{name}: {err}") from None
+        else:
+            g = _gains(name, given, f"gains.{name}")
         if name in controllers:
             gains[name] = g
 
@@ -265,6 +270,59 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
     return mission
+
+
+def _gains(name: str, table, where: str) -> tuple:
+    """The gains of controller ``name``: its defaults with the entries of ``table``, checked
+    against their shapes and by the registration; one-line ValueError naming ``where``."""
+    spec = registry.get(name)
+    g = checks.gains(table, spec.defaults, spec.gain_shapes(), where)
+    try:
+        spec.check(g)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"[{where}]: {err}") from None
+    return g
+
+
+def gains_file(path, controller: str) -> tuple:
+    """The gains of a best_gains.json (``so3jax tune``'s, :mod:`so3jax.jobs.tune.storage`)
+    tuned for ``controller``: every gain given, checked as a ``[gains.NAME]`` table is. A
+    one-line ValueError naming the file for a missing, unreadable or malformed file, or one
+    tuned for another law; a warning where the run that wrote it did not finish."""
+    path = Path(path)
+    try:
+        saved = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"gains file {path} does not exist") from None
+    except OSError as err:
+        raise ValueError(f"gains file {path} cannot be read: {err.strerror or err}") from None
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise ValueError(f"gains file {path} is not JSON: {err}") from None
+    held = saved.get("controller") if isinstance(saved, dict) else None
+    if not isinstance(held, str) or not isinstance(saved.get("gains"), dict):
+        raise ValueError(f"gains file {path} is not a best_gains.json of so3jax tune "
+                         "(a 'controller' name and a 'gains' table)")
+    if held != controller:
+        raise ValueError(f"gains file {path} holds gains tuned for the {held!r} controller, not {controller!r}")
+    missing = [f for f in registry.get(controller).gains_type._fields if f not in saved["gains"]]
+    if missing:
+        raise ValueError(f"gains file {path} misses the {controller} gain {missing[0]!r}")
+    if runfolder.incomplete(path.parent):
+        warnings.warn(f"gains file {path} is from a so3jax run that did not finish (its manifest says incomplete)")
+    try:
+        return _gains(controller, saved["gains"], "gains")
+    except ValueError as err:
+        raise ValueError(f"gains file {path}: {err}") from None
+
+
+def _gain_files_in(tables: dict, folder) -> dict:
+    """The tables of a file in ``folder`` with the gains files its [gains] table names
+    made absolute, relative to that folder (the file's own, like a job's mission path)."""
+    given = tables.get("gains")
+    if not isinstance(given, dict):
+        return tables
+    paths = {name: str((Path(folder) / v).resolve()) for name, v in given.items() if isinstance(v, str)}
+    return {**tables, "gains": {**given, **paths}}
 
 
 def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:
@@ -335,7 +393,8 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     """(the mission, {table: value}) of a job file (a sweep, a tuning campaign): its
     ``mission`` entry names a mission file (relative to ``base_dir``), its other mission
     keys and tables override that file's (or ``base``'s) entries, and ``job_tables`` are the
-    job's own tables."""
+    job's own tables. A gains file is relative to the folder of the file naming it: the
+    mission file's, or ``base_dir`` for the job's own entries."""
     d = dict(d)
     jobs = {k: d.pop(k) for k in job_tables if k in d}
     path = d.pop("mission", None)
@@ -345,10 +404,15 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     if unknown:
         allowed = ("mission",) + job_tables + _TOP + _TABLES
         raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
-    tables = cfg.read_toml(Path(base_dir) / path) if path is not None else {}
-    return from_dict(_merge(tables, d), base), jobs
+    tables = {}
+    if path is not None:
+        tables = _gain_files_in(cfg.read_toml(Path(base_dir) / path), (Path(base_dir) / path).parent)
+    return from_dict(_merge(tables, _gain_files_in(d, base_dir)), base), jobs
 
 
 def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
-    """The mission of a TOML file (or ``base``: the flight mission of docs/model.md §8.5), with KEY=VALUE overrides."""
-    return from_dict(cfg.load(path, overrides), base)
+    """The mission of a TOML file (or ``base``: the flight mission of docs/model.md §8.5), with
+    KEY=VALUE overrides. A gains file named in the file is relative to the file's folder, one
+    named in an override to the current directory."""
+    tables = _gain_files_in(cfg.read_toml(path), Path(path).parent) if path is not None else {}
+    return from_dict(cfg.override(tables, overrides), base)

@@ -1,13 +1,10 @@
 """Tunable controllers and their gains: reading gains ("mission", "paper", a table, a
-best_gains.json), the tuned parameters (p = log g; g / scale for a nonnegative gain), and
-gains as tables and columns."""
+best_gains.json through the missions' reader), the tuned parameters (p = log g; g / scale
+for a nonnegative gain), and gains as tables and columns."""
 
 from __future__ import annotations
 
 import collections
-import json
-import warnings
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -15,7 +12,7 @@ import numpy as np
 from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
-from so3jax.results import runfolder
+from so3jax.missions.mission import gains_file
 
 # One instance per controller with its default options, so that jit caches hit across runs.
 CONTROLLERS = {n: registry.get(n).factory() for n in registry.names(tunable=True)}
@@ -44,13 +41,7 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     elif spec == "paper":
         table = registered.defaults._asdict()
     elif isinstance(spec, str):
-        saved = json.loads(Path(spec).read_text())
-        if runfolder.incomplete(Path(spec).parent):
-            warnings.warn(f"gains file {spec} is from a so3jax run that did not finish (its manifest says incomplete)")
-        held = saved.get("controller") if isinstance(saved, dict) else None
-        if held != controller or not isinstance(saved.get("gains"), dict):
-            raise ValueError(f"gains file {spec} holds no table of {controller!r} gains ({held!r} gains)")
-        table = saved["gains"]
+        table = {k: np.asarray(v).tolist() for k, v in gains_file(spec, controller)._asdict().items()}
     elif isinstance(spec, dict):
         table = spec
     else:
