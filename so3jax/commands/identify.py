@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from so3jax.commands.common import add_precision_argument, output_folder
-from so3jax.jobs.identify import METHODS, inertia, telemetry
+from so3jax.jobs.identify import CHECKS, METHODS, inertia, telemetry
 from so3jax.jobs.identify import report as reports
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
@@ -84,17 +84,24 @@ def run(args) -> int:
     wheels = mission.actuator.get("wheels")
     geometry = None if wheels is None else (np.asarray(wheels["axes"], float).T, wheels["spin_inertia"])
     tm = telemetry.load(args.telemetry, geometry)
+    options = _options(args, initial)
+    CHECKS[args.method](tm, **options)  # the telemetry must determine J: refused before anything is written
     with runfolder.claim(args.out, "identify", vars(args)):
-        return _identify_into(args, tm, initial)
+        return _identify_into(args, tm, initial, options)
 
 
-def _identify_into(args, tm, initial) -> int:
-    disturbance = args.disturbance or DEFAULT_DISTURBANCE[args.method]
-    options = dict(bias=not args.no_bias, degree=DISTURBANCE[disturbance])
+def _options(args, initial) -> dict:
+    """The method's keyword arguments."""
+    options = dict(bias=not args.no_bias, degree=DISTURBANCE[args.disturbance or DEFAULT_DISTURBANCE[args.method]])
     if args.method == "regression":
         options["interval"] = args.interval
     else:
         options.update(window=args.window, initial=initial)
+    return options
+
+
+def _identify_into(args, tm, initial, options) -> int:
+    disturbance = args.disturbance or DEFAULT_DISTURBANCE[args.method]
     print(f"identifying from {len(tm.t)} samples over {tm.t[-1] - tm.t[0]:g} s ({args.method}) ...",
           file=sys.stderr, flush=True)
     start = time.perf_counter()

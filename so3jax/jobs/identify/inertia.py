@@ -92,7 +92,8 @@ def principal(J, covariance):
     rotation, 3 x 3), and their 1-sigma: each moment's standard deviation [kg m^2] and each
     axis's rms angle error [rad], by first-order perturbation of the eigenproblem with the
     covariance (6, 6) of theta: d lambda_i = v_i^T dJ v_i,
-    d v_i = sum_{k != i} v_k (v_k^T dJ v_i) / (lambda_i - lambda_k)."""
+    d v_i = sum_{k != i} v_k (v_k^T dJ v_i) / (lambda_i - lambda_k); an axis whose moment
+    another equals has no direction of its own (its 1-sigma is inf)."""
     J = np.asarray(J, float)
     lam, V = np.linalg.eigh(J)
     if np.linalg.det(V) < 0:
@@ -104,11 +105,11 @@ def principal(J, covariance):
     moment_std = np.sqrt(np.maximum(np.einsum("in,nm,im->i", dlam, covariance, dlam), 0.0))
     axis_std = np.zeros(3)
     for i in range(3):
-        rows = []
-        for k in range(3):
-            if k != i:
-                rows.append(np.einsum("a,nab,b->n", V[:, k], basis, V[:, i]) / (lam[i] - lam[k]))
-        D = np.array(rows)  # components of d v_i along the other two axes: small rotation angles
+        if np.any(np.delete(lam, i) == lam[i]):
+            axis_std[i] = np.inf
+            continue
+        D = np.array([np.einsum("a,nab,b->n", V[:, k], basis, V[:, i]) / (lam[i] - lam[k])
+                      for k in range(3) if k != i])  # components of d v_i along the other two axes: small angles
         axis_std[i] = np.sqrt(max(np.trace(D @ covariance @ D.T), 0.0))
     return lam, V, moment_std, axis_std
 

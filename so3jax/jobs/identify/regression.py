@@ -27,6 +27,11 @@ the wheels' momentum interpolated (:func:`at_midpoints`).
 The instrumental-variable estimate is computed as two-stage least squares, then refined
 over the log-Cholesky parameters of J (:mod:`so3jax.jobs.identify.inertia`), so that the
 estimate is physical by construction; where the unconstrained one is physical, both agree.
+Before the refinement, the unconstrained estimate must determine J
+(:func:`so3jax.jobs.identify.fit.spread` below ``fit.UNDETERMINED``): otherwise the
+constraint would hold a confident-looking estimate at the edge of the physical set (near
+zero, or near the wheels' own spin inertia) and the identification is refused
+(:func:`check`, which the command calls before it writes anything).
 """
 
 from __future__ import annotations
@@ -41,12 +46,27 @@ from so3jax.core import so3
 from so3jax.jobs.identify import fit, inertia
 
 
+def check_interval(t, valid, interval: float) -> None:
+    """ValueError unless ``interval`` [s] spans at least two star-tracker samples at their
+    median spacing: a block needs one sample for the equation and one for the instruments.
+    So there are at most half as many blocks as samples, and the work grows with the record
+    only."""
+    if np.count_nonzero(valid) < 2:
+        raise ValueError("the telemetry has fewer than two star-tracker samples")
+    spacing = float(np.median(np.diff(t[valid])))
+    if not interval >= 2.0 * spacing * (1 - 1e-9):  # (the midpoints' spacing is rounded)
+        raise ValueError(f"--interval {interval:g} s is shorter than two star-tracker samples (their median spacing "
+                         f"is {spacing:g} s); a block needs two, one for the equation and one for the instruments")
+
+
 def blocks(t, valid, interval: float) -> list[np.ndarray]:
     """The star-tracker samples in consecutive blocks of ``interval`` [s] (a partial last
-    block dropped), each block's indices in time order."""
+    block dropped), each block's indices in time order; blocks with fewer than two samples
+    are left out."""
     idx = np.nonzero(valid)[0]
-    label = np.floor((t[idx] - t[idx[0]]) / interval + 1e-9).astype(int)
-    groups = [idx[label == g] for g in range(label.max() + 1)]
+    label = np.floor((t[idx] - t[idx[0]]) / interval + 1e-9)
+    starts = np.flatnonzero(np.diff(label, prepend=-1.0))  # labels ascend: each block is one run
+    groups = np.split(idx, starts[1:])
     if len(groups) > 1 and t[groups[-1][-1]] - t[groups[-1][0]] < 0.5 * interval:
         groups = groups[:-1]
     return [g for g in groups if len(g) >= 2]
@@ -102,14 +122,13 @@ def _rows(q: dict, sets, bias: bool):
     return X.reshape(-1, X.shape[2]), -diff(mean(q["Rh"])).reshape(-1)
 
 
-def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, instruments: bool = True) -> dict:
-    """The fit: {"J", "theta_cov", "bias", "bias_cov", "disturbance", "disturbance_cov",
-    "residual_rms", "residuals" ({"t": s, name: (n, 3)}), "intervals", "iterations",
-    "converged"}; degree: the disturbance polynomial's (-1: no disturbance torque). Each
-    block's even-numbered samples form the equation, its odd-numbered ones the
-    instruments (``instruments=False``: every sample in the equation, ordinary least
-    squares)."""
+def system(tm, bias: bool, degree: int, interval: float, instruments: bool = True):
+    """(X, Xh, y, ends): the momentum equation's rows (:func:`_rows`) between blocks of
+    ``interval`` [s] of telemetry read at its rates' instants (:func:`at_midpoints`), Xh
+    the regressors X projected on the instruments' span (``instruments=False``: Xh = X),
+    and the time [s] each row's later block ends."""
     tm = at_midpoints(tm)
+    check_interval(tm.t, tm.valid, interval)
     groups = blocks(tm.t, tm.valid, interval)
     k = 6 + (3 if bias else 0) + 3 * (degree + 1)
     if len(groups) - 1 < k // 3 + 1:
@@ -124,8 +143,53 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
         Z = X
     # two-stage least squares: the regressors projected on the instruments' span
     Q, _ = np.linalg.qr(Z)
-    Xh = Q @ (Q.T @ X)
+    return X, Q @ (Q.T @ X), y, np.array([tm.t[g[-1]] for g in groups[1:]])
+
+
+def determined(X, Xh, y, wheel_inertia) -> np.ndarray:
+    """The unconstrained instrumental-variable estimate beta of the system (:func:`system`),
+    checked: ValueError where it does not determine J (its spread, :func:`so3jax.jobs.identify.fit.spread`,
+    above ``fit.UNDETERMINED``). The 1 sigma of J's least-determined combination of entries
+    is s / sigma_min, s^2 = |X beta - y|^2 / (n - k) and sigma_min the smallest singular
+    value of J's columns of Xh with the other unknowns' (bias, disturbance) projected out."""
+    if not np.any(y):
+        raise ValueError("the telemetry records no momentum exchanged with wheels (no wheel_speed, or no change "
+                         "in the wheels' momentum seen from the inertial frame): the data then fix J only up to a "
+                         "common factor; a manoeuvre that drives the wheels determines it")
     beta = np.linalg.lstsq(Xh, y, rcond=None)[0]
+    r = X @ beta - y
+    s = np.sqrt(r @ r / max(len(y) - X.shape[1], 1))
+    J_cols, other = Xh[:, :6], Xh[:, 6:]
+    if other.shape[1]:
+        J_cols = J_cols - other @ np.linalg.lstsq(other, J_cols, rcond=None)[0]
+    sigma_min = np.linalg.svd(J_cols, compute_uv=False)[-1]
+    std = s / sigma_min if sigma_min > 0 else np.inf
+    J = np.asarray(inertia.from_entries(beta[:6]))
+    relative = fit.spread(J, std, wheel_inertia)
+    if not relative <= fit.UNDETERMINED:
+        moment = np.linalg.eigvalsh(J - wheel_inertia)[0]
+        raise ValueError(f"the telemetry does not determine the inertia: J less the wheels' spin inertia has the "
+                         f"smallest principal moment {moment:.3g} kg m^2, and its least-determined combination of "
+                         f"entries a 1 sigma of {std:.3g} kg m^2 (at most {fit.UNDETERMINED:.0%} of that moment); "
+                         f"a manoeuvre whose wheels exchange momentum with the body about every axis")
+    return beta
+
+
+def check(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0) -> None:
+    """ValueError where :func:`identify` would refuse the telemetry or options, before its fit."""
+    determined(*system(tm, bias, degree, interval)[:3], tm.wheel_inertia)
+
+
+def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, instruments: bool = True) -> dict:
+    """The fit: {"J", "theta_cov", "bias", "bias_cov", "disturbance", "disturbance_cov",
+    "residual_rms", "residuals" ({"t": s, name: (n, 3)}), "intervals", "iterations",
+    "converged", and "warning" where J is poorly determined}; degree: the disturbance
+    polynomial's (-1: no disturbance torque). Each block's even-numbered samples form the
+    equation, its odd-numbered ones the instruments (``instruments=False``: every sample
+    in the equation, ordinary least squares). ValueError where the telemetry does not
+    determine J (:func:`determined`)."""
+    X, Xh, y, ends = system(tm, bias, degree, interval, instruments)
+    beta = determined(X, Xh, y, tm.wheel_inertia)
     J0 = np.asarray(inertia.from_entries(beta[:6]))
     start = J0 if inertia.is_physical(J0) else inertia.nearest_physical(J0)
     b0 = np.linalg.solve(start, beta[6:9]) if bias else np.zeros(0)
@@ -135,9 +199,8 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     # the residual's scale from the structural equation (the measured regressors), not the projected one
     structural = X @ np.asarray(_coefficients(jnp.asarray(solution.p), bias)) - y
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
-    ends = np.array([tm.t[g[-1]] for g in groups[1:]])
-    return fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution,
-                        residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(groups) - 1,
+    return fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution, tm.wheel_inertia,
+                        residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(ends),
                         residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
 
 

@@ -53,6 +53,51 @@ def noise_levels(tm) -> tuple[float, float]:
     return max(sigma_g, 1e-15), max(sigma_st, 1e-15)
 
 
+MAX_WINDOWS = 500  # each window adds 6 unknowns to the dense normal matrix solved at every step (500: 3000, 72 MB)
+
+
+def windows(tm, window: float, bias: bool, degree: int) -> tuple[int, int, int]:
+    """(K, n_w, n_g): the samples per window, the windows of ``window`` [s] the record holds,
+    and the global unknowns. ValueError unless the samples are uniformly spaced (as the
+    integration assumes), a window spans at least two sample intervals, and there are
+    from 1 to ``MAX_WINDOWS`` windows, with more residuals than unknowns."""
+    t = tm.t
+    h = float(np.median(np.diff(t)))
+    if np.max(np.abs(np.diff(t) - h)) > 1e-6 * h:
+        raise ValueError("the simulation method needs uniformly spaced samples (t)")
+    if tm.gyro_output == "increment" and np.max(np.abs(tm.gyro_interval[1:] - h)) > 1e-6 * h:
+        raise ValueError(f"the simulation method reads a rate-integrating gyro's increments over the sample "
+                         f"interval ({h:g} s); these cover {np.median(tm.gyro_interval):g} s: the regression method")
+    if not window >= 2.0 * h * (1 - 1e-9):
+        raise ValueError(f"--window {window:g} s is shorter than two sample intervals ({h:g} s each); "
+                         "a window integrates over at least two")
+    K = int(round(min(window / h, len(t)))) + 1
+    n_w = len(t) // K
+    if n_w > MAX_WINDOWS:
+        raise ValueError(f"--window {window:g} s cuts the record into {n_w} windows; at most {MAX_WINDOWS}, as each "
+                         "adds 6 unknowns to a dense normal matrix solved at every step: a longer --window")
+    n_g = 6 + (3 if bias else 0) + 3 * (degree + 1)
+    if n_w < 1 or n_w * K * 3 < n_g + 6 * n_w:
+        raise ValueError(f"the telemetry holds {n_w} window(s) of {window:g} s; more samples or a shorter --window")
+    return K, n_w, n_g
+
+
+def check(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, initial=None) -> None:
+    """ValueError where :func:`identify` would refuse the telemetry or options (``initial``
+    is checked by the caller), before its fit: the windows (:func:`windows`), and whether
+    the data determine J (the regression's test, :func:`so3jax.jobs.identify.regression.check`)."""
+    n_g = windows(tm, window, bias, degree)[2]
+    regression.check(tm, bias=bias, degree=degree, interval=_interval(tm, n_g))
+
+
+def _interval(tm, n_g) -> float:
+    """The regression's block length [s] for the first guess and the test of whether the data
+    determine J: 5 s, or shorter where the record holds too few blocks of 5 s for the
+    regression's n_g // 3 + 1 block pairs, but at least two star-tracker samples long."""
+    spacing = float(np.median(np.diff(tm.t[tm.valid]))) if np.count_nonzero(tm.valid) > 1 else 0.0
+    return max(min(5.0, float(tm.t[-1] - tm.t[0]) / (n_g // 3 + 3)), 2.0 * spacing)
+
+
 def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, initial=None) -> dict:
     """The fit (the keys of :func:`so3jax.jobs.identify.regression.identify`, plus "sigma_gyro",
     "sigma_star", "sigma_momentum_jump", "windows"); initial: the first guess of J (3, 3),
@@ -62,28 +107,19 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     regression's block averages do not (a linear one biased J_xy by 1.7 sigma on average)."""
     t = tm.t
     h = float(np.median(np.diff(t)))
-    if np.max(np.abs(np.diff(t) - h)) > 1e-6 * h:
-        raise ValueError("the simulation method needs uniformly spaced samples (t)")
     increment = tm.gyro_output == "increment"
-    if increment and np.max(np.abs(tm.gyro_interval[1:] - h)) > 1e-6 * h:
-        raise ValueError(f"the simulation method reads a rate-integrating gyro's increments over the sample "
-                         f"interval ({h:g} s); these cover {np.median(tm.gyro_interval):g} s: the regression method")
-    K = max(int(round(window / h)) + 1, 3)
-    n_w = len(t) // K
+    K, n_w, n_g = windows(tm, window, bias, degree)
     k_d = 3 * (degree + 1)
-    n_g = 6 + (3 if bias else 0) + k_d
-    if n_w < 1 or n_w * K * 3 < n_g + 6 * n_w:
-        raise ValueError(f"the telemetry holds {n_w} window(s) of {window:g} s; more samples or a shorter --window")
-    sigma_g, sigma_st = noise_levels(tm)
-
-    if initial is None:
-        first = regression.identify(tm, bias=bias, degree=degree)
+    if initial is None:  # the regression refuses telemetry that does not determine J
+        first = regression.identify(tm, bias=bias, degree=degree, interval=_interval(tm, n_g))
         J0, b0 = first["J"], (first["bias"] if bias else np.zeros(3))
         d0 = first["disturbance"].reshape(-1) if degree >= 0 else np.zeros(0)
     else:
         J0, b0, d0 = np.asarray(initial, float), np.zeros(3), np.zeros(k_d)
         if not inertia.is_physical(J0):
             raise ValueError("the initial inertia is not physical")
+        regression.check(tm, bias=bias, degree=degree, interval=_interval(tm, n_g))
+    sigma_g, sigma_st = noise_levels(tm)
     # each window's K samples and the next window's first (where its momentum must arrive)
     rows = np.arange(n_w)[:, None] * K + np.arange(K + 1)[None]
     take = np.minimum(rows, len(t) - 1)
@@ -122,13 +158,13 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
     gyro = r[:, 0] * sigma_g
     if increment:  # row k's gyro residual is the reading at sample k + 1's
         gyro = np.concatenate([np.full((1, 3), np.nan), gyro[:-1]])
-    out = fit.estimate(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution,
+    out = fit.estimate(solution.p[:n_g], cov[:n_g, :n_g], bias, degree, solution, tm.wheel_inertia,
                        residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
                        residuals={"t": t[: n_w * K], "gyro [rad/s]": gyro, "star tracker [rad]": star})
     out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
     if n_w < 2 * n_g:
-        out["warning"] = (f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
-                          f"understates the uncertainty; a longer record or a shorter --window")
+        fit.add_warning(out, f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
+                             f"understates the uncertainty; a longer record or a shorter --window")
     return out
 
 

@@ -29,6 +29,8 @@ else from a mission's ``[actuator.wheels]``. Both identification methods model e
 
 from __future__ import annotations
 
+import zipfile
+import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -52,6 +54,8 @@ class Telemetry(NamedTuple):
     wheel_momentum: np.ndarray
     gyro_output: str = "rate"  # "rate": Omega(t) + b; "increment": the mean rate over the interval ending at t
     gyro_interval: np.ndarray | None = None  # (N,) s: the interval each increment reading covers
+    # (3, 3) kg m^2: sum_i J_s,i g_i g_i^T, the wheels' spin inertia, part of J (zeros without wheels)
+    wheel_inertia: np.ndarray = np.zeros((3, 3))
 
 
 def quaternion_to_matrix(q) -> np.ndarray:
@@ -102,17 +106,30 @@ def _array(data, name, path, ndim, last=None, dtype=float):
     return a
 
 
+def _numbers(data, name, path) -> np.ndarray:
+    """A numeric field of any shape as floats (its shape is checked where it is used)."""
+    a = np.asarray(data[name])
+    if a.dtype.kind not in ("f", "i", "u", "b"):
+        raise ValueError(f"{path}: {name} must be numeric, got dtype {a.dtype}")
+    return a.astype(float)
+
+
 def load(path, wheels: tuple | None = None) -> Telemetry:
     """Read and check a telemetry file; every problem a one-line ValueError naming the file.
     wheels: (axes (3, n), spin_inertia (n,)) from a mission, used where the file has none."""
     path = Path(path)
     try:
-        with np.load(path, allow_pickle=False) as f:
-            data = {k: f[k] for k in f.files}
+        with open(path, "rb") as file:  # ours to close, whatever np.load makes of it
+            f = np.load(file, allow_pickle=False)
+            if isinstance(f, np.lib.npyio.NpzFile):
+                data = {k: f[k] for k in f.files}
     except FileNotFoundError:
         raise ValueError(f"{path}: no such telemetry file") from None
-    except (OSError, ValueError) as e:
-        raise ValueError(f"{path}: not a telemetry .npz file ({e})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # not an archive, truncated, corrupt
+        raise ValueError(f"{path}: not a telemetry .npz file ({e or type(e).__name__})") from None
+    if not isinstance(f, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: a single .npy array, not a telemetry .npz file (named arrays: "
+                         f"{', '.join(REQUIRED)}, ...)")
     return check(data, str(path), wheels)
 
 
@@ -132,7 +149,7 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
     N = len(t)
     if N < 3:
         raise ValueError(f"{path}: t has {N} samples; identification needs at least 3")
-    bad = np.nonzero(np.diff(t) <= 0)[0]
+    bad = np.nonzero(t[1:] <= t[:-1])[0]
     if len(bad):
         raise ValueError(f"{path}: t must be strictly increasing; t[{bad[0] + 1}] = {t[bad[0] + 1]!r} "
                          f"follows t[{bad[0]}] = {t[bad[0]]!r}")
@@ -154,17 +171,20 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
         if valid.sum() < 2:
             raise ValueError(f"{path}: attitude_valid marks {valid.sum()} star-tracker sample(s); "
                              "at least 2 are needed")
-    h = np.zeros((N, 3))
+    h, wheel_inertia = np.zeros((N, 3)), np.zeros((3, 3))
     if "wheel_speed" in data:
         speed = _array(data, "wheel_speed", path, 2)
         if len(speed) != N:
             raise ValueError(f"{path}: wheel_speed has {len(speed)} samples, t has {N}")
         n = speed.shape[1]
+        if n == 0:
+            raise ValueError(f"{path}: wheel_speed has shape {speed.shape}, no wheel; a file without wheels "
+                             "leaves wheel_speed out")
         if "wheel_axes" in data or "spin_inertia" in data:
             if "wheel_axes" not in data or "spin_inertia" not in data:
                 raise ValueError(f"{path}: wheel_axes and spin_inertia come together")
-            axes = np.asarray(data["wheel_axes"], float)
-            spin = np.asarray(data["spin_inertia"], float)
+            axes = _numbers(data, "wheel_axes", path)
+            spin = _numbers(data, "spin_inertia", path)
         elif wheels is not None:
             axes, spin = (np.asarray(x, float) for x in wheels)
         else:
@@ -179,18 +199,19 @@ def check(data: dict, path: str = "telemetry", wheels: tuple | None = None) -> T
         if np.any(np.abs(np.linalg.norm(axes, axis=0) - 1.0) > 1e-6):
             raise ValueError(f"{path}: wheel_axes must be unit vectors (columns)")
         h = speed @ (axes * spin).T
+        wheel_inertia = np.einsum("in,n,jn->ij", axes, spin, axes)
     interval = None
     if "gyro_interval" in data:
         if str(output) != "increment":
             raise ValueError(f"{path}: gyro_interval is read with gyro_output = 'increment' only")
-        interval = np.asarray(data["gyro_interval"], float)
+        interval = _numbers(data, "gyro_interval", path)
         if interval.ndim == 0:
             interval = np.full(N, float(interval))
         if interval.shape != (N,) or not np.all(np.isfinite(interval) & (interval > 0)):
             raise ValueError(f"{path}: gyro_interval must be one positive number of seconds or one per sample ({N},)")
     elif str(output) == "increment":
-        interval = np.diff(t, prepend=2 * t[0] - t[1])
-    return Telemetry(t, gyro, quaternion_to_matrix(q), valid, h, str(output), interval)
+        interval = np.concatenate([t[1:2] - t[:1], np.diff(t)])
+    return Telemetry(t, gyro, quaternion_to_matrix(q), valid, h, str(output), interval, wheel_inertia)
 
 
 def save(path, t, gyro, R, valid=None, wheel_speed=None, wheel_axes=None, spin_inertia=None) -> None:
