@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import so3jax as sj
 from so3jax import commands as cli
 from so3jax.jobs import tune
 from so3jax.jobs.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
@@ -323,11 +324,7 @@ def test_two_host_devices_tune_to_the_gains_of_one(tmp_path):
         ({"optimizer__options": {"bogus": 1}}, "tune.optimizer.options"),
         ({"optimizer__schedule": "no_such_schedule"}, "tune.optimizer.schedule"),
         ({"optimizer__schedule": "cosine_decay_schedule"}, "tune.optimizer.schedule_options"),
-        ({"controller": None}, "tune.controller"),
-        ({"iterations": None}, "tune.iterations"),
-        ({"train": None}, "tune.train"),
         ({"train__seeds": None}, "tune.train.seeds"),
-        ({"validation": None}, "tune.validation"),
         ({"controller": "lqr"}, "tune.controller"),
         ({"iterations": 0}, "tune.iterations"),
         ({"iterations": 2.5}, "tune.iterations"),
@@ -364,7 +361,6 @@ def test_bad_config_is_a_one_line_value_error_naming_the_key(changes, key):
 @pytest.mark.parametrize(
     ("campaign", "message"),
     [
-        ({"T": 20.0}, "a campaign needs a [tune] table"),
         ({**BASE, "tune": 3}, "config key 'tune' must be a table"),
         ({**BASE, "tune": {**BASE["tune"], "mission": "x.toml"}}, "unknown config key 'tune.mission'"),
         ({**BASE, "scenario": {"T": 20.0}}, "unknown config key(s): scenario"),
@@ -401,7 +397,11 @@ SHIPPED = {
                               "es": {"population": 8, "sigma": 0.2, "seed": 0}},
     "adaptive_equal_effort_es": {**_COMMON, "controller": "adaptive", "iterations": 7, "method": "es",
                                  "optimizer": _DEFAULT_OPTIMIZER, "es": {"population": 10, "sigma": 0.3, "seed": 0}},
+    "pd_flight": {**_COMMON, "controller": "pd", "iterations": 8, "method": "gradient",
+                  "optimizer": {**_ADAM, "schedule_options": {"decay_steps": 8, "alpha": 0.1}},
+                  "es": {"population": 8, "sigma": 0.2, "seed": 0}},
 }
+FLIGHT = {"pd_flight"}  # flown through missions/flight.toml's loop; the others through the paper's mission
 
 
 @pytest.mark.parametrize("name", sorted(SHIPPED))
@@ -418,6 +418,10 @@ def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
     assert {p.stem for p in (ROOT / "tuning").glob("*.toml")} == set(SHIPPED)
     cfg = tune.load_config(ROOT / "tuning" / f"{name}.toml")
     assert json.loads(json.dumps(tune.tune_table(cfg))) == {**SHIPPED[name], "initial_gains": "mission"}
+    if name in FLIGHT:
+        assert cfg.mission == sj.load_mission(ROOT / "missions" / "flight.toml")
+        _check_recorded_checkpoint(name, cfg)
+        return
     for dtype in (jnp.float64, jnp.float32):
         built, recorded = cfg.mission.scenario(dtype), paper_scenario(4000.0, 0.01, dtype=dtype)
         assert jax.tree.structure(built) == jax.tree.structure(recorded)
@@ -428,7 +432,11 @@ def test_shipped_campaigns_parse_to_their_recorded_meaning(name):
     for controller in ("pd", "adaptive"):  # the mission's gains and the budget's "paper": the registered defaults
         gains = tune.resolve_gains(controller, "mission", jnp.float64, mission=cfg.mission)
         assert tune.gains_table(gains) == tune.gains_table(registry.get(controller).defaults)
-    # the recorded run's checkpoint belongs to this campaign: --resume --iterations N extends it
+    _check_recorded_checkpoint(name, cfg)
+
+
+def _check_recorded_checkpoint(name, cfg):
+    """The recorded run's checkpoint belongs to this campaign: --resume --iterations N extends it."""
     from so3jax.results import io, runfolder
 
     description = io.to_builtin(tune.describe(dataclasses.replace(cfg, iterations=0)))
@@ -526,3 +534,16 @@ def test_es_stops_when_the_initial_gains_diverge_in_training(tmp_path):
 def test_best_row_is_the_lowest_finite_cost():
     rows = [{"cost": float("nan")}, {"cost": 2.0}, {"cost": 1.5}, {"cost": float("inf")}]
     assert tune._best_row(rows) == {"cost": 1.5}
+
+
+def test_a_mission_alone_is_a_campaign_with_the_defaults():
+    """Every [tune] key has a default: the mission's first controller, 16 iterations, seed 0
+    to train on and seeds 100 and 101 held out."""
+    cfg = tune.parse_config({"T": 20.0})
+    assert (cfg.controller, cfg.iterations) == (cfg.mission.controllers[0], 16) == ("pd", 16)
+    assert (cfg.train.seeds, cfg.validation.seeds) == ((0,), (100, 101))
+    flight = tune.load_config(ROOT / "missions" / "flight.toml")
+    assert flight.controller == flight.mission.controllers[0] and flight.mission.period is not None
+    with pytest.raises(ValueError, match="tune.controller") as err:
+        tune.parse_config({"controllers": ["open_loop"]})
+    assert "\n" not in str(err.value)

@@ -43,7 +43,8 @@ def register(subparsers) -> None:
                                    "estimator's noise levels) tuned through the mission's rollouts, checkpointed "
                                    "every iteration, validated on held-out scenarios.",
                                    epilog=registered(tunable=True))
-    parser.add_argument("config", help="campaign file (TOML): a mission and a [tune] table, "
+    parser.add_argument("config", help="campaign file (TOML): a mission and its [tune] table (every key has a "
+                        "default: a mission file alone tunes its first controller), "
                         "e.g. tuning/adaptive_equal_effort.toml")
     parser.add_argument("--iterations", type=int, help="number of iterations (overrides tune.iterations)")
     parser.add_argument("--T", type=float, help="horizon [s] (overrides the mission's T)")

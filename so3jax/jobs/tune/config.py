@@ -83,10 +83,10 @@ class TuneConfig:
     """A tuning campaign: the ``[tune]`` table's fields and the mission it tunes (its
     scenario, loop, controller options and gains; None: the paper's mission)."""
 
-    controller: str  # a tunable registered controller
-    iterations: int  # optimizer steps (ES: generations)
-    train: ScenarioSet  # the training scenarios
-    validation: ScenarioSet  # held-out seeds
+    controller: str | None = None  # a tunable registered controller; None: the mission's first
+    iterations: int = 16  # optimizer steps (ES: generations)
+    train: ScenarioSet = ScenarioSet(seeds=(0,))  # the training scenarios
+    validation: ScenarioSet = ScenarioSet(seeds=(100, 101))  # held-out seeds
     initial_gains: Any = "mission"  # "mission", "paper", a table of gains, or a best_gains.json path
     cost: CostConfig = CostConfig()
     optimizer: OptimizerConfig = OptimizerConfig()
@@ -105,6 +105,8 @@ class TuneConfig:
     def __post_init__(self):
         if self.mission is None:
             object.__setattr__(self, "mission", missions.from_dict({}, missions.PAPER))
+        if self.controller is None:
+            object.__setattr__(self, "controller", self.mission.controllers[0])
 
 
 _SECTIONS = {
@@ -389,10 +391,7 @@ def parse_config(table: dict, base_dir=".", base: dict = missions.PAPER) -> Tune
         raise ValueError(f"a campaign must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
     table = json.loads(json.dumps(table))  # a deep copy
     mission, jobs = missions.load_job(table, base_dir, (TUNE,), base)
-    if TUNE not in jobs:
-        raise ValueError(f"a campaign needs a [{TUNE}] table: controller, iterations, "
-                         f"[{TUNE}.train] seeds, [{TUNE}.validation] seeds, ...")
-    tune = jobs[TUNE]
+    tune = jobs.get(TUNE, {})  # every [tune] key has a default: a mission file alone is a campaign
     cost = tune.get("cost") if isinstance(tune, dict) else None
     for holder, key in ((tune, "initial_gains"), (cost, "budget_gains")):
         value = holder.get(key) if isinstance(holder, dict) else None
