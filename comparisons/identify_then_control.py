@@ -136,6 +136,37 @@ def main(argv=None) -> int:
     return 0
 
 
+def identified_pd():
+    """(controller, gains type): the geometric PD (docs/model.md §3.1) with its nominal
+    inertia J_hat among the gains, so that one compiled program flies every sample's J_hat
+    (the registered PD holds J_hat as a static option)."""
+    from typing import NamedTuple
+
+    import jax
+
+    from so3jax.controllers.base import Controller, inertial_terms, nominal_inertia, tracking_error
+    from so3jax.core import so3
+
+    class Gains(NamedTuple):
+        k_R: jax.Array  # N m / rad
+        k_Omega: jax.Array  # N m s / rad
+        J_hat: jax.Array  # (3, 3) kg m^2
+
+    @dataclasses.dataclass(frozen=True)
+    class IdentifiedPD(Controller):
+        gains_type = Gains
+
+        def init(self, gains):
+            return ()
+
+        def torque(self, gains, state, feedback, desired, t):
+            err = tracking_error(feedback, desired)
+            inertial, feedforward = inertial_terms(nominal_inertia(gains.J_hat), feedback.Omega, err)
+            return -gains.k_R * so3.skew_vee(err.R_e) - gains.k_Omega * err.Omega_e + inertial - feedforward, ()
+
+    return IdentifiedPD(), Gains
+
+
 def fly(mission, law, J, J_hat, R0, Omega0, wheels0, seeds, chunk, history=False) -> dict:
     """The mission flown by ``law`` over samples (true inertia J (n, 3, 3), J_hat (n, 3, 3)
     or None for the law's own, initial attitude, rate and wheel speeds, seed), in batches
@@ -154,8 +185,12 @@ def fly(mission, law, J, J_hat, R0, Omega0, wheels0, seeds, chunk, history=False
     def one(J, J_hat, R0, Omega0, w0, seed):
         sc = dataclasses.replace(scenario, inertia=ConstantInertia(J), R0=R0, Omega0=Omega0)
         lp = dataclasses.replace(loop, actuator=dataclasses.replace(loop.actuator, initial_speed=w0))
-        controller = spec.factory(**options, **({} if J_hat is None else {"J_hat": J_hat}))
-        r = rollout(sc, controller, gains, seed, loop=lp, record_every=record_every)
+        if J_hat is None:
+            controller, g = spec.factory(**options), gains
+        else:  # the PD with this sample's J_hat
+            controller, gains_type = identified_pd()
+            g = gains_type(*gains, J_hat)
+        r = rollout(sc, controller, g, seed, loop=lp, record_every=record_every)
         return r if history else r._replace(history=r.history._replace(covariance=(), std=()))
 
     run = jax.jit(jax.vmap(one, in_axes=(0, None if J_hat is None else 0, 0, 0, 0, 0)))
