@@ -10,11 +10,13 @@ the same program (``so3jax paper`` with two seeds, say) compile it once.
 """
 
 import atexit
+import importlib
 import os
 import shutil
 import tempfile
 
 import jax
+import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
@@ -26,3 +28,22 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cache
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+
+
+@pytest.fixture
+def cli_env(monkeypatch, tmp_path):
+    """so3jax.commands.main in this process, from tmp_path: no persistent cache, XLA_FLAGS untouched."""
+    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
+    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.fixture
+def in_process(cli_env, monkeypatch):
+    """cli_env, failing the test where a rollout is traced or compiled."""
+    def compiled(*args, **kwargs):
+        raise AssertionError("reached compilation")
+
+    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
+    return cli_env

@@ -316,15 +316,6 @@ def test_library_wheels_refuse_an_initial_speed_over_the_limit():
 # --- the command line ---------------------------------------------------------------------
 
 
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """cli.main in this process: no persistent cache, XLA_FLAGS untouched."""
-    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
-    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 def _non_utf8(tmp_path) -> str:
     path = tmp_path / "latin1.toml"
     path.write_bytes("T = 20.0  # \u00e9t\u00e9\n".encode("latin-1"))
@@ -365,9 +356,9 @@ def _tune_copy(tmp_path) -> str:
     ],
     ids=lambda x: x if isinstance(x, str) else None,
 )
-def test_cli_bad_values_are_one_line(argv, message, in_process, capsys):
-    argv = [a(in_process) if callable(a) else a for a in argv]
-    out = ["--out", str(in_process / "out")] + (["--no-figures"] if argv[0] in ("paper", "fly") else [])
+def test_cli_bad_values_are_one_line(argv, message, cli_env, capsys):
+    argv = [a(cli_env) if callable(a) else a for a in argv]
+    out = ["--out", str(cli_env / "out")] + (["--no-figures"] if argv[0] in ("paper", "fly") else [])
     code = cli.main([*argv, *out])
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if ": warning: " not in line]

@@ -78,22 +78,6 @@ def test_compilations_are_cached_and_reused(tmp_path):
 TUNE_CONFIG = str(ROOT / "tuning" / "pd_equal_effort.toml")
 
 
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """cli.main in this process: no persistent cache, XLA_FLAGS untouched, nothing compiled."""
-    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
-    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
-    monkeypatch.chdir(tmp_path)
-
-    def compiled(*args, **kwargs):
-        raise AssertionError("reached compilation")
-
-    import importlib
-
-    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
-    return tmp_path
-
-
 @pytest.mark.parametrize(
     "argv,message",
     [

@@ -104,22 +104,6 @@ def test_a_gains_file_of_a_law_not_flown_is_checked(tmp_path):
         so3jax.load_mission(None, ["controllers=adaptive", f"gains.pd={json.dumps(str(path))}"])
 
 
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """cli.main in this process from tmp_path, failing on any compilation."""
-    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
-    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
-    monkeypatch.chdir(tmp_path)
-
-    def compiled(*args, **kwargs):
-        raise AssertionError("reached compilation")
-
-    import importlib
-
-    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
-    return tmp_path
-
-
 @pytest.mark.parametrize("value", ["missing.json", "adaptive/best_gains.json"])
 def test_fly_refuses_a_bad_gains_file_before_any_folder(value, in_process, capsys):
     write_best(in_process / "adaptive", "adaptive", AdaptiveGains(0.01, 60.0, 1e8))

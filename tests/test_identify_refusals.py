@@ -256,23 +256,14 @@ def test_windows_the_record_cannot_hold_are_refused(driven, window, match, monke
 # --- the command: exit 2, one line, nothing written -----------------------------------------
 
 
-@pytest.fixture
-def in_process(monkeypatch, tmp_path):
-    """cli.main in this process: no persistent cache, XLA_FLAGS untouched."""
-    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
-    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
 @pytest.mark.parametrize("options, wheels, message", [
     ([], False, "no momentum exchanged with wheels"),
     (["--method", "simulation", "--initial-inertia", "3000"], False, "no momentum exchanged with wheels"),
     (["--interval", "1e-6"], True, "--interval 1e-06 s is shorter than two star-tracker samples"),
 ])
-def test_the_command_refuses_before_writing(options, wheels, message, driven, in_process, capsys):
-    path = _write(in_process / "telemetry.npz", driven if wheels else without_wheels(driven))
-    out = in_process / "out"
+def test_the_command_refuses_before_writing(options, wheels, message, driven, cli_env, capsys):
+    path = _write(cli_env / "telemetry.npz", driven if wheels else without_wheels(driven))
+    out = cli_env / "out"
     code = cli.main(["identify", str(path), "--out", str(out), *options])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1, err

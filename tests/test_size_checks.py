@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import errno
-import importlib
 import json
 from pathlib import Path
 
@@ -29,25 +28,6 @@ FLIGHT_SWEEP = ROOT / "sweeps" / "flight.toml"
 WIDE = '{dist="uniform", low=-2000.0, high=2000.0}'  # 2000 rad/s against a 628 rad/s limit
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
-
-
-@pytest.fixture
-def cli_env(monkeypatch, tmp_path):
-    """cli.main in this process: no persistent cache, XLA_FLAGS untouched."""
-    monkeypatch.setenv("SO3JAX_CACHE_DIR", "")
-    monkeypatch.setenv("SO3JAX_KEEP_XLA_FLAGS", "1")
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
-
-@pytest.fixture
-def in_process(cli_env, monkeypatch):
-    """cli.main in this process, no rollout traced or compiled."""
-    def compiled(*args, **kwargs):
-        raise AssertionError("reached compilation")
-
-    monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "_rollout", compiled)
-    return cli_env
 
 
 def one_line_error(capsys, command: str) -> str:
