@@ -88,11 +88,9 @@ def run_sweep(
 
 
 def check_size(config: SweepConfig, chunk: int, max_memory: int | None) -> dict:
-    """Refuse (ValueError) a sweep whose horizon a rollout cannot count, or whose samples
-    and chunks need more memory than ``max_memory`` [bytes] (None: what is available),
-    before anything is drawn, compiled or written; returns the memory budget."""
-    memory.check_steps(steps_for_horizon(config.T, config.dt), f"T = {config.T:g} s at dt = {config.dt:g} s",
-                       "shorten --T")
+    """Refuse (ValueError) a sweep whose samples and chunks need more memory than
+    ``max_memory`` [bytes] (None: what is available), before anything is drawn, compiled or
+    written (the horizon's step count is the mission loader's check); returns the memory budget."""
     if config.samples > MAX_SAMPLES:
         raise ValueError(f"sweep.samples = {config.samples} is more than the {MAX_SAMPLES} samples a sampling seed "
                          "numbers; lower --samples")
