@@ -54,6 +54,14 @@ def place(tree, mesh: Mesh | None):
     return jax.device_put(tree, NamedSharding(mesh, PartitionSpec()))
 
 
+def placed_shapes(tree, mesh: Mesh | None):
+    """The ``jax.ShapeDtypeStruct`` leaves of ``place(tree, mesh)`` from shapes alone:
+    tracing a jitted function on them traces the program its calls on placed values
+    then reuse (jit's trace cache)."""
+    sharding = None if mesh is None else NamedSharding(mesh, PartitionSpec())
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct(np.shape(x), x.dtype, sharding=sharding), tree)
+
+
 def split(fn: Callable, mesh: Mesh | None, batched: Sequence[bool]) -> Callable:
     """``fn`` run with its arguments marked in ``batched`` split along their leading axis
     over the devices of ``mesh`` (the others shared), its outputs concatenated along

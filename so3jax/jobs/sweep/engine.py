@@ -79,7 +79,7 @@ def run_sweep(
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     mesh = batch_mesh(layout)
     chunk = padded_chunk(config.chunk, mesh.size)
-    budget = check_size(config, chunk, max_memory)
+    budget = check_size(config, chunk, max_memory, mesh)
     settings = dict(config_to_dict(config), mission=config.mission.describe())
     with runfolder.claim(out, "sweep", settings, resume=resume, lock=distributed.writer()) as run:
         if jax.process_count() > 1:
@@ -87,27 +87,30 @@ def run_sweep(
         return _run_sweep(config, run.out, resume, progress, layout, mesh, chunk, budget)
 
 
-def check_size(config: SweepConfig, chunk: int, max_memory: int | None) -> dict:
+def check_size(config: SweepConfig, chunk: int, max_memory: int | None, mesh: Mesh | None = None) -> dict:
     """Refuse (ValueError) a sweep whose samples and chunks need more memory than
     ``max_memory`` [bytes] (None: what is available), before anything is drawn, compiled or
     written (the horizon's step count is the mission loader's check); returns the memory budget."""
     if config.samples > MAX_SAMPLES:
         raise ValueError(f"sweep.samples = {config.samples} is more than the {MAX_SAMPLES} samples a sampling seed "
                          "numbers; lower --samples")
-    return memory.check(memory_needed(config, chunk), max_memory, f"--chunk {chunk} of {config.samples} samples",
+    return memory.check(memory_needed(config, chunk, mesh), max_memory, f"--chunk {chunk} of {config.samples} samples",
                         "lower --chunk or --samples")
 
 
-def memory_needed(config: SweepConfig, chunk: int) -> int:
+def memory_needed(config: SweepConfig, chunk: int, mesh: Mesh | None = None) -> int:
     """Bytes a sweep holds at its peak, from shapes alone (nothing drawn or compiled): the
-    drawn samples, one chunk's inputs and outputs, and the results table."""
+    drawn samples, one chunk's inputs and outputs, and the results table. Each
+    controller's chunk program is traced as the chunks call it (``chunk`` samples placed
+    on ``mesh``), so that the chunks reuse this trace."""
     dtype = jnp.result_type(float)
     first = dispersed.input_shapes(config.leaves, 1, dtype)
     per_sample = 0
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
-        run = functools.partial(simulate_batch, controller=controller, mission=config.mission)
-        per_sample = max(per_sample, memory.outputs(run, first, gains) + memory.nbytes(first))
+        args = devices.placed_shapes((dispersed.input_shapes(config.leaves, chunk, dtype), gains), mesh)
+        run = functools.partial(simulate_batch, controller=controller, mission=config.mission, mesh=mesh)
+        per_sample = max(per_sample, -(-memory.outputs(run, *args) // chunk) + memory.nbytes(first))
     table = config.samples * len(config.controllers) * per_sample
     return chunk * per_sample + table + dispersed.samples_bytes(config.leaves, config.samples, dtype)
 
