@@ -79,10 +79,15 @@ def _fly_into(args, mission) -> int:
     diverged = [n for n in mission.controllers if reports[n]["diverged"]]
     if diverged:
         print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
+    failed = [n for n in mission.controllers if not all(q["passed"] for q in reports[n]["requirements"])]
+    if failed:
+        print(f"warning: requirements failed: {', '.join(failed)}", file=sys.stderr)
     if args.json:
         print(dumps(reports))
     else:
         print(fly.format_table(mission, {n: reports[n] for n in mission.controllers}))
+        if mission.requirements:
+            print("\n" + fly.format_requirements({n: reports[n] for n in mission.controllers}))
         print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
               f"results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, {len(figures)} figures)")
-    return 1 if diverged else 0
+    return 1 if diverged or failed else 0

@@ -15,15 +15,15 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.jobs.identify import telemetry
 from so3jax.parallel import devices
 from so3jax.results import io
 from so3jax.results.io import save_npz, to_builtin
-from so3jax.sim import memory
+from so3jax.sim import memory, pointing
 from so3jax.sim.metrics import cell, reached_phases, reported
 from so3jax.sim.rollout import simulate as simulate_rollout
 
-PHASE_LABELS = ("capture", "deployment", "detumble")
 METRICS = ("rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase", "max_angle_phase",
            "max_torque", "orthogonality_error")
 FLIGHT_METRICS = ("attitude_estimation_rms", "attitude_estimation_max", "bias_estimation_rms", "bias_estimation_max",
@@ -69,7 +69,22 @@ def report(mission, result) -> dict:
     if mission.period_steps is not None:
         f = result.flight._asdict()
         out.update({k: to_builtin(reported(f[k], diverged)) for k in FLIGHT_METRICS})
+    out.update(pointing_report(mission, result.history))
     return out
+
+
+def pointing_report(mission, history) -> dict:
+    """The ECSS pointing indices of the recorded history (:func:`so3jax.sim.pointing.report`:
+    APE, RPE and, with an estimate, AKE, RKE per phase at the mission's levels and window) and
+    the mission's requirements checked (:func:`so3jax.sim.pointing.check`), JSON-ready."""
+    t, performance, knowledge = pointing.signals(history)
+    phases = pointing.phase_bounds_of(mission.scenario())
+    reached = sum(reached_phases(mission.scenario().steps_per_phase))
+    report = pointing.report(t, performance, knowledge, phases[:reached], window=mission.pointing["window"],
+                             levels=mission.pointing["levels"], phase_names=PHASE_NAMES[:reached],
+                             indices=pointing.REPORTED if knowledge is not None else ("APE", "RPE"))
+    return {"pointing": to_builtin(report),
+            "requirements": to_builtin(pointing.check(mission.requirements, t, performance, knowledge, phases))}
 
 
 def _cell(x, fmt):
@@ -89,7 +104,7 @@ def format_table(mission, reports: dict) -> str:
     row("RMSE [rad/s]", lambda r: r["rmse"], ".4e")
     row("effort (delivered) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
     for p in range(len(reports[names[0]]["rmse_phase"])):
-        label = PHASE_LABELS[p] if p < len(PHASE_LABELS) else f"phase {p + 1}"
+        label = PHASE_NAMES[p] if p < len(PHASE_NAMES) else f"phase {p + 1}"
         row(f"  RMSE {label} [rad/s]", lambda r, p=p: r["rmse_phase"][p], ".4e")
         row(f"  max attitude error {label} [deg]", lambda r, p=p: None if r["max_angle_phase"][p] is None
             else math.degrees(r["max_angle_phase"][p]), ".3f")
@@ -105,7 +120,29 @@ def format_table(mission, reports: dict) -> str:
         row("max wheel speed / limit", lambda r: r["max_wheel_speed_ratio"], ".3f")
         row("time at a torque limit [s]", lambda r: r["time_at_torque_limit"], ".1f")
         row("time at a speed limit [s]", lambda r: r["time_at_speed_limit"], ".1f")
+    level = reports[names[0]]["pointing"]["levels"][0]
+    for p, phase in enumerate(reports[names[0]]["pointing"]["phases"]):
+        for index in [r["index"] for r in phase["rows"] if r["level"] == level]:
+            row(f"  {index} {level:.4g} {phase['name']} [arcsec]", lambda r, p=p, i=index: _pointing(r, p, i, level),
+                ".2f")
     lines.append(f"{'diverged':34s}" + "".join(f"{str(reports[n]['diverged']):>{width}s}" for n in names))
+    return "\n".join(lines)
+
+
+def _pointing(report, phase, index, level):
+    """The angle of ``index`` at ``level`` in ``phase`` [arcsec] (None: diverged, or nothing to report)."""
+    row = next(r for r in report["pointing"]["phases"][phase]["rows"] if r["index"] == index and r["level"] == level)
+    return None if row["angle"] is None or report["diverged"] else row["angle"]
+
+
+def format_requirements(reports: dict) -> str:
+    """A line per controller and requirement: its value against its limit, passed or FAILED."""
+    lines = []
+    for name, r in reports.items():
+        for q in r["requirements"]:
+            value = "no sample" if q["value"] is None else f"{q['value']:.3g} arcsec"
+            note = "" if q["resolved"] else " (fewer samples than the level needs: the maximum)"
+            lines.append(f"{name}: {q['requirement']}: {value}, {'passed' if q['passed'] else 'FAILED'}{note}")
     return "\n".join(lines)
 
 

@@ -1,7 +1,8 @@
 """The mission's own keys (docs/model.md §4, §8.5), declared as
 :class:`~so3jax.core.params.Param` like the components' parameters: the horizon, step,
 seed, controllers and history stride, and the ``[control]``, ``[inertia]``,
-``[deployment]``, ``[orbit]``, ``[disturbance]`` and ``[initial]`` tables. Their
+``[deployment]``, ``[orbit]``, ``[disturbance]``, ``[initial]`` and ``[pointing]`` tables
+(the mission's ``[[requirements]]``: :func:`so3jax.sim.pointing.parse_requirements`). Their
 defaults are the flight mission's (:data:`so3jax.missions.mission.FLIGHT`); the parser
 (:func:`so3jax.missions.mission.from_dict`) reads every value through :func:`parse`, and
 the documentation's key table reads the declarations.
@@ -63,6 +64,10 @@ KEYS = (
     Param("initial.quaternion", None, shapes=((4,),),
           doc="R(0) as a unit quaternion [w, x, y, z] (instead of attitude)"),
     Param("initial.rate", [0.0, 0.0, 0.0], "rad/s", shapes=((3,),), doc="Omega(0), body frame"),
+    Param("pointing.window", 60.0, "s", low=0.0,
+          doc="window of the relative errors (RPE, RKE) in fly's pointing report (ECSS-E-ST-60-10C)"),
+    Param("pointing.levels", [0.95, 0.9973], shapes=((None,),), low=0.0, high=1.0,
+          doc="confidence levels P_C of fly's pointing report, each in (0, 1)"),
 )
 
 KEY = {p.name: p for p in KEYS}

@@ -28,12 +28,13 @@ from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
 from so3jax.core import checks
 from so3jax.dynamics.inertia import check_inertia
+from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
 from so3jax.missions import build, keys
 from so3jax.missions import config as cfg
 from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
-from so3jax.sim import memory
+from so3jax.sim import memory, pointing
 from so3jax.sim.loop import Loop, check_loop, check_wiring
 
 # docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
@@ -53,7 +54,8 @@ FLIGHT = {
 PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"},
              actuator={"kind": "ideal"})
 
-_TOP = keys.TOP
+_TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
+POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 _TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "controller", "gains")
 
 
@@ -87,6 +89,8 @@ class Mission:
     actuator: dict
     options: dict
     gains: dict
+    pointing: dict = dataclasses.field(default_factory=lambda: dict(POINTING))  # window [s], levels
+    requirements: tuple = ()  # so3jax.sim.pointing.Requirement, checked by fly
 
     @property
     def period(self) -> float | None:
@@ -127,6 +131,11 @@ class Mission:
                         if name in self.controllers
                         or to_builtin(values) != to_builtin(registry.parse_options(name, {}))}
         d["gains"] = {k: {f: np.asarray(v).tolist() for f, v in g._asdict().items()} for k, g in self.gains.items()}
+        # what fly reports and checks, not what is flown: described where given
+        if to_builtin(self.pointing) == to_builtin(POINTING):
+            del d["pointing"]
+        if not self.requirements:
+            del d["requirements"]
         return to_builtin(d)
 
 
@@ -258,7 +267,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
             gains[name] = g
 
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
-                      disturbance, initial, sensors, estimator, actuator, options, gains)
+                      disturbance, initial, sensors, estimator, actuator, options, gains,
+                      _pointing(checks.table(full, "pointing", keys.allowed("pointing"))))
     for name in controllers:
         try:
             mission.controller(name)
@@ -269,7 +279,20 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
         check_inertia(f"{name} (inertia.{name})" if not constant else "inertia.J", J, warn=False)
     check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
-    return mission
+    phases = pointing.phase_bounds_of(mission.scenario())
+    requirements = pointing.parse_requirements(d.get("requirements", []), PHASE_NAMES[: len(phases)], phases)
+    return dataclasses.replace(mission, requirements=requirements)
+
+
+def _pointing(table: dict) -> dict:
+    """[pointing]: the report's RPE window [s] (positive) and confidence levels (each in (0, 1))."""
+    window = keys.parse("pointing.window", table["window"])
+    levels = keys.parse("pointing.levels", table["levels"])
+    if not window > 0:
+        raise ValueError(f"pointing.window [s] must be positive, got {window}")
+    if len(levels) == 0 or np.any((levels <= 0) | (levels >= 1)):
+        raise ValueError(f"pointing.levels must be confidence levels in (0, 1), got {checks.short(levels.tolist())}")
+    return {"window": float(window), "levels": tuple(float(x) for x in levels)}
 
 
 def _gains(name: str, table, where: str) -> tuple:

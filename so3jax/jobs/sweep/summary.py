@@ -9,12 +9,12 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersions as disp
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics, cell, finite_values, reported
 
-PHASE_NAMES = ("capture", "deployment", "detumble")
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
 # The flight metrics a sweep of a sampled loop summarizes (FlightMetrics fields), with units.
 FLIGHT = {

@@ -1,0 +1,45 @@
+"""Pointing requirements in a mission ([[requirements]], docs/model.md §18) through ``so3jax fly``:
+checked on the run's recorded history, reported in metrics.json and on the terminal, a
+failed one making the exit code 1; a bad one a one-line error before anything compiles.
+In process, with the tiny fly of tests/test_outputs.py (the same compiled program)."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from so3jax import commands as cli
+
+FLY = ("fly", "--T", "1", "--controllers", "pd", "--record-every", "10", "--json", "--no-figures")
+MET = '{index = "AKE", axis = "angle", level = 0.5, limit = 1e7}'  # the median knowledge error: far below 1e7 arcsec
+MISSED = '{index = "AKE", axis = "x", level = 0.5, limit = 0.0}'  # no estimate is exact
+
+
+def test_requirements_are_checked_reported_and_set_the_exit_code(tmp_path, capsys):
+    out = tmp_path / "fly"
+    code = cli.main([*FLY, "--out", str(out), "--set", f"requirements = [{MET}, {MISSED}]"])
+    assert code == 1
+    assert "requirements failed: pd" in capsys.readouterr().err
+    report = json.loads((out / "metrics.json").read_text())["pd"]
+    met, missed = report["requirements"]
+    assert (met["passed"], missed["passed"]) == (True, False)
+    # independently: scipy's rotation vectors of R_hat^T R, the 5th smallest of the 10 samples (level 0.5)
+    saved = np.load(out / "trajectory.npz")
+    e_K = Rotation.from_matrix(np.swapaxes(saved["pd/R_hat"], -1, -2) @ saved["pd/R"]).as_rotvec()
+    arcsec = 180 / math.pi * 3600
+    assert len(e_K) == 10 and met["samples"] == 10 and met["resolved"]
+    assert met["value"] == pytest.approx(np.sort(np.linalg.norm(e_K, axis=1))[4] * arcsec, rel=1e-9)
+    assert missed["value"] == pytest.approx(np.sort(np.abs(e_K[:, 0]))[4] * arcsec, rel=1e-9)
+    phases = report["pointing"]["phases"]
+    assert [p["name"] for p in phases] == ["capture"] and phases[0]["samples"] == 10
+    assert {r["index"] for r in phases[0]["rows"]} == {"APE", "RPE", "AKE", "RKE"}
+
+
+def test_a_bad_requirement_is_one_line_before_compiling(in_process, capsys):
+    bad = '{index = "RPE", axis = "angle", level = 0.95, limit = 5.0}'  # a relative error needs its window
+    assert cli.main([*FLY, "--out", "o", "--set", f"requirements = [{bad}]"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "so3jax fly: error: requirements[0].window: missing (the window Dt [s] of RPE)"
+    assert not (in_process / "o").exists()
