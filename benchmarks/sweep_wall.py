@@ -10,7 +10,9 @@ interpreter (the installed command), timed from the outside; the sweep's own tim
 loop over chunks (``summary.json``'s ``run``, compilation of the first chunks included)
 beside it. Prints one JSON object and
 writes it to ``benchmarks/results/sweep-<config>-wall-cpu-<cores>core-<cpu>.json``
-(the CPU model from ``lscpu``).
+(the CPU model from ``lscpu``), with the machine's float64 matmul peak measured before
+and after the runs: machines that ``lscpu`` names alike can differ severalfold in speed per
+core, and the peak tells them apart.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+if __package__ in (None, ""):  # run as a script: the repository root on the path (benchmarks.throughput)
+    sys.path.insert(0, str(ROOT))
 
 
 def cpu_model() -> str:
@@ -53,6 +57,12 @@ def slug(text: str) -> str:
     words = re.sub(r"\(.*?\)", " ", text).lower().split()
     keep = [w for w in words if w not in ("processor", "cpu", "@") and not w.endswith("ghz")]
     return "-".join(re.sub(r"[^a-z0-9]+", "", w) for w in keep if re.sub(r"[^a-z0-9]+", "", w))
+
+
+def _matmul_peak_gflops() -> float:
+    from benchmarks.throughput import _matmul_peak  # the peak every benchmark here reports
+
+    return round(_matmul_peak(2048) / 1e9, 1)
 
 
 def one_run(config: Path, cache: str, label: str, extra: list) -> dict:
@@ -90,6 +100,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     import jax  # the version only: the runs are separate processes
 
+    peak_before = _matmul_peak_gflops()
     runs = []
     for _ in range(args.runs):
         cache = tempfile.mkdtemp(prefix="so3jax-cache-")
@@ -107,7 +118,10 @@ def main(argv=None) -> int:
                 "in a fresh process: cold (an empty compilation cache: compilation included), then warm (the cache "
                 "the cold run filled)",
         "cpu": model, "cpu_flags": cpu_flags(), "cpus": cpus, "python": platform.python_version(),
-        "jax": jax.__version__, "runs": runs,
+        "jax": jax.__version__,
+        "float64_matmul_peak_gflops": {"before": peak_before, "after": _matmul_peak_gflops(),
+                                       "what": "numpy 2048 x 2048 matmul on every BLAS thread, best of 3"},
+        "runs": runs,
     }
     print(json.dumps(record))
     name = f"sweep-{args.config.stem}-wall-cpu-{cpus}core-{slug(model)}.json"
