@@ -291,3 +291,38 @@ def test_flight_pd_margins(flight):
     np.testing.assert_allclose(phase_margins[1], [a.phase_margin_deg for a in margins.axes], rtol=1e-9)
     low, nominal, high = np.asarray(phase_margins)
     assert np.all(low + 5 < nominal) and np.all(nominal + 5 < high)
+
+
+# --- the command -------------------------------------------------------------------------
+
+
+def test_the_command_reports_the_margins_of_the_loop_it_linearizes(flight, tmp_path, capsys):
+    """so3jax margins in process, on the fixture's mission and horizon (its compiled programs)."""
+    from so3jax import commands as cli
+
+    out = tmp_path / "m"
+    argv = ["margins", str(ROOT / "missions" / "flight.toml"), "--T", "1", "--at", "0.5", "--controllers", "pd",
+            "--no-figures", "--out", str(out)]
+    assert cli.main(argv) == 0
+    assert "pd, t = 0.5 s (capture)" in capsys.readouterr().out
+    saved = json.loads((out / "margins.json").read_text())["pd"]["times"]
+    state = mg.nominal_state(flight.scenario, flight.loop, flight.controller, flight.gains, 0.5)
+    lin = mg.linearize(flight.scenario, flight.loop, flight.controller, flight.gains, state, 5)
+    assert [row["t"] for row in saved] == [0.5]
+    assert saved[0]["loop_at_a_time"] == json.loads(json.dumps(mg.loop_at_a_time(lin).to_dict()))
+    assert saved[0]["disk"] == json.loads(json.dumps(mg.disk_margin(lin).to_dict()))
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--at", "0.55"], "t = 0.55 s is not a whole number of control periods (0.1 s)"),
+    (["--at", "2.0"], "--at 2 s is outside the horizon [0, 1) s"),
+    (["--set", "control.mode='continuous'", "--set", "sensors.gyro=false", "--set", "sensors.star_tracker=false",
+      "--set", "estimator.kind='truth'"], "margins need a sampled loop"),
+])
+def test_bad_times_and_loops_are_one_line_errors_before_compiling(in_process, capsys, extra, message):
+    from so3jax import commands as cli
+
+    assert cli.main(["margins", "--T", "1", "--out", "o", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("so3jax margins: error: ") and message in err and "\n" not in err
+    assert not (in_process / "o").exists()

@@ -34,9 +34,9 @@ per period. (In the 9 entries of each R instead, a reference rotating at Omega_d
 make the map change by O(|Omega_d| Delta_c) per period even at a relative equilibrium.)
 
 The closed loop w = y is stable when every mode of A + BC that the loop moves lies inside
-the unit circle (:class:`Modes`); the modes it cannot move (a constant gyro bias, the
-total angular momentum, a wheel's null-space speed: |z| = 1) are reported apart. The
-margins of an unstable closed loop are not computed.
+the unit circle, to NEUTRAL_GROWTH (:class:`Modes`); the modes it cannot move (a constant
+gyro bias, the total angular momentum, a wheel's null-space speed: |z| = 1) are reported
+apart. The margins of an unstable closed loop are not computed.
 """
 
 from __future__ import annotations
@@ -57,7 +57,10 @@ from so3jax.dynamics.scenario import Scenario
 from so3jax.sim.loop import Loop, State, initial_state, step, tick
 
 NOISE_PARAMETERS = ("arw", "rrw", "sigma")  # a sensor's noise levels (gyro sigma_v, sigma_u; star tracker sigma)
-FIXED_MODE_RESIDUE = 1e-9  # a closed-loop mode whose residue in C (zI - A - BC)^-1 B is below this is fixed
+FIXED_MODE_RESIDUE = 1e-6  # a closed-loop mode whose residue in C (zI - A - BC)^-1 B is below this share of
+# the largest mode's is fixed (a conserved quantity: total momentum, seen from a turning body, is a pair on |z| = 1)
+NEUTRAL_GROWTH = 1e-8  # a mode with |z| < 1 + this is not unstable: at most 1e-8 per period, a conserved
+# quantity to round-off (the total momentum seen from a turning body: a pair on |z| = 1)
 _ROTATION_TOLERANCE = 1e-8  # |R^T R - I|, |det R - 1| of a leaf taken as a rotation
 
 
@@ -396,6 +399,13 @@ def frequency_response(lin: Linearization, omegas) -> np.ndarray:
     return -_resolvent(lin.A, lin.B, lin.C, omegas, lin.period)
 
 
+def axis_response(lin: Linearization, omegas) -> np.ndarray:
+    """L_i(exp(i omega Delta_c)) of each axis's loop with the other axes closed
+    (:func:`loop_at_a_time`), (n_omega, 3) complex [-]; omegas [rad/s]."""
+    G = _closed_response(lin, np.asarray(omegas, float))
+    return _loop(np.diagonal(G, axis1=1, axis2=2))
+
+
 def _closed_loop(lin: Linearization):
     return lin.A + lin.B @ lin.C
 
@@ -403,16 +413,18 @@ def _closed_loop(lin: Linearization):
 class Modes(NamedTuple):
     """The closed loop's eigenvalues z_k of A + BC and their residues |res_k| =
     |C v_k| |u_k^H B| / |u_k^H v_k| in C (zI - A - BC)^{-1} B (v_k, u_k: right and left
-    eigenvectors): a mode with |res_k| < FIXED_MODE_RESIDUE is fixed, no feedback through
-    the broken loop moves it (uncontrollable from w or unobservable in y: a constant gyro
-    bias, the total angular momentum, a wheel's null-space speed)."""
+    eigenvectors): a mode with |res_k| < FIXED_MODE_RESIDUE max_k |res_k| is fixed, no
+    feedback through the broken loop moves it (uncontrollable from w or unobservable in y:
+    a constant gyro bias, the total angular momentum, a wheel's null-space speed), up to
+    round-off and the nominal state's own change over a period."""
 
     eigenvalues: np.ndarray  # (n,) complex
     residues: np.ndarray  # (n,) [-]
 
     @property
     def moved(self) -> np.ndarray:
-        return self.residues >= FIXED_MODE_RESIDUE
+        finite = self.residues[np.isfinite(self.residues)]
+        return self.residues >= FIXED_MODE_RESIDUE * finite.max(initial=0.0)
 
     @property
     def spectral_radius(self) -> float:
@@ -461,7 +473,7 @@ class AxisMargins:
 class LoopMargins:
     """:func:`loop_at_a_time`'s answer: ``axes`` None where the closed loop is unstable."""
 
-    stable: bool  # spectral_radius < 1
+    stable: bool  # spectral_radius < 1 + NEUTRAL_GROWTH
     spectral_radius: float  # of A + BC over the modes the loop moves (:class:`Modes`)
     fixed_spectral_radius: float  # of the fixed modes (1: a conserved quantity), for information
     axes: tuple | None  # (AxisMargins,) per axis, or None (unstable: no margins)
@@ -575,7 +587,7 @@ def loop_at_a_time(lin: Linearization, omegas=None) -> LoopMargins:
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
     modes = closed_loop_modes(lin)
     rho = modes.spectral_radius
-    stable = rho < 1.0
+    stable = rho < 1.0 + NEUTRAL_GROWTH
     axes = None
     if stable:
         G = _closed_response(lin, omegas)
@@ -656,7 +668,7 @@ def disk_margin(lin: Linearization, omegas=None) -> DiskMargins:
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
     modes = closed_loop_modes(lin)
     rho = modes.spectral_radius
-    if rho >= 1.0:
+    if rho >= 1.0 + NEUTRAL_GROWTH:
         return DiskMargins(False, rho, None, None, bool(lin.at_limit))
     G, eye = _closed_response(lin, omegas), np.eye(lin.B.shape[1])
     norm = lambda G: np.linalg.norm(G + 0.5 * eye, ord=2, axis=(1, 2))  # sigma_max(S - I/2)
