@@ -159,6 +159,16 @@ def test_initial_speeds_beyond_the_limit_reject_their_sample(flight):
     np.testing.assert_array_equal(valid, ~over)
 
 
+def test_a_sample_rejected_for_a_component_value_is_counted_apart(flight):
+    """draw's ``outside``: the samples rejected for a component value alone (the inertias were fine)."""
+    dispersions, leaves = dispersed.parse(_wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 400.0}), flight)
+    samples = dispersed.draw(dispersions, leaves, 0, 200, 20)
+    over = np.any(np.abs(samples.leaves["actuator.wheels.initial_speed"]) > 628.0, axis=1)
+    assert over.any()
+    np.testing.assert_array_equal(samples.outside, over)
+    np.testing.assert_array_equal(samples.valid, ~over)
+
+
 def test_both_dispersed_reject_the_samples_whose_speed_exceeds_their_own_limit(flight):
     table = _wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 300.0},
                     max_speed={"dist": "uniform", "low": 500.0, "high": 700.0})

@@ -296,6 +296,7 @@ def test_impossible_samples_are_redrawn_or_rejected_never_simulated(tmp_path, mo
     rejected = t["status"] == "rejected"
     assert 0 < rejected.sum() < 12 and summary["samples"]["rejected"] == rejected.sum()
     assert summary["samples"]["rejected_indices"] == np.flatnonzero(rejected).tolist()
+    assert summary["samples"]["rejected_component"] == 0  # all for their inertias
     assert np.isnan(t["pd_rmse"][rejected]).all() and np.isfinite(t["pd_rmse"][~rejected]).all()
     def inertias(name):
         e = {k: t[f"{name}_{k}"] for k in ("xx", "yy", "zz", "xy", "xz", "yz")}

@@ -261,10 +261,10 @@ def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int
          first: int = 0) -> disp.Samples:
     """Samples first .. first + n_samples - 1 with their dispersed component values
     (``leaves``); valid: a positive definite inertia within max_draws and every component
-    value in its domain."""
+    value in its domain; outside: the samples rejected for a component value alone."""
     samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
     values, in_domain = draw_leaves(leaves, seed, n_samples, first)
-    return samples._replace(valid=samples.valid & in_domain, leaves=values)
+    return samples._replace(valid=samples.valid & in_domain, leaves=values, outside=samples.valid & ~in_domain)
 
 
 def inputs(samples: disp.Samples, dtype) -> tuple:

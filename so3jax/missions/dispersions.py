@@ -284,6 +284,7 @@ class Samples(NamedTuple):
     scale: np.ndarray  # (N, 3) overall scale factors drawn for J0, J1, J2
     attitude_error: np.ndarray  # (N, 3) rotation vector of R0 (R_d(0) = I), rad
     leaves: dict = {}  # dispersed component parameters {key: (N, *shape)} (so3jax.missions.dispersed)
+    outside: np.ndarray | None = None  # bool: rejected for a component value outside its domain or limit
 
 
 # --- sampling ---------------------------------------------------------------------------

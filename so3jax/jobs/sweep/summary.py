@@ -128,6 +128,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             "simulated": int(samples.valid.sum()),
             "rejected": int((~samples.valid).sum()),
             "rejected_indices": np.flatnonzero(~samples.valid).tolist(),
+            "rejected_component": int(0 if samples.outside is None else samples.outside.sum()),
             "redraws": int((samples.draws[samples.valid] - 1).sum()),
             "nonphysical_inertia": int((samples.valid & ~cols["physical"]).sum()),
         },
@@ -189,10 +190,13 @@ def format_summary(summary: dict) -> str:
     """Markdown tables of the summary."""
     lines = []
     s = summary["samples"]
+    component = s.get("rejected_component", 0)
     lines.append(
         f"{s['requested']} samples: {s['simulated']} simulated, {s['rejected']} rejected "
-        f"(not positive definite after {summary['config']['sweep']['max_draws']} draws), {s['redraws']} redraws, "
-        f"{s['nonphysical_inertia']} with a non-physical inertia (triangle inequality)"
+        f"({s['rejected'] - component} without a positive definite inertia and a positive tau_J after "
+        f"{summary['config']['sweep']['max_draws']} draws, {component} with a component value outside its domain "
+        f"or limit), {s['redraws']} redraws, {s['nonphysical_inertia']} with a non-physical inertia "
+        "(triangle inequality)"
     )
     for metric, label in (("rmse", "RMSE [rad/s]"), ("effort", "effort [N^2 m^2 s]")):
         lines += ["", f"| {label} | phase | " + " | ".join(STAT_NAMES) + " | samples |",
