@@ -401,7 +401,7 @@ def tune_table() -> str:
     from so3jax.jobs.tune import config
 
     domains = _tune_domains()
-    rows_table = dataclass_table(config.TuneConfig, "tune.", nested=config._SECTIONS)
+    rows_table = dataclass_table(config.TuneConfig, "tune.", nested={**config._SECTIONS, **config._CONSTRAINTS})
     lines = rows_table.split("\n")
     for i, line in enumerate(lines[2:], start=2):
         key = line.split("`")[1].removeprefix("tune.")

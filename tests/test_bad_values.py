@@ -144,7 +144,15 @@ def cases(tree, annotate=lambda path: ""):
             for path, value in leaves(tree) for what, bad in bad_values(value, annotate(path))]
 
 
-MISSION_CASES = cases(mission_tree())
+def _mission_annotation(path) -> str:
+    """A mission key of any length (a shape with None, e.g. pointing.levels) reads as tuple[float, ...]."""
+    from so3jax.missions import keys
+
+    param = keys.KEY.get(".".join(path))
+    return "tuple[float, ...]" if param is not None and any(None in shape for shape in param.shapes) else ""
+
+
+MISSION_CASES = cases(mission_tree(), _mission_annotation)
 SWEEP_CASES = cases(sweep_tree())
 TUNE_CASES = cases(tune_tree(), _annotation)
 ids = lambda cases: [f"{key}: {what}" for key, what, _ in cases]

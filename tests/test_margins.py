@@ -1,7 +1,10 @@
 """Stability margins of the sampled loop broken at the actuator input (so3jax.sim.margins): the
 frequency response and margins against a closed form and python-control, the AD linearization
 of the flight loop against finite differences, unstable loops reported as such, and the flight
-PD's margins. One flight loop is compiled (the module's fixture), at a short horizon."""
+PD's margins; the command; and the disk margin as a tuning constraint ([tune.constraints],
+docs/model.md §19.3): the traced linearization against linearize, the traced disk margin against
+disk_margin and against finite differences of itself, the penalty, bad constraint tables. One
+flight loop is compiled for each path, at a short horizon, shared by the module's fixtures."""
 
 import dataclasses
 import json
@@ -14,6 +17,9 @@ import numpy as np
 import pytest
 from scipy import optimize
 
+from so3jax.jobs import tune
+from so3jax.jobs.tune import constraints
+from so3jax.jobs.tune.config import constraint_times
 from so3jax.missions import mission as missions
 from so3jax.sim import margins as mg
 
@@ -326,3 +332,153 @@ def test_bad_times_and_loops_are_one_line_errors_before_compiling(in_process, ca
     err = capsys.readouterr().err.strip()
     assert err.startswith("so3jax margins: error: ") and message in err and "\n" not in err
     assert not (in_process / "o").exists()
+
+
+# --- the disk margin as a tuning constraint -----------------------------------------------
+
+pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
+
+
+@dataclasses.dataclass
+class Point:
+    scenario: object
+    loop: object
+    controller: object
+    params: object
+    state: object
+    j: int
+    lin: mg.Linearization
+    omegas: object
+    run: object  # params -> ((alpha, alpha per axis, (A, B, C)), d alpha / d params)
+
+
+@pytest.fixture(scope="module")
+def point():
+    """The flight PD (missions/flight.toml) at t = 1 s of its noise-free flight: linearize's
+    program and the constraint's (margin_and_jacobian), each compiled once."""
+    mission = missions.load(ROOT / "missions" / "flight.toml", ["T=1.0"])
+    scenario, loop = mission.scenario("float64"), mission.loop("float64")
+    controller, gains = mission.controller("pd")
+    gains = type(gains)(*(jnp.asarray(g, jnp.float64) for g in gains))
+    state = mg.nominal_state(scenario, loop, controller, gains, 1.0)
+    j = mg.tick_index(scenario, loop, 1.0)
+    lin = mg.linearize(scenario, loop, controller, gains, state, j)
+    omegas = jnp.asarray(mg.default_omegas(lin.period, constraints.OMEGAS))
+    kinds = mg.state_kinds(state)
+    run = lambda params: constraints.margin_and_jacobian(params, scenario, loop, controller, state,
+                                                          jnp.asarray(j, jnp.int32), omegas, kinds)
+    return Point(scenario, loop, controller, tune.to_params(gains), state, j, lin, omegas, run)
+
+
+def test_the_traced_linearization_is_linearize_s(point):
+    (_, _, (A, B, C)), _ = point.run(point.params)
+    for traced, reference in ((A, point.lin.A), (B, point.lin.B), (C, point.lin.C)):
+        assert traced.shape == reference.shape
+        np.testing.assert_allclose(np.asarray(traced), reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+    assert np.abs(point.lin.C).max() > 100  # the gains' N m per rad and per rad/s: a scale the tolerance follows
+
+
+def test_disk_alpha_is_disk_margin_s_to_the_grid_s_resolution(point):
+    (alpha, axes, _), _ = point.run(point.params)
+    lin, omegas = point.lin, np.asarray(point.omegas)
+    # on the same grid, by NumPy's SVD of S - I/2: the same number
+    z = np.exp(1j * omegas * lin.period)
+    closed = lin.A + lin.B @ lin.C
+    S = np.eye(3) + lin.C @ np.linalg.solve(z[:, None, None] * np.eye(len(closed)) - closed, lin.B.astype(complex))
+    half = S - 0.5 * np.eye(3)
+    assert float(alpha) == pytest.approx(1 / np.linalg.norm(half, 2, axis=(1, 2)).max(), rel=1e-10)
+    np.testing.assert_allclose(np.asarray(axes), 1 / np.abs(np.diagonal(half, axis1=1, axis2=2)).max(axis=0),
+                               rtol=1e-10)
+    # disk_margin refines the peak between the grid's points: the grid's alpha is at least its, by < 0.1 %
+    disks = mg.disk_margin(lin)
+    assert disks.stable and 0.3 < disks.multiloop.alpha < 1.5
+    assert disks.multiloop.alpha * (1 - 1e-12) <= float(alpha) <= disks.multiloop.alpha * (1 + 1e-3)
+    for traced, disk in zip(np.asarray(axes), disks.axes):
+        assert disk.alpha * (1 - 1e-12) <= traced <= disk.alpha * (1 + 1e-3)
+
+
+def test_the_margin_s_gradient_matches_finite_differences_of_itself(point):
+    """d alpha / d log-gains in forward mode (the state held fixed, as the traced function
+    holds it) against central differences of the traced alpha."""
+    (alpha, _, _), jacobian = point.run(point.params)
+    h = 1e-5
+    for name in point.params._fields:
+        p = getattr(point.params, name)
+        up, down = (point.run(point.params._replace(**{name: p + s}))[0][0] for s in (h, -h))
+        central = (float(up) - float(down)) / (2 * h)
+        assert abs(central) > 1e-3  # each gain moves the margin
+        assert float(getattr(jacobian, name)) == pytest.approx(central, rel=1e-6, abs=1e-9)
+
+
+def test_the_penalty_is_zero_above_the_floor_and_positive_below(point):
+    assert constraints.alpha_of_db(6.0) == pytest.approx(0.66456, abs=1e-5)
+    assert constraints.db_of_alpha(constraints.alpha_of_db(6.0)) == pytest.approx(6.0, rel=1e-12)
+    assert constraints.db_of_alpha(2.0) == math.inf
+    (alpha, _, _), jacobian = point.run(point.params)
+    alpha = float(alpha)  # the paper's PD 1 s in: +-5.5 dB
+    below, above = constraints.alpha_of_db(6.0), constraints.alpha_of_db(3.0)
+    assert above < alpha < below
+    value, grad = constraints.penalty([alpha], [jacobian], above, 100.0)
+    assert value == 0.0 and all(float(g) == 0.0 for g in grad)
+    value, grad = constraints.penalty([alpha, alpha + 1.0], [jacobian, jacobian], below, 100.0)
+    assert value == pytest.approx(100.0 * (below - alpha) ** 2 / below**2 / 2, rel=1e-12)
+    for g, d in zip(grad, jacobian):  # only the point below the floor counts, for half of the mean
+        assert float(g) == pytest.approx(-100.0 * (below - alpha) / below**2 * float(d), rel=1e-12)
+
+
+FLIGHT = {"T": 1.0, "controllers": ["pd"],
+          "tune": {"controller": "pd", "iterations": 1, "train": {"seeds": [0]}, "validation": {"seeds": [5]},
+                   "cost": {"mode": "weighted"}, "constraints": {"disk_margin": {"min_db": 6.0, "at": [0.5]}}}}
+
+
+def _campaign(mission=None, constraint=None, **tune_keys):
+    table = {**FLIGHT, **(mission or {})}
+    table["tune"] = {**FLIGHT["tune"], **tune_keys}
+    if constraint is not None:
+        table["tune"]["constraints"] = {"disk_margin": {**FLIGHT["tune"]["constraints"]["disk_margin"], **constraint}}
+    return tune.parse_config(table, ".", missions.FLIGHT)
+
+
+def test_a_constraint_parses_with_its_defaults_and_stays_out_of_campaigns_without_it():
+    config = _campaign(constraint={"at": None})
+    assert config.constraints.disk_margin == tune.DiskMarginConstraint(6.0, None, 100.0)
+    assert constraint_times(config) == (0.9,)  # the horizon's last tick
+    assert tune.tune_table(config)["constraints"] == {"disk_margin": {"min_db": 6.0, "at": None, "weight": 100.0}}
+    plain = {k: v for k, v in FLIGHT["tune"].items() if k != "constraints"}
+    plain = tune.parse_config({**FLIGHT, "tune": plain}, ".", missions.FLIGHT)
+    assert plain.constraints is None and "constraints" not in tune.tune_table(plain)
+
+
+@pytest.mark.parametrize(("mission", "constraint", "tune_keys", "message"), [
+    ({"control": {"mode": "continuous"}, "sensors": {"gyro": False, "star_tracker": False},
+      "estimator": {"kind": "truth"}}, None, {}, "'tune.constraints.disk_margin' needs a sampled loop"),
+    (None, {"at": [0.55]}, {}, "t = 0.55 s is not a whole number of control periods (0.1 s)"),
+    (None, {"at": [1.0]}, {}, "t = 1 s is outside the horizon [0, 1) s"),
+    (None, {"at": [-0.1]}, {}, "outside the horizon"),
+    (None, {"at": []}, {}, "'tune.constraints.disk_margin.at' must be a non-empty list of times"),
+    (None, {"at": 0.5}, {}, "'tune.constraints.disk_margin.at' must be a non-empty list of times"),
+    (None, {"min_db": 0.0}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number"),
+    (None, {"min_db": -6.0}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number"),
+    (None, {"weight": -1.0}, {}, "'tune.constraints.disk_margin.weight' must be a finite number in [0.0, inf]"),
+    (None, {"floor": 6.0}, {}, "unknown config key 'tune.constraints.disk_margin.floor'"),
+    (None, None, {"constraints": {"disk_margin": {"min_db": 6.0}, "phase_margin": {}}},
+     "unknown config key 'tune.constraints.phase_margin'"),
+    (None, None, {"constraints": {}}, "missing config key 'tune.constraints.disk_margin'"),
+    (None, None, {"constraints": {"disk_margin": {"at": [0.5]}}},
+     "missing config key 'tune.constraints.disk_margin.min_db'"),
+    (None, None, {"method": "es"}, "cannot be combined with tune.method = \"es\""),
+    (None, None, {"estimator": ["sigma_st"]}, "cannot be combined with tune.estimator"),
+    (None, None, {"train": {"seeds": [0], "samples": 2}, "validation": {"seeds": [5], "samples": 2},
+                  "dispersions": {"deployment": {"tau_J": {"dist": "uniform", "low": 200.0, "high": 400.0}}}},
+     "cannot be combined with [tune.dispersions]"),
+])
+def test_bad_constraints_are_one_line_value_errors_before_compiling(monkeypatch, mission, constraint, tune_keys,
+                                                                     message):
+    def compiled(*args, **kwargs):
+        raise AssertionError("reached compilation")
+
+    for module, name in ((mg, "_fly"), (mg, "_period"), (constraints, "margin_and_jacobian")):
+        monkeypatch.setattr(module, name, compiled)
+    with pytest.raises(ValueError) as err:
+        _campaign(mission, constraint, **tune_keys)
+    assert message in str(err.value) and "\n" not in str(err.value)

@@ -401,7 +401,9 @@ SHIPPED = {
                   "optimizer": {**_ADAM, "schedule_options": {"decay_steps": 8, "alpha": 0.1}},
                   "es": {"population": 8, "sigma": 0.2, "seed": 0}},
 }
-FLIGHT = {"pd_flight"}  # flown through missions/flight.toml's loop; the others through the paper's mission
+SHIPPED["pd_flight_margin"] = {**SHIPPED["pd_flight"],  # pd_flight with a 20 dB disk-margin floor at the last tick
+                               "constraints": {"disk_margin": {"min_db": 20.0, "at": [3999.9], "weight": 100.0}}}
+FLIGHT = {"pd_flight", "pd_flight_margin"}  # flown through missions/flight.toml's loop; the others the paper's
 
 
 @pytest.mark.parametrize("name", sorted(SHIPPED))

@@ -33,6 +33,10 @@ covariance converging, the inertia of a deployment), by O(that change over one p
 per period. (In the 9 entries of each R instead, a reference rotating at Omega_d would
 make the map change by O(|Omega_d| Delta_c) per period even at a relative equilibrium.)
 
+:func:`linearize_traced` and :func:`disk_alpha` are the same linearization and the multi-loop
+disk margin (on a fixed grid) as traceable JAX functions of the gains, the nominal state held
+fixed: the tuning constraint of :mod:`so3jax.jobs.tune.constraints` (docs/model.md §19.3).
+
 The closed loop w = y is stable when every mode of A + BC that the loop moves lies inside
 the unit circle, to NEUTRAL_GROWTH (:class:`Modes`); the modes it cannot move (a constant
 gyro bias, the total angular momentum, a wheel's null-space speed: |z| = 1) are reported
@@ -59,6 +63,7 @@ from so3jax.sim.loop import Loop, State, initial_state, step, tick
 NOISE_PARAMETERS = ("arw", "rrw", "sigma")  # a sensor's noise levels (gyro sigma_v, sigma_u; star tracker sigma)
 FIXED_MODE_RESIDUE = 1e-6  # a closed-loop mode whose residue in C (zI - A - BC)^-1 B is below this share of
 # the largest mode's is fixed (a conserved quantity: total momentum, seen from a turning body, is a pair on |z| = 1)
+MODAL_CONDITION = 1e10  # the moved modes' eigenvectors worse conditioned than this: G by its resolvent, not modes
 NEUTRAL_GROWTH = 1e-8  # a mode with |z| < 1 + this is not unstable: at most 1e-8 per period, a conserved
 # quantity to round-off (the total momentum seen from a turning body: a pair on |z| = 1)
 _ROTATION_TOLERANCE = 1e-8  # |R^T R - I|, |det R - 1| of a leaf taken as a rotation
@@ -377,6 +382,94 @@ def linearize(scenario: Scenario, loop: Loop, controller: Controller, gains, sta
                          float(loop.period_steps * scenario.dt), phi.chart.labels(state), bool(at_limit))
 
 
+# --- a traceable linearization and disk margin (the tuning constraint, docs/model.md §19.3) --
+
+
+def state_kinds(state) -> tuple:
+    """Per leaf of a concrete state: 'rotation' (a rotation matrix there), 'vector' (another
+    float leaf) or 'fixed' (an integer leaf): :func:`linearize_traced`'s ``kinds``."""
+    return _kinds(state)
+
+
+def _skew_vee_last(M):
+    """(M - M^T)^vee / 2 over the last two axes (jnp)."""
+    return 0.5 * jnp.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1)
+
+
+def _traced_basis(leaves, kinds, dtype):
+    """:meth:`_Chart.basis` of traced leaves: per float leaf, its tangents along each
+    coordinate (leading axis n), R hat(e_c) for a rotation's delta_c, a unit entry else."""
+    floats = [(c, k) for c, k in zip(leaves, kinds) if k != "fixed"]
+    sizes = [3 if k == "rotation" else int(np.size(c)) for c, k in floats]
+    n, at, out = sum(sizes), 0, []
+    hats = jnp.asarray(np.stack([_hat(e) for e in np.eye(3)]), dtype)  # hat(e_c), (3, 3, 3)
+    for (c, k), size in zip(floats, sizes):
+        block = c @ hats if k == "rotation" else jnp.eye(size, dtype=dtype).reshape((size,) + np.shape(c))
+        out.append(jnp.zeros((n,) + np.shape(c), dtype).at[at:at + size].set(block))
+        at += size
+    return out
+
+
+def linearize_traced(scenario: Scenario, loop: Loop, controller: Controller, gains, state: State, j, kinds=None,
+                     key=None):
+    """(A, B, C) of (M.2) as jnp arrays, a traceable function of ``gains`` (and of the
+    scenario and loop): the same map, point and local coordinates as :func:`linearize`
+    (one JVP per coordinate, a rotation's tangent at the end of the period read as
+    (R^T dR)^vee about the nominal next state R), in jnp operations only, so that
+    ``jax.jacfwd`` (or ``jax.grad``) of a function of (A, B, C) differentiates through it.
+
+    The nominal ``state`` is held fixed (``jax.lax.stop_gradient``): a derivative with
+    respect to the gains is that of the linearization about this state, its own dependence
+    on the gains (the flight that reached it) left out; what follows from the state within
+    the period does follow the gains: the nominal input w = y_j(state) (the command the
+    gains compute there), the nominal next state the output's chart is centred on, and
+    the map's derivatives. ``kinds``: :func:`state_kinds` of the state (required where the
+    state is traced, e.g. an argument of a jitted function; the next state's leaves are
+    taken to be of the same kinds, as :func:`linearize` checks). j: the tick (an int or a
+    traced int32). No check of an actuator limit at the point (:func:`linearize`'s
+    ``at_limit``)."""
+    _check_sampled(loop)
+    state = jax.lax.stop_gradient(state)
+    kinds = _kinds(state) if kinds is None else tuple(kinds)
+    dtype = scenario.R0.dtype
+    loop, gains = noise_free(loop), _as_dtype(gains, dtype)
+    key = jax.random.key(0) if key is None else key
+    j = jnp.asarray(j, jnp.int32)
+    basis = _traced_basis(jax.tree.leaves(state), kinds, dtype)
+    n = basis[0].shape[0]
+    tangents = [jnp.concatenate([b, jnp.zeros((3,) + b.shape[1:], dtype)]) for b in basis]
+    tangents.append(jnp.eye(n + 3, dtype=dtype)[:, n:])  # the directions of w (3,)
+    w = tick(scenario, loop, controller, gains, key, state, j)[1].tau_cmd  # y_j: no feedthrough from w
+    new, _, _, d_new, dy = _period(scenario, loop, controller, gains, key, j, state, w, tangents, kinds)
+    floats = [(c, k) for c, k in zip(jax.tree.leaves(new), kinds) if k != "fixed"]
+    d_x = jnp.concatenate([_skew_vee_last(jnp.swapaxes(c, -1, -2) @ d) if k == "rotation" else d.reshape(d.shape[0], -1)
+                           for (c, k), d in zip(floats, d_new)], axis=1)  # (n + 3, n)
+    return d_x[:n].T, d_x[n:].T, dy[:n].T
+
+
+def disk_alpha(A, B, C, period: float, omegas):
+    """(alpha, alphas): the balanced disk margin (19.4) of all axes at once (the sigma_max
+    lower bound of :func:`disk_margin`) and of each axis (q,), as jnp values differentiable
+    in A, B, C: 1 / max over the grid ``omegas`` [rad/s] (e.g. :func:`default_omegas` with
+    256 points) of sigma_max(S - I/2), S = I + C (zI - A - BC)^{-1} B, z = exp(i omega
+    Delta_c), sigma_max^2 the largest eigenvalue of (S - I/2)^H (S - I/2) (``eigvalsh``), and
+    of |S_ii - 1/2|. No refinement between the grid's points: each alpha is at least
+    :func:`disk_margin`'s, by what the grid misses of the peak. Meaningful only where the
+    closed loop A + BC is stable (:func:`closed_loop_modes`: not checked here)."""
+    complex_dtype = jnp.complex128 if A.dtype == jnp.float64 else jnp.complex64
+    theta = jnp.asarray(omegas, A.dtype) * period
+    z = jax.lax.complex(jnp.cos(theta), jnp.sin(theta))  # exp(i omega Delta_c)
+    n, q = B.shape
+    closed = (A + B @ C).astype(complex_dtype)
+    M = z[:, None, None] * jnp.eye(n, dtype=complex_dtype) - closed
+    X = jnp.linalg.solve(M, jnp.broadcast_to(B.astype(complex_dtype), (z.shape[0], n, q)))
+    D = C.astype(complex_dtype) @ X + 0.5 * jnp.eye(q, dtype=complex_dtype)  # S - I/2, (n_omega, q, q)
+    gram = jnp.conj(jnp.swapaxes(D, -1, -2)) @ D
+    peak = jnp.sqrt(jnp.max(jnp.linalg.eigvalsh(gram)[:, -1]))
+    axes = jnp.max(jnp.abs(jnp.diagonal(D, axis1=1, axis2=2)), axis=0)
+    return 1.0 / peak, 1.0 / axes
+
+
 # --- frequency responses -----------------------------------------------------------------
 
 
@@ -437,15 +530,21 @@ class Modes(NamedTuple):
         return float(np.abs(self.eigenvalues[~self.moved]).max(initial=0.0))
 
 
+def _eig(lin: Linearization):
+    """(z, V, C v_k (3, n), u_k^H B / u_k^H v_k (n, 3)) of the closed loop A + BC (V = [v_k], u_k:
+    its right and left eigenvectors)."""
+    z, left, right = linalg.eig(_closed_loop(lin), left=True, right=True)
+    uv = np.sum(left.conj() * right, axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uB = (left.conj().T @ lin.B) / uv[:, None]
+    return z, right, lin.C @ right, uB
+
+
 def closed_loop_modes(lin: Linearization) -> Modes:
     """The :class:`Modes` of the closed loop w = y, A + BC."""
-    z, left, right = linalg.eig(_closed_loop(lin), left=True, right=True)
-    Cv = np.linalg.norm(lin.C @ right, axis=0)
-    uB = np.linalg.norm(left.conj().T @ lin.B, axis=1)
-    uv = np.abs(np.sum(left.conj() * right, axis=0))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        residues = np.where(uv > 0, Cv * uB / uv, np.inf)
-    return Modes(z, residues)
+    z, _, Cv, uB = _eig(lin)
+    residues = np.linalg.norm(Cv, axis=0) * np.linalg.norm(uB, axis=1)
+    return Modes(z, np.where(np.isfinite(residues), residues, np.inf))
 
 
 # --- classical margins, loop at a time ---------------------------------------------------
@@ -502,14 +601,14 @@ def _json(d):
 class _Axis:
     """Axis i's loop transfer L_i(omega) = -C_i (zI - A_i)^{-1} B_i, A_i = A + B_o C_o (o: the other axes),
     from the closed loop's: S_i = (1 + L_i)^{-1} = 1 + G_ii with G = C (zI - A - BC)^{-1} B, so
-    L_i = -G_ii / (1 + G_ii) (the push-through identity; one solve per frequency for every axis)."""
+    L_i = -G_ii / (1 + G_ii) (the push-through identity; G in modal form, :func:`_closed_response`)."""
 
     def __init__(self, lin: Linearization, i: int):
-        self.A, self.b, self.c, self.h = _closed_loop(lin), lin.B[:, i], lin.C[i], lin.period
+        self.lin, self.i = lin, i
 
     def closed(self, omegas):
         """G_ii (n_omega,) complex."""
-        return _resolvent(self.A, self.b[:, None], self.c[None, :], np.atleast_1d(omegas), self.h)[:, 0, 0]
+        return _closed_response(self.lin, np.atleast_1d(omegas))[:, self.i, self.i]
 
     def loop(self, omegas):
         return _loop(self.closed(omegas))
@@ -521,8 +620,19 @@ def _loop(g):
 
 
 def _closed_response(lin: Linearization, omegas) -> np.ndarray:
-    """G = C (zI - A - BC)^{-1} B (n_omega, 3, 3): the closed loop's, S = I + G."""
-    return _resolvent(_closed_loop(lin), lin.B, lin.C, omegas, lin.period)
+    """G = C (zI - A - BC)^{-1} B (n_omega, 3, 3), the closed loop's (S = I + G), in modal form
+    over the modes the loop moves, G(z) = sum_k (C v_k)(u_k^H B) / (u_k^H v_k) / (z - z_k): the
+    fixed modes add nothing to G but round-off, which the resolvent would blow up wherever z
+    meets them on the unit circle (a conserved momentum seen from the turning body). The
+    full resolvent where the moved modes' eigenvectors are ill-conditioned (a defective
+    closed loop), and for a closed loop without fixed modes."""
+    moved = closed_loop_modes(lin).moved
+    z_k, V, Cv, uB = _eig(lin)
+    if moved.all() or not np.all(np.isfinite(uB[moved])) or np.linalg.cond(V[:, moved]) > MODAL_CONDITION:
+        return _resolvent(_closed_loop(lin), lin.B, lin.C, omegas, lin.period)
+    z = np.exp(1j * np.asarray(omegas, float) * lin.period)
+    weights = 1.0 / (z[:, None] - z_k[None, moved])  # (n_omega, k)
+    return np.einsum("wk,ik,kj->wij", weights, Cv[:, moved], uB[moved])
 
 
 def _roots(fn, omegas, values):

@@ -18,9 +18,11 @@ number or another controller's effort on the same scenario (e.g. the PD with the
 paper's gains), scenario by scenario. ``objective = "cvar"`` replaces the batch mean by
 the mean of the worst 1 - alpha share of the scenario costs. With a
 ``[tune.dispersions]`` table the scenarios are dispersed missions (:mod:`so3jax.missions.dispersed`),
-a fresh batch of them every iteration. ``estimator = [names]`` tunes positive parameters
-of the mission's estimator (the noise levels the MEKF assumes) beside the gains, in log
-space too (:func:`so3jax.jobs.tune.gains.with_estimator`).
+a fresh batch of them every iteration. A ``[tune.constraints]`` table adds a penalty on the
+sampled loop's disk margin below a floor (:mod:`so3jax.jobs.tune.constraints`).
+``estimator = [names]`` tunes positive parameters of the mission's estimator (the noise
+levels the MEKF assumes) beside the gains, in log space too
+(:func:`so3jax.jobs.tune.gains.with_estimator`).
 
 A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
 an interrupted run loses at most one iteration and ``--resume`` continues to the same
@@ -28,7 +30,8 @@ result; a resume under another mission, [tune] table or precision is refused),
 ``best_gains.json``, ``history.csv``, ``history.png`` and ``validation.json`` (initial
 and tuned gains on held-out seeds).
 
-Modules: config (TuneConfig, parsing, checks, the campaign's description), gains (the
+Modules: config (TuneConfig, parsing, checks, the campaign's description), constraints
+(the disk-margin penalty and its gradient), gains (the
 mission's controllers, gains and log-gains), cost (docs/model.md §6 cost and gradient over a
 device mesh), optimizers (optax step, ES), problem (the mission's scenario and loop,
 batches on devices, evaluations, normalizers), storage (checkpoint, history, best
@@ -43,7 +46,9 @@ from so3jax.jobs.tune.config import (
     METHODS,
     OBJECTIVES,
     TUNE,
+    Constraints,
     CostConfig,
+    DiskMarginConstraint,
     ESConfig,
     OptimizerConfig,
     ScenarioSet,
@@ -92,8 +97,10 @@ __all__ = [
     "CHECKPOINT",
     "CONTROLLERS",
     "COST_MODES",
+    "Constraints",
     "CostConfig",
     "CostRefs",
+    "DiskMarginConstraint",
     "ESConfig",
     "ESState",
     "Evaluation",

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from so3jax.jobs.tune import constraints
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.jobs.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
 from so3jax.jobs.tune.gains import gain_columns, resolve_gains, to_gains, to_params, with_estimator
@@ -79,6 +80,9 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     if mission is not None and mode == "equal_effort" and config.cost.budget_controller is not None:
         budget = resolve_gains(config.cost.budget_controller, config.cost.budget_gains, dtype, mission=config.mission)
 
+    margin = None if config.constraints is None else constraints.MarginConstraint(config, problem)
+    train_scales = None if margin is None else constraints.distinct(config.train.inertia_scales)
+
     params = to_params(initial)
     if config.method == "gradient":
         tx = make_optimizer(config.optimizer)
@@ -131,6 +135,11 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     alpha=config.alpha,
                     mission=mission,
                 )
+                held = {}  # [tune.constraints]: the margin's penalty and gradient, and its history columns
+                if margin is not None:
+                    penalty, penalty_grad, held = margin.evaluate(state.params, train_scales)
+                    evaluation = evaluation._replace(cost=evaluation.cost + penalty)
+                    grad = jax.tree.map(jnp.add, grad, penalty_grad)
                 new_state = _optax_step(tx, state, grad, evaluation.cost)
                 rollouts += n_train
                 gains = to_gains(state.params)
@@ -141,6 +150,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     time.perf_counter() - start,
                     rollouts,
                     grad_norm=float(optax.tree.norm(grad)),
+                    **held,
                 )
                 finite = bool(new_state.opt_state.last_finite) and math.isfinite(row["cost"])
             else:
@@ -194,7 +204,10 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         plot_history(out, rows, list(gain_columns(initial)),
                      budget=np.asarray(refs.effort) if mode == "equal_effort" else None)
     best_row = _best_row(rows, config.dispersions is not None)
-    report = validate_gains(config, problem, initial, _gains_from_row(best_row, initial), refs)
+    best = _gains_from_row(best_row, initial)
+    report = validate_gains(config, problem, initial, best, refs)
+    if margin is not None:
+        report["disk_margin"] = constraints.validation_report(margin, config, initial, best)
     report["training"] = {
         "method": config.method,
         "gradient": config.gradient if config.method == "gradient" else None,

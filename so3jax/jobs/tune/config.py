@@ -78,6 +78,23 @@ class ESConfig:
 
 
 @dataclasses.dataclass(frozen=True)
+class DiskMarginConstraint:
+    """The sampled loop's multi-loop disk margin (docs/model.md §19.3) held at or above
+    min_db at each time ``at`` of each training scenario by a penalty on the cost."""
+
+    min_db: float  # the floor on the disk margin's gain interval +-min_db [dB], > 0 (6 dB: alpha = 0.665)
+    at: tuple | None = None  # times [s], whole control periods within [0, T); None: the horizon's last tick
+    weight: float = 100.0  # w >= 0: the cost adds w mean(max(0, alpha_req - alpha)^2) / alpha_req^2
+
+
+@dataclasses.dataclass(frozen=True)
+class Constraints:
+    """``[tune.constraints]``: constraints on the tuned loop, each a penalty on the cost."""
+
+    disk_margin: DiskMarginConstraint  # e.g. { min_db = 6.0, at = [3999.9], weight = 100.0 }
+
+
+@dataclasses.dataclass(frozen=True)
 class TuneConfig:
     """A tuning campaign: the ``[tune]`` table's fields and the mission it tunes (its
     scenario, loop, controller options and gains; None: the paper's mission)."""
@@ -99,6 +116,7 @@ class TuneConfig:
     # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
     dispersions: dict | None = None
     estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
+    constraints: Constraints | None = None  # [tune.constraints]: penalties on the sampled loop's margins; None: none
     mission: Any = None  # so3jax.missions.mission.Mission
 
     def __post_init__(self):
@@ -114,7 +132,9 @@ _SECTIONS = {
     "cost": CostConfig,
     "optimizer": OptimizerConfig,
     "es": ESConfig,
+    "constraints": Constraints,
 }
+_CONSTRAINTS = {"disk_margin": DiskMarginConstraint}  # the entries of [tune.constraints]
 
 
 def _key(name: str) -> str:
@@ -136,7 +156,9 @@ def _build(cls, table: dict, prefix: str, **extra):
     for key, value in table.items():
         if key in _SECTIONS and cls is TuneConfig:
             value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
-        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator"):
+        elif key in _CONSTRAINTS and cls is Constraints:
+            value = _build(_CONSTRAINTS[key], value, f"{prefix}{key}.")
+        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "at"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
             raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, "
@@ -248,6 +270,7 @@ def validate(config: TuneConfig) -> None:
         raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
     _check_dispersions(config)
     _check_estimator(config)
+    _check_constraints(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
     if held_out:
         raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
@@ -327,6 +350,56 @@ def _check_samples(config: TuneConfig, leaves: tuple) -> None:
                      f"lower {_key(section + '.samples')}")
 
 
+def constraint_times(config: TuneConfig) -> tuple:
+    """The times [s] of the disk-margin constraint: its ``at``, or the horizon's last tick."""
+    at = config.constraints.disk_margin.at
+    mission = config.mission
+    return tuple(float(t) for t in at) if at is not None else (round(mission.T - mission.period, 12),)
+
+
+def _check_constraints(config: TuneConfig) -> None:
+    """[tune.constraints]: a disk-margin floor min_db > 0 with a weight >= 0 at ticks within
+    the horizon of a sampled loop, in a gradient campaign on the gains alone over fixed
+    scenario sets (no dispersions, ES or tuned estimator: refused, not half-supported)."""
+    if config.constraints is None:
+        return
+    if not isinstance(config.constraints, Constraints):
+        raise ValueError(f"config key {_key('constraints')!r} must be a table, "  # noqa: TRY004
+                         f"got {checks.short(config.constraints)}")
+    margin = config.constraints.disk_margin
+    if not isinstance(margin, DiskMarginConstraint):
+        raise ValueError(f"config key {_key('constraints.disk_margin')!r} must be a table "  # noqa: TRY004
+                         f"{{ min_db, at, weight }}, got {checks.short(margin)}")
+    where = "constraints.disk_margin"
+    for key, why in ((config.method != "gradient", f"{_key('method')} = \"es\" (the constraint's penalty is "
+                      "differentiated: a gradient campaign only)"),
+                     (config.dispersions is not None, f"[{TUNE}.dispersions] (its nominal flights are the fixed "
+                      "training scenarios')"),
+                     (bool(config.estimator), f"{_key('estimator')} (the loop is linearized with the mission's "
+                      "estimator)")):
+        if key:
+            raise ValueError(f"config key {_key(where)!r} cannot be combined with {why}")
+    mission = config.mission
+    if mission.period_steps is None:
+        raise ValueError(f"config key {_key(where)!r} needs a sampled loop (control.mode = \"sampled\"): "
+                         "the mission's control is continuous")
+    _positive(f"{where}.min_db", margin.min_db)
+    checks.number(margin.weight, f"config key {_key(where + '.weight')!r}", low=0.0)
+    at = margin.at
+    if at is not None and (not isinstance(at, tuple) or not at or not all(
+            isinstance(t, (int, float)) and not isinstance(t, bool) for t in at)):
+        raise ValueError(f"config key {_key(where + '.at')!r} must be a non-empty list of times [s], "
+                         f"got {checks.short(at)}")
+    period = mission.period
+    for t in constraint_times(config):
+        if not (checks.finite(t) and 0 <= t < mission.T):
+            raise ValueError(f"config key {_key(where + '.at')!r}: t = {t:g} s is outside the horizon "
+                             f"[0, {mission.T:g}) s")
+        if abs(t - round(t / period) * period) > 1e-9 * max(period, abs(t)):
+            raise ValueError(f"config key {_key(where + '.at')!r}: t = {t:g} s is not a whole number of control "
+                             f"periods ({period:g} s)")
+
+
 def tunable_estimator(mission) -> tuple:
     """The parameters of the mission's estimator that can be tuned: positive real numbers."""
     kind = mission.estimator["kind"]
@@ -359,7 +432,7 @@ def _check_estimator(config: TuneConfig) -> None:
 def tune_table(config: TuneConfig) -> dict:
     """The ``[tune]`` table of a config, every field (defaults included) but those of a
     feature the campaign does not use (no dispersions: their table and sample counts; the
-    mean objective: alpha), which change nothing it computes."""
+    mean objective: alpha; no tuned estimator; no constraints), which change nothing it computes."""
     table = {f.name: (dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v)
              for f in dataclasses.fields(config) if f.name != "mission" for v in [getattr(config, f.name)]}
     if config.dispersions is None:
@@ -370,6 +443,8 @@ def tune_table(config: TuneConfig) -> dict:
         del table["objective"], table["alpha"]
     if not config.estimator:
         del table["estimator"]
+    if config.constraints is None:
+        del table["constraints"]
     return table
 
 
