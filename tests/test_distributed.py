@@ -227,6 +227,7 @@ CAMPAIGN = ('T = 5.0\n[tune]\ncontroller = "pd"\niterations = 2\n[tune.train]\ns
             '[tune.validation]\nseeds = [10]\n[tune.cost]\nmode = "weighted"\n')
 
 
+@pytest.mark.slow  # a minute of compilation: with -m slow
 def test_two_processes_tune_to_the_gains_of_one_process(tmp_path):
     campaign = tmp_path / "campaign.toml"
     campaign.write_text(CAMPAIGN)

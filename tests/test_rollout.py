@@ -289,7 +289,8 @@ def _tiny_axes():
     )
 
 
-@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"), [(None, 1, 5), (2, 1, 5), (None, 2, 3)])
+@pytest.mark.parametrize(("sub_batch", "unroll", "record_every"),
+                         [(None, 1, 5), (2, 1, 5), pytest.param(None, 2, 3, marks=pytest.mark.slow)])
 def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, monkeypatch):
     """The natively batched path (batch axis last inside) gives vmap's values, shared or batched leaves;
     also with an unrolled scan over blocks of an odd number of steps (a property of the scan:
