@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
 from so3jax.components import registry as components
@@ -54,3 +55,16 @@ def output_folder(text: str) -> Path:
     if not text.strip():
         raise argparse.ArgumentTypeError("must name a folder; an empty path would be the current directory")
     return Path(text)
+
+
+def mission_overrides(args, keys=("T", "seed", "record_every")) -> list[str]:
+    """The mission overrides of a command's arguments: --set's, then ``KEY=VALUE`` for each of
+    ``keys`` (a mission key and its option) given, then --controllers."""
+    items = list(args.set)
+    for key in keys:
+        value = getattr(args, key, None)
+        if value is not None:
+            items.append(f"{key}={value!r}")
+    if getattr(args, "controllers", None) is not None:
+        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
+    return items

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
@@ -11,6 +10,7 @@ from so3jax.commands.common import (
     add_memory_argument,
     add_precision_argument,
     controllers_help,
+    mission_overrides,
     output_folder,
     registered,
 )
@@ -43,19 +43,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def overrides(args) -> list[str]:
-    """The command-line options as mission overrides (after --set's)."""
-    items = list(args.set)
-    for key, value in (("T", args.T), ("seed", args.seed), ("record_every", args.record_every)):
-        if value is not None:
-            items.append(f"{key}={value!r}")
-    if args.controllers is not None:
-        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
-    return items
-
-
 def run(args) -> int:
-    mission = missions.load(args.mission, overrides(args))
+    mission = missions.load(args.mission, mission_overrides(args))
     with runfolder.claim(args.out, "fly", vars(args)):
         return _fly_into(args, mission)
 

@@ -3,11 +3,10 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
-from so3jax.commands.common import add_precision_argument, output_folder, registered
+from so3jax.commands.common import add_precision_argument, mission_overrides, output_folder, registered
 from so3jax.jobs import margins
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
@@ -38,18 +37,8 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def overrides(args) -> list[str]:
-    """The command-line options as mission overrides (after --set's)."""
-    items = list(args.set)
-    if args.T is not None:
-        items.append(f"T={args.T!r}")
-    if args.controllers is not None:
-        items.append("controllers=" + json.dumps([c.strip() for c in args.controllers.split(",") if c.strip()]))
-    return items
-
-
 def run(args) -> int:
-    mission = missions.load(args.mission, overrides(args))
+    mission = missions.load(args.mission, mission_overrides(args, ("T",)))
     times = margins.check_times(mission, args.at)
     with runfolder.claim(args.out, "margins", vars(args)):
         print(f"margins of {', '.join(mission.controllers)} at t = {', '.join(f'{t:g}' for t in times)} s ...",
