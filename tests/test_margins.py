@@ -353,16 +353,10 @@ class Point:
 
 
 @pytest.fixture(scope="module")
-def point():
-    """The flight PD (missions/flight.toml) at t = 1 s of its noise-free flight: linearize's
-    program and the constraint's (margin_and_jacobian), each compiled once."""
-    mission = missions.load(ROOT / "missions" / "flight.toml", ["T=1.0"])
-    scenario, loop = mission.scenario("float64"), mission.loop("float64")
-    controller, gains = mission.controller("pd")
-    gains = type(gains)(*(jnp.asarray(g, jnp.float64) for g in gains))
-    state = mg.nominal_state(scenario, loop, controller, gains, 1.0)
-    j = mg.tick_index(scenario, loop, 1.0)
-    lin = mg.linearize(scenario, loop, controller, gains, state, j)
+def point(flight):
+    """The flight fixture's PD 1 s in, with the constraint's program (margin_and_jacobian) compiled once."""
+    scenario, loop, controller, gains, state, j, lin = (flight.scenario, flight.loop, flight.controller, flight.gains,
+                                                        flight.state, flight.j, flight.lin)
     omegas = jnp.asarray(mg.default_omegas(lin.period, constraints.OMEGAS))
     kinds = mg.state_kinds(state)
     run = lambda params: constraints.margin_and_jacobian(params, scenario, loop, controller, state,
