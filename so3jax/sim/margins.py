@@ -525,6 +525,11 @@ class Modes(NamedTuple):
         return float(np.abs(self.eigenvalues[self.moved]).max(initial=0.0))
 
     @property
+    def stable(self) -> bool:
+        """Every mode the loop moves inside the unit circle, to NEUTRAL_GROWTH."""
+        return self.spectral_radius < 1.0 + NEUTRAL_GROWTH
+
+    @property
     def fixed_spectral_radius(self) -> float:
         """max |z_k| over the fixed modes (0 for none); 1 for a conserved quantity."""
         return float(np.abs(self.eigenvalues[~self.moved]).max(initial=0.0))
@@ -697,7 +702,7 @@ def loop_at_a_time(lin: Linearization, omegas=None) -> LoopMargins:
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
     modes = closed_loop_modes(lin)
     rho = modes.spectral_radius
-    stable = rho < 1.0 + NEUTRAL_GROWTH
+    stable = modes.stable
     axes = None
     if stable:
         G = _closed_response(lin, omegas)
@@ -706,6 +711,18 @@ def loop_at_a_time(lin: Linearization, omegas=None) -> LoopMargins:
 
 
 # --- disk margins ------------------------------------------------------------------------
+
+
+def alpha_of_db(db: float) -> float:
+    """The balanced disk margin alpha whose gain interval is +-db [dB]: 2 (g - 1) / (g + 1), g = 10^(db/20)."""
+    g = 10.0 ** (db / 20.0)
+    return 2.0 * (g - 1.0) / (g + 1.0)
+
+
+def db_of_alpha(alpha: float) -> float:
+    """The gain interval +-dB a disk margin alpha covers: 20 log10((1 + alpha/2) / (1 - alpha/2)) (inf from 2 on)."""
+    a = alpha / 2.0
+    return 20.0 * math.log10((1.0 + a) / (1.0 - a)) if a < 1.0 else math.inf
 
 
 @dataclasses.dataclass(frozen=True)
@@ -722,9 +739,8 @@ class Disk:
 
     @classmethod
     def of(cls, alpha: float, frequency: float) -> Disk:
-        a = alpha / 2.0
-        upper = 20 * math.log10((1 + a) / (1 - a)) if a < 1 else math.inf
-        return cls(alpha, frequency, -upper, upper, math.degrees(2 * math.atan(a)))
+        upper = db_of_alpha(alpha)
+        return cls(alpha, frequency, -upper, upper, math.degrees(2 * math.atan(alpha / 2.0)))
 
     def to_dict(self) -> dict:
         return _json(dataclasses.asdict(self))
@@ -778,7 +794,7 @@ def disk_margin(lin: Linearization, omegas=None) -> DiskMargins:
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
     modes = closed_loop_modes(lin)
     rho = modes.spectral_radius
-    if rho >= 1.0 + NEUTRAL_GROWTH:
+    if not modes.stable:
         return DiskMargins(False, rho, None, None, bool(lin.at_limit))
     G, eye = _closed_response(lin, omegas), np.eye(lin.B.shape[1])
     norm = lambda G: np.linalg.norm(G + 0.5 * eye, ord=2, axis=(1, 2))  # sigma_max(S - I/2)

@@ -21,7 +21,6 @@ which the nominal flight has.
 from __future__ import annotations
 
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -31,21 +30,10 @@ from so3jax.jobs.tune.config import TuneConfig, constraint_times
 from so3jax.jobs.tune.gains import to_gains, to_params
 from so3jax.sim import margins
 from so3jax.sim.gradients import scale_inertia
+from so3jax.sim.margins import alpha_of_db, db_of_alpha
 
 OMEGAS = 256  # the constraint's frequency grid: log-spaced over 6 decades up to the Nyquist frequency
 COLUMNS = ("disk_margin_db", "margin_penalty")  # history.csv's columns of the constraint
-
-
-def alpha_of_db(db: float) -> float:
-    """The balanced disk margin alpha whose gain interval is +-db [dB]: 2 (g - 1) / (g + 1), g = 10^(db/20)."""
-    g = 10.0 ** (db / 20.0)
-    return 2.0 * (g - 1.0) / (g + 1.0)
-
-
-def db_of_alpha(alpha: float) -> float:
-    """The gain interval +-dB a disk margin alpha covers: 20 log10((1 + alpha/2) / (1 - alpha/2)) (inf from 2 on)."""
-    a = alpha / 2.0
-    return 20.0 * math.log10((1.0 + a) / (1.0 - a)) if a < 1.0 else math.inf
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "kinds"))
@@ -68,7 +56,7 @@ def stable(A, B, C, period: float) -> bool:
     """Whether the closed loop A + BC's modes that the loop moves lie inside the unit circle."""
     lin = margins.Linearization(np.asarray(A, np.float64), np.asarray(B, np.float64), np.asarray(C, np.float64),
                                 period)
-    return margins.closed_loop_modes(lin).spectral_radius < 1.0 + margins.NEUTRAL_GROWTH
+    return margins.closed_loop_modes(lin).stable
 
 
 def penalty(alphas, jacobians, alpha_required: float, weight: float):
