@@ -113,7 +113,10 @@ FLIGHT_SWEEP = {
     "mission": str(ROOT / "missions" / "flight.toml"),
     "T": 1.0, "controllers": ["pd"], "gains": {"pd": {"k_R": 50.0, "k_Omega": 400.0}},  # wheels at their limits
     "initial": {"rate": [0.02, -0.01, 0.015]},
-    "sweep": {"samples": 8, "chunk": 8},
+    "record_every": 10,  # pointing errors at every tick
+    "requirements": [{"index": "AKE", "axis": "angle", "level": 0.9, "limit": 1e6, "interpretation": "ensemble"},
+                     {"index": "APE", "axis": "angle", "level": 0.5, "limit": 1e-3, "interpretation": "mixed"}],
+    "sweep": {"samples": 8, "chunk": 8},  # pointing: on for the mission's requirements
     "dispersions": {**LEAVES, "inertia": {"J0": {"scale": {"dist": "uniform", "low": 0.8, "high": 1.2}}}},
 }
 FLIGHT_SWEEP["dispersions"]["actuator"] = {"wheels": {
@@ -125,16 +128,28 @@ FLIGHT_SWEEP["dispersions"]["actuator"] = {"wheels": {
 
 def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
     """A sweep of the flight mission dispersing a sensor, actuator leaves (torque limits,
-    misalignment, spin-inertia errors) and an inertia leaf: each sample's metrics and
-    flight metrics equal those of the mission written with that sample's values and flown
-    on its own (the filter assuming the nominal gyro), and differ between samples."""
+    misalignment, spin-inertia errors) and an inertia leaf: each sample's metrics, flight
+    metrics and pointing errors equal those of the mission written with that sample's values
+    and flown on its own (the filter assuming the nominal gyro), and differ between samples;
+    the mission's requirements are checked over the samples."""
     from so3jax.jobs import fly, sweep
+    from so3jax.jobs.sweep import pointing as sweep_pointing
     from so3jax.results.io import to_builtin
+    from so3jax.sim import pointing
 
     cfg = sweep.config_from_dict(FLIGHT_SWEEP)
-    sweep.run_sweep(cfg, tmp_path / "out", progress=False)
+    assert cfg.pointing  # the mission declares requirements
+    summary = sweep.run_sweep(cfg, tmp_path / "out", progress=False)
     with np.load(tmp_path / "out" / "samples.npz") as f:
         t = {k: f[k] for k in f.files}
+    with np.load(tmp_path / "out" / "chunks" / "pd-000000000.npz") as f:
+        e_p, e_k = f["pointing_performance"], f["pointing_knowledge"]
+    assert e_p.shape == e_k.shape == (8, 10, 3)
+    checked = summary["pointing"]["pd"]["requirements"]
+    assert [q["passed"] for q in checked] == [True, False]
+    assert sweep_pointing.failed(summary) == [f"pd: {checked[1]['requirement']}"]
+    x = pointing.magnitudes(e_p)[..., 3].ravel()  # mixed APE at 0.5: the 40th smallest of 80
+    assert checked[1]["value"] == pytest.approx(np.sort(x)[39] * pointing.ARCSEC, rel=1e-12)
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
     assert (tmp_path / "out" / "flight.png").exists()  # time at a torque limit against the dispersed limit
     for i in (0, 5):
@@ -158,6 +173,10 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
             np.testing.assert_allclose(float(result.metrics._asdict()[key]), t[f"pd_{key}"][i], rtol=1e-9, err_msg=key)
         for key, value in result.flight._asdict().items():
             np.testing.assert_allclose(float(value), t[f"pd_{key}"][i], rtol=1e-9, atol=1e-12, err_msg=key)
+        alone = pointing.signals(result.history)
+        np.testing.assert_allclose(alone.performance, e_p[i], rtol=1e-9, atol=1e-15)
+        np.testing.assert_allclose(alone.knowledge, e_k[i], rtol=1e-7, atol=1e-13)  # arcsec-level errors
+        np.testing.assert_allclose(alone.t, sweep_pointing.times(cfg, 10), rtol=1e-12, atol=1e-15)
         assert t["pd_time_at_torque_limit"][i] > 0  # the limits bind: the dispersed limits matter
 
 

@@ -131,6 +131,27 @@ def test_temporal_ensemble_and_mixed_interpretations():
             assert out.samples == {"temporal": 4, "ensemble": 4, "mixed": 16}[interpretation]
 
 
+def test_a_diverged_run_counts_as_the_worst_sample_where_asked():
+    """The runs of the test above with run 3 diverged (NaN from t1 on): by default every
+    interpretation is NaN and fails; counted as +inf, the temporal value is infinite (the
+    worst run's), the ensemble one the worst time's, t1's {9, 2, 2, inf} -> 9 (t0: 8, t2
+    and t3: 2), and the mixed one the 12th smallest of 16, now 1, 1, eight 2s, 8, 9 -> 9."""
+    x = np.array([[10, -9, 1, 1], [8, 2, -2, 2], [2, 2, 2, -2], [-2, np.nan, np.nan, np.nan]], float)
+    e = np.zeros((4, 4, 3))
+    e[..., 0] = x / ARCSEC
+    e[3, 1:] = np.nan
+    t, bounds = _grid(4), [(0.0, 0.4)]
+    for interpretation, expected in (("temporal", math.inf), ("ensemble", 9.0), ("mixed", 9.0)):
+        r = _requirement(index="APE", axis="x", level=0.75, limit=10.0, interpretation=interpretation)
+        assert math.isnan(pt.evaluate(r, t, e, bounds).value)
+        out = pt.evaluate(r, t, e, bounds, diverged_worst=True)
+        assert out.value == pytest.approx(expected, rel=1e-12), interpretation
+        assert out.passed == math.isfinite(expected)
+        row = pt.report(t, e, None, bounds, window=0.2, levels=(0.75,), indices=("APE",),
+                        interpretations=(interpretation,), diverged_worst=True)["phases"][0]["rows"][0]
+        assert row["interpretation"] == interpretation and row["x"] == pytest.approx(expected, rel=1e-12)
+
+
 def test_the_error_signals_are_the_rotation_vectors_between_the_attitudes():
     """R = R_d exp(hat(v)), R_hat = R exp(-hat(u)): e_P = v, e_K = u, up to near a half turn;
     batch axes after (M, 3, 3) come first in the result, as runs."""

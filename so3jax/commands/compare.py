@@ -21,7 +21,8 @@ def run(args) -> int:
     result = compare.run(config, out, resume=args.resume)
     print(compare.markdown(result))
     print(f"results in {out}/")
-    return 0
+    failed = [law for law, e in result["laws"].items() if not all(q["passed"] for q in e.get("requirements", []))]
+    return 1 if failed else 0  # a pointing requirement failed (compare.md lists it)
 
 
 def register(subparsers) -> None:

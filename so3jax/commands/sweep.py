@@ -16,6 +16,7 @@ from so3jax.commands.common import (
     registered,
 )
 from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.jobs.sweep import pointing
 from so3jax.jobs.sweep.config import load_config
 from so3jax.jobs.sweep.engine import LAYOUTS, run_sweep
 from so3jax.jobs.sweep.summary import format_summary
@@ -83,4 +84,7 @@ def run(args: argparse.Namespace) -> int:
                 f"(compile included); results in {args.out}/",
                 file=sys.stderr,
             )
-    return 0
+    failed = pointing.failed(summary)
+    if failed and distributed.writer():
+        print(f"pointing requirements FAILED: {'; '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0

@@ -52,7 +52,7 @@ from so3jax.jobs.tune.validation import held_out
 from so3jax.missions import config as cfg
 from so3jax.missions import mission as missions
 from so3jax.results import io, runfolder
-from so3jax.sim import memory
+from so3jax.sim import memory, pointing
 from so3jax.sim.metrics import cell
 from so3jax.viz import compare as plots
 
@@ -240,8 +240,9 @@ def paired(x, y, resamples: int, rng: np.random.Generator) -> dict:
     }
 
 
-def judge(config: CompareConfig, reports: dict, columns: dict) -> dict:
-    """Each law's held-out validation, its sweep statistics, and its pairing with the reference."""
+def judge(config: CompareConfig, reports: dict, columns: dict, requirements: dict | None = None) -> dict:
+    """Each law's held-out validation, its sweep statistics, its pairing with the reference,
+    and the mission's pointing requirements checked over its sweep ({law: [requirement]})."""
     rng = np.random.default_rng(config.seed)
     ok = {law: (columns[f"{law}_diverged"] == 0) & np.isfinite(columns[f"{law}_rmse"]) for law in config.laws}
     out = {"reference": config.reference, "laws": {}}
@@ -264,6 +265,8 @@ def judge(config: CompareConfig, reports: dict, columns: dict) -> dict:
                                                 config.bootstrap, rng)
             if ref != config.reference:
                 entry["paired_with"] = ref
+        if requirements and law in requirements:
+            entry["requirements"] = requirements[law]
         out["laws"][law] = entry
     return out
 
@@ -300,6 +303,10 @@ def markdown(result: dict) -> str:
         lines.append(f"| {law} | {gains} | {cell(h['mean_rmse'], '.4e')} | {cell(h['mean_effort'], '.2f')} "
                      f"| {cell(s['rmse_median'], '.4e')} | {cell(s[f'rmse_p{TAILS:g}'], '.4e')} | {change} | {wins} "
                      f"| {s['diverged']} of {s['samples'] + s['diverged']} |")
+    checked = [(law, q) for law, e in result["laws"].items() for q in e.get("requirements", [])]
+    if checked:
+        lines += ["", "Pointing requirements over the sweep's samples:"]
+        lines += [f"- {law}: {pointing.outcome(q)}" for law, q in checked]
     return "\n".join(lines) + "\n"
 
 
@@ -328,21 +335,24 @@ def run(config: CompareConfig, out: Path, *, resume: bool = False) -> dict:
                 print(f"so3jax compare: {name}'s fixed gains on the held-out scenarios", file=sys.stderr)
                 io.write_json(path, held_out(c.campaign, c.gains))
             reports[name] = json.loads(path.read_text())
-        columns = {}
+        columns, checked = {}, {}
         for i, group in enumerate(config.sweeps()):
-            columns.update(_sweep(config, group, {name: reports[name]["tuned"]["gains"] for name in group},
-                                  out / sweep_folder(i), resume, columns))
-        result = io.to_builtin(judge(config, reports, columns))
+            cols, requirements = _sweep(config, group, {name: reports[name]["tuned"]["gains"] for name in group},
+                                        out / sweep_folder(i), resume, columns)
+            columns.update(cols)
+            checked.update(requirements)
+        result = io.to_builtin(judge(config, reports, columns, checked))
         io.write_json(out / "compare.json", result)
         io.write_text(out / "compare.md", markdown(result))
         io.save_figure(plots.figure(config, columns, pairs(config)), out / "compare.png")
     return result
 
 
-def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: bool, seen: dict) -> dict:
-    """Sweep candidates of distinct laws at their gains into ``out``: the samples' columns,
-    each law's renamed after its candidate; ``seen``: the columns of the comparison's other
-    sweeps, whose samples these must equal."""
+def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: bool, seen: dict) -> tuple:
+    """Sweep candidates of distinct laws at their gains into ``out``: (the samples' columns,
+    each law's renamed after its candidate; {candidate: the mission's pointing requirements
+    checked over the samples}); ``seen``: the columns of the comparison's other sweeps,
+    whose samples these must equal."""
     candidates = {config.candidates[name].controller: name for name in names}  # controller -> candidate
     table = copy.deepcopy(config.sweep_table)
     table["controllers"] = list(candidates)
@@ -351,7 +361,9 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
         warnings.simplefilter("ignore", InertiaWarning)  # reported when the comparison was read
         sweep = config_from_dict(table, config.base_dir)
     print(f"so3jax compare: sweeping {sweep.samples} dispersed missions ({', '.join(names)})", file=sys.stderr)
-    run_sweep(sweep, out, resume=resume)
+    summary = run_sweep(sweep, out, resume=resume)
+    requirements = {candidates[c]: e["requirements"] for c, e in summary.get("pointing", {}).items()
+                    if e["requirements"]}
     columns = {}
     with np.load(out / "samples.npz") as saved:
         for key in saved.files:
@@ -360,4 +372,4 @@ def _sweep(config: CompareConfig, names: list, gains: dict, out: Path, resume: b
     for key in ("index", "disturbance_seed", "J0_scale"):  # one set of samples for every sweep
         if key in seen and key in columns and not np.array_equal(seen[key], columns[key], equal_nan=True):
             raise RuntimeError(f"{out}: its samples differ from the first sweep's ({key})")
-    return columns
+    return columns, requirements

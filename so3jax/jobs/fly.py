@@ -139,10 +139,7 @@ def format_requirements(reports: dict) -> str:
     """A line per controller and requirement: its value against its limit, passed or FAILED."""
     lines = []
     for name, r in reports.items():
-        for q in r["requirements"]:
-            value = "no sample" if q["value"] is None else f"{q['value']:.3g} arcsec"
-            note = "" if q["resolved"] else " (fewer samples than the level needs: the maximum)"
-            lines.append(f"{name}: {q['requirement']}: {value}, {'passed' if q['passed'] else 'FAILED'}{note}")
+        lines += [f"{name}: {pointing.outcome(q)}" for q in r["requirements"]]
     return "\n".join(lines)
 
 

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.core import checks
+from so3jax.core import checks, so3
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop
@@ -294,7 +294,7 @@ def samples_bytes(leaves: tuple, n_samples: int, dtype) -> int:
 
 
 def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every: int | None = None,
-                   estimator=None) -> dict:
+                   estimator=None, pointing: bool = False) -> dict:
     """{metric: values} of a batch of samples of ``mission`` (hashable by its fingerprint: a
     static argument of jit) flown by ``controller`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
@@ -304,6 +304,9 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     of rollouts). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
     memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
     estimator that every sample shares (the noise levels the filter assumes, tuned).
+    pointing: also the attitude errors at the start of every block of ``record_every``
+    steps, ``pointing_performance`` e_P and, where the loop estimates the attitude,
+    ``pointing_knowledge`` e_K ((batch, M, 3) rad, :func:`pointing_errors`).
     Pure: jit, grad and :func:`so3jax.parallel.devices.split` compose with it."""
     params, leaves = inputs
     m, dtype = mission, params.J0.dtype
@@ -312,19 +315,35 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
         return _results(rollout_batch(scenarios, controller, gains, params.seed, loop=shared_loop,
-                                      record_every=record_every))
+                                      record_every=record_every), pointing)
 
     def one(s, seed, values):
         return _results(rollout(s, controller, gains, seed, loop=loop(m, {**shared, **values}, dtype),
-                                record_every=record_every))
+                                record_every=record_every), pointing)
 
     return jax.vmap(one)(scenarios, params.seed, leaves)
 
 
-def _results(result) -> dict:
-    """A rollout's docs/model.md §6 metrics and, in the sampled wiring, its flight metrics, by name."""
+def _results(result, pointing: bool = False) -> dict:
+    """A rollout's docs/model.md §6 metrics and, in the sampled wiring, its flight metrics, by
+    name; with ``pointing``, its recorded attitude errors (:func:`pointing_errors`)."""
     flight = {} if result.flight is None else result.flight._asdict()
-    return {**result.metrics._asdict(), **flight}
+    return {**result.metrics._asdict(), **flight, **(pointing_errors(result.history) if pointing else {})}
+
+
+def pointing_errors(history) -> dict:
+    """{"pointing_performance": e_P, "pointing_knowledge": e_K (where the history holds an
+    estimate)}: log(R_ref^T R)^vee [rad] of the recorded attitudes R (M, 3, 3) against R_d and
+    R_hat, (..., M, 3) of records (..., M, 3, 3), in the run's precision (the signals of
+    :mod:`so3jax.sim.pointing`)."""
+    def error(R_ref):
+        R_e = jnp.einsum("...mji,...mjk->ik...m", R_ref, history.R)  # R_ref^T R, (3, 3, ..., M)
+        return jnp.moveaxis(so3.log(R_e, select=True), 0, -1)
+
+    out = {"pointing_performance": error(history.R_d)}
+    if history.R_hat is not None:
+        out["pointing_knowledge"] = error(history.R_hat)
+    return out
 
 
 def loop(mission: Mission, values: dict, dtype):

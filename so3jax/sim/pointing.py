@@ -223,7 +223,7 @@ def quantile(x, level: float, axis: int = 0) -> np.ndarray:
     """The empirical P_C-quantile x_(k), k = ceil(P_C n), along ``axis``; NaN where a sample is."""
     x = np.asarray(x, np.float64)
     k = rank(level, x.shape[axis])
-    q = np.take(np.sort(x, axis=axis), k - 1, axis=axis)
+    q = np.take(np.partition(x, k - 1, axis=axis), k - 1, axis=axis)
     return np.where(np.isnan(x).any(axis=axis), np.nan, q)
 
 
@@ -239,11 +239,16 @@ class Statistic(NamedTuple):
     resolved: bool
 
 
-def statistic(x, level: float, interpretation: str = "temporal") -> Statistic:
-    """x (S, n, 4) magnitudes of S runs -> the interpretation's value per column (see the module)."""
+def statistic(x, level: float, interpretation: str = "temporal", diverged_worst: bool = False) -> Statistic:
+    """x (S, n, 4) magnitudes of S runs -> the interpretation's value per column (see the
+    module). diverged_worst: a NaN sample (a diverged run) counts as +inf, larger than every
+    other, rather than making the value NaN: an ensemble or mixed quantile at P_C then
+    passes over up to a share 1 - P_C of diverged runs (a sweep's reading)."""
     if interpretation not in INTERPRETATIONS:
         raise ValueError(f"unknown interpretation {interpretation!r} (one of {', '.join(INTERPRETATIONS)})")
     x = np.asarray(x, np.float64)
+    if diverged_worst:
+        x = np.where(np.isnan(x), np.inf, x)
     S, n = x.shape[0], x.shape[1]
     count = {"temporal": n, "ensemble": S, "mixed": S * n}[interpretation] if n else 0
     if count == 0:
@@ -407,15 +412,16 @@ class Evaluation(NamedTuple):
                 "resolved": self.resolved, "unit": "arcsec"}
 
 
-def evaluate(requirement: Requirement, t, e_runs, phase_bounds) -> Evaluation:
+def evaluate(requirement: Requirement, t, e_runs, phase_bounds, diverged_worst: bool = False) -> Evaluation:
     """The requirement's value [arcsec] and pass/fail on e_runs (M, 3) or (S, M, 3) [rad] (the
     signal it reads: ``requirement.signal``) on the time grid t (M,) [s]; phase_bounds:
-    (t_start, t_end) [s] per phase. Passed: value <= limit (False for NaN or no sample)."""
+    (t_start, t_end) [s] per phase. Passed: value <= limit (False for NaN, +inf or no
+    sample). diverged_worst: see :func:`statistic`."""
     e = np.asarray(e_runs, np.float64)
     e = e[None] if e.ndim == 2 else e
     x = index_samples(requirement.index, t, e, period(requirement.phase, phase_bounds), requirement.window,
                       requirement.separation)
-    stat = statistic(x, requirement.level, requirement.interpretation)
+    stat = statistic(x, requirement.level, requirement.interpretation, diverged_worst)
     if stat.samples == 0:
         return Evaluation(requirement, None, False, 0, False, dict.fromkeys(COLUMNS))
     values = stat.values * ARCSEC
@@ -424,15 +430,26 @@ def evaluate(requirement: Requirement, t, e_runs, phase_bounds) -> Evaluation:
                       {c: float(v) for c, v in zip(COLUMNS, values)})
 
 
-def check(requirements, t, performance, knowledge, phase_bounds) -> list[dict]:
+def outcome(checked: dict) -> str:
+    """One line of a checked requirement (:meth:`Evaluation.as_dict`): "<requirement>: <value>,
+    passed" or "FAILED"; a value None is "no sample" without samples, else infinite (JSON's
+    null for +inf: diverged runs) or NaN (a diverged run)."""
+    q = checked
+    value = f"{q['value']:.4g} arcsec" if q["value"] is not None else "no sample" if not q["samples"] else "diverged"
+    note = "" if q["resolved"] else " (fewer samples than the level needs: the maximum)"
+    return f"{q['requirement']}: {value}, {'passed' if q['passed'] else 'FAILED'}{note}"
+
+
+def check(requirements, t, performance, knowledge, phase_bounds, diverged_worst: bool = False) -> list[dict]:
     """Every requirement evaluated on its signal (performance e_P / knowledge e_K, (M, 3) or
-    (S, M, 3) rad), as JSON-ready dicts. A knowledge requirement without e_K is refused."""
+    (S, M, 3) rad), as JSON-ready dicts. A knowledge requirement without e_K is refused.
+    diverged_worst: see :func:`statistic`."""
     out = []
     for r in requirements:
         e = performance if r.signal == "performance" else knowledge
         if e is None:
             raise ValueError(f"{r.index} needs the knowledge error e_K, and this run records no estimate (R_hat)")
-        out.append(evaluate(r, t, e, phase_bounds).as_dict())
+        out.append(evaluate(r, t, e, phase_bounds, diverged_worst).as_dict())
     return out
 
 
@@ -440,12 +457,13 @@ def check(requirements, t, performance, knowledge, phase_bounds) -> list[dict]:
 
 
 def report(t, performance, knowledge, phase_bounds, *, window: float, levels=(0.95, 0.9973), phase_names=None,
-           indices=REPORTED) -> dict:
-    """Every index of ``indices`` (APE, RPE, AKE, RKE by default; no PDE / KDE) of one run, per
-    phase, temporal, at each level, per axis and angle [arcsec], JSON-ready. window [s]: that of
-    the windowed indices. A value is None where the phase holds no (whole window of) sample, or
-    for the knowledge indices without e_K; NaN where the run diverged. Each row's ``resolved``:
-    see the module."""
+           indices=REPORTED, interpretations=("temporal",), diverged_worst: bool = False) -> dict:
+    """Every index of ``indices`` (APE, RPE, AKE, RKE by default; no PDE / KDE) of one run
+    ((M, 3) signals) or S runs ((S, M, 3)), per phase, in each of ``interpretations``, at
+    each level, per axis and angle [arcsec], JSON-ready. window [s]: that of the windowed
+    indices. A value is None where the phase holds no (whole window of) sample, or for the
+    knowledge indices without e_K; NaN where a run diverged (+inf with ``diverged_worst``,
+    :func:`statistic`). Each row's ``resolved``: see the module."""
     reportable = tuple(i for i in INDICES if i not in DRIFT)
     for index in indices:
         if index not in reportable:
@@ -456,20 +474,23 @@ def report(t, performance, knowledge, phase_bounds, *, window: float, levels=(0.
         rows = []
         for index in indices:
             e = knowledge if "K" in index else performance
-            for level in levels:
-                rows.append(_row(index, level, t, e, bounds, window if index in WINDOWED else None))
+            for interpretation in interpretations:
+                for level in levels:
+                    rows.append(_row(index, level, t, e, bounds, window if index in WINDOWED else None,
+                                     interpretation, diverged_worst))
         phases.append({"phase": p, "name": None if phase_names is None else phase_names[p], "t_start": bounds[0],
                        "t_end": bounds[1], "samples": int(in_period(t, bounds).sum()), "rows": rows})
-    return {"unit": "arcsec", "interpretation": "temporal", "window": float(window),
+    return {"unit": "arcsec", "interpretations": list(interpretations), "window": float(window),
             "levels": [float(v) for v in levels], "quantile": "empirical: the k-th smallest sample, k = ceil(level n)",
             "phases": phases}
 
 
-def _row(index, level, t, e, bounds, window) -> dict:
-    row = {"index": index, "level": float(level), "window": window}
+def _row(index, level, t, e, bounds, window, interpretation, diverged_worst) -> dict:
+    row = {"index": index, "interpretation": interpretation, "level": float(level), "window": window}
     if e is None or (window is not None and whole_windows(bounds, window) < 1):
         return row | dict.fromkeys(COLUMNS) | {"samples": 0, "resolved": False}
     e = np.asarray(e, np.float64)
-    stat = statistic(index_samples(index, t, e[None] if e.ndim == 2 else e, bounds, window), level)
+    x = index_samples(index, t, e[None] if e.ndim == 2 else e, bounds, window)
+    stat = statistic(x, level, interpretation, diverged_worst)
     values = [None] * 4 if stat.samples == 0 else [float(v) for v in stat.values * ARCSEC]
     return row | dict(zip(COLUMNS, values)) | {"samples": stat.samples, "resolved": stat.resolved}

@@ -16,7 +16,7 @@ from so3jax.missions import mission as missions
 # The default sweep (sweeps/default.toml, on the paper's mission).
 DEFAULT = {
     "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0,
-              "limit_share": 0.05},
+              "limit_share": 0.05, "pointing": False},
     "dispersions": {
         "inertia": {
             "J0": {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},
@@ -51,7 +51,10 @@ class SweepConfig:
     diverged when its state is non-finite or its attitude error exceeds
     divergence_angle_deg [deg]; in a loop with limits, a sample is flagged where a
     controller spends more than limit_share of the horizon with a torque or speed limit
-    binding. table: the [dispersions] table as given.
+    binding. pointing: record each sample's attitude errors every ``record_every`` steps
+    of the mission and report its pointing indices and requirements over the samples
+    (temporal, ensemble and mixed, docs/model.md §18.2); on wherever the mission declares
+    requirements. table: the [dispersions] table as given.
     """
 
     mission: missions.Mission
@@ -64,6 +67,7 @@ class SweepConfig:
     max_draws: int = 20
     divergence_angle_deg: float = 150.0
     limit_share: float = 0.05
+    pointing: bool = False
 
     @property
     def T(self) -> float:
@@ -97,6 +101,9 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     top["divergence_angle_deg"] = checks.number(values["divergence_angle_deg"], "sweep.divergence_angle_deg",
                                                 0.0, 180.0)
     top["limit_share"] = checks.number(values["limit_share"], "sweep.limit_share", 0.0, 1.0)
+    if not isinstance(values["pointing"], bool):
+        raise ValueError(f"sweep.pointing must be true or false, got {checks.short(values['pointing'])}")
+    top["pointing"] = values["pointing"] or bool(mission.requirements)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
     dispersions, leaves = dispersed.parse(table, mission)
     if not dispersions.initial_angle_deg < top["divergence_angle_deg"]:
@@ -111,7 +118,8 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
 def config_to_dict(config: SweepConfig) -> dict:
     """The sweep's own tables ([sweep], [dispersions]) as TOML data; the mission is
     ``config.mission.describe()``."""
-    return {"sweep": {k: getattr(config, k) for k in _SWEEP_KEYS}, "dispersions": config.table}
+    sweep = {k: getattr(config, k) for k in _SWEEP_KEYS if k != "pointing" or config.pointing}  # off: not written
+    return {"sweep": sweep, "dispersions": config.table}
 
 
 def load_config(path: Path | None = None, overrides: tuple = ()) -> SweepConfig:

@@ -32,13 +32,16 @@ MIN_SHARD = 8  # samples per device and batch, at least
 LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
 
-@functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh"))
-def simulate_batch(inputs, gains, *, controller: str, mission: Mission, mesh: Mesh | None = None) -> dict:
-    """:func:`so3jax.missions.dispersed.sample_metrics` of a batch of samples without histories,
-    by controller name, the batch split over the devices of ``mesh``
-    (:func:`so3jax.parallel.devices.split`; None: one device)."""
+@functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh", "pointing"))
+def simulate_batch(inputs, gains, *, controller: str, mission: Mission, mesh: Mesh | None = None,
+                   pointing: bool = False) -> dict:
+    """:func:`so3jax.missions.dispersed.sample_metrics` of a batch of samples by controller
+    name, the batch split over the devices of ``mesh`` (:func:`so3jax.parallel.devices.split`;
+    None: one device): without histories, or with ``pointing`` the attitude errors recorded
+    every ``mission.record_every`` steps."""
+    every = mission.record_every if pointing else steps_for_horizon(mission.T, mission.dt)  # else no history
     shard = functools.partial(dispersed.sample_metrics, controller=mission.controller(controller)[0], mission=mission,
-                              record_every=steps_for_horizon(mission.T, mission.dt))  # no history
+                              record_every=every, pointing=pointing)
     return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
 
 
@@ -53,12 +56,13 @@ def padded_chunk(chunk: int, n_devices: int) -> int:
     return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
 
 
-def run_chunk(inputs, gains, controller: str, mission: Mission, mesh: Mesh) -> dict:
+def run_chunk(inputs, gains, controller: str, mission: Mission, mesh: Mesh, pointing: bool = False) -> dict:
     """{metric: values} (numpy) of a chunk whose size is a multiple of the mesh size, split over
     the mesh's devices (:func:`simulate_batch`). Over several processes with a mesh of
     every process's devices, each process runs its devices' shards and the processes
     exchange their results. inputs: (RolloutParams, dispersed component values)."""
-    out = simulate_batch(*devices.place((inputs, gains), mesh), controller=controller, mission=mission, mesh=mesh)
+    out = simulate_batch(*devices.place((inputs, gains), mesh), controller=controller, mission=mission, mesh=mesh,
+                         pointing=pointing)
     if not out["rmse"].is_fully_addressable:  # a mesh of several processes
         out = multihost_utils.process_allgather(out, tiled=True)
     return {k: np.asarray(v) for k, v in out.items()}
@@ -109,7 +113,8 @@ def memory_needed(config: SweepConfig, chunk: int, mesh: Mesh | None = None) -> 
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         args = devices.placed_shapes((dispersed.input_shapes(config.leaves, chunk, dtype), gains), mesh)
-        run = functools.partial(simulate_batch, controller=controller, mission=config.mission, mesh=mesh)
+        run = functools.partial(simulate_batch, controller=controller, mission=config.mission, mesh=mesh,
+                                pointing=config.pointing)
         per_sample = max(per_sample, -(-memory.outputs(run, *args) // chunk) + memory.nbytes(first))
     table = config.samples * len(config.controllers) * per_sample
     return chunk * per_sample + table + dispersed.samples_bytes(config.leaves, config.samples, dtype)
@@ -155,7 +160,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
     def compute(controller, index):
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, config.mission, mesh)
+        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, config.mission, mesh,
+                         config.pointing)
 
     # In one process, each controller's first chunk starts at once: their programs compile side by side.
     firsts = {} if processes > 1 else {c: i for i, (c, _) in reversed(list(enumerate(jobs)))}

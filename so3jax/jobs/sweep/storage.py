@@ -76,7 +76,8 @@ def _fingerprint(config: SweepConfig) -> dict:
     """What fixes each sample's results (chunk size, controller subset, sample count do not)."""
     d = config_to_dict(config)
     d["sweep"] = {k: v for k, v in d["sweep"].items() if k not in ("chunk", "samples", "limit_share")}
-    d["mission"] = {k: v for k, v in config.mission.describe().items() if k not in ("controllers", "record_every")}
+    reported = ("controllers", "requirements", "pointing") + (() if config.pointing else ("record_every",))
+    d["mission"] = {k: v for k, v in config.mission.describe().items() if k not in reported}
     d["precision"] = str(jnp.dtype(jnp.result_type(float)))
     return d
 
