@@ -145,6 +145,7 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
     with np.load(tmp_path / "out" / "chunks" / "pd-000000000.npz") as f:
         e_p, e_k = f["pointing_performance"], f["pointing_knowledge"]
     assert e_p.shape == e_k.shape == (8, 10, 3)
+    assert (tmp_path / "out" / "pointing.png").exists()
     checked = summary["pointing"]["pd"]["requirements"]
     assert [q["passed"] for q in checked] == [True, False]
     assert sweep_pointing.failed(summary) == [f"pd: {checked[1]['requirement']}"]

@@ -64,7 +64,39 @@ def figures(config, cols: dict, phases: list) -> dict:
     flight = _flight_figure(config, cols, good, color, title)
     if flight is not None:
         out["flight.png"] = flight
+    if config.pointing:
+        out["pointing.png"] = _pointing_figure(config, cols, phases, color)
     return out
+
+
+def _pointing_figure(config, cols: dict, phases: list, color: dict):
+    """Per phase, the CDF over the samples of each sample's own APE (solid) and RPE (dashed)
+    angle at the mission's first level [arcsec]; a diverged sample's is included (to the
+    right of every other where it is infinite or NaN)."""
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
+
+    from so3jax.jobs.sweep.pointing import COLUMN_INDICES, column_name
+
+    level = config.mission.pointing["levels"][0]
+    fig = Figure(figsize=(max(6.0, 4.2 * len(phases)), 3.8), layout="constrained")
+    for ax, (_, phase) in zip(fig.subplots(1, len(phases), squeeze=False)[0], phases):
+        for c in config.controllers:
+            for index, line in zip(COLUMN_INDICES, ("-", "--")):
+                x = cols[column_name(c, index, level, phase)]
+                simulated = ~np.isnan(cols[f"{c}_diverged"])
+                v = np.sort(np.nan_to_num(x[simulated], nan=np.inf))
+                if len(v) and np.isfinite(v).any():
+                    ax.step(v, np.arange(1, len(v) + 1) / len(v), where="post", ls=line, color=color[c]["color"],
+                            label=f"{color[c]['label']} {index}")
+        ax.set_xscale("log")
+        ax.set_title(phase)
+        ax.set_xlabel(f"each sample's quantile at {level:g} over time [arcsec]")
+        ax.set_ylabel("fraction of samples")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.suptitle(f"{len(cols['index'])} samples: each one's APE and RPE (angle; RPE window "
+                 f"{config.mission.pointing['window']:g} s)")
+    return fig
 
 
 ARCSEC = 180 / np.pi * 3600  # arcsec per rad
