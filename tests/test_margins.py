@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from scipy import optimize
 
+from so3jax.jobs import margins as margins_job
 from so3jax.jobs import tune
 from so3jax.jobs.tune import constraints
 from so3jax.jobs.tune.config import constraint_times
@@ -317,6 +318,33 @@ def test_the_command_reports_the_margins_of_the_loop_it_linearizes(flight, tmp_p
     assert [row["t"] for row in saved] == [0.5]
     assert saved[0]["loop_at_a_time"] == json.loads(json.dumps(mg.loop_at_a_time(lin).to_dict()))
     assert saved[0]["disk"] == json.loads(json.dumps(mg.disk_margin(lin).to_dict()))
+
+
+def test_the_figures_bode_and_nichols(flight):
+    """Per controller a Bode and a Nichols figure of the fixture's loop (no compile, nothing
+    saved): on the Nichols chart the dots on -180 deg sit at minus the upper gain margins,
+    the critical point and the +-6 dB / +-30 deg region are drawn, and the disk boundary
+    spans the gains and phases its alpha covers."""
+    figures = margins_job.figures({"pd": {1.0: flight.lin}})
+    assert list(figures) == ["bode_pd.png", "nichols_pd.png"]
+    nichols = figures["nichols_pd.png"].axes
+    assert len(nichols) == 3
+    margins = mg.loop_at_a_time(flight.lin)
+    for ax, axis in zip(nichols, margins.axes):
+        dots = [line for line in ax.get_lines() if line.get_marker() == "o"]
+        assert len(dots) == 1 and np.all(dots[0].get_xdata() == -180.0)
+        assert -axis.gain_margin_upper_db == pytest.approx(min(dots[0].get_ydata()), abs=0.05)
+        curve = ax.get_lines()[0]
+        phase = np.asarray(curve.get_xdata())
+        assert np.all((phase[np.isfinite(phase)] >= -360.0) & (phase[np.isfinite(phase)] < 0.0))
+        (region,) = ax.patches
+        assert (region.get_x(), region.get_y(), region.get_width(), region.get_height()) == (-210.0, -6.0, 60.0, 12.0)
+        assert any(line.get_label() == "critical point" and list(line.get_xydata()[0]) == [-180.0, 0.0]
+                   for line in ax.get_lines())
+    alpha = mg.alpha_of_db(6.0)
+    phase, gain = margins_job.disk_boundary(alpha)
+    assert gain.max() == pytest.approx(6.0, rel=1e-9) and gain.min() == pytest.approx(-6.0, rel=1e-9)
+    assert np.abs(phase + 180.0).max() == pytest.approx(mg.Disk.of(alpha, 0.0).phase_margin_deg, rel=1e-4)
 
 
 @pytest.mark.parametrize("extra, message", [

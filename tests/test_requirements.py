@@ -43,3 +43,17 @@ def test_a_bad_requirement_is_one_line_before_compiling(in_process, capsys):
     err = capsys.readouterr().err.strip()
     assert err == "so3jax fly: error: requirements[0].window: missing (the window Dt [s] of RPE)"
     assert not (in_process / "o").exists()
+
+
+def test_the_shipped_sign_off_mission_names_its_requirements_and_phases():
+    """missions/signoff.toml (docs/signoff.md): the flight mission with four requirements,
+    each line naming the requirement and its phase by name."""
+    from pathlib import Path
+
+    from so3jax.missions import mission
+
+    m = mission.load(Path(__file__).parents[1] / "missions" / "signoff.toml")
+    assert m.controllers == ("pd", "adaptive") and m.period_steps == 10  # the flight mission's
+    lines = [r.describe() for r in m.requirements]
+    assert lines[0] == "deployment pointing: APE angle at 0.95 (temporal), deployment: <= 7200 arcsec"
+    assert [r.phase for r in m.requirements] == [1, 1, None, None] and "whole run" in lines[2]

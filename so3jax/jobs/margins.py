@@ -106,35 +106,126 @@ def format_table(reports: dict) -> str:
     return "\n".join(lines)
 
 
-def figures(linearizations: dict) -> dict:
-    """{file name: figure}: per controller, the Bode plot of each axis's loop L_i (the other
-    axes closed) at each time, a column per axis, the 0 dB and -180 deg lines marked (phase
-    in [-360, 0) deg)."""
+# The region a loop at a time is asked to keep out of on the Nichols chart: gain and phase
+# variations AOCS requirements commonly ask (dB, deg), and the balanced disk covering the same gains.
+EXCLUSION_DB, EXCLUSION_DEG = 6.0, 30.0
+
+
+def _phase_deg(L) -> np.ndarray:
+    """arg L [deg] in [-360, 0), the Bode figure's range."""
+    return np.mod(np.degrees(np.angle(L)), 360.0) - 360.0
+
+
+def nichols_curve(L) -> tuple[np.ndarray, np.ndarray]:
+    """(phase [deg] in [-360, 0), gain [dB]) of a frequency response, NaN where the phase wraps
+    between -360 and 0 deg (so a line is not drawn across the chart)."""
+    phase, gain = _phase_deg(L), 20 * np.log10(np.abs(L))
+    wraps = np.nonzero(np.abs(np.diff(phase)) > 180.0)[0] + 1
+    return np.insert(phase, wraps, np.nan), np.insert(gain, wraps, np.nan)
+
+
+def phase_crossings(phase, gain) -> np.ndarray:
+    """The gains [dB] where a Nichols curve (:func:`nichols_curve`) crosses -180 deg, linearly
+    interpolated between its samples: each is minus a gain margin [dB]."""
+    d = phase + 180.0
+    k = np.nonzero((d[:-1] * d[1:] <= 0) & (d[:-1] != d[1:]))[0]  # NaN (a wrap) compares False
+    f = d[k] / (d[k] - d[k + 1])
+    return gain[k] + f * (gain[k + 1] - gain[k])
+
+
+def disk_boundary(alpha: float, count: int = 361) -> tuple[np.ndarray, np.ndarray]:
+    """(phase [deg], gain [dB]) of the balanced disk margin alpha's exclusion region on the
+    Nichols chart: the loop values L with |S - 1/2| = 1/alpha (S = 1/(1 + L)), the circle
+    |L - 1| = rho |L + 1|, rho = 2/alpha > 1, around the critical point (alpha < 2)."""
+    rho = 2.0 / alpha
+    centre, radius = -(rho**2 + 1) / (rho**2 - 1), 2 * rho / (rho**2 - 1)
+    L = centre + radius * np.exp(1j * np.linspace(0.0, 2 * np.pi, count))
+    return _phase_deg(L), 20 * np.log10(np.abs(L))
+
+
+def _bode(name: str, lins: dict):
+    """Each axis's loop L_i (the other axes closed) at each time, a column per axis, the 0 dB
+    and -180 deg lines marked (phase in [-360, 0) deg)."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
+    fig = Figure(figsize=(13, 6.5))
+    axes = fig.subplots(2, 3, sharex=True, sharey="row")
+    for t, lin in lins.items():
+        omegas = margins.default_omegas(lin.period, count=800)
+        L = margins.axis_response(lin, omegas)
+        for i in range(3):
+            axes[0, i].semilogx(omegas, 20 * np.log10(np.abs(L[:, i])), label=f"t = {t:g} s")
+            axes[1, i].semilogx(omegas, _phase_deg(L[:, i]))
+    for i in range(3):
+        axes[0, i].axhline(0.0, color="k", lw=0.8)
+        axes[1, i].axhline(-180.0, color="k", lw=0.8)
+        axes[0, i].set_title(f"axis {'xyz'[i]}")
+        axes[1, i].set_xlabel("frequency [rad/s]")
+        for ax in axes[:, i]:
+            ax.grid(alpha=0.3, which="both")
+    axes[0, 0].set_ylabel("|L_i| [dB]")
+    axes[1, 0].set_ylabel("arg L_i [deg]")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(f"{name}: each axis's loop at the actuator input, the other axes closed "
+                 "(up to the Nyquist frequency)")
+    return fig
+
+
+def _nichols(name: str, lins: dict):
+    """Each axis's loop L_i (the other axes closed) at each time on the Nichols chart: gain
+    [dB] against phase [deg] in [-360, 0), a panel per axis, the critical point (-180 deg,
+    0 dB), the +-6 dB / +-30 deg rectangle around it and the balanced disk covering +-6 dB;
+    each crossing of -180 deg marked (its gain is minus a gain margin), the gain range wide
+    enough to hold them (within +-120 dB); up to just below the Nyquist frequency."""
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
+    from matplotlib.patches import Rectangle
+
+    fig = Figure(figsize=(13, 5.5))
+    axes = fig.subplots(1, 3, sharex=True, sharey=True)
+    alpha = margins.alpha_of_db(EXCLUSION_DB)
+    disk, disk_deg = disk_boundary(alpha), margins.Disk.of(alpha, 0.0).phase_margin_deg
+    low, high = -40.0, 40.0
+    for t, lin in lins.items():
+        # below the Nyquist frequency: there L is real, a curve drawn to it jumps to 0 or -180 deg
+        L = margins.axis_response(lin, margins.default_omegas(lin.period, count=800)[:-1])
+        for i in range(3):
+            phase, gain = nichols_curve(L[:, i])
+            (line,) = axes[i].plot(phase, gain, label=f"t = {t:g} s")
+            crossings = phase_crossings(phase, gain)
+            axes[i].plot(np.full(len(crossings), -180.0), crossings, "o", ms=4, color=line.get_color())
+            low, high = (crossings - 10.0).min(initial=low), (crossings + 10.0).max(initial=high)
+    for i, ax in enumerate(axes):
+        ax.add_patch(Rectangle((-180.0 - EXCLUSION_DEG, -EXCLUSION_DB), 2 * EXCLUSION_DEG, 2 * EXCLUSION_DB,
+                               facecolor="tab:red", alpha=0.15, edgecolor="none",
+                               label=f"±{EXCLUSION_DB:g} dB, ±{EXCLUSION_DEG:g}°"))
+        ax.plot(*disk, color="tab:red", ls="--", lw=1.0,
+                label=f"disk α = {alpha:.2f} (±{EXCLUSION_DB:g} dB, ±{disk_deg:.1f}°)")
+        ax.plot([-180.0], [0.0], "k+", ms=10, mew=1.5, label="critical point")
+        ax.axhline(0.0, color="k", lw=0.6)
+        ax.axvline(-180.0, color="k", lw=0.6)
+        ax.set_title(f"axis {'xyz'[i]}")
+        ax.set_xlabel("arg L_i [deg]")
+        ax.set_xlim(-360.0, 0.0)
+        ax.set_xticks(np.arange(-360.0, 1.0, 60.0))
+        ax.set_xticks(np.arange(-330.0, 0.0, 60.0), minor=True)
+        ax.set_ylim(max(low, -120.0), min(high, 120.0))
+        ax.grid(alpha=0.3, which="both")
+    axes[0].set_ylabel("|L_i| [dB]")
+    axes[-1].legend(fontsize=7, loc="upper right")  # phases past -90 deg at high gain: seldom a loop's
+    fig.subplots_adjust(top=0.84)
+    fig.suptitle(f"{name}: Nichols chart of each axis's loop at the actuator input, the other axes closed\n"
+                 f"(dots: crossings of -180°, at minus the gain margins; clear of the shaded region: gain margins "
+                 f"beyond ±{EXCLUSION_DB:g} dB, phase margin beyond {EXCLUSION_DEG:g}°)")
+    return fig
+
+
+def figures(linearizations: dict) -> dict:
+    """{file name: figure}: per controller, the Bode plot (``bode_NAME.png``) and the Nichols
+    chart (``nichols_NAME.png``) of each axis's loop L_i (the other axes closed) at each time."""
     out = {}
     for name, lins in linearizations.items():
-        fig = Figure(figsize=(13, 6.5))
-        axes = fig.subplots(2, 3, sharex=True, sharey="row")
-        for t, lin in lins.items():
-            omegas = margins.default_omegas(lin.period, count=800)
-            L = margins.axis_response(lin, omegas)
-            for i in range(3):
-                axes[0, i].semilogx(omegas, 20 * np.log10(np.abs(L[:, i])), label=f"t = {t:g} s")
-                axes[1, i].semilogx(omegas, np.mod(np.degrees(np.angle(L[:, i])), 360.0) - 360.0)
-        for i in range(3):
-            axes[0, i].axhline(0.0, color="k", lw=0.8)
-            axes[1, i].axhline(-180.0, color="k", lw=0.8)
-            axes[0, i].set_title(f"axis {'xyz'[i]}")
-            axes[1, i].set_xlabel("frequency [rad/s]")
-            for ax in axes[:, i]:
-                ax.grid(alpha=0.3, which="both")
-        axes[0, 0].set_ylabel("|L_i| [dB]")
-        axes[1, 0].set_ylabel("arg L_i [deg]")
-        axes[0, 0].legend(fontsize=7)
-        fig.suptitle(f"{name}: each axis's loop at the actuator input, the other axes closed "
-                     "(up to the Nyquist frequency)")
-        out[f"bode_{name}.png"] = fig
+        out[f"bode_{name}.png"] = _bode(name, lins)
+        out[f"nichols_{name}.png"] = _nichols(name, lins)
     return out
 
 

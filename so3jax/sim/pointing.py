@@ -279,6 +279,7 @@ class Requirement:
     phase: int | None = None
     interpretation: str = "temporal"
     name: str | None = None
+    phase_name: str | None = None  # the phase's name, where the mission names its phases
 
     @property
     def signal(self) -> str:
@@ -286,14 +287,15 @@ class Requirement:
         return "knowledge" if "K" in self.index else "performance"
 
     def describe(self) -> str:
-        """One line for a table: "RPE angle at 0.95 (temporal), window 10 s, phase 1: <= 5 arcsec"."""
+        """One line for a table: "[name: ]RPE angle at 0.95 (temporal), window 10 s, deployment: <= 5 arcsec"."""
         what = f"{self.index} {self.axis} at {self.level:g} ({self.interpretation})"
         if self.window is not None:
             what += f", window {self.window:g} s"
         if self.separation is not None:
             what += f", separation {self.separation:g} s"
-        where = "whole run" if self.phase is None else f"phase {self.phase}"
-        return f"{what}, {where}: <= {self.limit:g} arcsec"
+        where = "whole run" if self.phase is None else self.phase_name or f"phase {self.phase}"
+        label = "" if self.name is None else f"{self.name}: "
+        return f"{label}{what}, {where}: <= {self.limit:g} arcsec"
 
 
 def _is_number(x) -> bool:
@@ -368,7 +370,9 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
     n_phases = len(phase_names) if phase_names is not None else None
     n_phases = len(phase_bounds) if phase_bounds is not None else n_phases
     phase = _phase_index(item.get("phase"), where, phase_names, n_phases)
-    requirement = Requirement(index, axis, float(level), float(limit), window, separation, phase, interpretation, name)
+    phase_name = None if phase is None or phase_names is None or phase >= len(phase_names) else phase_names[phase]
+    requirement = Requirement(index, axis, float(level), float(limit), window, separation, phase, interpretation, name,
+                              phase_name)
     if phase_bounds is not None and window is not None:
         try:
             _check_window(period(phase, phase_bounds), window, separation)
