@@ -267,6 +267,10 @@ def test_resume_finishes_without_recomputing(reference, tmp_path, monkeypatch):
     with pytest.raises(ValueError, match="belongs to another sweep"):
         run(config(), tmp_path, resume=True)
     chunk.write_bytes(good)
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()}
+    with pytest.raises(ValueError, match="holds chunks of pd, which this sweep does not fly"):
+        run(config('controllers=["adaptive"]'), tmp_path, resume=True)  # pd's chunks would be left out of the results
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir() if p.is_file()} == before
 
     run_chunk, computed = engine.run_chunk, []
     monkeypatch.setattr(engine, "run_chunk",

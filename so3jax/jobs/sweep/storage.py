@@ -35,6 +35,9 @@ def _take(claims: Path, controller: str, first: int) -> bool:
     return True
 
 
+_CHUNK = re.compile(r"(\w+)-(\d{9})\.npz")  # a chunk file: controller-first sample
+
+
 def _chunk_path(out: Path, controller: str, first: int) -> Path:
     return out / "chunks" / f"{controller}-{first:09d}.npz"
 
@@ -43,10 +46,9 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
     """{controller: {field: array (n_samples, ...)}, plus 'done' (bool)} from OUT/chunks; every
     chunk must carry this sweep's fingerprint."""
     results = {}
-    pattern = re.compile(r"(\w+)-(\d{9})\.npz")
     remedy = "delete it and rerun with --resume to recompute it"
     for path in sorted((out / "chunks").glob("*.npz")):
-        match = pattern.fullmatch(path.name)
+        match = _CHUNK.fullmatch(path.name)
         if not match or match.group(1) not in controllers:
             continue
         try:
@@ -72,6 +74,11 @@ def load_chunks(out: Path, controllers, n_samples: int, fingerprint: str) -> dic
     return results
 
 
+def _controllers_in(out: Path) -> set:
+    """The controllers whose chunk files OUT/chunks holds."""
+    return {m.group(1) for path in (out / "chunks").glob("*.npz") if (m := _CHUNK.fullmatch(path.name))}
+
+
 def _fingerprint(config: SweepConfig) -> dict:
     """What fixes each sample's results (chunk size, controller subset, sample count do not)."""
     d = config_to_dict(config)
@@ -88,6 +95,10 @@ def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
     description["fingerprint"] = runfolder.fingerprint(description)
     stamp = out / "sweep.json"
     has_chunks = any((out / "chunks").glob("*.npz"))
+    dropped = sorted(_controllers_in(out) - set(config.controllers)) if resume else []
+    if dropped:  # their chunks would stay in a folder whose results leave them out
+        raise ValueError(f"--resume: {out} holds chunks of {', '.join(dropped)}, which this sweep does not fly; "
+                         "resume with those controllers too, or use another --out")
     if resume and stamp.exists():
         try:
             previous = json.loads(stamp.read_text())
