@@ -32,3 +32,28 @@ def test_no_wide_vectors_without_avx512(monkeypatch):
     monkeypatch.setattr(_xla_flags, "_has_avx512", lambda: False)
     _xla_flags.configure_cpu_codegen()
     assert _xla_flags.os.environ["XLA_FLAGS"] == _xla_flags.BACKEND_OPTIONS_FLAG
+
+
+def test_collectives_between_host_devices_wait_as_long_as_a_loaded_machine_needs(monkeypatch):
+    """With one host device per core, XLA's 40 s limit on a collective's rendezvous is raised;
+    where the installed jaxlib knows the flag, a process given it computes (XLA aborts on an
+    unknown flag) across two host devices."""
+    import subprocess
+    import sys
+
+    monkeypatch.setenv("XLA_FLAGS", "")
+    monkeypatch.delenv("SO3JAX_KEEP_XLA_FLAGS", raising=False)
+    _xla_flags.use_every_core()
+    flags = _xla_flags.os.environ["XLA_FLAGS"]
+    if not _xla_flags._knows_collective_flags():
+        assert "collective" not in flags
+        return
+    assert "--xla_cpu_collective_call_terminate_timeout_seconds=3600" in flags
+    flags = flags.replace(f"device_count={_xla_flags.usable_cores()}", "device_count=2")
+    code = ("import jax, jax.numpy as jnp; from jax.sharding import Mesh, NamedSharding, PartitionSpec as P; "
+            "x = jax.device_put(jnp.arange(4.0), NamedSharding(Mesh(jax.devices(), ('d',)), P('d'))); "
+            "print(len(jax.devices()), float(jnp.sum(x)))")
+    out = subprocess.run([sys.executable, "-c", code], env={**_xla_flags.os.environ, "XLA_FLAGS": flags,
+                                                           "JAX_PLATFORMS": "cpu"},
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.split() == ["2", "6.0"], out.stderr[-500:]

@@ -59,9 +59,34 @@ def usable_cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
+# With several host devices, XLA:CPU ends the process when a device's thread waits at a
+# collective (the devices' rendezvous) for longer than 40 s, logging "may be stuck" after
+# 20 s. On a machine running more busy threads than it has cores, a device's thread can be
+# off its core that long while the others wait; the limits are raised to an hour and ten
+# minutes. jaxlib 0.10 knows these flags (XLA aborts on a flag it does not know: older
+# versions keep their defaults).
+COLLECTIVE_FLAGS = {
+    "xla_cpu_collective_call_terminate_timeout_seconds": 3600,
+    "xla_cpu_collective_call_warn_stuck_timeout_seconds": 600,
+}
+
+
+def _knows_collective_flags() -> bool:
+    import jaxlib  # here: importing jaxlib starts no backend
+
+    try:
+        return tuple(int(x) for x in jaxlib.__version__.split(".")[:2]) >= (0, 10)
+    except ValueError:
+        return False
+
+
 def use_every_core() -> None:
-    """One XLA host device per core, so sharded batches use the whole CPU."""
+    """One XLA host device per core, so sharded batches use the whole CPU; collectives
+    between them wait as long as a loaded machine needs (:data:`COLLECTIVE_FLAGS`)."""
     _add(f"--xla_force_host_platform_device_count={usable_cores()}", "xla_force_host_platform_device_count")
+    if _knows_collective_flags():
+        for key, seconds in COLLECTIVE_FLAGS.items():
+            _add(f"--{key}={seconds}", key)
 
 
 def configure_xla(every_core: bool = False) -> None:
