@@ -70,7 +70,7 @@ def _sweep_columns(n=5):
 
 
 def test_sweep_histograms_count_in_whole_samples():
-    config = SimpleNamespace(controllers=["pd"], T=T)
+    config = SimpleNamespace(controllers=["pd"], T=T, pointing=False, margins_at=())
     hist = sweep_plots.figures(config, _sweep_columns(), [(0, "capture")])["histograms.png"]
     for ax in hist.axes:
         ticks = ax.get_yticks()

@@ -495,7 +495,7 @@ def frequency_response(lin: Linearization, omegas) -> np.ndarray:
 def axis_response(lin: Linearization, omegas) -> np.ndarray:
     """L_i(exp(i omega Delta_c)) of each axis's loop with the other axes closed
     (:func:`loop_at_a_time`), (n_omega, 3) complex [-]; omegas [rad/s]."""
-    G = _closed_response(lin, np.asarray(omegas, float))
+    G = _Modal(lin).response(np.asarray(omegas, float))
     return _loop(np.diagonal(G, axis1=1, axis2=2))
 
 
@@ -535,21 +535,52 @@ class Modes(NamedTuple):
         return float(np.abs(self.eigenvalues[~self.moved]).max(initial=0.0))
 
 
-def _eig(lin: Linearization):
-    """(z, V, C v_k (3, n), u_k^H B / u_k^H v_k (n, 3)) of the closed loop A + BC (V = [v_k], u_k:
-    its right and left eigenvectors)."""
-    z, left, right = linalg.eig(_closed_loop(lin), left=True, right=True)
-    uv = np.sum(left.conj() * right, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uB = (left.conj().T @ lin.B) / uv[:, None]
-    return z, right, lin.C @ right, uB
+class _Modal:
+    """The closed loop A + BC of one :class:`Linearization`, decomposed once (``linalg.eig``,
+    left and right eigenvectors) for every frequency a search evaluates: its :class:`Modes`
+    and G = C (zI - A - BC)^{-1} B (:meth:`response`)."""
+
+    def __init__(self, lin: Linearization):
+        self.lin = lin
+        self.closed = _closed_loop(lin)
+        z, left, right = linalg.eig(self.closed, left=True, right=True)
+        uv = np.sum(left.conj() * right, axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            uB = (left.conj().T @ lin.B) / uv[:, None]  # u_k^H B / u_k^H v_k (n, 3)
+        Cv = lin.C @ right  # C v_k (3, n)
+        residues = np.linalg.norm(Cv, axis=0) * np.linalg.norm(uB, axis=1)
+        self.modes = Modes(z, np.where(np.isfinite(residues), residues, np.inf))
+        self._eig = z, right, Cv, uB
+
+    @functools.cached_property
+    def _modal_form(self):
+        """(z_k (k,), C v_k (3, k), u_k^H B / u_k^H v_k (k, 3)) over the moved modes, or None
+        where G is taken by its resolvent (:meth:`response`)."""
+        z_k, V, Cv, uB = self._eig
+        moved = self.modes.moved
+        if moved.all() or not np.all(np.isfinite(uB[moved])) or np.linalg.cond(V[:, moved]) > MODAL_CONDITION:
+            return None
+        return z_k[moved], Cv[:, moved], uB[moved]
+
+    def response(self, omegas) -> np.ndarray:
+        """G = C (zI - A - BC)^{-1} B (n_omega, 3, 3), the closed loop's (S = I + G), omegas
+        [rad/s], in modal form over the modes the loop moves, G(z) = sum_k (C v_k)(u_k^H B) /
+        (u_k^H v_k) / (z - z_k): the fixed modes add nothing to G but round-off, which the
+        resolvent would blow up wherever z meets them on the unit circle (a conserved momentum
+        seen from the turning body). The full resolvent where the moved modes' eigenvectors
+        are ill-conditioned (a defective closed loop), and for a closed loop without fixed modes."""
+        form = self._modal_form
+        if form is None:
+            return _resolvent(self.closed, self.lin.B, self.lin.C, omegas, self.lin.period)
+        z_k, Cv, uB = form
+        z = np.exp(1j * np.asarray(omegas, float) * self.lin.period)
+        weights = 1.0 / (z[:, None] - z_k[None, :])  # (n_omega, k)
+        return np.einsum("wk,ik,kj->wij", weights, Cv, uB)
 
 
 def closed_loop_modes(lin: Linearization) -> Modes:
     """The :class:`Modes` of the closed loop w = y, A + BC."""
-    z, _, Cv, uB = _eig(lin)
-    residues = np.linalg.norm(Cv, axis=0) * np.linalg.norm(uB, axis=1)
-    return Modes(z, np.where(np.isfinite(residues), residues, np.inf))
+    return _Modal(lin).modes
 
 
 # --- classical margins, loop at a time ---------------------------------------------------
@@ -606,14 +637,14 @@ def _json(d):
 class _Axis:
     """Axis i's loop transfer L_i(omega) = -C_i (zI - A_i)^{-1} B_i, A_i = A + B_o C_o (o: the other axes),
     from the closed loop's: S_i = (1 + L_i)^{-1} = 1 + G_ii with G = C (zI - A - BC)^{-1} B, so
-    L_i = -G_ii / (1 + G_ii) (the push-through identity; G in modal form, :func:`_closed_response`)."""
+    L_i = -G_ii / (1 + G_ii) (the push-through identity; G from the closed loop's :class:`_Modal`)."""
 
-    def __init__(self, lin: Linearization, i: int):
-        self.lin, self.i = lin, i
+    def __init__(self, modal: _Modal, i: int):
+        self.modal, self.i = modal, i
 
     def closed(self, omegas):
         """G_ii (n_omega,) complex."""
-        return _closed_response(self.lin, np.atleast_1d(omegas))[:, self.i, self.i]
+        return self.modal.response(np.atleast_1d(omegas))[:, self.i, self.i]
 
     def loop(self, omegas):
         return _loop(self.closed(omegas))
@@ -622,22 +653,6 @@ class _Axis:
 def _loop(g):
     """L_i = -G_ii / (1 + G_ii) from G_ii."""
     return -g / (1.0 + g)
-
-
-def _closed_response(lin: Linearization, omegas) -> np.ndarray:
-    """G = C (zI - A - BC)^{-1} B (n_omega, 3, 3), the closed loop's (S = I + G), in modal form
-    over the modes the loop moves, G(z) = sum_k (C v_k)(u_k^H B) / (u_k^H v_k) / (z - z_k): the
-    fixed modes add nothing to G but round-off, which the resolvent would blow up wherever z
-    meets them on the unit circle (a conserved momentum seen from the turning body). The
-    full resolvent where the moved modes' eigenvectors are ill-conditioned (a defective
-    closed loop), and for a closed loop without fixed modes."""
-    moved = closed_loop_modes(lin).moved
-    z_k, V, Cv, uB = _eig(lin)
-    if moved.all() or not np.all(np.isfinite(uB[moved])) or np.linalg.cond(V[:, moved]) > MODAL_CONDITION:
-        return _resolvent(_closed_loop(lin), lin.B, lin.C, omegas, lin.period)
-    z = np.exp(1j * np.asarray(omegas, float) * lin.period)
-    weights = 1.0 / (z[:, None] - z_k[None, moved])  # (n_omega, k)
-    return np.einsum("wk,ik,kj->wij", weights, Cv[:, moved], uB[moved])
 
 
 def _roots(fn, omegas, values):
@@ -649,9 +664,9 @@ def _roots(fn, omegas, values):
     return np.asarray(out)
 
 
-def _axis_margins(lin: Linearization, i: int, omegas, G_ii) -> AxisMargins:
+def _axis_margins(modal: _Modal, i: int, omegas, G_ii) -> AxisMargins:
     """Axis i's margins from G_ii on the grid, its crossings refined."""
-    axis = _Axis(lin, i)
+    lin, axis = modal.lin, _Axis(modal, i)
     L = _loop(G_ii)
     scalar = lambda fn: (lambda w: fn(axis.loop(w)[0]))
     # phase crossovers: L_i real and negative, the loop then unstable at gain factor k = 1 / |L_i|
@@ -700,13 +715,14 @@ def loop_at_a_time(lin: Linearization, omegas=None) -> LoopMargins:
     The margins mean something only about a stable closed loop: where A + BC has a mode
     the loop moves with |z| >= 1 (:class:`Modes`), ``stable`` is False and ``axes`` None."""
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
-    modes = closed_loop_modes(lin)
+    modal = _Modal(lin)
+    modes = modal.modes
     rho = modes.spectral_radius
     stable = modes.stable
     axes = None
     if stable:
-        G = _closed_response(lin, omegas)
-        axes = tuple(_axis_margins(lin, i, omegas, G[:, i, i]) for i in range(lin.B.shape[1]))
+        G = modal.response(omegas)
+        axes = tuple(_axis_margins(modal, i, omegas, G[:, i, i]) for i in range(lin.B.shape[1]))
     return LoopMargins(bool(stable), rho, modes.fixed_spectral_radius, axes, bool(lin.at_limit))
 
 
@@ -792,17 +808,18 @@ def disk_margin(lin: Linearization, omegas=None) -> DiskMargins:
     endpoints omega -> 0 and pi / Delta_c included as they are in the grid). None where
     the closed loop is unstable."""
     omegas = default_omegas(lin.period) if omegas is None else np.asarray(omegas, float)
-    modes = closed_loop_modes(lin)
+    modal = _Modal(lin)
+    modes = modal.modes
     rho = modes.spectral_radius
     if not modes.stable:
         return DiskMargins(False, rho, None, None, bool(lin.at_limit))
-    G, eye = _closed_response(lin, omegas), np.eye(lin.B.shape[1])
+    G, eye = modal.response(omegas), np.eye(lin.B.shape[1])
     norm = lambda G: np.linalg.norm(G + 0.5 * eye, ord=2, axis=(1, 2))  # sigma_max(S - I/2)
     axes = []
     for i in range(lin.B.shape[1]):
-        axis = _Axis(lin, i)
+        axis = _Axis(modal, i)
         peak, where = _peak(lambda w: np.abs(axis.closed(w) + 0.5), omegas, np.abs(G[:, i, i] + 0.5))
         axes.append(Disk.of(1.0 / peak, where))
-    peak, where = _peak(lambda w: norm(_closed_response(lin, w)), omegas, norm(G))
+    peak, where = _peak(lambda w: norm(modal.response(w)), omegas, norm(G))
     return DiskMargins(True, rho, tuple(axes), Disk.of(1.0 / peak, where), bool(lin.at_limit))
 

@@ -66,7 +66,38 @@ def figures(config, cols: dict, phases: list) -> dict:
         out["flight.png"] = flight
     if config.pointing:
         out["pointing.png"] = _pointing_figure(config, cols, phases, color)
+    if config.margins_at:
+        out["margins.png"] = _margins_figure(config, cols, color)
     return out
+
+
+def _margins_figure(config, cols: dict, color: dict):
+    """Per time of ``sweep.margins_at``, the CDF over the samples of the all-axes disk margin
+    [dB] and of the worst axis's phase margin [deg]; an unstable sample's are left out (the
+    legend counts them)."""
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
+
+    times = config.margins_at
+    fig = Figure(figsize=(max(6.0, 4.2 * len(times)), 6.5), layout="constrained")
+    axes = fig.subplots(2, len(times), squeeze=False)
+    for k, t in enumerate(times):
+        for row, (column, label) in enumerate((("disk_db", "disk margin, all axes [±dB]"),
+                                               ("pm_deg", "phase margin, worst axis [deg]"))):
+            ax = axes[row, k]
+            for c in config.controllers:
+                stable = cols[f"{c}_loop_stable_at_{t:g}s"]
+                v = np.sort(cols[f"{c}_{column}_at_{t:g}s"][stable == 1])
+                if len(v):
+                    unstable = int((stable == 0).sum())
+                    ax.step(v, np.arange(1, len(v) + 1) / len(v), where="post", color=color[c]["color"],
+                            label=f"{color[c]['label']} ({unstable} unstable)" if unstable else color[c]["label"])
+            ax.set_xlabel(label)
+            ax.set_ylabel("fraction of stable samples")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+        axes[0, k].set_title(f"t = {t:g} s")
+    fig.suptitle(f"{len(cols['index'])} samples: stability margins at the actuator input")
+    return fig
 
 
 def _pointing_figure(config, cols: dict, phases: list, color: dict):

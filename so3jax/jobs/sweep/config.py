@@ -8,6 +8,7 @@ import dataclasses
 from pathlib import Path
 
 from so3jax.core import checks
+from so3jax.jobs import margins
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
@@ -16,7 +17,7 @@ from so3jax.missions import mission as missions
 # The default sweep (sweeps/default.toml, on the paper's mission).
 DEFAULT = {
     "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0,
-              "limit_share": 0.05, "pointing": False},
+              "limit_share": 0.05, "pointing": False, "margins_at": []},
     "dispersions": {
         "inertia": {
             "J0": {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},
@@ -54,7 +55,9 @@ class SweepConfig:
     binding. pointing: record each sample's attitude errors every ``record_every`` steps
     of the mission and report its pointing indices and requirements over the samples
     (temporal, ensemble and mixed, docs/model.md §18.2); on wherever the mission declares
-    requirements. table: the [dispersions] table as given.
+    requirements. margins_at: times [s] (each a control tick) at which each sample's loop
+    is linearized and its stability margins taken (docs/model.md §19; () for none).
+    table: the [dispersions] table as given.
     """
 
     mission: missions.Mission
@@ -68,6 +71,7 @@ class SweepConfig:
     divergence_angle_deg: float = 150.0
     limit_share: float = 0.05
     pointing: bool = False
+    margins_at: tuple = ()
 
     @property
     def T(self) -> float:
@@ -104,6 +108,7 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     if not isinstance(values["pointing"], bool):
         raise ValueError(f"sweep.pointing must be true or false, got {checks.short(values['pointing'])}")
     top["pointing"] = values["pointing"] or bool(mission.requirements)
+    top["margins_at"] = _margins_at(values["margins_at"], mission)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
     dispersions, leaves = dispersed.parse(table, mission)
     if not dispersions.initial_angle_deg < top["divergence_angle_deg"]:
@@ -115,10 +120,25 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     return SweepConfig(mission, dispersions, leaves, table, **top)
 
 
+def _margins_at(value, mission) -> tuple:
+    """sweep.margins_at: a list of times [s], each a control tick within the horizon of a
+    sampled loop (:func:`so3jax.jobs.margins.check_times`)."""
+    if not isinstance(value, (list, tuple)) or not all(isinstance(t, (int, float)) and not isinstance(t, bool)
+                                                       for t in value):
+        raise ValueError(f"sweep.margins_at must be a list of times [s], got {checks.short(value)}")
+    if not value:
+        return ()
+    try:
+        return margins.check_times(mission, [float(t) for t in value])
+    except ValueError as error:
+        raise ValueError(f"sweep.margins_at: {error}") from None
+
+
 def config_to_dict(config: SweepConfig) -> dict:
     """The sweep's own tables ([sweep], [dispersions]) as TOML data; the mission is
-    ``config.mission.describe()``."""
-    sweep = {k: getattr(config, k) for k in _SWEEP_KEYS if k != "pointing" or config.pointing}  # off: not written
+    ``config.mission.describe()``. ``pointing`` and ``margins_at`` only where set."""
+    sweep = {k: getattr(config, k) for k in _SWEEP_KEYS if k not in ("pointing", "margins_at")}
+    sweep.update({k: getattr(config, k) for k in ("pointing", "margins_at") if getattr(config, k)})
     return {"sweep": sweep, "dispersions": config.table}
 
 

@@ -17,6 +17,7 @@ from jax.experimental import multihost_utils
 from jax.sharding import Mesh
 
 from so3jax.dynamics.scenario import steps_for_horizon
+from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.jobs.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
 from so3jax.jobs.sweep.summary import summarize
@@ -160,8 +161,14 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
     def compute(controller, index):
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
         padded = np.concatenate([index, np.full(chunk - len(index), index[-1])])
-        return run_chunk(jax.tree.map(operator.itemgetter(padded), inputs), gains, controller, config.mission, mesh,
-                         config.pointing)
+        chunk_inputs = jax.tree.map(operator.itemgetter(padded), inputs)
+        metrics = run_chunk(chunk_inputs, gains, controller, config.mission, mesh, config.pointing)
+        if config.margins_at:
+            law = config.mission.controller(controller)[0]
+            values = sweep_margins.sample_margins(chunk_inputs, gains, controller=law, mission=config.mission,
+                                                  times=config.margins_at)
+            metrics.update({f"{sweep_margins.PREFIX}{k}": v for k, v in values.items()})
+        return metrics
 
     # In one process, each controller's first chunk starts at once: their programs compile side by side.
     firsts = {} if processes > 1 else {c: i for i, (c, _) in reversed(list(enumerate(jobs)))}

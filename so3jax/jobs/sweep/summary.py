@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.dynamics.paper import PHASE_NAMES
-from so3jax.jobs.sweep import pointing
+from so3jax.jobs.sweep import margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersions as disp
 from so3jax.sim.flight_metrics import FlightMetrics
@@ -93,6 +93,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
             at_limit = np.maximum(r["time_at_torque_limit"], r["time_at_speed_limit"]) > config.limit_share * config.T
             cols[f"{c}_at_limit"] = np.where(done, at_limit, np.nan)
     cols.update(pointing.columns(config, results, n))
+    cols.update(margins.columns(config, results, n))
     return cols
 
 
@@ -180,6 +181,8 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             summary["paired"][f"{b}_vs_{a}"] = pair
     if config.pointing:
         summary["pointing"] = pointing.summarize(config, results, simulated)
+    if config.margins_at:
+        summary["margins"] = margins.summary_of(config, results, simulated)
     return summary
 
 
@@ -246,4 +249,5 @@ def format_summary(summary: dict) -> str:
                 lines.append(f"- {metric} [{FLIGHT[metric]}]: {b} - {a} median {q['p50']:.4g}, "
                              f"5-95 % [{q['p5']:.4g}, {q['p95']:.4g}], mean {q['mean']:.4g}")
     lines += pointing.format_lines(summary)
+    lines += margins.format_summary(summary)
     return "\n".join(lines) + "\n"
