@@ -267,7 +267,9 @@ def test_the_report_gives_every_index_per_phase_and_level():
     json.dumps(out, allow_nan=False)
     assert out["unit"] == "arcsec" and [p["samples"] for p in out["phases"]] == [60, 40, 0]
     rows = {(r["index"], r["level"]): r for r in out["phases"][0]["rows"]}
-    assert set(rows) == {(i, p) for i in ("APE", "RPE", "AKE", "RKE") for p in (0.95, 0.9973)}
+    assert set(rows) == {(i, p) for i in pt.REPORTED for p in (0.95, 0.9973)}
+    assert pt.REPORTED == ("APE", "MPE", "RPE", "AKE", "MKE", "RKE") and pt.reported(None) == ("APE", "MPE", "RPE")
+    assert rows["MPE", 0.95]["samples"] == 1 and rows["MPE", 0.95]["x"] == pytest.approx(2.0)  # one whole window
     assert rows["APE", 0.95]["x"] == pytest.approx(2.0) and rows["APE", 0.95]["angle"] == pytest.approx(2 * 3**0.5)
     assert rows["APE", 0.95]["resolved"] and not rows["APE", 0.9973]["resolved"]
     assert rows["RPE", 0.95]["samples"] == 50 and rows["RPE", 0.95]["x"] == pytest.approx(0.0, abs=1e-9)

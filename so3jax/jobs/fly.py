@@ -75,14 +75,14 @@ def report(mission, result) -> dict:
 
 def pointing_report(mission, history) -> dict:
     """The ECSS pointing indices of the recorded history (:func:`so3jax.sim.pointing.report`:
-    APE, RPE and, with an estimate, AKE, RKE per phase at the mission's levels and window) and
+    APE, MPE, RPE and, with an estimate, AKE, MKE, RKE per phase at the mission's levels and window) and
     the mission's requirements checked (:func:`so3jax.sim.pointing.check`), JSON-ready."""
     t, performance, knowledge = pointing.signals(history)
     phases = pointing.phase_bounds_of(mission.scenario())
     reached = sum(reached_phases(mission.scenario().steps_per_phase))
     report = pointing.report(t, performance, knowledge, phases[:reached], window=mission.pointing["window"],
                              levels=mission.pointing["levels"], phase_names=PHASE_NAMES[:reached],
-                             indices=pointing.REPORTED if knowledge is not None else ("APE", "RPE"))
+                             indices=pointing.reported(knowledge))
     return {"pointing": to_builtin(report),
             "requirements": to_builtin(pointing.check(mission.requirements, t, performance, knowledge, phases))}
 

@@ -63,7 +63,7 @@ AXES = ("x", "y", "z", "angle", "each")
 INTERPRETATIONS = ("temporal", "ensemble", "mixed")
 KEYS = ("index", "axis", "level", "limit", "window", "separation", "phase", "interpretation", "name")
 REQUIRED = ("index", "axis", "level", "limit")
-REPORTED = ("APE", "RPE", "AKE", "RKE")
+REPORTED = ("APE", "MPE", "RPE", "AKE", "MKE", "RKE")  # a report's, with an estimate (else the first three)
 COLUMNS = ("x", "y", "z", "angle")  # the magnitudes' last axis
 
 
@@ -460,9 +460,14 @@ def check(requirements, t, performance, knowledge, phase_bounds, diverged_worst:
 # --- report -------------------------------------------------------------------------------
 
 
+def reported(knowledge) -> tuple:
+    """The indices a report gives: REPORTED, without the knowledge ones where e_K is None."""
+    return REPORTED if knowledge is not None else tuple(i for i in REPORTED if "K" not in i)
+
+
 def report(t, performance, knowledge, phase_bounds, *, window: float, levels=(0.95, 0.9973), phase_names=None,
            indices=REPORTED, interpretations=("temporal",), diverged_worst: bool = False) -> dict:
-    """Every index of ``indices`` (APE, RPE, AKE, RKE by default; no PDE / KDE) of one run
+    """Every index of ``indices`` (APE, MPE, RPE, AKE, MKE, RKE by default; no PDE / KDE) of one run
     ((M, 3) signals) or S runs ((S, M, 3)), per phase, in each of ``interpretations``, at
     each level, per axis and angle [arcsec], JSON-ready. window [s]: that of the windowed
     indices. A value is None where the phase holds no (whole window of) sample, or for the

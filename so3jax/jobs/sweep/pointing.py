@@ -4,9 +4,10 @@ each sample's own (temporal) APE and RPE.
 
 The samples' attitude errors e_P, e_K are recorded at the start of every block of the
 mission's ``record_every`` steps and at T (:func:`so3jax.missions.dispersed.pointing_errors`),
-the grid ``fly`` records on; T ends every evaluation period, so its record counts in none. Over S samples: temporal, the worst sample's quantile over its
-times; ensemble, the worst time's quantile over the samples; mixed, the quantile of every
-sample's every time. A diverged sample's errors count as +inf (larger than every other:
+the grid ``fly`` records on; T ends every evaluation period, so its record counts in none.
+Over S samples: temporal, the worst sample's quantile over its times; ensemble, the worst
+time's quantile over the samples; mixed, the quantile of every sample's every time. A
+diverged sample's errors count as +inf (larger than every other:
 :func:`so3jax.sim.pointing.statistic`'s ``diverged_worst``), so that an ensemble or mixed
 requirement at P_C tolerates a share 1 - P_C of diverged samples and a temporal one none.
 """
@@ -92,7 +93,7 @@ def summarize(config, results: dict, simulated: dict) -> dict:
             continue
         t, e_p, e_k = _signals(config, r, simulated[c])
         report = pointing.report(t, e_p, e_k, bounds, window=m.pointing["window"], levels=m.pointing["levels"],
-                                 phase_names=names, indices=pointing.REPORTED if e_k is not None else ("APE", "RPE"),
+                                 phase_names=names, indices=pointing.reported(e_k),
                                  interpretations=pointing.INTERPRETATIONS, diverged_worst=True)
         checked = pointing.check(m.requirements, t, e_p, e_k, all_bounds, diverged_worst=True)
         out[c] = {"samples": int(simulated[c].sum()), "report": to_builtin(report), "requirements": to_builtin(checked)}
