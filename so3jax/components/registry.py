@@ -1,9 +1,11 @@
-"""One registry per kind of loop component (``sensor``, ``estimator``, ``actuator``):
-name -> its parameters (units, shapes, domains, defaults) and a builder.
+"""One registry per kind of component (the loop's ``sensor``, ``estimator``, ``actuator``,
+and the mission's ``reference``): name -> its parameters (units, shapes, domains, defaults)
+and a builder.
 
-A mission's ``[sensors.NAME]``, ``[estimator.NAME]`` and ``[actuator.NAME]`` tables are
-read through the registration, so the mission parser is generic: a new component is one
-module that defines it (a subclass of its kind's base, :mod:`so3jax.components.base`) and
+A mission's ``[sensors.NAME]``, ``[estimator.NAME]``, ``[actuator.NAME]`` and
+``[reference.NAME]`` tables are read through the registration, so the mission parser is
+generic: a new component is one module that defines it (a subclass of its kind's base,
+:mod:`so3jax.components.base`, or :class:`so3jax.dynamics.reference.Reference`) and
 calls :func:`register`. Controllers keep their own registry
 (:mod:`so3jax.controllers.registry`), whose options are declared with the same
 :class:`~so3jax.core.params.Param`.
@@ -22,9 +24,10 @@ from typing import Any
 
 from so3jax.components import base
 from so3jax.core import params
+from so3jax.dynamics.reference import Reference
 
-KINDS = ("sensor", "estimator", "actuator")
-BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator}
+KINDS = ("sensor", "estimator", "actuator", "reference")
+BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator, "reference": Reference}
 MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator reads them by these names
 
 
@@ -35,7 +38,8 @@ class ComponentSpec:
     component: the class ``build`` returns, a subclass of its kind's base
     (:class:`~so3jax.components.base.Sensor`, :class:`~so3jax.components.base.Estimator`,
     :class:`~so3jax.components.base.Actuator`). build(values, context) -> the component (a
-    pytree), values: {param: parsed value}, context: :class:`BuildContext`.
+    pytree), values: {param: parsed value}, context: :class:`BuildContext` (a reference's:
+    :class:`so3jax.components.references.ReferenceContext`).
     complete(values) -> values: cross-parameter checks (one-line ValueErrors) and derived
     values (e.g. one value per wheel), at parse time. provides (sensors): the measurement
     it makes, one of ``MEASUREMENTS``; noise(values) (sensors): the noise levels an

@@ -20,7 +20,7 @@ class Param:
     derives it, e.g. the MEKF's noise levels from the sensors). shapes: the array shapes
     it may take (None in a shape: any length, e.g. one value per wheel); () for a number.
     low/high: the closed domain of every element; integer: whole numbers; choices: a
-    string among these; boolean: True or False.
+    string among these; boolean: True or False; text: any string (e.g. a file's path).
     """
 
     name: str
@@ -32,6 +32,7 @@ class Param:
     integer: bool = False
     choices: tuple = ()
     boolean: bool = False
+    text: bool = False
     doc: str = ""
 
     def parse(self, value, where: str):
@@ -40,6 +41,10 @@ class Param:
         label = f"{where} [{self.unit}]" if self.unit else where
         if self.boolean:
             return checks.boolean(value, label)
+        if self.text:
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"{label} must be a non-empty string, got {checks.short(value)}")
+            return value
         if self.choices:
             return checks.choice(value, label, self.choices)
         shape = next((shape for shape in self.shapes if len(shape) == _depth(value)), self.shapes[-1])

@@ -8,6 +8,7 @@ integrator, from R_d(0) = I.
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 
 import jax
@@ -17,8 +18,24 @@ from so3jax.core import so3
 from so3jax.core.pytree import pytree_dataclass, static_field
 
 
+class Reference(abc.ABC):
+    """The shape of a reference (docs/model.md §2): Omega_d(t) [rad/s] (3,), its derivative
+    [rad/s^2] (3,), and R_d(t) (3, 3), or None where the rollout integrates
+    R_d' = R_d hat(Omega_d) from R_d(0) = I. ``phase``: the mission phase holding at the
+    step's start (a reference may switch on it or ignore it). A subclass is a pytree."""
+
+    @abc.abstractmethod
+    def rate(self, t, phase): ...
+
+    @abc.abstractmethod
+    def rate_dot(self, t, phase): ...
+
+    @abc.abstractmethod
+    def attitude(self, t, phase): ...
+
+
 @pytree_dataclass
-class PiecewiseConstantRate:
+class PiecewiseConstantRate(Reference):
     """Omega_d = rates[p] during phase p (starting at phase_times[p]), Omega_d' = 0.
 
     R_d(t) = start_attitudes[p] exp(hat(rates[p]) (t - phase_times[p])): closed form.
@@ -59,7 +76,7 @@ def _start_attitudes(rates, phase_times):
 
 
 @pytree_dataclass
-class RateFunction:
+class RateFunction(Reference):
     """A user rate profile Omega_d(t) (JAX-traceable function of time [s] -> (3,)).
 
     ``rate_dot_fn`` defaults to the forward-mode derivative of ``rate_fn``; R_d is

@@ -9,6 +9,8 @@ import dataclasses
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.components import registry as components
+from so3jax.components.references import ReferenceContext
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
 
@@ -40,7 +42,18 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         changes["Omega0"] = Omega0 if p is None else p.Omega0 + Omega0
     if m.constant_inertia:
         changes["inertia"] = ConstantInertia(jnp.asarray(m.J0, s.R0.dtype) if p is None else p.J0)
+    if m.reference["kind"] != "paper":
+        changes["reference"] = reference(m, s, values["n"])
     return dataclasses.replace(s, **changes) if changes else s
+
+
+def reference(mission, scenario: Scenario, n):
+    """The mission's reference (``[reference] kind``, :mod:`so3jax.components.references`) in
+    the scenario's dtype, for the orbital rate n [rad/s]."""
+    kind = mission.reference["kind"]
+    dtype = scenario.R0.dtype
+    context = ReferenceContext(lambda x: jnp.asarray(x, dtype), n, scenario.phase_times, scenario.reference)
+    return components.get("reference", kind).build(mission.reference[kind], context)
 
 
 def rotation(rotvec) -> np.ndarray:

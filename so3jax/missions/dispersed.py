@@ -41,6 +41,7 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.core import checks, so3
+from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop
@@ -314,7 +315,11 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
-        return _results(rollout_batch(scenarios, controller, gains, params.seed, loop=shared_loop,
+        axes = 0
+        if not isinstance(scenarios.reference, PiecewiseConstantRate):  # no sample's own: one for the batch
+            scenarios = dataclasses.replace(scenarios, reference=build.scenario(m, dtype=dtype).reference)
+            axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), reference=None)
+        return _results(rollout_batch(scenarios, controller, gains, params.seed, scenario_axes=axes, loop=shared_loop,
                                       record_every=record_every), pointing)
 
     def one(s, seed, values):

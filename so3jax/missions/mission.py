@@ -45,6 +45,7 @@ FLIGHT = {
     "sensors": {"gyro": {}, "star_tracker": {}},
     "estimator": {"kind": "mekf"},
     "actuator": {"kind": "wheels"},
+    "reference": {"kind": "paper"},
     "controller": {},
     "gains": {},
 }
@@ -56,7 +57,8 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
 
 _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
-_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "controller", "gains")
+_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "reference", "controller", "gains")
+DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -91,6 +93,7 @@ class Mission:
     gains: dict
     pointing: dict = dataclasses.field(default_factory=lambda: dict(POINTING))  # window [s], levels
     requirements: tuple = ()  # so3jax.sim.pointing.Requirement, checked by fly
+    reference: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFERENCE))  # {"kind": name, name: values}
 
     @property
     def period(self) -> float | None:
@@ -136,6 +139,8 @@ class Mission:
             del d["pointing"]
         if not self.requirements:
             del d["requirements"]
+        if to_builtin(self.reference) == to_builtin(DEFAULT_REFERENCE):
+            del d["reference"]
         return to_builtin(d)
 
 
@@ -147,7 +152,7 @@ def default_tree() -> dict:
 
     tree = {k: v for k, v in FLIGHT.items()}
     tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
-    for kind in ("estimator", "actuator"):
+    for kind in ("estimator", "actuator", "reference"):
         tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
     tree["controller"] = {n: values(registry.get(n).options) for n in registry.names()}
     tree["gains"] = {n: {f: np.asarray(v).tolist() for f, v in registry.get(n).defaults._asdict().items()}
@@ -248,6 +253,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
+    reference = _chosen(full, "reference", "reference", base)
     _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = checks.table(full, "controller", registry.names())
@@ -268,7 +274,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
 
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains,
-                      _pointing(checks.table(full, "pointing", keys.allowed("pointing"))))
+                      _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference)
     for name in controllers:
         try:
             mission.controller(name)

@@ -1,0 +1,84 @@
+"""The mission's reference kinds (``[reference] kind``, docs/model.md §2): registrations of
+:mod:`so3jax.dynamics.reference`'s trajectories, each with its parameters.
+
+* ``paper``: the paper's piecewise-constant rates in multiples of the orbital rate (§4);
+* ``inertial``: a fixed attitude, R_d = exp(hat(attitude));
+* ``lvlh``: the orbit frame of a circular orbit of rate n (``[orbit] n``): body x along the
+  velocity, z toward nadir, y opposite the orbit normal, turned by ``offset``; the inertial
+  frame is that frame at t = 0;
+* ``slews``: rest-to-rest eigenaxis slews through attitudes at given start times, under a
+  rate and an acceleration limit;
+* ``table``: a tabulated attitude history (times and unit quaternions, inline or from a
+  file), interpolated through every sample.
+
+The constant-rate kinds (paper, inertial, lvlh) are :class:`~so3jax.dynamics.reference.PiecewiseConstantRate`:
+the batched loop's fast path (:mod:`so3jax.dynamics.stepped`) takes them sample by sample.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.components import registry as components
+from so3jax.core import so3
+from so3jax.core.params import Param
+from so3jax.dynamics import reference as ref
+
+
+class ReferenceContext(NamedTuple):
+    """What a reference's builder may read: as_array(x) casts to the run's dtype; the
+    orbital rate n [rad/s] (a sample's, in a sweep); the scenario's phase start times [s]
+    after the first; the paper's reference of the same n. Only a
+    :class:`~so3jax.dynamics.reference.PiecewiseConstantRate` may depend on n: a sweep's
+    samples share a reference of another class (:func:`so3jax.missions.dispersed.sample_metrics`)."""
+
+    as_array: Callable[[Any], Any]
+    orbit_rate: Any
+    phase_times: tuple
+    paper: Any
+
+
+def _rotation(rotvec) -> np.ndarray:
+    """exp(hat(rotvec)) in float64 (Rodrigues)."""
+    v = np.asarray(rotvec, np.float64)
+    angle = float(np.linalg.norm(v))
+    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
+    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)
+
+
+def constant_rate(rate, start, ctx: ReferenceContext) -> ref.PiecewiseConstantRate:
+    """R_d(t) = start exp(hat(rate) t), Omega_d = rate (body, [rad/s]), in every phase of the
+    scenario (start attitudes at each phase's start, so the phase index selects nothing)."""
+    rate, start = ctx.as_array(rate), ctx.as_array(start)
+    times = (0.0,) + tuple(ctx.phase_times)
+    starts = jnp.stack([so3.matmul(start, so3.exp(rate * t)) for t in times])
+    return ref.PiecewiseConstantRate(jnp.stack([rate] * len(times)), ctx.as_array(times), starts)
+
+
+def _lvlh(values, ctx: ReferenceContext):
+    offset = _rotation(values["offset"])
+    orbit = jnp.stack([jnp.zeros(()), -ctx.as_array(ctx.orbit_rate), jnp.zeros(())])  # LVLH's rate, in LVLH
+    return constant_rate(ctx.as_array(offset.T) @ orbit, offset, ctx)
+
+
+components.register(components.ComponentSpec(
+    kind="reference", name="paper", component=ref.PiecewiseConstantRate, params=(),
+    build=lambda v, ctx: ctx.paper,
+    doc="the paper's: Omega_d = n [1, -10, 2] in capture and deployment, 0 once docked (docs/model.md §4)",
+))
+components.register(components.ComponentSpec(
+    kind="reference", name="inertial", component=ref.PiecewiseConstantRate,
+    params=(Param("attitude", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="R_d = exp(hat(attitude))"),),
+    build=lambda v, ctx: constant_rate(np.zeros(3), _rotation(v["attitude"]), ctx),
+    doc="a fixed inertial attitude: Omega_d = 0",
+))
+components.register(components.ComponentSpec(
+    kind="reference", name="lvlh", component=ref.PiecewiseConstantRate,
+    params=(Param("offset", [0.0, 0.0, 0.0], "rad", shapes=((3,),),
+                  doc="the desired body frame turned from LVLH by exp(hat(offset))"),),
+    build=_lvlh,
+    doc="the orbit frame of [orbit] n: x along the velocity, z to nadir; Omega_d = offset^T [0, -n, 0]",
+))
