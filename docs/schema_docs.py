@@ -305,11 +305,12 @@ def mission_keys() -> tuple:
 
 
 def components_table(kind: str, heading: str = "###") -> str:
-    """One section per registered component of ``kind`` (sensor, estimator, actuator): what
-    it is, and a row per parameter (``[sensors.NAME]``, ``[estimator.NAME]``, ``[actuator.NAME]``)."""
+    """One section per registered component of ``kind`` (sensor, estimator, actuator,
+    reference): what it is, and a row per parameter (``[sensors.NAME]``, ``[estimator.NAME]``,
+    ``[actuator.NAME]``, ``[reference.NAME]``)."""
     from so3jax.components import registry as components
 
-    table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator"}[kind]
+    table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator", "reference": "reference"}[kind]
     out = []
     for name in components.names(kind):
         spec = components.get(kind, name)
@@ -555,6 +556,7 @@ def render(what: str, args: tuple = ()) -> str:
         "sensors": lambda: components_table("sensor", *rest),
         "estimators": lambda: components_table("estimator", *rest),
         "actuators": lambda: components_table("actuator", *rest),
+        "references": lambda: components_table("reference", *rest),
         "controllers": lambda: controllers_table(*rest),
         "tune": tune_table,
         "sweep": sweep_table,
