@@ -59,13 +59,14 @@ def test_site_builds_strict_with_generated_tables(site):
 def test_every_registered_component_and_mission_key_is_on_the_fly_page(site):
     html = _page(site, "commands/fly")
     names = _fresh("schema_docs.registered_names()")
-    assert set(names) == {"controller", "sensor", "estimator", "actuator"}
+    assert set(names) == {"controller", "sensor", "estimator", "actuator", "reference"}
     for kind, registered in names.items():
         assert registered, kind
         for name in registered:
             assert f'id="{name}"' in html or f"<code>{name}</code>" in html, (kind, name)
     chosen = {"controller": ("controller.{}.", "gains.{}."), "sensor": ("[sensors.{}]",),
-              "estimator": ('estimator.kind = "{}"',), "actuator": ('actuator.kind = "{}"',)}
+              "estimator": ('estimator.kind = "{}"',), "actuator": ('actuator.kind = "{}"',),
+              "reference": ('reference.kind = "{}"',)}
     for kind, registered in names.items():
         for name in registered:  # how a mission names it
             assert any(pattern.format(name) in html for pattern in chosen[kind]), (kind, name)

@@ -25,7 +25,8 @@ def registered(tunable: bool = False) -> str:
     return (f"registered {'tunable controllers (tune.controller)' if tunable else 'controllers'}: {laws}; "
             f"sensors ([sensors.NAME]): {', '.join(components.names('sensor'))}; "
             f"estimators (estimator.kind): {', '.join(components.names('estimator'))}; "
-            f"actuators (actuator.kind): {', '.join(components.names('actuator'))}.")
+            f"actuators (actuator.kind): {', '.join(components.names('actuator'))}; "
+            f"references (reference.kind): {', '.join(components.names('reference'))}.")
 
 
 def controllers_help(default: str) -> str:
