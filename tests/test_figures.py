@@ -143,6 +143,13 @@ def test_rate_error_figure_names_the_phases_it_shows():
     assert {text.get_text() for text in fig.axes[0].texts} == {"phase 1", "phase 2"}
 
 
+def test_a_mission_s_phase_names_label_its_figures():
+    fig = flight_plots.wheel_speed_figure({"pd": _flight_history()}, plots.Phases(PHASES, ("acquire", "image", "dump")),
+                                          T, np.full(4, 600.0))
+    shown = [text.get_text() for text in fig.axes[0].texts]
+    assert shown == ["acquire", "image", "dump"][: len(shown)] and len(shown) == sum(p < T for p in PHASES) + 1
+
+
 def test_wheel_speed_limits_are_in_the_legend():
     fig = flight_plots.wheel_speed_figure({"pd": _flight_history()}, PHASES, T, np.full(4, 600.0))
     ax = fig.axes[0]

@@ -12,18 +12,24 @@ from scipy.spatial.transform import Rotation
 
 from so3jax import commands as cli
 
-FLY = ("fly", "--T", "1", "--controllers", "pd", "--record-every", "10", "--json", "--no-figures")
+FLY = ("fly", "--T", "1", "--controllers", "pd", "--record-every", "10", "--json", "--no-figures",
+       # a mission of its own phases: a constant inertia, an inertial reference
+       "--set", "inertia.J=[[1200.0, 0.0, 0.0], [0.0, 1000.0, 0.0], [0.0, 0.0, 800.0]]",
+       "--set", "reference.kind='inertial'", "--set", "phases.names=['acquire', 'hold']",
+       "--set", "phases.start=[0.0, 0.5]")
 MET = '{index = "AKE", axis = "angle", level = 0.5, limit = 1e7}'  # the median knowledge error: far below 1e7 arcsec
 MISSED = '{index = "AKE", axis = "x", level = 0.5, limit = 0.0}'  # no estimate is exact
+HOLD = '{index = "APE", axis = "angle", level = 0.5, limit = 1e7, phase = "hold"}'  # a phase by its name
 
 
 def test_requirements_are_checked_reported_and_set_the_exit_code(tmp_path, capsys):
     out = tmp_path / "fly"
-    code = cli.main([*FLY, "--out", str(out), "--set", f"requirements = [{MET}, {MISSED}]"])
+    code = cli.main([*FLY, "--out", str(out), "--set", f"requirements = [{MET}, {MISSED}, {HOLD}]"])
     assert code == 1
     assert "requirements failed: pd" in capsys.readouterr().err
     report = json.loads((out / "metrics.json").read_text())["pd"]
-    met, missed = report["requirements"]
+    met, missed, hold = report["requirements"]
+    assert hold["passed"] and hold["samples"] == 5 and hold["requirement"].endswith("hold: <= 1e+07 arcsec")
     assert (met["passed"], missed["passed"]) == (True, False)
     # independently: scipy's rotation vectors of R_hat^T R, the 5th smallest of the 10 samples (level 0.5)
     saved = np.load(out / "trajectory.npz")
@@ -35,7 +41,8 @@ def test_requirements_are_checked_reported_and_set_the_exit_code(tmp_path, capsy
     assert met["value"] == pytest.approx(np.sort(np.linalg.norm(e_K, axis=1))[4] * arcsec, rel=1e-9)
     assert missed["value"] == pytest.approx(np.sort(np.abs(e_K[:, 0]))[4] * arcsec, rel=1e-9)
     phases = report["pointing"]["phases"]
-    assert [p["name"] for p in phases] == ["capture"] and phases[0]["samples"] == 10
+    assert [p["name"] for p in phases] == ["acquire", "hold"] and [p["samples"] for p in phases] == [5, 5]
+    assert len(report["max_angle_phase"]) == 2
     assert {r["index"] for r in phases[0]["rows"]} == {"APE", "MPE", "RPE", "AKE", "MKE", "RKE"}
 
 

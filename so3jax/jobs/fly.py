@@ -15,7 +15,6 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.dynamics.inertia import InertiaWarning
-from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.jobs.identify import telemetry
 from so3jax.parallel import devices
 from so3jax.results import io
@@ -81,7 +80,7 @@ def pointing_report(mission, history) -> dict:
     phases = pointing.phase_bounds_of(mission.scenario())
     reached = sum(reached_phases(mission.scenario().steps_per_phase))
     report = pointing.report(t, performance, knowledge, phases[:reached], window=mission.pointing["window"],
-                             levels=mission.pointing["levels"], phase_names=PHASE_NAMES[:reached],
+                             levels=mission.pointing["levels"], phase_names=mission.phase_names[:reached],
                              indices=pointing.reported(knowledge))
     return {"pointing": to_builtin(report),
             "requirements": to_builtin(pointing.check(mission.requirements, t, performance, knowledge, phases))}
@@ -104,7 +103,7 @@ def format_table(mission, reports: dict) -> str:
     row("RMSE [rad/s]", lambda r: r["rmse"], ".4e")
     row("effort (delivered) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
     for p in range(len(reports[names[0]]["rmse_phase"])):
-        label = PHASE_NAMES[p] if p < len(PHASE_NAMES) else f"phase {p + 1}"
+        label = mission.phase_names[p]
         row(f"  RMSE {label} [rad/s]", lambda r, p=p: r["rmse_phase"][p], ".4e")
         row(f"  max attitude error {label} [deg]", lambda r, p=p: None if r["max_angle_phase"][p] is None
             else math.degrees(r["max_angle_phase"][p]), ".3f")

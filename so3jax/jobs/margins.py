@@ -14,7 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.results import io
 from so3jax.sim import margins, pointing
 from so3jax.sim.metrics import reached_phases
@@ -45,7 +44,7 @@ def check_times(mission, times=None) -> tuple:
 def phase_of(mission, t: float) -> str:
     """The name of the phase holding at t [s]."""
     bounds = pointing.phase_bounds_of(mission.scenario())
-    return next(PHASE_NAMES[p] for p, (a, b) in enumerate(bounds) if a <= t < b or p == len(bounds) - 1)
+    return next(mission.phase_names[p] for p, (a, b) in enumerate(bounds) if a <= t < b or p == len(bounds) - 1)
 
 
 def at(mission, name: str, t: float, dtype: str = "float64") -> tuple:

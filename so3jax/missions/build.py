@@ -42,6 +42,8 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         changes["Omega0"] = Omega0 if p is None else p.Omega0 + Omega0
     if m.constant_inertia:
         changes["inertia"] = ConstantInertia(jnp.asarray(m.J0, s.R0.dtype) if p is None else p.J0)
+    if tuple(m.phases["start"][1:]) != s.phase_times:
+        s = dataclasses.replace(s, phase_times=tuple(m.phases["start"][1:]))  # the paper's profiles need the paper's
     if m.reference["kind"] != "paper":
         changes["reference"] = reference(m, s, values["n"])
     return dataclasses.replace(s, **changes) if changes else s

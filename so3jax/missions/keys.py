@@ -1,7 +1,7 @@
 """The mission's own keys (docs/model.md §4, §8.5), declared as
 :class:`~so3jax.core.params.Param` like the components' parameters: the horizon, step,
 seed, controllers and history stride, and the ``[control]``, ``[inertia]``,
-``[deployment]``, ``[orbit]``, ``[disturbance]``, ``[initial]`` and ``[pointing]`` tables
+``[deployment]``, ``[orbit]``, ``[disturbance]``, ``[initial]``, ``[phases]`` and ``[pointing]`` tables
 (the mission's ``[[requirements]]``: :func:`so3jax.sim.pointing.parse_requirements`). Their
 defaults are the flight mission's (:data:`so3jax.missions.mission.FLIGHT`); the parser
 (:func:`so3jax.missions.mission.from_dict`) reads every value through :func:`parse`, and
@@ -15,7 +15,7 @@ import dataclasses
 from so3jax.controllers import registry
 from so3jax.core import checks
 from so3jax.core.params import Param
-from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
+from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J0, PAPER_J2, PHASE_NAMES
 
 CONTROL_MODES = ("sampled", "continuous")
 
@@ -29,6 +29,21 @@ class ControllerNames(Param):
 
     def domain(self) -> str:
         return "names among " + ", ".join(f"`{name}`" for name in registry.names())
+
+
+@dataclasses.dataclass(frozen=True)
+class Names(Param):
+    """A list of distinct, non-empty names."""
+
+    def parse(self, value, where: str):
+        if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, str) and v for v in value):
+            raise ValueError(f"{where} must be a list of non-empty names, got {checks.short(value)}")
+        if len(set(value)) != len(value):
+            raise ValueError(f"{where}: each name once, got {checks.short(list(value))}")
+        return tuple(value)
+
+    def domain(self) -> str:
+        return "distinct names"
 
 
 def _matrix(J) -> list:
@@ -64,6 +79,11 @@ KEYS = (
     Param("initial.quaternion", None, shapes=((4,),),
           doc="R(0) as a unit quaternion [w, x, y, z] (instead of attitude)"),
     Param("initial.rate", [0.0, 0.0, 0.0], "rad/s", shapes=((3,),), doc="Omega(0), body frame"),
+    Names("phases.names", list(PHASE_NAMES), shapes=((None,),),
+          doc="the mission's phases, named in every per-phase metric, table and figure"),
+    Param("phases.start", [0.0, PAPER_DEPLOY_TIME, PAPER_DOCK_TIME], "s", shapes=((None,),), low=0.0,
+          doc="each phase's start time: 0 first, increasing, each before T (whole steps dt); the paper's inertia "
+              "profile and reference switch at the paper's"),
     Param("pointing.window", 60.0, "s", low=0.0,
           doc="window of the relative errors (RPE, RKE) in fly's pointing report (ECSS-E-ST-60-10C)"),
     Param("pointing.levels", [0.95, 0.9973], shapes=((None,),), low=0.0, high=1.0,

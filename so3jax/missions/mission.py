@@ -59,6 +59,7 @@ _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 _TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "reference", "controller", "gains")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
+PAPER_PHASES = {"names": tuple(PHASE_NAMES), "start": tuple(keys.KEY["phases.start"].default)}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -94,6 +95,11 @@ class Mission:
     pointing: dict = dataclasses.field(default_factory=lambda: dict(POINTING))  # window [s], levels
     requirements: tuple = ()  # so3jax.sim.pointing.Requirement, checked by fly
     reference: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFERENCE))  # {"kind": name, name: values}
+    phases: dict = dataclasses.field(default_factory=lambda: dict(PAPER_PHASES))  # names, start [s]
+
+    @property
+    def phase_names(self) -> tuple:
+        return tuple(self.phases["names"])
 
     @property
     def period(self) -> float | None:
@@ -141,6 +147,8 @@ class Mission:
             del d["requirements"]
         if to_builtin(self.reference) == to_builtin(DEFAULT_REFERENCE):
             del d["reference"]
+        if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
+            del d["phases"]
         return to_builtin(d)
 
 
@@ -254,6 +262,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
     reference = _chosen(full, "reference", "reference", base)
+    phases = _phases(full["phases"], "phases" in d, T, dt, constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = checks.table(full, "controller", registry.names())
@@ -274,7 +283,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
 
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains,
-                      _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference)
+                      _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
+                      phases=phases)
     for name in controllers:
         try:
             mission.controller(name)
@@ -286,8 +296,37 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
     check_loop(_build_loop(mission, np.asarray), inertias)
     phases = pointing.phase_bounds_of(mission.scenario())
-    requirements = pointing.parse_requirements(d.get("requirements", []), PHASE_NAMES[: len(phases)], phases)
+    bounds = pointing.phase_bounds_of(mission.scenario())
+    requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds)
     return dataclasses.replace(mission, requirements=requirements)
+
+
+def _phases(table, given: bool, T: float, dt: float, constant_inertia: bool, reference: str) -> dict:
+    """[phases]: names and start times [s], 0 first, increasing, on whole steps dt, each
+    before T where the mission gives them; the paper's inertia profile and reference switch
+    at the paper's phases, so they need those."""
+    table = checks.table({"phases": table}, "phases", keys.allowed("phases"))
+    names = keys.parse("phases.names", table["names"])
+    start = tuple(float(t) for t in keys.parse("phases.start", table["start"]))
+    if len(start) != len(names):
+        raise ValueError(f"phases.start: one start time per name ({len(names)}), got {len(start)}")
+    if start[0] != 0.0 or any(b <= a for a, b in zip(start[:-1], start[1:])):
+        raise ValueError(f"phases.start [s] must begin at 0 and increase, got {list(start)}")
+    off = [t for t in start if abs(t / dt - round(t / dt)) > 1e-9 * max(1.0, t / dt)]
+    if off:
+        raise ValueError(f"phases.start: {off[0]:g} s is not a whole number of steps dt = {dt:g} s")
+    if given and start[-1] >= T:
+        raise ValueError(f"phases.start: phase {names[-1]!r} starts at {start[-1]:g} s, not before T = {T:g} s")
+    paper = tuple(keys.KEY["phases.start"].default)
+    if len(start) != len(paper) or any(abs(a - b) > 1e-9 for a, b in zip(start, paper)):
+        needs = [what for what, uses in (("the paper's inertia profile (inertia.J0, J1, J2; a constant one: "
+                                          "inertia.J)", not constant_inertia),
+                                         ("the paper's reference (reference.kind = \"paper\")", reference == "paper"))
+                 if uses]
+        if needs:
+            raise ValueError(f"phases.start: {' and '.join(needs)} switch at the paper's phases {list(paper)} s; "
+                             "other phases need another")
+    return {"names": names, "start": start}
 
 
 def _pointing(table: dict) -> dict:

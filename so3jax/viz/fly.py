@@ -10,7 +10,7 @@ from so3jax.viz import plots
 
 def figures(mission, histories: dict) -> dict:
     """{file name: Figure} of the controllers' histories ({name: History}) over the mission."""
-    phases = mission.scenario().phase_times
+    phases = plots.Phases(mission.scenario().phase_times, mission.phase_names)
     if mission.period_steps is None:
         return {"attitude_error.png": plots.attitude_error_figure(histories, phases, mission.T),
                 "torque.png": plots.torque_figure(histories, phases, mission.T)}

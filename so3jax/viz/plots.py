@@ -5,6 +5,8 @@ Each figure ends at the horizon T [s] when given (else at the last sample): x ax
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -14,13 +16,24 @@ AXES = ("x", "y", "z")
 PHASE_COLORS = ("#f2f2f2", "#e3ecf7", "#f7ebe3", "#e8f5e3")
 
 
+class Phases(NamedTuple):
+    """The mission's phases for a figure: start times [s] after the first, and every phase's name."""
+
+    times: tuple
+    names: tuple
+
+
 def shade_phases(ax, phase_times, t_end):
-    """Shade the mission phases [s] behind a time plot that ends at t_end [s] (the
-    horizon): phases starting at or after t_end are left out, and the x axis is [0, t_end]."""
-    bounds = (0.0,) + tuple(p for p in phase_times if p < t_end) + (t_end,)
+    """Shade the mission phases behind a time plot that ends at t_end [s] (the horizon),
+    each labelled: ``phase_times`` the start times [s] after the first (labels "phase k")
+    or :class:`Phases` (labels its names); phases starting at or after t_end are left
+    out, and the x axis is [0, t_end]."""
+    times = getattr(phase_times, "times", phase_times)
+    names = getattr(phase_times, "names", None) or [f"phase {p + 1}" for p in range(len(times) + 1)]
+    bounds = (0.0,) + tuple(p for p in times if p < t_end) + (t_end,)
     for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
         ax.axvspan(a, b, color=PHASE_COLORS[p % len(PHASE_COLORS)], zorder=0, lw=0)
-        ax.text((a + b) / 2, 1.0, f"phase {p + 1}", transform=ax.get_xaxis_transform(), ha="center", va="bottom",
+        ax.text((a + b) / 2, 1.0, names[p], transform=ax.get_xaxis_transform(), ha="center", va="bottom",
                 fontsize=8)
     ax.set_xlim(0.0, t_end)
 

@@ -26,6 +26,7 @@ the devices, run_sweep), storage (output folder, chunk files, resume, outputs),
 summary (per-sample table, statistics); the figures are drawn by :mod:`so3jax.viz.sweep`.
 """
 
+from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.jobs.sweep.config import (
     DEFAULT,
     SweepConfig,
@@ -50,7 +51,7 @@ from so3jax.jobs.sweep.storage import (
     write_csv,
     write_outputs,
 )
-from so3jax.jobs.sweep.summary import PHASE_NAMES, STAT_NAMES, columns, diverged, format_summary, summarize
+from so3jax.jobs.sweep.summary import STAT_NAMES, columns, diverged, format_summary, summarize
 from so3jax.sim.metrics import Metrics
 from so3jax.viz.sweep import figures
 

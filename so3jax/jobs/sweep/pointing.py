@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.results.io import to_builtin
 from so3jax.sim import pointing
@@ -40,7 +39,7 @@ def _phases(config) -> tuple:
     scenario = config.mission.scenario()
     bounds = pointing.phase_bounds_of(scenario)
     reached = sum(reached_phases(scenario.steps_per_phase))
-    return bounds, bounds[:reached], PHASE_NAMES[:reached]
+    return bounds, bounds[:reached], config.mission.phase_names[:reached]
 
 
 def _signals(config, r: dict, simulated) -> tuple:

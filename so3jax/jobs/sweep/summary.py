@@ -9,7 +9,6 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.dynamics.paper import PHASE_NAMES
 from so3jax.jobs.sweep import margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersions as disp
@@ -31,7 +30,8 @@ FLIGHT = {
 def reached_phases(config: SweepConfig) -> list[tuple[int, str]]:
     """(index, name) of the phases the horizon reaches."""
     steps = config.mission.scenario().steps_per_phase
-    return [(p, PHASE_NAMES[p]) for p, k in enumerate(steps) if k > 0]
+    names = config.mission.phase_names
+    return [(p, names[p]) for p, k in enumerate(steps) if k > 0]
 
 
 def diverged(config: SweepConfig, r: dict) -> np.ndarray:
@@ -79,7 +79,8 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
         for field in Metrics._fields:
             if field == "diverged":
                 continue
-            value = r.get(field, np.full((n, len(PHASE_NAMES)) if field.endswith("_phase") else n, np.nan))
+            shape = (n, len(config.mission.phase_names)) if field.endswith("_phase") else n
+            value = r.get(field, np.full(shape, np.nan))
             value = reported(value, nonfinite)
             if field.endswith("_phase"):
                 cols.update({f"{c}_{field.removesuffix('_phase')}_{name}": value[:, i] for i, name in phases})
