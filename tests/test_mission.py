@@ -272,3 +272,14 @@ def test_the_dispersed_and_the_nominal_scenario_are_one_builder():
     assert jax.tree.structure(sample) == jax.tree.structure(nominal)
     for x, y in zip(jax.tree.leaves(sample), jax.tree.leaves(nominal)):
         np.testing.assert_array_equal(x, y)
+
+
+def test_a_mission_file_means_in_a_job_what_fly_flies(tmp_path):
+    """A mission file names only what differs from the flight mission: a sweep (whose own
+    default is the paper's mission) naming it flies the flight loop with those changes."""
+    (tmp_path / "short.toml").write_text("T = 100.0\n")
+    flown, _ = missions.load_job({"mission": "short.toml"}, tmp_path, ("sweep",), missions.PAPER)
+    alone = missions.load(tmp_path / "short.toml")
+    assert flown.fingerprint == alone.fingerprint and flown.period_steps == 10 and flown.T == 100.0
+    paper, _ = missions.load_job({"T": 100.0}, tmp_path, ("sweep",), missions.PAPER)  # no file: the job's base
+    assert paper.period_steps is None

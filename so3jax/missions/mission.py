@@ -460,9 +460,11 @@ def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:
 def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple[Mission, dict]:
     """(the mission, {table: value}) of a job file (a sweep, a tuning campaign): its
     ``mission`` entry names a mission file (relative to ``base_dir``), its other mission
-    keys and tables override that file's (or ``base``'s) entries, and ``job_tables`` are the
-    job's own tables. A gains file is relative to the folder of the file naming it: the
-    mission file's, or ``base_dir`` for the job's own entries."""
+    keys and tables override that file's entries, and ``job_tables`` are the job's own
+    tables. A mission file means what ``so3jax fly`` flies (the entries it leaves out the
+    flight mission's, :data:`FLIGHT`); a job without one starts from ``base``. A gains file
+    is relative to the folder of the file naming it: the mission file's, or ``base_dir`` for
+    the job's own entries."""
     d = dict(d)
     jobs = {k: d.pop(k) for k in job_tables if k in d}
     path = d.pop("mission", None)
@@ -475,6 +477,7 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     tables = {}
     if path is not None:
         tables = _gain_files_in(cfg.read_toml(Path(base_dir) / path), (Path(base_dir) / path).parent)
+        base = FLIGHT
     return from_dict(_merge(tables, _gain_files_in(d, base_dir)), base), jobs
 
 
