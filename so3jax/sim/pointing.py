@@ -460,6 +460,14 @@ def check(requirements, t, performance, knowledge, phase_bounds, diverged_worst:
 # --- report -------------------------------------------------------------------------------
 
 
+SAMPLE_COLUMNS = ("APE", "RPE")  # the indices a sweep gives each sample's own of (:func:`column`)
+
+
+def column(controller: str, index: str, level: float, phase: str) -> str:
+    """The name of a sweep's per-sample column of an index's angle at a level in a phase [arcsec]."""
+    return f"{controller}_{index.lower()}_p{100 * level:g}_{phase}_arcsec"
+
+
 def reported(knowledge) -> tuple:
     """The indices a report gives: REPORTED, without the knowledge ones where e_K is None."""
     return REPORTED if knowledge is not None else tuple(i for i in REPORTED if "K" not in i)

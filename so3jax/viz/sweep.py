@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from so3jax.sim import pointing
 from so3jax.viz.styles import style
 
 
@@ -106,14 +107,12 @@ def _pointing_figure(config, cols: dict, phases: list, color: dict):
     right of every other where it is infinite or NaN)."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
-    from so3jax.jobs.sweep.pointing import COLUMN_INDICES, column_name
-
     level = config.mission.pointing["levels"][0]
     fig = Figure(figsize=(max(6.0, 4.2 * len(phases)), 3.8), layout="constrained")
     for ax, (_, phase) in zip(fig.subplots(1, len(phases), squeeze=False)[0], phases):
         for c in config.controllers:
-            for index, line in zip(COLUMN_INDICES, ("-", "--")):
-                x = cols[column_name(c, index, level, phase)]
+            for index, line in zip(pointing.SAMPLE_COLUMNS, ("-", "--")):
+                x = cols[pointing.column(c, index, level, phase)]
                 simulated = ~np.isnan(cols[f"{c}_diverged"])
                 v = np.sort(np.nan_to_num(x[simulated], nan=np.inf))
                 if len(v) and np.isfinite(v).any():

@@ -23,7 +23,6 @@ from so3jax.sim.metrics import reached_phases
 from so3jax.sim.rollout import block_steps
 
 FIELDS = ("pointing_performance", "pointing_knowledge")  # a chunk's recorded errors (S, M, 3) rad
-COLUMN_INDICES = ("APE", "RPE")  # each sample's own, in samples.csv
 
 
 def times(config, n_records: int) -> np.ndarray:
@@ -49,10 +48,6 @@ def _signals(config, r: dict, simulated) -> tuple:
     return times(config, e_p.shape[1]), e_p, e_k
 
 
-def column_name(controller: str, index: str, level: float, phase: str) -> str:
-    return f"{controller}_{index.lower()}_p{100 * level:g}_{phase}_arcsec"
-
-
 def columns(config, results: dict, n: int) -> dict:
     """Each controller's per-sample temporal APE and RPE angle [arcsec] per reached phase, at
     the mission's first level (NaN where not simulated or a diverged sample's is)."""
@@ -64,7 +59,7 @@ def columns(config, results: dict, n: int) -> dict:
     for c in config.controllers:
         r = results.get(c, {})
         done = r.get("done", np.zeros(n, bool))
-        for index in COLUMN_INDICES:
+        for index in pointing.SAMPLE_COLUMNS:
             for b, phase in zip(bounds, names):
                 value = np.full(n, np.nan)
                 usable = index not in pointing.WINDOWED or pointing.whole_windows(b, window) >= 1
@@ -73,7 +68,7 @@ def columns(config, results: dict, n: int) -> dict:
                     x = pointing.index_samples(index, t, e, b, window if index in pointing.WINDOWED else None)
                     if x.shape[1]:
                         value[done] = pointing.quantile(x[..., 3], level, axis=1) * pointing.ARCSEC
-                cols[column_name(c, index, level, phase)] = value
+                cols[pointing.column(c, index, level, phase)] = value
     return cols
 
 
