@@ -80,3 +80,84 @@ def test_the_paper_kind_is_the_default_and_leaves_the_mission_as_it_was():
 def test_bad_reference_tables_are_one_line_errors(override, message):
     with pytest.raises(ValueError, match=message):
         missions.load(None, [override])
+
+
+CONSTANT = "inertia.J=[[1200.0, 0.0, 0.0], [0.0, 1000.0, 0.0], [0.0, 0.0, 800.0]]"
+OWN_PHASES = ("phases.names=['a', 'b']", "phases.start=[0.0, 50.0]")
+
+
+def test_slews_reach_each_target_and_hold_it():
+    targets = [[0.3, 0.0, 0.0], [0.3, 0.4, -0.2]]
+    m, reference = _reference(CONSTANT, *OWN_PHASES, "reference.kind='slews'", f"reference.slews.attitudes={targets}",
+                              "reference.slews.times=[5.0, 70.0]", "reference.slews.max_rate=0.05")
+    ends = np.asarray(reference.times) + np.asarray(reference.durations)
+    for k, (target, end) in enumerate(zip(targets, ends)):
+        t = np.float64(end + 1.0)
+        np.testing.assert_allclose(np.asarray(reference.attitude(t, 0)), Rotation.from_rotvec(target).as_matrix(),
+                                   atol=1e-12)
+        assert not np.asarray(reference.rate(t, 0)).any()
+    assert m.describe()["reference"]["slews"]["times"] == [5.0, 70.0]
+
+
+def test_a_table_from_a_file_passes_through_its_samples(tmp_path):
+    """The mission file's table (a CSV beside it) equals the attitudes it was sampled from at its
+    samples; given inline, the same reference."""
+    times = np.linspace(0.0, 90.0, 10)
+    rotvecs = np.outer(np.sin(times / 30.0), [0.2, -0.1, 0.3])
+    q = Rotation.from_rotvec(rotvecs).as_quat()[:, [3, 0, 1, 2]]  # [w, x, y, z]
+    np.savetxt(tmp_path / "attitude.csv", np.column_stack([times, q]), delimiter=",", header="t,qw,qx,qy,qz",
+               comments="")
+    (tmp_path / "m.toml").write_text(f"T = 100.0\n{CONSTANT}\n[phases]\nnames = ['a', 'b']\nstart = [0.0, 50.0]\n"
+                                     "[reference]\nkind = 'table'\n[reference.table]\nfile = 'attitude.csv'\n")
+    reference = missions.load(tmp_path / "m.toml").scenario("float64").reference
+    for t, v in zip(times, rotvecs):
+        np.testing.assert_allclose(np.asarray(reference.attitude(np.float64(t), 0)),
+                                   Rotation.from_rotvec(v).as_matrix(), atol=1e-12)
+    inline = _reference(CONSTANT, *OWN_PHASES, "reference.kind='table'", f"reference.table.times={times.tolist()}",
+                        f"reference.table.quaternions={q.tolist()}")[1]
+    np.testing.assert_allclose(np.asarray(inline.attitude(np.float64(33.3), 0)),
+                               np.asarray(reference.attitude(np.float64(33.3), 0)), atol=1e-15)
+
+
+def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
+    """A slew reference in a dispersed batch: one for the batch (natively batched), each
+    sample's metrics those of its scenario flown alone."""
+    import jax.numpy as jnp
+
+    from so3jax.missions import build, dispersed
+    from so3jax.sim.rollout import rollout
+
+    m = missions.load(None, ["T=2.0", "control.mode='continuous'", "sensors.gyro=false", "sensors.star_tracker=false",
+                             "estimator.kind='truth'", "actuator.kind='ideal'", "controllers=['pd']", CONSTANT,
+                             "phases.names=['a']", "phases.start=[0.0]", "reference.kind='slews'",
+                             "reference.slews.attitudes=[[0.02, 0.0, 0.0]]", "reference.slews.times=[0.5]"])
+    dispersions, leaves = dispersed.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)
+    inputs = dispersed.inputs(dispersed.draw(dispersions, leaves, 0, 3, 20), jnp.float64)
+    controller, gains = m.controller("pd")
+    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    params = type(inputs[0])(*(x[1] for x in inputs[0]))
+    alone = rollout(build.scenario(m, params), controller, gains, params.seed).metrics
+    np.testing.assert_allclose(batch["rmse"][1], alone.rmse, rtol=1e-12)
+    assert len(np.unique(np.asarray(batch["rmse"]))) == 3
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (("reference.kind='slews'", "reference.slews.attitudes=[[0.3, 0.0, 0.0]]"), "give attitudes"),
+    (("reference.kind='slews'", "reference.slews.attitudes=[[0.3, 0.0, 0.0]]", "reference.slews.times=[1.0, 2.0]"),
+     "1 attitudes and 2 times"),
+    (("reference.kind='slews'", "reference.slews.attitudes=[[3.0, 0.0, 0.0], [0.0, 0.0, 0.0]]",
+      "reference.slews.times=[1.0, 2.0]"), "slew 0 ends at"),
+    (("reference.kind='table'", "reference.table.times=[0.0, 1.0]",
+      "reference.table.quaternions=[[1.0, 0.0, 0.0, 0.0], [0.9, 0.0, 0.0, 0.0]]"), r"quaternions\[1\] is not a unit"),
+    (("reference.kind='table'", "reference.table.times=[1.0, 0.0]",
+      "reference.table.quaternions=[[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]"), "strictly increasing"),
+    (("reference.kind='table'", "reference.table.file='x.csv'", "reference.table.times=[0.0, 1.0]"), "one of the two"),
+    (("phases.names=['a', 'b']", "phases.start=[0.0]"), "one start time per name"),
+    (("phases.names=['a', 'b']", "phases.start=[0.0, 150.0]"), "not before T"),
+])
+def test_bad_reference_and_phase_tables_are_one_line_errors(overrides, message):
+    with pytest.raises(ValueError, match=message) as error:
+        missions.load(None, ["T=100", CONSTANT, "reference.kind='inertial'", *overrides])
+    assert "\n" not in str(error.value)
+    with pytest.raises(ValueError, match="paper's phases"):  # its inertia profile and reference switch there
+        missions.load(None, ["T=100", *OWN_PHASES])

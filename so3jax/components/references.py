@@ -7,9 +7,9 @@
   velocity, z toward nadir, y opposite the orbit normal, turned by ``offset``; the inertial
   frame is that frame at t = 0;
 * ``slews``: rest-to-rest eigenaxis slews through attitudes at given start times, under a
-  rate and an acceleration limit;
+  rate and an acceleration limit (:func:`so3jax.dynamics.attitude_profiles.eigenaxis_slews`);
 * ``table``: a tabulated attitude history (times and unit quaternions, inline or from a
-  file), interpolated through every sample.
+  file), interpolated through every sample (:func:`so3jax.dynamics.attitude_profiles.tabulated`).
 
 The constant-rate kinds (paper, inertial, lvlh) are :class:`~so3jax.dynamics.reference.PiecewiseConstantRate`:
 the batched loop's fast path (:mod:`so3jax.dynamics.stepped`) takes them sample by sample.
@@ -25,6 +25,7 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.core import so3
 from so3jax.core.params import Param
+from so3jax.dynamics import attitude_profiles as profiles
 from so3jax.dynamics import reference as ref
 
 
@@ -81,4 +82,75 @@ components.register(components.ComponentSpec(
                   doc="the desired body frame turned from LVLH by exp(hat(offset))"),),
     build=_lvlh,
     doc="the orbit frame of [orbit] n: x along the velocity, z to nadir; Omega_d = offset^T [0, -n, 0]",
+))
+
+
+def _slews_values(values: dict) -> dict:
+    """The slews' attitudes and times given, as many of each, and the plan possible (each
+    slew ends before the next starts): one-line ValueErrors at parse time."""
+    attitudes, times = values.get("attitudes"), values.get("times")
+    if attitudes is None or times is None:
+        raise ValueError("reference.slews: give attitudes (a rotation vector per slew) and times (each slew's start)")
+    if len(attitudes) != len(times):
+        raise ValueError(f"reference.slews: {len(attitudes)} attitudes and {len(times)} times: one start time per slew")
+    try:
+        _slews(values, np.asarray)
+    except ValueError as error:
+        raise ValueError(f"reference.slews: {error}") from None
+    return values
+
+
+def _slews(values: dict, as_array):
+    targets = np.stack([_rotation(v) for v in values["attitudes"]])
+    return profiles.eigenaxis_slews(as_array(_rotation(values["start"])), as_array(targets),
+                                    as_array(values["times"]), as_array(values["max_rate"]),
+                                    as_array(values["max_acceleration"]))
+
+
+def _table_values(values: dict) -> dict:
+    """The table's samples: from ``file`` or inline ``times`` and ``quaternions``, one of the
+    two; adds ``rotations`` (K, 3, 3)."""
+    inline = values.get("times") is not None or values.get("quaternions") is not None
+    if (values.get("file") is not None) == inline:
+        raise ValueError("reference.table: give file, or times and quaternions, one of the two")
+    try:
+        if values.get("file") is not None:
+            times, rotations = profiles.read_attitude_table(values["file"])
+        else:
+            q = np.asarray(values.get("quaternions"), np.float64)
+            norms = np.linalg.norm(q, axis=-1) if q.ndim == 2 else np.zeros(0)
+            bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-6)
+            if bad.size:
+                raise ValueError(f"quaternions[{bad[0]}] is not a unit quaternion (norm {norms[bad[0]]:.9g})")
+            times, rotations = np.asarray(values.get("times"), np.float64), profiles.quaternion_to_rotation(q)
+        profiles.tabulated(times, rotations)
+    except ValueError as error:
+        raise ValueError(f"reference.table: {error}") from None
+    return {**values, "times": times, "rotations": rotations}
+
+
+components.register(components.ComponentSpec(
+    kind="reference", name="slews", component=profiles.EigenaxisSlews,
+    params=(
+        Param("start", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="R_d(0) = exp(hat(start)), a rotation vector"),
+        Param("attitudes", None, "rad", shapes=((None, 3),), doc="each slew's target attitude, a rotation vector"),
+        Param("times", None, "s", shapes=((None,),), low=0.0, doc="each slew's start time, ascending"),
+        Param("max_rate", 0.02, "rad/s", low=0.0, doc="rate limit |Omega_d| <= max_rate"),
+        Param("max_acceleration", 1e-3, "rad/s^2", low=0.0, doc="peak angular acceleration of each raised-sine pulse"),
+    ),
+    complete=_slews_values,
+    build=lambda v, ctx: _slews(v, ctx.as_array),
+    doc="rest-to-rest eigenaxis slews through the attitudes, each in minimum time under the limits, holding between",
+))
+components.register(components.ComponentSpec(
+    kind="reference", name="table", component=profiles.Tabulated,
+    params=(
+        Param("file", None, text=True, doc="a CSV (header t, qw, qx, qy, qz) or .npz (t, q) of unit quaternions, "
+                                           "relative to the mission file"),
+        Param("times", None, "s", shapes=((None,),), doc="the samples' times, increasing (instead of file)"),
+        Param("quaternions", None, shapes=((None, 4),), doc="the samples' attitudes [w, x, y, z], unit"),
+    ),
+    complete=_table_values,
+    build=lambda v, ctx: profiles.tabulated(ctx.as_array(v["times"]), ctx.as_array(v["rotations"])),
+    doc="a tabulated attitude history, a cubic through every sample (rates: central differences), held outside",
 ))

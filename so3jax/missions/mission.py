@@ -384,13 +384,18 @@ def gains_file(path, controller: str) -> tuple:
 
 
 def _gain_files_in(tables: dict, folder) -> dict:
-    """The tables of a file in ``folder`` with the gains files its [gains] table names
-    made absolute, relative to that folder (the file's own, like a job's mission path)."""
+    """The tables of a file in ``folder`` with the gains files its [gains] table names and its
+    reference table's file made absolute, relative to that folder (the file's own, like a
+    job's mission path)."""
     given = tables.get("gains")
-    if not isinstance(given, dict):
-        return tables
-    paths = {name: str((Path(folder) / v).resolve()) for name, v in given.items() if isinstance(v, str)}
-    return {**tables, "gains": {**given, **paths}}
+    if isinstance(given, dict):
+        paths = {name: str((Path(folder) / v).resolve()) for name, v in given.items() if isinstance(v, str)}
+        tables = {**tables, "gains": {**given, **paths}}
+    table = tables.get("reference", {}).get("table") if isinstance(tables.get("reference"), dict) else None
+    if isinstance(table, dict) and isinstance(table.get("file"), str):  # reference.table.file
+        reference = {**tables["reference"], "table": {**table, "file": str((Path(folder) / table["file"]).resolve())}}
+        tables = {**tables, "reference": reference}
+    return tables
 
 
 def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | None:

@@ -1,0 +1,419 @@
+"""Attitude profiles as references (docs/model.md §2): rest-to-rest eigenaxis slews through
+a list of attitudes, and an attitude table interpolated through its samples (the constant
+rates, the paper's, a fixed attitude and the orbit frame, are
+:class:`~so3jax.dynamics.reference.PiecewiseConstantRate`: :mod:`so3jax.components.references`).
+
+Body-frame convention: R_d maps desired-body to inertial, R_d' = R_d hat(Omega_d), so
+Omega_d = vee(R_d^T R_d') [rad/s] and Omega_d' [rad/s^2] its time derivative. Every method
+is JAX-traceable in t [s] (jit, vmap, grad), computes in the dtype of the reference's
+arrays (the builders keep their inputs' dtype) and ignores ``phase``. The builders check
+their inputs (one-line ValueErrors): :func:`eigenaxis_slews` and :func:`tabulated` read the
+values, so they take concrete arrays; """
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.core import so3
+from so3jax.core.pytree import pytree_dataclass
+from so3jax.dynamics.reference import Reference
+
+_ROTATION_TOLERANCE = 1e-6  # |R^T R - I| (largest entry), |det R - 1|, ||q| - 1|
+_SMALL_ANGLE2 = 1e-3  # below it the right Jacobian's series are exact to float64 round-off
+
+
+def _float_dtype(x):
+    """x's dtype where it is floating, else JAX's default float (float64 with x64)."""
+    dtype = jnp.asarray(x).dtype
+    return dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.asarray(0.0).dtype
+
+
+def _time(t, like):
+    """t [s] as a scalar of ``like``'s dtype (an explicit cast: no promotion)."""
+    return jnp.asarray(t, dtype=like.dtype)
+
+
+def _shared(reference, core_ndims: dict):
+    """The reference with a trailing unit axis dropped from every leaf that has one beyond its
+    core ndim: a reference shared by a natively batched rollout
+    (:func:`so3jax.sim.rollout.rollout_batch`) gets one."""
+    changes = {name: getattr(reference, name)[..., 0] for name, ndim in core_ndims.items()
+               if jnp.ndim(getattr(reference, name)) > ndim}
+    return dataclasses.replace(reference, **changes) if changes else reference
+
+
+def _check_rotations(name: str, r) -> None:
+    """One-line ValueError unless r (K, 3, 3) holds rotations (orthonormal, det +1, to 1e-6)."""
+    r = np.asarray(r, np.float64)
+    gram = np.einsum("kji,kjl->kil", r, r) - np.eye(3)
+    error = np.where(np.isfinite(gram).all(axis=(1, 2)), np.abs(gram).max(axis=(1, 2)), np.inf)
+    det = np.linalg.det(np.where(np.isfinite(r), r, 0.0))
+    bad = np.flatnonzero((error > _ROTATION_TOLERANCE) | (np.abs(det - 1.0) > _ROTATION_TOLERANCE))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{name}[{i}] is not a rotation: max |R^T R - I| = {error[i]:.3g}, det R = {det[i]:.9g} "
+                         f"(tolerance {_ROTATION_TOLERANCE:g})")
+
+
+def _check_shape(name: str, x, shape) -> None:
+    """One-line ValueError unless x has ``shape`` (None: any length)."""
+    ok = x.ndim == len(shape) and all(n is None or n == m for n, m in zip(shape, x.shape))
+    if not ok:
+        want = "(" + ", ".join("K" if n is None else str(n) for n in shape) + ("," if len(shape) == 1 else "") + ")"
+        raise ValueError(f"{name} must have shape {want}, not {tuple(x.shape)}")
+
+
+def right_jacobian(v):
+    """J_r(v) = I - (1 - cos t) / t^2 hat(v) + (t - sin t) / t^3 hat(v)^2, t = |v|: exp(hat(v + dv)) =
+    exp(hat(v)) exp(hat(J_r(v) dv)) to first order. (3, ...) -> (3, 3, ...); series below t^2 = 1e-3
+    (values and gradients finite at 0). Its inverse: :func:`so3jax.core.so3.jr_inv`."""
+    theta2 = so3.dot(v, v)
+    small = theta2 < _SMALL_ANGLE2
+    t2 = jnp.where(small, 1.0, theta2)
+    theta = jnp.sqrt(t2)
+    sin_half = jnp.sin(0.5 * theta)
+    b = jnp.where(small, 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0)), 2.0 * sin_half**2 / t2)
+    c = jnp.where(small, (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0))) / 6.0,
+                  (theta - jnp.sin(theta)) / (t2 * theta))
+    h = so3.hat(v)
+    return so3.eye_like(v) - b * h + c * so3.matmul(h, h)
+
+
+# --- a fixed attitude, a uniform rotation ------------------------------------------------------
+
+
+def _slew_timing(angle, max_rate, max_acceleration):
+    """(pulse duration tau, coast duration) [s] of the minimum-time slew through ``angle`` [rad].
+
+    One raised-sine pulse of peak A turns the rate by A tau / 2 and, from rest, the attitude by
+    A tau^2 / 4; two pulses (no coast) turn A tau^2 / 2, so tau = sqrt(2 angle / A) while the
+    peak rate sqrt(A angle / 2) stays within W, i.e. angle <= 2 W^2 / A; beyond, tau = 2 W / A
+    and the rate coasts at W for (angle - 2 W^2 / A) / W.
+    """
+    coasting = angle > 2.0 * max_rate**2 / max_acceleration
+    pulse = jnp.where(coasting, 2.0 * max_rate / max_acceleration, jnp.sqrt(2.0 * angle / max_acceleration))
+    coast = jnp.where(coasting, angle / max_rate - 2.0 * max_rate / max_acceleration, 0.0)
+    return pulse, coast
+
+
+def slew_duration(angle, max_rate, max_acceleration):
+    """Duration [s] of the minimum-time rest-to-rest slew through ``angle`` [rad] with raised-sine
+    acceleration pulses of peak max_acceleration [rad/s^2] and rate <= max_rate [rad/s]:
+    2 sqrt(2 angle / A) for angle <= 2 W^2 / A, else angle / W + 2 W / A."""
+    pulse, coast = _slew_timing(angle, max_rate, max_acceleration)
+    return 2.0 * pulse + coast
+
+
+def _pulse(u):
+    """The rising pulse per unit peak, u = s / tau in [0, 1]: (theta / (A tau^2), theta' / (A tau),
+    theta'' / A) = (u^2/4 - sin^2(pi u) / (4 pi^2), u/2 - sin(2 pi u) / (4 pi), sin^2(pi u))."""
+    sin = jnp.sin(math.pi * u)
+    position = 0.25 * u * u - sin * sin / (4.0 * math.pi**2)
+    return position, 0.5 * u - jnp.sin(2.0 * math.pi * u) / (4.0 * math.pi), sin * sin
+
+
+def _slew_profile(s, angle, pulse, coast, duration, max_acceleration):
+    """theta, theta', theta'' [rad, rad/s, rad/s^2] at s [s] after the slew's start: 0 before,
+    the accelerating pulse on [0, tau), the coast at A tau / 2, the mirrored decelerating
+    pulse (of the time left, duration - s) up to the duration, the angle after (rates 0)."""
+    s = jnp.where(s < 0.0, 0.0, jnp.where(s > duration, duration, s))
+    A = max_acceleration
+    accelerating = s < pulse
+    decelerating = s > pulse + coast
+    safe_pulse = jnp.where(pulse > 0.0, pulse, 1.0)  # a zero-angle slew: no pulse, no division by 0
+    position, speed, acceleration = _pulse(jnp.where(decelerating, duration - s, s) / safe_pulse)
+    peak = 0.5 * A * pulse
+    rising = A * pulse**2 * position
+    coasting = 0.25 * A * pulse**2 + peak * (s - pulse)
+    theta = jnp.where(accelerating, rising, jnp.where(decelerating, angle - rising, coasting))
+    rate = jnp.where(accelerating | decelerating, A * pulse * speed, peak)
+    acceleration = jnp.where(accelerating, A * acceleration, jnp.where(decelerating, -A * acceleration, 0.0))
+    return theta, rate, acceleration
+
+
+@pytree_dataclass
+class EigenaxisSlews(Reference):
+    """Rest-to-rest eigenaxis slews: slew k, from starts[k] to starts[k + 1], starts at times[k].
+
+    R_d(t) = starts[k] exp(hat(axes[k]) theta_k(t - times[k])) for the last slew k started,
+    starts[0] before the first; Omega_d = axes[k] theta_k', Omega_d' = axes[k] theta_k''.
+    theta_k: a raised-sine acceleration pulse theta'' = A sin^2(pi s / tau) (s in [0, tau]),
+    a coast at the rate limit, the mirrored pulse, then held at angles[k]. Build with
+    :func:`eigenaxis_slews`.
+    """
+
+    times: jax.Array  # (K,) slew start times [s]
+    starts: jax.Array  # (K + 1, 3, 3): R_d before slew 0, after slew 0, ..., after slew K - 1
+    axes: jax.Array  # (K, 3) unit eigenaxes (0 for a zero-angle slew)
+    angles: jax.Array  # (K,) [rad]
+    pulses: jax.Array  # (K,) tau [s], each acceleration pulse's duration
+    coasts: jax.Array  # (K,) [s] at max_rate
+    durations: jax.Array  # (K,) [s] = 2 tau + coast
+    max_rate: jax.Array  # () [rad/s]
+    max_acceleration: jax.Array  # () A [rad/s^2]
+    _CORE = {"times": 1, "starts": 3, "axes": 2, "angles": 1, "pulses": 1, "coasts": 1, "durations": 1,
+             "max_rate": 0, "max_acceleration": 0}
+
+    def _profile(self, t):
+        """(k, s = t - times[k], theta, theta', theta'') of the last slew k started (k = 0 before the first)."""
+        self = _shared(self, self._CORE)  # noqa: PLW0642 (the same reference, its leaves unbatched)
+        t = _time(t, self.times)
+        k = jnp.maximum(jnp.searchsorted(self.times, t, side="right", method="compare_all") - 1, 0)
+        s = t - self.times[k]
+        profile = _slew_profile(s, self.angles[k], self.pulses[k], self.coasts[k], self.durations[k],
+                                self.max_acceleration)
+        return (k, s) + profile
+
+    def rate(self, t, phase):
+        """Omega_d = axis_k theta_k' [rad/s]."""
+        k, _, _, rate, _ = self._profile(t)
+        return _shared(self, self._CORE).axes[k] * rate
+
+    def rate_dot(self, t, phase):
+        """Omega_d' = axis_k theta_k'' [rad/s^2]."""
+        k, _, _, _, acceleration = self._profile(t)
+        return _shared(self, self._CORE).axes[k] * acceleration
+
+    def attitude(self, t, phase):
+        """R_d = starts[k] exp(hat(axis_k) theta_k); the target starts[k + 1] itself once slew k ends."""
+        k, s, theta, _, _ = self._profile(t)
+        self = _shared(self, self._CORE)  # noqa: PLW0642
+        turning = so3.matmul(self.starts[k], so3.exp(self.axes[k] * theta, select=True))
+        return jnp.where(s >= self.durations[k], self.starts[k + 1], turning)
+
+
+@jax.jit
+def _slew_plan(start, attitudes, max_rate, max_acceleration):
+    """(starts, axes, angles, pulses, coasts, durations) of eigenaxis slews through ``attitudes``."""
+    starts = jnp.concatenate([start[None], attitudes])
+    rotvecs = jax.vmap(lambda a, b: so3.log(so3.rmatmul(a, b), select=True))(starts[:-1], starts[1:])
+    angles = so3.safe_norm(rotvecs.T)
+    axes = rotvecs / jnp.where(angles > 0.0, angles, 1.0)[:, None]
+    pulses, coasts = _slew_timing(angles, max_rate, max_acceleration)
+    return starts, axes, angles, pulses, coasts, 2.0 * pulses + coasts
+
+
+def eigenaxis_slews(start, attitudes, times, max_rate, max_acceleration) -> EigenaxisSlews:
+    """Rest-to-rest eigenaxis slews from ``start`` (3, 3) = R_d(0) through ``attitudes`` (K, 3, 3),
+    slew k starting at times[k] [s] (ascending, times[0] >= 0), each in minimum time under
+    |Omega_d| <= max_rate [rad/s] and raised-sine acceleration pulses of peak max_acceleration
+    [rad/s^2] (:func:`slew_duration`); the attitude is held between slews. Slew k turns about the
+    fixed axis of log(R_{k-1}^T R_k) (R_{-1} = start). ValueError where a slew would end after the
+    next one starts (``durations`` gives each slew's duration).
+    """
+    dtype = _float_dtype(attitudes)
+    attitudes = jnp.asarray(attitudes, dtype=dtype)
+    start, times = jnp.asarray(start, dtype=dtype), jnp.asarray(times, dtype=dtype)
+    max_rate, max_acceleration = jnp.asarray(max_rate, dtype=dtype), jnp.asarray(max_acceleration, dtype=dtype)
+    _check_shape("eigenaxis_slews start", start, (3, 3))
+    _check_shape("eigenaxis_slews attitudes", attitudes, (None, 3, 3))
+    K = attitudes.shape[0]
+    _check_shape("eigenaxis_slews times", times, (K,))
+    if K == 0:
+        raise ValueError("eigenaxis_slews: no attitudes (attitudes must have shape (K, 3, 3) with K >= 1)")
+    for name, value in (("max_rate", max_rate), ("max_acceleration", max_acceleration)):
+        if value.shape != () or not float(value) > 0.0 or not np.isfinite(float(value)):
+            raise ValueError(f"eigenaxis_slews: {name} must be a positive finite scalar, not {np.asarray(value)}")
+    t = np.asarray(times, np.float64)
+    if not np.isfinite(t).all() or t[0] < 0.0:
+        raise ValueError(f"eigenaxis_slews: times must be finite and times[0] >= 0, not {t.tolist()}")
+    if np.any(np.diff(t) < 0.0):
+        k = int(np.flatnonzero(np.diff(t) < 0.0)[0])
+        raise ValueError(f"eigenaxis_slews: times must be ascending: times[{k + 1}] = {t[k + 1]:g} s "
+                         f"< times[{k}] = {t[k]:g} s")
+    _check_rotations("eigenaxis_slews start", start[None])
+    _check_rotations("eigenaxis_slews attitudes", attitudes)
+    plan = _slew_plan(start, attitudes, max_rate, max_acceleration)
+    ends = t + np.asarray(plan[-1], np.float64)
+    tolerance = 16.0 * float(jnp.finfo(dtype).eps) * np.maximum(1.0, np.abs(ends))
+    late = np.flatnonzero(ends[:-1] > t[1:] + tolerance[:-1])
+    if late.size:
+        k = int(late[0])
+        raise ValueError(f"eigenaxis_slews: slew {k} ends at {ends[k]:.9g} s (duration {ends[k] - t[k]:.9g} s), "
+                         f"after slew {k + 1} starts at {t[k + 1]:.9g} s")
+    return EigenaxisSlews(times, *plan, max_rate, max_acceleration)
+
+
+# --- a tabulated attitude history ---------------------------------------------------------------
+
+
+@pytree_dataclass
+class Tabulated(Reference):
+    """An attitude history R_k at times t_k [s] (K >= 2), interpolated C1 through every sample.
+
+    On [t_k, t_{k+1}]: R_d(t) = R_k exp(hat(p(t))), p the cubic Hermite with p(t_k) = 0,
+    p'(t_k) = w_k, p(t_{k+1}) = log(R_k^T R_{k+1}), p'(t_{k+1}) = J_r^{-1}(p(t_{k+1})) w_{k+1}
+    (so the body rate at knot k is w_k [rad/s]). Omega_d = vee(R_d^T R_d') and Omega_d' are the
+    interpolant's own derivatives, by forward-mode differentiation in t. Outside [t_0, t_{K-1}]
+    the end attitude is held, Omega_d = Omega_d' = 0. Build with :func:`tabulated`.
+    """
+
+    times: jax.Array  # (K,) [s], strictly increasing
+    rotations: jax.Array  # (K, 3, 3)
+    rates: jax.Array  # (K, 3) w_k [rad/s], body rates at the knots
+    increments: jax.Array  # (K - 1, 3) log(R_k^T R_{k+1})
+    end_slopes: jax.Array  # (K - 1, 3) J_r^{-1}(increments[k]) w_{k+1} [rad/s]
+    _CORE = {"times": 1, "rotations": 3, "rates": 2, "increments": 2, "end_slopes": 2}
+
+    def _interval(self, t):
+        """(k, t held in [t_0, t_{K-1}], dt/dt (1 inside, 0 where held), t' -> exp(hat(p(t'))) on interval k)."""
+        self = _shared(self, self._CORE)  # noqa: PLW0642 (the same reference, its leaves unbatched)
+        times, t = self.times, _time(t, self.times)
+        held = jnp.where(t < times[0], times[0], jnp.where(t > times[-1], times[-1], t))
+        moving = jnp.where(held == t, 1.0, 0.0).astype(t.dtype)
+        k = jnp.clip(jnp.searchsorted(times, held, side="right") - 1, 0, times.shape[0] - 2)
+        start, h = times[k], times[k + 1] - times[k]
+        w0, p1, slope1 = self.rates[k], self.increments[k], self.end_slopes[k]
+
+        def turn(t):
+            u = (t - start) / h
+            u2 = u * u
+            u3 = u2 * u
+            p = (h * (u3 - 2.0 * u2 + u)) * w0 + (3.0 * u2 - 2.0 * u3) * p1 + (h * (u3 - u2)) * slope1
+            return so3.exp(p, select=True)
+
+        return k, held, moving, turn
+
+    def attitude(self, t, phase):
+        """R_d(t) = R_k exp(hat(p(t)))."""
+        k, held, _, turn = self._interval(t)
+        return so3.matmul(_shared(self, self._CORE).rotations[k], turn(held))
+
+    def rate(self, t, phase):
+        """Omega_d = vee(R_d^T R_d') = vee(E^T E') [rad/s], E = exp(hat(p(t))) (forward mode)."""
+        _, held, moving, turn = self._interval(t)
+        return _body_rate(turn, held, moving)
+
+    def rate_dot(self, t, phase):
+        """Omega_d' [rad/s^2] (forward mode over Omega_d)."""
+        _, held, moving, turn = self._interval(t)
+        return jax.jvp(lambda t: _body_rate(turn, t, moving), (held,), (moving,))[1]
+
+
+def _body_rate(turn, t, dt):
+    """vee(E^T dE / dt) of E = turn(t) (3, 3), dt: the tangent of t (1, or 0 where held)."""
+    E, E_dot = jax.jvp(turn, (t,), (dt,))
+    return so3.skew_vee(so3.rmatmul(E, E_dot))
+
+
+def _neighbours(K: int):
+    """Two other knots for each knot's rate: (k - 1, k + 1) inside, (1, 2) and (K - 2, K - 3) at the ends."""
+    k = np.arange(K)
+    first, second = k - 1, k + 1
+    first[0], second[0] = 1, 2
+    first[-1], second[-1] = K - 2, K - 3
+    return first, second
+
+
+@jax.jit
+def _table_terms(times, rotations, rates):
+    """(rates, log(R_k^T R_{k+1}), J_r^{-1}(that) w_{k+1}) for Tabulated; rates None: estimated,
+    from xi_j = log(R_k^T R_j) = d_j w_k + d_j^2 / 2 w_k' + O(d^3), d_j = t_j - t_k, at two other
+    knots j: w_k = (d_2^2 xi_1 - d_1^2 xi_2) / (d_1 d_2 (d_2 - d_1)), central inside, one-sided at
+    the ends (both second order); K = 2: w_0 = w_1 = log(R_0^T R_1) / (t_1 - t_0). One log for all."""
+    K = times.shape[0]
+    k = np.arange(K - 1)
+    a, b = [k], [k + 1]
+    if rates is None and K > 2:
+        first, second = _neighbours(K)
+        a, b = a + [np.arange(K)] * 2, b + [first, second]
+    a, b = np.concatenate(a), np.concatenate(b)
+    logs = jax.vmap(lambda x, y: so3.log(so3.rmatmul(x, y), select=True))(rotations[a], rotations[b])
+    increments = logs[:K - 1]
+    if rates is None and K == 2:
+        rates = jnp.concatenate([increments, increments]) / (times[1] - times[0])
+    elif rates is None:
+        xi1, xi2 = logs[K - 1:2 * K - 1], logs[2 * K - 1:]
+        d1, d2 = (times[first] - times)[:, None], (times[second] - times)[:, None]
+        rates = (d2 * d2 * xi1 - d1 * d1 * xi2) / (d1 * d2 * (d2 - d1))
+    return rates, increments, jax.vmap(so3.jr_inv_apply)(increments, rates[1:])
+
+
+def tabulated(times, rotations, rates=None) -> Tabulated:
+    """The C1 interpolant of :class:`Tabulated` through rotations (K, 3, 3) at times (K,) [s]
+    (strictly increasing, K >= 2), with body rates (K, 3) [rad/s] at the knots where given, else
+    estimated by second-order differences of the logs of the relative rotations to the
+    neighbouring knots (central inside, one-sided at the ends)."""
+    dtype = _float_dtype(rotations)
+    rotations, times = jnp.asarray(rotations, dtype=dtype), jnp.asarray(times, dtype=dtype)
+    _check_shape("tabulated times", times, (None,))
+    K = times.shape[0]
+    if K < 2:
+        raise ValueError(f"tabulated: at least 2 samples are needed, not {K}")
+    _check_shape("tabulated rotations", rotations, (K, 3, 3))
+    t = np.asarray(times, np.float64)
+    if not np.isfinite(t).all():
+        raise ValueError("tabulated: times must be finite")
+    steps = np.diff(t)
+    if np.any(steps <= 0.0):
+        k = int(np.flatnonzero(steps <= 0.0)[0])
+        raise ValueError(f"tabulated: times must be strictly increasing: times[{k + 1}] = {t[k + 1]:g} s "
+                         f"<= times[{k}] = {t[k]:g} s")
+    _check_rotations("tabulated rotations", rotations)
+    if rates is not None:
+        rates = jnp.asarray(rates, dtype=dtype)
+        _check_shape("tabulated rates", rates, (K, 3))
+        if not np.isfinite(np.asarray(rates, np.float64)).all():
+            raise ValueError("tabulated: rates must be finite")
+    return Tabulated(times, rotations, *_table_terms(times, rotations, rates))
+
+
+def quaternion_to_rotation(q) -> np.ndarray:
+    """Rotation matrices (K, 3, 3) of unit quaternions q (K, 4) [w, x, y, z] (Hamilton; the
+    matrix maps body to inertial as R_d does)."""
+    q = np.asarray(q, np.float64)
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], axis=-1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], axis=-1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
+
+
+_TABLE_COLUMNS = ("t", "qw", "qx", "qy", "qz")
+
+
+def read_attitude_table(path) -> tuple[np.ndarray, np.ndarray]:
+    """(times (K,) [s], rotations (K, 3, 3)), float64, from a CSV file (a header line naming the
+    columns t, qw, qx, qy, qz, in any order) or a .npz file (arrays t (K,) and q (K, 4)
+    [w, x, y, z]) of unit quaternions (to 1e-6; normalized). For :func:`tabulated`."""
+    path = Path(path)
+    if path.suffix == ".npz":
+        with np.load(path) as data:
+            missing = [name for name in ("t", "q") if name not in data.files]
+            if missing:
+                raise ValueError(f"{path}: no array {missing[0]!r} (arrays t (K,) and q (K, 4) [w, x, y, z] needed)")
+            times, q = np.asarray(data["t"], np.float64), np.asarray(data["q"], np.float64)
+        rows = [f"q[{i}]" for i in range(len(q))]
+    else:
+        with open(path) as f:
+            header = [name.strip() for name in f.readline().split(",")]
+        missing = [name for name in _TABLE_COLUMNS if name not in header]
+        if missing:
+            raise ValueError(f"{path}: the header line names no column {missing[0]!r} "
+                             f"(columns {', '.join(_TABLE_COLUMNS)} needed), it reads {','.join(header)!r}")
+        try:
+            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
+        except ValueError as e:
+            reason = str(e).splitlines()[0]
+            raise ValueError(f"{path}: not a table of numbers after the header line ({reason})") from None
+        if table.shape[1] != len(header):
+            raise ValueError(f"{path}: {table.shape[1]} columns of numbers, {len(header)} named in the header")
+        times = table[:, header.index("t")]
+        q = table[:, [header.index(name) for name in _TABLE_COLUMNS[1:]]]
+        rows = [f"line {i + 2}" for i in range(len(q))]
+    if times.ndim != 1 or q.shape != (times.shape[0], 4):
+        raise ValueError(f"{path}: t must have shape (K,) and q (K, 4), not {times.shape} and {q.shape}")
+    norms = np.linalg.norm(q, axis=1)
+    bad = np.flatnonzero(~(np.abs(norms - 1.0) <= _ROTATION_TOLERANCE))
+    if bad.size:
+        i = int(bad[0])
+        raise ValueError(f"{path}: {rows[i]} (t = {times[i]:g} s): quaternion norm {norms[i]:.9g}, not 1 "
+                         f"(tolerance {_ROTATION_TOLERANCE:g})")
+    return times, quaternion_to_rotation(q / norms[:, None])
