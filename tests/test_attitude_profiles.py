@@ -17,7 +17,6 @@ import pytest
 from scipy.integrate import quad
 from scipy.spatial.transform import Rotation
 
-from so3jax.core import so3
 from so3jax.dynamics import attitude_profiles as refs
 
 N_BATCH = 256  # evaluations run in batches of this many times: one program per reference shape
@@ -303,26 +302,6 @@ def test_table_converges_with_the_sample_spacing():
     assert estimated[0] < 1e-3 * h**3 and estimated[1] < estimated[0] / 6.5, estimated
     assert exact[0] < 1e-4 * h**4 and exact[1] < exact[0] / 13.0, exact
     assert exact[0] < estimated[0] / 3 and exact[1] < estimated[1] / 5, (estimated, exact)
-
-
-@compiled
-def _jacobians(vs):
-    grad = jax.grad(lambda v: jnp.sum(refs.right_jacobian(v) * jnp.arange(9.0).reshape(3, 3)))(jnp.zeros(3))
-    return refs.right_jacobian(vs), so3.matmul(refs.right_jacobian(vs), so3.jr_inv(vs)), grad
-
-
-def test_right_jacobian():
-    """exp(hat(v + dv)) = exp(hat(v)) exp(hat(J_r(v) dv)) to first order (scipy); J_r J_r^{-1} = I;
-    finite gradient at 0."""
-    vs = np.array([[0.0, 0.0, 0.0], [1e-3, -2e-3, 5e-4], [0.02, 0.01, -0.01], [0.4, -1.1, 2.0]])
-    Jr, product, grad = (np.asarray(x) for x in _jacobians(jnp.asarray(vs.T)))
-    np.testing.assert_allclose(product, np.broadcast_to(np.eye(3)[:, :, None], product.shape), atol=1e-15)
-    assert np.isfinite(grad).all()
-    dv = 1e-7 * np.array([0.3, -0.5, 0.8])
-    for i, v in enumerate(vs):
-        moved = (Rotation.from_rotvec(v).inv() * Rotation.from_rotvec(v + dv)).as_rotvec()
-        np.testing.assert_allclose(moved, Jr[:, :, i] @ dv, atol=1e-13)
-    assert np.abs(Jr[:, :, 3] - np.eye(3)).max() > 0.1
 
 
 def _quaternions(K):

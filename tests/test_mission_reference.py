@@ -122,6 +122,7 @@ def test_a_table_from_a_file_passes_through_its_samples(tmp_path):
 def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
     """A slew reference in a dispersed batch: one for the batch (natively batched), each
     sample's metrics those of its scenario flown alone."""
+    import jax
     import jax.numpy as jnp
 
     from so3jax.missions import build, dispersed
@@ -134,7 +135,8 @@ def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
     dispersions, leaves = dispersed.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)
     inputs = dispersed.inputs(dispersed.draw(dispersions, leaves, 0, 3, 20), jnp.float64)
     controller, gains = m.controller("pd")
-    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    run = jax.jit(lambda inputs: dispersed.sample_metrics(inputs, gains, controller=controller, mission=m))
+    batch = run(inputs)  # under jit, as a sweep runs it
     params = type(inputs[0])(*(x[1] for x in inputs[0]))
     alone = rollout(build.scenario(m, params), controller, gains, params.seed).metrics
     np.testing.assert_allclose(batch["rmse"][1], alone.rmse, rtol=1e-12)

@@ -25,7 +25,6 @@ from so3jax.core.pytree import pytree_dataclass
 from so3jax.dynamics.reference import Reference
 
 _ROTATION_TOLERANCE = 1e-6  # |R^T R - I| (largest entry), |det R - 1|, ||q| - 1|
-_SMALL_ANGLE2 = 1e-3  # below it the right Jacobian's series are exact to float64 round-off
 
 
 def _float_dtype(x):
@@ -67,25 +66,6 @@ def _check_shape(name: str, x, shape) -> None:
     if not ok:
         want = "(" + ", ".join("K" if n is None else str(n) for n in shape) + ("," if len(shape) == 1 else "") + ")"
         raise ValueError(f"{name} must have shape {want}, not {tuple(x.shape)}")
-
-
-def right_jacobian(v):
-    """J_r(v) = I - (1 - cos t) / t^2 hat(v) + (t - sin t) / t^3 hat(v)^2, t = |v|: exp(hat(v + dv)) =
-    exp(hat(v)) exp(hat(J_r(v) dv)) to first order. (3, ...) -> (3, 3, ...); series below t^2 = 1e-3
-    (values and gradients finite at 0). Its inverse: :func:`so3jax.core.so3.jr_inv`."""
-    theta2 = so3.dot(v, v)
-    small = theta2 < _SMALL_ANGLE2
-    t2 = jnp.where(small, 1.0, theta2)
-    theta = jnp.sqrt(t2)
-    sin_half = jnp.sin(0.5 * theta)
-    b = jnp.where(small, 0.5 - theta2 / 24.0 * (1.0 - theta2 / 30.0 * (1.0 - theta2 / 56.0)), 2.0 * sin_half**2 / t2)
-    c = jnp.where(small, (1.0 - theta2 / 20.0 * (1.0 - theta2 / 42.0 * (1.0 - theta2 / 72.0))) / 6.0,
-                  (theta - jnp.sin(theta)) / (t2 * theta))
-    h = so3.hat(v)
-    return so3.eye_like(v) - b * h + c * so3.matmul(h, h)
-
-
-# --- a fixed attitude, a uniform rotation ------------------------------------------------------
 
 
 def _slew_timing(angle, max_rate, max_acceleration):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -51,11 +52,13 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
 
 def reference(mission, scenario: Scenario, n):
     """The mission's reference (``[reference] kind``, :mod:`so3jax.components.references`) in
-    the scenario's dtype, for the orbital rate n [rad/s]."""
+    the scenario's dtype, for the orbital rate n [rad/s] (traced in a sweep: what depends on
+    it is traced, the rest computed when traced)."""
     kind = mission.reference["kind"]
     dtype = scenario.R0.dtype
     context = ReferenceContext(lambda x: jnp.asarray(x, dtype), n, scenario.phase_times, scenario.reference)
-    return components.get("reference", kind).build(mission.reference[kind], context)
+    with jax.ensure_compile_time_eval():  # a builder that checks its values sees them, also inside jit
+        return components.get("reference", kind).build(mission.reference[kind], context)
 
 
 def rotation(rotvec) -> np.ndarray:
