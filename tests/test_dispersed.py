@@ -144,12 +144,12 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
         t = {k: f[k] for k in f.files}
     with np.load(tmp_path / "out" / "chunks" / "pd-000000000.npz") as f:
         e_p, e_k = f["pointing_performance"], f["pointing_knowledge"]
-    assert e_p.shape == e_k.shape == (8, 11, 3)  # every tick, then T
+    assert e_p.shape == e_k.shape == (8, 10, 3)
     assert (tmp_path / "out" / "pointing.png").exists()
     checked = summary["pointing"]["pd"]["requirements"]
     assert [q["passed"] for q in checked] == [True, False]
     assert sweep_pointing.failed(summary) == [f"pd: {checked[1]['requirement']}"]
-    x = pointing.magnitudes(e_p[:, :10])[..., 3].ravel()  # mixed APE at 0.5: the 40th smallest of 80 (T in no period)
+    x = pointing.magnitudes(e_p)[..., 3].ravel()  # mixed APE at 0.5: the 40th smallest of 80
     assert checked[1]["value"] == pytest.approx(np.sort(x)[39] * pointing.ARCSEC, rel=1e-12)
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
     assert (tmp_path / "out" / "flight.png").exists()  # time at a torque limit against the dispersed limit
@@ -177,7 +177,7 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
         alone = pointing.signals(result.history)
         np.testing.assert_allclose(alone.performance, e_p[i], rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(alone.knowledge, e_k[i], rtol=1e-7, atol=1e-13)  # arcsec-level errors
-        np.testing.assert_allclose(alone.t, sweep_pointing.times(cfg, 11), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(alone.t, sweep_pointing.times(cfg, 10), rtol=1e-12, atol=1e-15)
         assert t["pd_time_at_torque_limit"][i] > 0  # the limits bind: the dispersed limits matter
 
 

@@ -306,7 +306,7 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
     estimator that every sample shares (the noise levels the filter assumes, tuned).
     pointing: also the attitude errors at the start of every block of ``record_every``
-    steps and at T, ``pointing_performance`` e_P and, where the loop estimates the attitude,
+    steps, ``pointing_performance`` e_P and, where the loop estimates the attitude,
     ``pointing_knowledge`` e_K ((batch, M, 3) rad, :func:`pointing_errors`).
     Pure: jit, grad and :func:`so3jax.parallel.devices.split` compose with it."""
     params, leaves = inputs

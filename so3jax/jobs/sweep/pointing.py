@@ -3,11 +3,10 @@ in the three statistical interpretations, the mission's requirements checked on 
 each sample's own (temporal) APE and RPE.
 
 The samples' attitude errors e_P, e_K are recorded at the start of every block of the
-mission's ``record_every`` steps and at T (:func:`so3jax.missions.dispersed.pointing_errors`),
-the grid ``fly`` records on; T ends every evaluation period, so its record counts in none.
-Over S samples: temporal, the worst sample's quantile over its times; ensemble, the worst
-time's quantile over the samples; mixed, the quantile of every sample's every time. A
-diverged sample's errors count as +inf (larger than every other:
+mission's ``record_every`` steps (:func:`so3jax.missions.dispersed.pointing_errors`), the
+grid ``fly`` records on. Over S samples: temporal, the worst sample's quantile over its
+times; ensemble, the worst time's quantile over the samples; mixed, the quantile of every
+sample's every time. A diverged sample's errors count as +inf (larger than every other:
 :func:`so3jax.sim.pointing.statistic`'s ``diverged_worst``), so that an ensemble or mixed
 requirement at P_C tolerates a share 1 - P_C of diverged samples and a temporal one none.
 """
@@ -26,11 +25,10 @@ FIELDS = ("pointing_performance", "pointing_knowledge")  # a chunk's recorded er
 
 
 def times(config, n_records: int) -> np.ndarray:
-    """(M,) [s]: the record times t_m = min(m b, N) dt, b the rollout's block of
-    ``record_every`` steps: the block starts, then T = N dt (:class:`so3jax.sim.rollout.History`)."""
+    """(M,) [s]: the record times t_m = m b dt, b the rollout's block of ``record_every`` steps."""
     m = config.mission
-    n = steps_for_horizon(m.T, m.dt)
-    return np.minimum(np.arange(n_records) * block_steps(n, m.record_every, m.period_steps), n) * m.dt
+    block = block_steps(steps_for_horizon(m.T, m.dt), m.record_every, m.period_steps)
+    return np.arange(n_records) * (block * m.dt)
 
 
 def _phases(config) -> tuple:
