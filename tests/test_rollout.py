@@ -113,14 +113,13 @@ def test_disturbance_reaches_the_plant():
 
 
 def test_in_scan_metrics_match_the_recorded_trajectory():
-    """With record_every=1 the history holds every step start, then the final state:
-    recompute docs/model.md §6 from the step starts."""
+    """With record_every=1 the history holds every step start: recompute docs/model.md §6 from it."""
     scenario = sj.paper_scenario(T=30.0)
     controller, gains = sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS
     r = sj.simulate(scenario, controller, gains, 2, record_every=1)
+    h, m = r.history, r.metrics
     n = scenario.n_steps
-    assert r.history.t.shape == (n + 1,)
-    h, m = jax.tree.map(lambda x: x[:-1], r.history), r.metrics
+    assert h.t.shape == (n,)
     np.testing.assert_allclose(m.rmse, np.sqrt(np.mean(np.sum(np.asarray(h.Omega_e) ** 2, -1))), rtol=1e-12)
     np.testing.assert_allclose(
         m.rmse_unrotated, np.sqrt(np.mean(np.sum((np.asarray(h.Omega) - np.asarray(h.Omega_d)) ** 2, -1))), rtol=1e-12
@@ -143,7 +142,7 @@ def test_phases_switch_on_step_boundaries():
     r = sj.simulate(scenario, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0, record_every=1)
     m = r.metrics
     np.testing.assert_allclose(np.sum(m.effort_phase), m.effort, rtol=1e-12)
-    tau2 = np.sum(np.asarray(r.history.tau)[:-1] ** 2, -1) * scenario.dt  # the step starts (not the final state)
+    tau2 = np.sum(np.asarray(r.history.tau) ** 2, -1) * scenario.dt
     np.testing.assert_allclose(m.effort_phase, [tau2[:100].sum(), tau2[100:200].sum(), tau2[200:].sum()], rtol=1e-12)
     # Omega_d drops to zero at the docking step exactly (phase 3 of the paper's reference)
     assert np.all(np.asarray(r.history.Omega_d)[200:] == 0) and np.all(np.asarray(r.history.Omega_d)[:200] != 0)

@@ -156,8 +156,7 @@ def recorded(x, otherwise):
 
 
 def trajectory_arrays(results: dict) -> dict:
-    """{controller/quantity: array} of the recorded histories (t shared, its last value T:
-    the final state, :class:`so3jax.sim.rollout.History`). A wiring without
+    """{controller/quantity: array} of the recorded histories (t shared). A wiring without
     an estimate (continuous: the law reads the true state) stores the truth as R_hat,
     Omega_hat and zero biases, and a zero covariance without a filter; wheel_speed is
     (M, 0) without wheels."""

@@ -5,8 +5,7 @@ scenarios, gains, seeds) and grad compose with it. ``simulate`` is the jitted,
 validated entry point.
 
 The scan is nested: an outer scan over blocks of ``record_every`` steps records the
-state at each block start (the histories, to which the state at T is appended after the
-scan), and each block is ``jax.checkpoint``-ed, so
+state at each block start (the histories), and each block is ``jax.checkpoint``-ed, so
 reverse-mode memory grows like N / record_every + record_every rather than N. Each step
 inside a block is checkpointed as well (the backward pass stores one loop state per step,
 not the RK4 stages' intermediates), and in the sampled wiring a block keeps its noise
@@ -37,7 +36,6 @@ from so3jax.sim.loop import (
     State,
     broadcast,
     check_loop,
-    desired,
     initial_state,
     observe,
     phase,
@@ -49,18 +47,10 @@ from so3jax.sim.loop import (
 
 class History(NamedTuple):
     """Samples of the true state and what the loop computed from it, at the start of every
-    block of ``record_every`` steps (in the sampled wiring, the control tick there), then
-    at T = N dt, each with a leading axis M = ceil(N / block) + 1: steps k = 0, block,
-    2 block, ... (below N), then N (the last block is shorter where ``block`` does not
-    divide N). The last record is the final state, recorded as a block starting at step N
-    would record it: the law's torque there (continuous), a control tick at T whose
-    estimate and command the rollout computes but never applies (sampled; where the
-    control period does not divide N, T is no tick: its estimate, std, covariance, true
-    bias and command are NaN, its torque the input held since the last tick), and d_N,
-    a disturbance no step takes. One record for both wirings: a field a wiring does not
-    have is None (the estimate's fields in the continuous wiring, whose law reads the
-    true state; ``actuator`` for an actuator without state; ``covariance`` without a
-    filter)."""
+    block of ``record_every`` steps (in the sampled wiring, the control tick there), each
+    with a leading axis M. One record for both wirings: a field a wiring does not have is
+    None (the estimate's fields in the continuous wiring, whose law reads the true state;
+    ``actuator`` for an actuator without state; ``covariance`` without a filter)."""
 
     t: jax.Array  # (M,) s
     R: jax.Array  # (M, 3, 3) true attitude, body -> inertial
@@ -190,7 +180,7 @@ def rollout(
 
     record_every: steps per block (history sample and checkpoint), ~sqrt(N) by default
     (rounded up to whole control periods). When blocks overrun N, the surplus steps are
-    computed but masked. The history ends with the final state, at T (:class:`History`).
+    computed but masked.
     """
     if jnp.ndim(seed) > 0:
         return rollout_batch(scenario, controller, gains, seed, scenario_axes=None, loop=loop,
@@ -199,10 +189,8 @@ def rollout(
     return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
-def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every=None, unroll=1,
-             final_record=True) -> Result:
-    """:func:`rollout` without the checks; final_record=False: the history without its last
-    record (the final state, :func:`_with_final_record`)."""
+def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every=None, unroll=1) -> Result:
+    """:func:`rollout` without the checks."""
     n = scenario.n_steps
     block = block_steps(n, record_every, loop.period_steps)
     n_blocks = -(-n // block)
@@ -242,7 +230,13 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
             return jax.lax.scan(one_step, carry, draw(carry[1]), length=block, unroll=min(unroll, block))[0]
 
         def record(carry):
-            return _observed_record(scenario, controller, gains, loop, key, carry[0], carry[1])
+            state, k = carry[0], carry[1]
+            seen = observe(scenario, controller, gains, state, k, loop)
+            return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
+                           seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd,
+                           _or_none(state.actuator),
+                           actuators.momentum(loop.actuator, state.actuator, state.Omega),
+                           disturbance=disturbance_at(scenario, key, k))
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
@@ -251,8 +245,6 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         # with it the last bits of the paper's results.
         (final, _, acc), starts = jax.lax.scan(lambda c, _: (run_block(c), c), carry, None, length=n_blocks)
         history = jax.vmap(record)(starts)
-        if final_record:
-            history = _append(history, _final_record(scenario, controller, gains, key, loop, final))
         return Result(metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R), history, final)
 
     m = loop.period_steps
@@ -281,8 +273,6 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
              metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape), flight_metrics.init(dtype, key.shape))
     (final, _, acc, flight), history = jax.lax.scan(lambda c, _: run_block(c), carry, None, length=n_blocks)
-    if final_record:
-        history = _append(history, _final_record(scenario, controller, gains, key, loop, final))
     return Result(
         metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R),
         history,
@@ -319,52 +309,6 @@ def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k, key) ->
         actuators.momentum(loop.actuator, state.actuator, state.Omega), est.R_hat, est.Omega_hat, out.bias,
         est.bias_hat, est.std, _or_none(est.covariance), disturbance_at(scenario, key, k),
     )
-
-
-def _observed_record(scenario, controller, gains, loop, key, state: State, k) -> History:
-    """The continuous wiring's history sample at step start k (no step taken)."""
-    seen = observe(scenario, controller, gains, state, k, loop)
-    return History(seen.t, state.R, state.Omega, seen.desired.R_d, seen.desired.Omega_d, seen.sample.Omega_e,
-                   seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd, _or_none(state.actuator),
-                   actuators.momentum(loop.actuator, state.actuator, state.Omega),
-                   disturbance=disturbance_at(scenario, key, k))
-
-
-def _final_record(scenario, controller, gains, key, loop, state: State) -> History:
-    """The history's last record, at step N (state: the final one, at T): as a block starting
-    there would record it, the law evaluated on it (continuous) or a control tick at T,
-    which no step follows (sampled; where the control period m does not divide N, T is no
-    tick: the tick's fields NaN, the torque the input held since the last tick)."""
-    n = scenario.n_steps
-    k = jnp.asarray(n, jnp.int32)
-    if loop.continuous:
-        return _observed_record(scenario, controller, gains, loop, key, state, k)
-    _, out = tick(scenario, loop, controller, gains, key, state, k // loop.period_steps)
-    if n % loop.period_steps:
-        t, nan = time(scenario, k), lambda x: jnp.full_like(x, jnp.nan)
-        out = out._replace(t=t, desired=desired(scenario, t, phase(scenario, k), state.R_d, state.Omega),
-                           estimate=jax.tree.map(nan, out.estimate), bias=nan(out.bias), tau_cmd=nan(out.tau_cmd),
-                           tau_applied=loop.actuator.delivered(state.actuator, state.held, state.Omega))
-    return _flight_record(scenario, loop, state, out, k, key)
-
-
-@functools.partial(jax.jit, static_argnames=("controller",))
-def _with_final_record(result: Result, scenario, controller, gains, seed, loop) -> Result:
-    """A result of ``_rollout(..., final_record=False)`` with its history's last record, the
-    final state at T, appended (batch axis first for seeds (B,), the scenario and the gains
-    shared). A program of its own: XLA:CPU compiles a rollout's scan into one function with
-    what follows it, so anything added there changes the last bits of its metrics."""
-    def last(seed, final):
-        return _final_record(scenario, controller, gains, _keys(seed), loop, final)
-
-    if jnp.ndim(seed) == 0:
-        return result._replace(history=_append(result.history, last(seed, result.final)))
-    return result._replace(history=jax.vmap(_append)(result.history, jax.vmap(last)(seed, result.final)))
-
-
-def _append(records, last):
-    """Records (M, ...) with one more, last (...), at the end: (M + 1, ...)."""
-    return jax.tree.map(lambda xs, x: jnp.concatenate([xs, jnp.asarray(x, xs.dtype)[None]]), records, last)
 
 
 def _or_none(x):
@@ -408,7 +352,6 @@ def rollout_batch(
     loop: Loop = PAPER_LOOP,
     record_every: int | None = None,
     unroll: int = 1,
-    final_record: bool = True,
 ) -> Result:
     """``jax.vmap(rollout)`` over seeds (B,), computed natively batched (batch axis last
     inside): the same values up to round-off (~1e-16 relative). Which of the two is
@@ -419,7 +362,6 @@ def rollout_batch(
     without batch axes, broadcast by the components themselves). A shared reference or inertia is evaluated once per
     stage for the whole batch. Outputs have the batch axis first, as vmap's would.
     On CPU, batches above ``CPU_SUB_BATCH`` run as consecutive sub-batches of that size.
-    final_record=False: the histories without their last record (:func:`_with_final_record`).
     """
     seeds = jnp.asarray(seeds)
     if seeds.ndim != 1 or not jnp.issubdtype(seeds.dtype, jnp.integer):
@@ -452,7 +394,6 @@ def rollout_batch(
             loop=loop,
             record_every=record_every,
             unroll=unroll,
-            final_record=final_record,
         )
         history = jax.tree.map(
             lambda x: jnp.moveaxis(x, -1, 0) if x.ndim > 1 else jnp.broadcast_to(x, (seeds.shape[0],) + x.shape),
@@ -482,14 +423,13 @@ def _in_sub_batches(run, args, axes, size: int):
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))
 def _simulate_jit(scenario, controller, gains, seed, loop, record_every, unroll):
-    return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll,
-                    final_record=False)
+    return _rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every, unroll=unroll)
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "unroll"))
 def _simulate_batch_jit(scenario, controller, gains, seeds, loop, record_every, unroll):
     return rollout_batch(scenario, controller, gains, seeds, scenario_axes=None, loop=loop, record_every=record_every,
-                         unroll=unroll, final_record=False)
+                         unroll=unroll)
 
 
 def simulate(
@@ -498,8 +438,9 @@ def simulate(
     """Validate the inputs (docs/model.md §6, :func:`check_inputs`), then run the jitted
     rollout: one trajectory for an integer seed, a batch (batch axis first) for seeds (B,)."""
     as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
+    if jnp.ndim(seed) > 0:
+        check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
+        return _simulate_batch_jit(scenario, controller, as_dtype(gains), jnp.asarray(seed), as_dtype(loop),
+                                   record_every, unroll)
     check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
-    gains, loop, seed = as_dtype(gains), as_dtype(loop), jnp.asarray(seed) if jnp.ndim(seed) > 0 else seed
-    run = _simulate_batch_jit if jnp.ndim(seed) > 0 else _simulate_jit
-    result = run(scenario, controller, gains, seed, loop, record_every, unroll)
-    return _with_final_record(result, scenario, controller, gains, seed, loop)
+    return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)
