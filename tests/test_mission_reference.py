@@ -155,7 +155,8 @@ def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
       "reference.table.quaternions=[[1.0, 0.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0]]"), "strictly increasing"),
     (("reference.kind='table'", "reference.table.file='x.csv'", "reference.table.times=[0.0, 1.0]"), "one of the two"),
     (("phases.names=['a', 'b']", "phases.start=[0.0]"), "one start time per name"),
-    (("phases.names=['a', 'b']", "phases.start=[0.0, 150.0]"), "not before T"),
+    (("phases.names=['a', 'b']", "phases.start=[0.0, 50.005]"), "not a whole number of steps"),
+    (("phases.names=['a', 'b']", "phases.start=[10.0, 50.0]"), "begin at 0"),
 ])
 def test_bad_reference_and_phase_tables_are_one_line_errors(overrides, message):
     with pytest.raises(ValueError, match=message) as error:

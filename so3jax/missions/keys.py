@@ -82,8 +82,8 @@ KEYS = (
     Names("phases.names", list(PHASE_NAMES), shapes=((None,),),
           doc="the mission's phases, named in every per-phase metric, table and figure"),
     Param("phases.start", [0.0, PAPER_DEPLOY_TIME, PAPER_DOCK_TIME], "s", shapes=((None,),), low=0.0,
-          doc="each phase's start time: 0 first, increasing, each before T (whole steps dt); the paper's inertia "
-              "profile and reference switch at the paper's"),
+          doc="each phase's start time: 0 first, increasing, whole steps dt (one at or after T is not reached); "
+              "the paper's inertia profile and reference switch at the paper's"),
     Param("pointing.window", 60.0, "s", low=0.0,
           doc="window of the relative errors (RPE, RKE) in fly's pointing report (ECSS-E-ST-60-10C)"),
     Param("pointing.levels", [0.95, 0.9973], shapes=((None,),), low=0.0, high=1.0,

@@ -262,7 +262,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
     reference = _chosen(full, "reference", "reference", base)
-    phases = _phases(full["phases"], "phases" in d, T, dt, constant, reference["kind"])
+    phases = _phases(full["phases"], dt, constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = checks.table(full, "controller", registry.names())
@@ -301,10 +301,10 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     return dataclasses.replace(mission, requirements=requirements)
 
 
-def _phases(table, given: bool, T: float, dt: float, constant_inertia: bool, reference: str) -> dict:
-    """[phases]: names and start times [s], 0 first, increasing, on whole steps dt, each
-    before T where the mission gives them; the paper's inertia profile and reference switch
-    at the paper's phases, so they need those."""
+def _phases(table, dt: float, constant_inertia: bool, reference: str) -> dict:
+    """[phases]: names and start times [s], 0 first, increasing, on whole steps dt (a phase
+    starting at or after T is not reached: a shortened horizon flies the first phases); the
+    paper's inertia profile and reference switch at the paper's phases, so they need those."""
     table = checks.table({"phases": table}, "phases", keys.allowed("phases"))
     names = keys.parse("phases.names", table["names"])
     start = tuple(float(t) for t in keys.parse("phases.start", table["start"]))
@@ -315,8 +315,6 @@ def _phases(table, given: bool, T: float, dt: float, constant_inertia: bool, ref
     off = [t for t in start if abs(t / dt - round(t / dt)) > 1e-9 * max(1.0, t / dt)]
     if off:
         raise ValueError(f"phases.start: {off[0]:g} s is not a whole number of steps dt = {dt:g} s")
-    if given and start[-1] >= T:
-        raise ValueError(f"phases.start: phase {names[-1]!r} starts at {start[-1]:g} s, not before T = {T:g} s")
     paper = tuple(keys.KEY["phases.start"].default)
     if len(start) != len(paper) or any(abs(a - b) > 1e-9 for a, b in zip(start, paper)):
         needs = [what for what, uses in (("the paper's inertia profile (inertia.J0, J1, J2; a constant one: "
