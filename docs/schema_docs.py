@@ -268,6 +268,8 @@ def _param_domain(p) -> str:
         return p.domain()
     if p.boolean:
         return "true or false"
+    if p.text:
+        return "a string"
     if p.choices:
         return "one of " + ", ".join(f"`{c}`" for c in p.choices)
     shapes = " or ".join("number" if s == () else "array " + _shape(s) for s in p.shapes)
@@ -306,11 +308,12 @@ def mission_keys() -> tuple:
 
 def components_table(kind: str, heading: str = "###") -> str:
     """One section per registered component of ``kind`` (sensor, estimator, actuator,
-    reference): what it is, and a row per parameter (``[sensors.NAME]``, ``[estimator.NAME]``,
-    ``[actuator.NAME]``, ``[reference.NAME]``)."""
+    reference, inertia): what it is, and a row per parameter (``[sensors.NAME]``,
+    ``[estimator.NAME]``, ``[actuator.NAME]``, ``[reference.NAME]``, ``[inertia.NAME]``)."""
     from so3jax.components import registry as components
 
-    table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator", "reference": "reference"}[kind]
+    table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator", "reference": "reference",
+             "inertia": "inertia"}[kind]
     out = []
     for name in components.names(kind):
         spec = components.get(kind, name)
@@ -557,6 +560,7 @@ def render(what: str, args: tuple = ()) -> str:
         "estimators": lambda: components_table("estimator", *rest),
         "actuators": lambda: components_table("actuator", *rest),
         "references": lambda: components_table("reference", *rest),
+        "inertias": lambda: components_table("inertia", *rest),
         "controllers": lambda: controllers_table(*rest),
         "tune": tune_table,
         "sweep": sweep_table,

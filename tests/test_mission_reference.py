@@ -119,9 +119,14 @@ def test_a_table_from_a_file_passes_through_its_samples(tmp_path):
                                np.asarray(reference.attitude(np.float64(33.3), 0)), atol=1e-15)
 
 
+EVENTS = ("inertia.kind='events'", "inertia.events.initial=[[1200.0, 0.0, 0.0], [0.0, 1000.0, 0.0], [0.0, 0.0, 800.0]]",
+          "inertia.events.times=[0.7, 1.5]", "inertia.events.targets=[1.3, 0.9]",
+          "inertia.events.time_constants=[0.4, 0.0]")
+
+
 def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
-    """A slew reference in a dispersed batch: one for the batch (natively batched), each
-    sample's metrics those of its scenario flown alone."""
+    """A slew reference and an inertia timeline in a dispersed batch: one for the batch
+    (natively batched), each sample's metrics those of its scenario flown alone."""
     import jax
     import jax.numpy as jnp
 
@@ -129,7 +134,7 @@ def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
     from so3jax.sim.rollout import rollout
 
     m = missions.load(None, ["T=2.0", "control.mode='continuous'", "sensors.gyro=false", "sensors.star_tracker=false",
-                             "estimator.kind='truth'", "actuator.kind='ideal'", "controllers=['pd']", CONSTANT,
+                             "estimator.kind='truth'", "actuator.kind='ideal'", "controllers=['pd']", *EVENTS,
                              "phases.names=['a']", "phases.start=[0.0]", "reference.kind='slews'",
                              "reference.slews.attitudes=[[0.02, 0.0, 0.0]]", "reference.slews.times=[0.5]"])
     dispersions, leaves = dispersed.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)

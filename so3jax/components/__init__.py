@@ -1,9 +1,9 @@
 """The loop's components: the abstract base of each kind (:mod:`so3jax.components.base`),
 the registry of each kind and the built-in sensors, estimators, actuators and the
-mission's reference kinds, registered
+mission's reference and inertia kinds, registered
 when this package is imported (the registry imports no member)."""
 
-from so3jax.components import actuators, estimators, references, sensors  # noqa: F401 (registration)
+from so3jax.components import actuators, estimators, inertias, references, sensors  # noqa: F401 (registration)
 from so3jax.components.registry import BuildContext, ComponentSpec, get, names, register, unregister
 
 __all__ = ["BuildContext", "ComponentSpec", "get", "names", "register", "unregister"]

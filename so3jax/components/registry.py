@@ -1,12 +1,12 @@
 """One registry per kind of component (the loop's ``sensor``, ``estimator``, ``actuator``,
-and the mission's ``reference``): name -> its parameters (units, shapes, domains, defaults)
+and the mission's ``reference`` and ``inertia``): name -> its parameters (units, shapes, domains, defaults)
 and a builder.
 
-A mission's ``[sensors.NAME]``, ``[estimator.NAME]``, ``[actuator.NAME]`` and
-``[reference.NAME]`` tables are read through the registration, so the mission parser is
+A mission's ``[sensors.NAME]``, ``[estimator.NAME]``, ``[actuator.NAME]``,
+``[reference.NAME]`` and ``[inertia.NAME]`` tables are read through the registration, so the mission parser is
 generic: a new component is one module that defines it (a subclass of its kind's base,
-:mod:`so3jax.components.base`, or :class:`so3jax.dynamics.reference.Reference`) and
-calls :func:`register`. Controllers keep their own registry
+:mod:`so3jax.components.base`, :class:`so3jax.dynamics.reference.Reference` or
+:class:`so3jax.dynamics.plant.InertiaProfile`) and calls :func:`register`. Controllers keep their own registry
 (:mod:`so3jax.controllers.registry`), whose options are declared with the same
 :class:`~so3jax.core.params.Param`.
 
@@ -24,10 +24,12 @@ from typing import Any
 
 from so3jax.components import base
 from so3jax.core import params
+from so3jax.dynamics.plant import InertiaProfile
 from so3jax.dynamics.reference import Reference
 
-KINDS = ("sensor", "estimator", "actuator", "reference")
-BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator, "reference": Reference}
+KINDS = ("sensor", "estimator", "actuator", "reference", "inertia")
+BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator, "reference": Reference,
+         "inertia": InertiaProfile}
 MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator reads them by these names
 
 

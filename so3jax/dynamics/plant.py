@@ -11,6 +11,7 @@ step (docs/model.md §5), so a profile may switch laws without straddling a step
 
 from __future__ import annotations
 
+import abc
 from collections.abc import Callable
 
 import jax
@@ -22,8 +23,26 @@ from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
 
 
+class InertiaProfile(abc.ABC):
+    """The shape of an inertia profile (docs/model.md §4): J(t, phase) (3, 3) [kg m^2], and
+    :meth:`matrices`, {field name: matrix or stack of matrices} checked before a run
+    (symmetric positive definite, the triangle inequality's warning), of which J(t) is a
+    linear function (a profile scaled by s: each scaled by s). ``convex_phases``: every J(t) of a phase lies in the
+    convex hull of those matrices and J at the phase's start, so checking them checks every
+    J(t) (otherwise J(t) is checked at sample times, :mod:`so3jax.dynamics.inertia`); an
+    optional ``check()`` raises a ValueError for bad parameters. A subclass is a pytree."""
+
+    convex_phases = False
+
+    @abc.abstractmethod
+    def __call__(self, t, phase): ...
+
+    def matrices(self) -> dict:
+        return {}
+
+
 @pytree_dataclass
-class ConstantInertia:
+class ConstantInertia(InertiaProfile):
     """J(t) = J."""
 
     J: jax.Array
@@ -37,7 +56,7 @@ class ConstantInertia:
 
 
 @pytree_dataclass
-class PaperInertia:
+class PaperInertia(InertiaProfile):
     """The paper's capture profile (docs/model.md §4, corrected eq. 18).
 
     phase 0: J0; phase 1 (deployment from t_deploy): J1 - (J1 - J0) exp(-(t - t_deploy)/tau_J);
@@ -79,7 +98,7 @@ class PaperInertia:
 
 
 @pytree_dataclass
-class InertiaFunction:
+class InertiaFunction(InertiaProfile):
     """A user law J(t) (a JAX-traceable function of time [s]), the same in every phase.
 
     Checked before a run (symmetric positive definite, triangle inequality) at sample
@@ -90,9 +109,6 @@ class InertiaFunction:
 
     def __call__(self, t, phase):
         return self.fn(t)
-
-    def matrices(self):
-        return {}
 
 
 def inertia_rate(profile, t, phase):

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
+from so3jax.components.inertias import InertiaContext
 from so3jax.components.references import ReferenceContext
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
@@ -47,7 +48,18 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         s = dataclasses.replace(s, phase_times=tuple(m.phases["start"][1:]))  # the paper's profiles need the paper's
     if m.reference["kind"] != "paper":
         changes["reference"] = reference(m, s, values["n"])
+    if m.inertia["kind"] != "paper":
+        changes["inertia"] = inertia(m, s)
     return dataclasses.replace(s, **changes) if changes else s
+
+
+def inertia(mission, scenario: Scenario):
+    """The mission's inertia profile of ``[inertia] kind`` (:mod:`so3jax.components.inertias`)
+    in the scenario's dtype (the same for every sample of a sweep)."""
+    kind = mission.inertia["kind"]
+    context = InertiaContext(lambda x: jnp.asarray(x, scenario.R0.dtype), scenario.inertia)
+    with jax.ensure_compile_time_eval():
+        return components.get("inertia", kind).build(mission.inertia[kind], context)
 
 
 def reference(mission, scenario: Scenario, n):

@@ -116,6 +116,9 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
                                 ("random", "mission"))
             fields["disturbance_seed"] = None if choice == "random" else mission.seed
         elif path[0] == "inertia" and len(path) == 2 and path[1] in ("J0", "J1", "J2"):
+            if mission.inertia["kind"] != "paper":
+                raise ValueError(f"{where}: the mission's inertia is of kind {mission.inertia['kind']!r}; "
+                                 "inertia.J0/J1/J2 disperse the paper's profile (inertia.kind = \"paper\")")
             if mission.constant_inertia and path[1] != "J0":
                 raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")
             fields[path[1]] = _inertia(value, where, fields[path[1]])
@@ -315,10 +318,15 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     if not leaves:
         shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
+        nominal = build.scenario(m, dtype=dtype)
+        shared_parts = {name: getattr(nominal, name) for name, shared in (
+            ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
+            ("inertia", m.inertia["kind"] != "paper"),  # dispersed only as the paper's profile
+        ) if shared}
         axes = 0
-        if not isinstance(scenarios.reference, PiecewiseConstantRate):  # no sample's own: one for the batch
-            scenarios = dataclasses.replace(scenarios, reference=build.scenario(m, dtype=dtype).reference)
-            axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), reference=None)
+        if shared_parts:  # one for the batch
+            scenarios = dataclasses.replace(scenarios, **shared_parts)
+            axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
         return _results(rollout_batch(scenarios, controller, gains, params.seed, scenario_axes=axes, loop=shared_loop,
                                       record_every=record_every), pointing)
 

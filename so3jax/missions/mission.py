@@ -59,6 +59,7 @@ _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 _TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "reference", "controller", "gains")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
+DEFAULT_INERTIA = {"kind": "paper"}  # J0, J1, J2 (or J) and tau_J: the Mission's own fields
 PAPER_PHASES = {"names": tuple(PHASE_NAMES), "start": tuple(keys.KEY["phases.start"].default)}
 
 
@@ -68,7 +69,8 @@ class Mission:
 
     sensors: {name: values} of the sensors flown; estimator, actuator: {"kind": name,
     name: values}; options: {controller: factory keywords}; gains: {controller: gains}.
-    constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile.
+    constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile
+    (where ``inertia`` is of kind ``paper``; another kind: :mod:`so3jax.components.inertias`).
     initial: {"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}.
     """
 
@@ -96,6 +98,7 @@ class Mission:
     requirements: tuple = ()  # so3jax.sim.pointing.Requirement, checked by fly
     reference: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFERENCE))  # {"kind": name, name: values}
     phases: dict = dataclasses.field(default_factory=lambda: dict(PAPER_PHASES))  # names, start [s]
+    inertia: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_INERTIA))  # {"kind": name, name: values}
 
     @property
     def phase_names(self) -> tuple:
@@ -149,6 +152,8 @@ class Mission:
             del d["reference"]
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
             del d["phases"]
+        if to_builtin(self.inertia) == to_builtin(DEFAULT_INERTIA):
+            del d["inertia"]
         return to_builtin(d)
 
 
@@ -162,6 +167,9 @@ def default_tree() -> dict:
     tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
     for kind in ("estimator", "actuator", "reference"):
         tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
+    tree["inertia"] = dict(FLIGHT["inertia"], kind="paper",
+                           **{n: values(components.get("inertia", n).params) for n in components.names("inertia")
+                              if n != "paper"})
     tree["controller"] = {n: values(registry.get(n).options) for n in registry.names()}
     tree["gains"] = {n: {f: np.asarray(v).tolist() for f, v in registry.get(n).defaults._asdict().items()}
                      for n in registry.names()}
@@ -249,7 +257,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     controllers = keys.parse("controllers", full["controllers"])
     period_steps = _period_steps(checks.table(full, "control", keys.allowed("control")), T, dt, n_steps)
 
-    J0, J1, J2, J1_scale, constant = _inertias(d.get("inertia", {}), full["inertia"])
+    inertia = _inertia_kind(d.get("inertia", {}))
+    J0, J1, J2, J1_scale, constant = _inertias(*(_paper_keys(t) for t in (d.get("inertia", {}), full["inertia"])))
     tau_J = keys.parse("deployment.tau_J", checks.table(full, "deployment", keys.allowed("deployment"))["tau_J"])
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
@@ -262,7 +271,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
     reference = _chosen(full, "reference", "reference", base)
-    phases = _phases(full["phases"], dt, constant, reference["kind"])
+    phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
 
     options_table = checks.table(full, "controller", registry.names())
@@ -284,7 +293,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
-                      phases=phases)
+                      phases=phases, inertia=inertia)
     for name in controllers:
         try:
             mission.controller(name)
@@ -293,15 +302,17 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     inertias = {"J0": J0} if constant else {"J0": J0, "J1": J1, "J2": J2}
     for name, J in inertias.items():
         check_inertia(f"{name} (inertia.{name})" if not constant else "inertia.J", J, warn=False)
-    check_scenario(mission.scenario())  # J(t) over every phase; the triangle inequality's warning
+    scenario = mission.scenario()
+    check_scenario(scenario)  # J(t) over every phase; the triangle inequality's warning
+    if inertia["kind"] != "paper":
+        inertias = {f"inertia.{inertia['kind']}.{name}": J for name, J in scenario.inertia.matrices().items()}
     check_loop(_build_loop(mission, np.asarray), inertias)
-    phases = pointing.phase_bounds_of(mission.scenario())
-    bounds = pointing.phase_bounds_of(mission.scenario())
+    bounds = pointing.phase_bounds_of(scenario)
     requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds)
     return dataclasses.replace(mission, requirements=requirements)
 
 
-def _phases(table, dt: float, constant_inertia: bool, reference: str) -> dict:
+def _phases(table, dt: float, paper_inertia: bool, reference: str) -> dict:
     """[phases]: names and start times [s], 0 first, increasing, on whole steps dt (a phase
     starting at or after T is not reached: a shortened horizon flies the first phases); the
     paper's inertia profile and reference switch at the paper's phases, so they need those."""
@@ -318,7 +329,7 @@ def _phases(table, dt: float, constant_inertia: bool, reference: str) -> dict:
     paper = tuple(keys.KEY["phases.start"].default)
     if len(start) != len(paper) or any(abs(a - b) > 1e-9 for a, b in zip(start, paper)):
         needs = [what for what, uses in (("the paper's inertia profile (inertia.J0, J1, J2; a constant one: "
-                                          "inertia.J)", not constant_inertia),
+                                          "inertia.J; or another inertia.kind)", paper_inertia),
                                          ("the paper's reference (reference.kind = \"paper\")", reference == "paper"))
                  if uses]
         if needs:
@@ -383,16 +394,17 @@ def gains_file(path, controller: str) -> tuple:
 
 def _gain_files_in(tables: dict, folder) -> dict:
     """The tables of a file in ``folder`` with the gains files its [gains] table names and its
-    reference table's file made absolute, relative to that folder (the file's own, like a
+    reference and inertia tables' files made absolute, relative to that folder (the file's own, like a
     job's mission path)."""
     given = tables.get("gains")
     if isinstance(given, dict):
         paths = {name: str((Path(folder) / v).resolve()) for name, v in given.items() if isinstance(v, str)}
         tables = {**tables, "gains": {**given, **paths}}
-    table = tables.get("reference", {}).get("table") if isinstance(tables.get("reference"), dict) else None
-    if isinstance(table, dict) and isinstance(table.get("file"), str):  # reference.table.file
-        reference = {**tables["reference"], "table": {**table, "file": str((Path(folder) / table["file"]).resolve())}}
-        tables = {**tables, "reference": reference}
+    for kind in ("reference", "inertia"):  # reference.table.file, inertia.table.file
+        table = tables.get(kind, {}).get("table") if isinstance(tables.get(kind), dict) else None
+        if isinstance(table, dict) and isinstance(table.get("file"), str):
+            path = str((Path(folder) / table["file"]).resolve())
+            tables = {**tables, kind: {**tables[kind], "table": {**table, "file": path}}}
     return tables
 
 
@@ -411,6 +423,32 @@ def _period_steps(control: dict, T: float, dt: float, n_steps: int) -> int | Non
     if n_steps % m:
         raise ValueError(f"T (horizon) = {T} s is not a whole number of control periods control.period = {period} s")
     return m
+
+
+def _inertia_kind(given) -> dict:
+    """{"kind": name, name: values} of ``[inertia] kind`` (:mod:`so3jax.components.inertias`) and
+    its ``[inertia.NAME]`` subtable; the default, ``paper``, is read from the ``[inertia]``
+    keys J0, J1, J2 (or J) by :func:`_inertias`, which another kind excludes."""
+    given = given if isinstance(given, dict) else {}
+    kinds = components.names("inertia")
+    name = checks.choice(given.get("kind", "paper"), "inertia.kind", kinds)
+    out = {"kind": name}
+    for other in kinds:
+        if other != "paper" and (other in given or other == name):
+            values = components.get("inertia", other).parse(given.get(other, {}), f"inertia.{other}")
+            if other == name:
+                out[name] = values
+    paper = sorted(set(given) & set(keys.allowed("inertia")))
+    if name != "paper" and paper:
+        raise ValueError(f"[inertia] kind = {name!r} excludes the paper profile's key(s) {', '.join(paper)}: "
+                         f"give its inertias in [inertia.{name}]")
+    return out
+
+
+def _paper_keys(table) -> dict:
+    """The ``[inertia]`` table without its kind and the registered kinds' subtables."""
+    kinds = ("kind",) + tuple(k for k in components.names("inertia") if k != "paper")
+    return {k: v for k, v in table.items() if k not in kinds} if isinstance(table, dict) else table
 
 
 def _inertias(given: dict, full: dict):
