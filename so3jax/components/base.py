@@ -1,5 +1,5 @@
 """One shape per kind of loop component: the abstract bases :class:`Sensor`,
-:class:`Estimator` and :class:`Actuator`, and the values passed between them
+:class:`Estimator`, :class:`Actuator` and :class:`MomentumManager`, and the values passed between them
 (:class:`Measurements`, :class:`Estimate`, :class:`StoredMomentum`).
 
 A component subclasses its kind's base and defines the abstract methods (sensor: ``init``,
@@ -158,6 +158,35 @@ class Actuator(abc.ABC):
         J - J_locked is positive definite; None without stored momentum or where a
         parameter is traced."""
         return None
+
+    def check(self) -> None:
+        """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""
+
+
+class MomentumManager(abc.ABC):
+    """A momentum-management device beside the actuator (docs/model.md §8.6): magnetorquers,
+    thrusters. At each control tick (every step in the continuous wiring) it reads the
+    momentum the actuator stores relative to the body, h_rel (3, *b) [N m s], and commands
+    an input held until the next; in every RK4 stage it puts an external torque on the body.
+    ``environment``: the scenario's :class:`so3jax.dynamics.space.Environment` (the orbit and
+    the field a magnetorquer needs), or None; ``reads_field``: the device reads the
+    geomagnetic field (a mission then builds its orbit)."""
+
+    reads_field: ClassVar[bool] = False
+
+    @abc.abstractmethod
+    def init(self, batch_shape, dtype):
+        """(its state at tick 0, or (); an input that puts no torque on the body), batch axes
+        ``batch_shape`` last."""
+
+    @abc.abstractmethod
+    def command(self, state, h_rel, environment, t, R, key, j):
+        """(its state for the next tick, the input held until then) at tick j, time t [s],
+        true attitude R (3, 3, *b) (body -> inertial); key: the run's key (sensor noise)."""
+
+    @abc.abstractmethod
+    def body_torque(self, held, environment, t, R):
+        """The external torque on the body (3, *b) [N m] at t [s], attitude R (3, 3, *b)."""
 
     def check(self) -> None:
         """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""

@@ -26,9 +26,11 @@ from so3jax.components import base
 from so3jax.core import params
 from so3jax.dynamics.plant import InertiaProfile
 from so3jax.dynamics.reference import Reference
+from so3jax.dynamics.space import EnvironmentTorque
 
-KINDS = ("sensor", "estimator", "actuator", "reference", "inertia")
-BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator, "reference": Reference,
+KINDS = ("sensor", "estimator", "actuator", "momentum", "environment", "reference", "inertia")
+BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator,
+         "momentum": base.MomentumManager, "environment": EnvironmentTorque, "reference": Reference,
          "inertia": InertiaProfile}
 MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator reads them by these names
 
@@ -81,10 +83,13 @@ class ComponentSpec:
 @dataclasses.dataclass(frozen=True)
 class BuildContext:
     """What a builder may read besides its own values: as_array(x) casts to the run's
-    dtype; sensor_noise: the noise levels the mission's sensors report ({name: value})."""
+    dtype; sensor_noise: the noise levels the mission's sensors report ({name: value});
+    period: the time between control ticks [s] (the control period; dt in the continuous
+    wiring)."""
 
     as_array: Callable[[Any], Any]
     sensor_noise: dict
+    period: float = 0.0
 
 
 _REGISTRY: dict[str, dict[str, ComponentSpec]] = {kind: {} for kind in KINDS}

@@ -37,6 +37,7 @@ class Scenario:
     n_steps: int = static_field()
     phase_times: tuple = static_field(default=())
     variable_inertia_term: bool = static_field(default=False)
+    environment: Any = None  # so3jax.dynamics.environment.Environment: the orbit and its torques, or None
 
     @property
     def phase_steps(self) -> tuple:

@@ -50,7 +50,25 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         changes["reference"] = reference(m, s, values["n"])
     if m.inertia["kind"] != "paper":
         changes["inertia"] = inertia(m, s)
+    if m.environment or components.get("momentum", m.momentum["kind"]).component.reads_field:
+        changes["environment"] = environment(m, values["n"], s.R0.dtype)
     return dataclasses.replace(s, **changes) if changes else s
+
+
+def environment(mission, n, dtype):
+    """The mission's :class:`~so3jax.dynamics.space.Environment`: its orbit (``[orbit]``, of rate
+    n [rad/s]: a sample's in a sweep) and the torque models of ``[environment]``
+    (:mod:`so3jax.components.environment`), in ``dtype``."""
+    from so3jax.dynamics.environment import circular_orbit
+    from so3jax.dynamics.space import Environment
+
+    as_array = lambda x: jnp.asarray(x, dtype)
+    angles = {name: as_array(np.deg2rad(value)) for name, value in mission.orbit.items()}
+    orbit = circular_orbit(as_array(n), **angles)
+    context = components.BuildContext(as_array, {})
+    torques = tuple(components.get("environment", name).build(values, context)
+                    for name, values in mission.environment.items())
+    return Environment(orbit, torques)
 
 
 def inertia(mission, scenario: Scenario):

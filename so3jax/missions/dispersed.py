@@ -56,7 +56,7 @@ STRUCTURED = {
     ("disturbance", "noise_std"): "noise_std",
 }
 _INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products")
-_LOOP_TABLES = ("sensors", "estimator", "actuator")
+_LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
 MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
@@ -137,7 +137,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
                              "orbit.n, "
                              "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
-                             "parameters of the mission's sensors, estimator and actuator")
+                             "parameters of the mission's sensors, estimator, actuator and momentum management")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
         fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
@@ -363,8 +363,8 @@ def loop(mission: Mission, values: dict, dtype):
     """The mission's loop with component leaves {key: value} replaced (traceable); the
     estimator assumes the nominal sensors' noise levels."""
     tables = {"sensors": {k: dict(v) for k, v in mission.sensors.items()},
-              "estimator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.estimator.items()},
-              "actuator": {k: (dict(v) if isinstance(v, dict) else v) for k, v in mission.actuator.items()}}
+              **{table: {k: (dict(v) if isinstance(v, dict) else v) for k, v in getattr(mission, table).items()}
+                 for table in ("estimator", "actuator", "momentum")}}
     for key, value in values.items():
         table, name, param = key.split(".")
         tables[table][name][param] = value

@@ -45,6 +45,7 @@ FLIGHT = {
     "sensors": {"gyro": {}, "star_tracker": {}},
     "estimator": {"kind": "mekf"},
     "actuator": {"kind": "wheels"},
+    "momentum": {"kind": "none"},
     "reference": {"kind": "paper"},
     "controller": {},
     "gains": {},
@@ -57,9 +58,13 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
 
 _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
-_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "reference", "controller", "gains")
+_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference", "controller",
+                         "gains")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
-DEFAULT_INERTIA = {"kind": "paper"}  # J0, J1, J2 (or J) and tau_J: the Mission's own fields
+DEFAULT_INERTIA = {"kind": "paper"}
+ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
+DEFAULT_ORBIT = {name: keys.KEY[f"orbit.{name}"].default for name in ORBIT_ANGLES}
+DEFAULT_MOMENTUM = {"kind": "none", "none": {}}  # J0, J1, J2 (or J) and tau_J: the Mission's own fields
 PAPER_PHASES = {"names": tuple(PHASE_NAMES), "start": tuple(keys.KEY["phases.start"].default)}
 
 
@@ -99,6 +104,9 @@ class Mission:
     reference: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_REFERENCE))  # {"kind": name, name: values}
     phases: dict = dataclasses.field(default_factory=lambda: dict(PAPER_PHASES))  # names, start [s]
     inertia: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_INERTIA))  # {"kind": name, name: values}
+    orbit: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_ORBIT))  # the angles of [orbit] [deg]
+    environment: dict = dataclasses.field(default_factory=dict)  # {torque model: values} of [environment]
+    momentum: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_MOMENTUM))  # {"kind": name, name: values}
 
     @property
     def phase_names(self) -> tuple:
@@ -152,8 +160,10 @@ class Mission:
             del d["reference"]
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
             del d["phases"]
-        if to_builtin(self.inertia) == to_builtin(DEFAULT_INERTIA):
-            del d["inertia"]
+        for name, default in (("inertia", DEFAULT_INERTIA), ("orbit", DEFAULT_ORBIT), ("environment", {}),
+                              ("momentum", DEFAULT_MOMENTUM)):
+            if to_builtin(getattr(self, name)) == to_builtin(default):
+                del d[name]
         return to_builtin(d)
 
 
@@ -165,7 +175,7 @@ def default_tree() -> dict:
 
     tree = {k: v for k, v in FLIGHT.items()}
     tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
-    for kind in ("estimator", "actuator", "reference"):
+    for kind in ("estimator", "actuator", "momentum", "reference"):
         tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
     tree["inertia"] = dict(FLIGHT["inertia"], kind="paper",
                            **{n: values(components.get("inertia", n).params) for n in components.names("inertia")
@@ -183,13 +193,14 @@ def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
     for name, values in (m if noise_of is None else noise_of).sensors.items():
         spec = components.get("sensor", name)
         noise.update(spec.noise(values) if spec.noise else {})
-    ctx = components.BuildContext(as_array, noise)
+    ctx = components.BuildContext(as_array, noise, m.dt if m.period_steps is None else m.period_steps * m.dt)
     slots = {}
     for name, values in m.sensors.items():
         slots[components.get("sensor", name).provides] = components.get("sensor", name).build(values, ctx)
     estimator = components.get("estimator", m.estimator["kind"]).build(m.estimator[m.estimator["kind"]], ctx)
     actuator = components.get("actuator", m.actuator["kind"]).build(m.actuator[m.actuator["kind"]], ctx)
-    return Loop(Sensors(**slots), estimator, actuator, m.period_steps)
+    momentum = components.get("momentum", m.momentum["kind"]).build(m.momentum[m.momentum["kind"]], ctx)
+    return Loop(Sensors(**slots), estimator, actuator, m.period_steps, momentum)
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -219,6 +230,21 @@ def _sensors(given: dict, default: dict) -> dict:
             raise ValueError(f"sensors.{providers[quantity]} and sensors.{name} both measure the {quantity}: "
                              f"leave one out (sensors.{providers[quantity]}=false)")
         providers[quantity] = name
+    return out
+
+
+def _environment(given) -> dict:
+    """{model: values} of the environment's torque models given a table in ``[environment]``
+    (:mod:`so3jax.components.environment`; none by default; false: left out)."""
+    given = checks.table({"environment": given}, "environment", components.names("environment"))
+    out = {}
+    for name in components.names("environment"):
+        table = given.get(name, False)
+        if table is False:
+            continue
+        if not isinstance(table, dict):
+            raise ValueError(f"environment.{name} must be a table, or false, got {checks.short(table)}")
+        out[name] = components.get("environment", name).parse(table, f"environment.{name}")
     return out
 
 
@@ -262,7 +288,9 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     tau_J = keys.parse("deployment.tau_J", checks.table(full, "deployment", keys.allowed("deployment"))["tau_J"])
     if tau_J <= 0:
         raise ValueError(f"deployment.tau_J [s] must be positive, got {tau_J}")
-    n = keys.parse("orbit.n", checks.table(full, "orbit", keys.allowed("orbit"))["n"])
+    orbit_table = checks.table(full, "orbit", keys.allowed("orbit"))
+    n = keys.parse("orbit.n", orbit_table["n"])
+    orbit = {name: float(keys.parse(f"orbit.{name}", orbit_table[name])) for name in ORBIT_ANGLES}
     dist = checks.table(full, "disturbance", keys.allowed("disturbance"))
     disturbance = {name: keys.parse(f"disturbance.{name}", dist[name]) for name in keys.allowed("disturbance")}
     initial = _initial(d.get("initial", {}), full["initial"])
@@ -270,6 +298,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
+    momentum = _chosen(full, "momentum", "momentum", base)
+    environment = _environment(d.get("environment", {}))
     reference = _chosen(full, "reference", "reference", base)
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
@@ -293,7 +323,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
-                      phases=phases, inertia=inertia)
+                      phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum)
     for name in controllers:
         try:
             mission.controller(name)

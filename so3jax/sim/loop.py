@@ -32,7 +32,7 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.actuators import Ideal
-from so3jax.components.base import Actuator, Estimate, Estimator
+from so3jax.components.base import Actuator, Estimate, Estimator, MomentumManager
 from so3jax.components.estimators import Truth
 from so3jax.components.sensors import Sensors
 from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
@@ -59,6 +59,7 @@ class Loop:
     estimator: Estimator = Truth()
     actuator: Actuator = Ideal()
     period_steps: int | None = static_field(default=None)
+    momentum: MomentumManager | None = None  # beside the actuator (docs/model.md §8.6), or None
 
     @property
     def continuous(self) -> bool:
@@ -79,6 +80,8 @@ class State(NamedTuple):
     sensors: Any = ()  # gyro bias (3,) rad/s, or ()
     estimator: Any = ()  # the estimator's state (the prior for the next tick)
     held: Any = ()  # the actuator's input held over the current period (sampled wiring), or ()
+    manager: Any = ()  # the momentum manager's state, or ()
+    managed: Any = ()  # the momentum manager's input held until its next tick, or ()
 
 
 class Tick(NamedTuple):
@@ -129,6 +132,9 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
     controller_state = jax.tree.map(lambda x: broadcast(x, x.ndim, batch_shape), controller.init(gains))
     R0, Omega0 = broadcast(scenario.R0, 2, batch_shape), broadcast(scenario.Omega0, 1, batch_shape)
     state = State(R0, Omega0, controller_state, R_d, loop.actuator.init(batch_shape, dtype))
+    if loop.momentum is not None:
+        manager, managed = loop.momentum.init(batch_shape, dtype)
+        state = state._replace(manager=manager, managed=managed)
     if loop.continuous:
         return state
     zero = jnp.zeros_like(Omega0)
@@ -148,12 +154,14 @@ def _integrated(state: State, with_controller: bool) -> State:
     return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
 
 
-def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
+def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None, managed=()):
     """The vector field of one step (phase and disturbance held). law(t, x, desired) ->
     (actuator input, controller state rate): the controller in every stage
     (continuous), or the held input (sampled). stages: the step's precomputed time terms
     (:func:`so3jax.dynamics.stepped.stage_terms`), taken in the order RK4 calls the field; None:
-    each stage evaluates the reference and the inertia at its time."""
+    each stage evaluates the reference and the inertia at its time. managed: the momentum
+    manager's held input; its torque and the environment's are external torques of the
+    stage's attitude (docs/model.md §8.6)."""
     calls = iter(stepped.STAGE_OF_CALL)
 
     def field(t, x: State):
@@ -168,11 +176,24 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None):
             if scenario.variable_inertia_term
             else None
         )
-        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, d, t, J_dot, terms.J_inv)
+        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held,
+                                                   external_torque(scenario, loop, d, managed, t, x.R.R, J), t, J_dot,
+                                                   terms.J_inv)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
         return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
 
     return field
+
+
+def external_torque(scenario: Scenario, loop: Loop, d, managed, t, R, J):
+    """d plus the environment's torques and the momentum manager's (3, *b) [N m] at t [s],
+    attitude R, inertia J; d itself where the mission has neither (the paper's arithmetic)."""
+    env = scenario.environment
+    if env is not None and env.torques:
+        d = d + env.torque(t, R, J)
+    if loop.momentum is not None:
+        d = d + loop.momentum.body_torque(managed, env, t, R)
+    return d
 
 
 def sample(state: State, tau, wanted: Desired, atan2=jnp.arctan2) -> metrics.Sample:
@@ -182,13 +203,14 @@ def sample(state: State, tau, wanted: Desired, atan2=jnp.arctan2) -> metrics.Sam
 
 
 def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, loop: Loop = PAPER_LOOP,
-         constants=None):
+         constants=None, key=None):
     """Advance over step k with disturbance d_k held (docs/model.md §5, §8.1): RK4 of the plant and the
     actuator under the actuator's input, the input held since the last tick (sampled
     wiring), or the law and the actuator's command evaluated in every stage on the true
     state, the controller's state integrated too (continuous wiring).
     constants: :func:`so3jax.dynamics.stepped.constants` of a batch of per-trajectory scenarios
-    (the time terms then computed once per step), or None.
+    (the time terms then computed once per step), or None. key: the run's key (a momentum
+    manager's sensor noise in the continuous wiring).
     Returns (state, phase, metrics sample at t_k), the sample's torque the actuator's
     ``delivered`` at the step start."""
     dtype = scenario.R0.dtype
@@ -206,9 +228,16 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         tau, controller_dot = controller.torque(gains, x.controller, Feedback(x.R.R, x.Omega, h_w), wanted, t)
         return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
 
-    field = _field(scenario, loop, p, d, law, stages)
+    manager, managed = state.manager, state.managed
+    if continuous and loop.momentum is not None:  # the manager ticks every step
+        h_rel = loop.actuator.stored_momentum(state.actuator)
+        manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
+                                                 scenario.environment, t, state.R, key, k)
+    field = _field(scenario, loop, p, d, law, stages, managed)
     x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
     new = state._replace(
+        manager=manager,
+        managed=managed,
         R=x.R.R,
         Omega=x.Omega,
         controller=x.controller if continuous else state.controller,
@@ -267,6 +296,11 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     feedback = Feedback(estimate.R_hat, estimate.Omega_hat, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
     held = loop.actuator.command(state.actuator, tau_cmd, estimate.Omega_hat)
+    manager, managed = state.manager, state.managed
+    if loop.momentum is not None:
+        h_rel = loop.actuator.stored_momentum(state.actuator)
+        manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
+                                                 scenario.environment, t, state.R, key, j)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
     else:
@@ -276,6 +310,8 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
         sensors=sensors,
         estimator=estimator,
         held=held,
+        manager=manager,
+        managed=managed,
     )
     bias = loop.sensors.true_bias(state.sensors, state.Omega)
     tau_applied = loop.actuator.delivered(state.actuator, held, state.Omega)  # the first step's sample

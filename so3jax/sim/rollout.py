@@ -72,6 +72,7 @@ class History(NamedTuple):
     std: Any = None  # (M, 6) the estimator's 1-sigma (attitude rad, bias rad/s) (sampled wiring), or None
     covariance: Any = None  # (M, 6, 6) the filter's P after the update (a filter in the sampled wiring), or None
     disturbance: Any = None  # (M, 3) N m, the disturbance torque d_k of the recorded step
+    managed: Any = None  # the momentum manager's held input (magnetorquers: dipole (M, 3) A m^2), or None
 
 
 class Result(NamedTuple):
@@ -215,7 +216,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         return disturbances(scenario, key, k0, block) if draw_ahead else None
 
     constants = stepped.constants(scenario) if key.ndim else None  # per-trajectory scenarios of a native batch
-    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants)
+    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants, key)
     # Each step is checkpointed inside its block: a backward pass stores the loop state at
     # each step of a block and recomputes the step, rather than storing the RK4 stages'
     # intermediates (a much smaller program to compile; no effect without differentiation).
@@ -236,7 +237,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
                            seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd,
                            _or_none(state.actuator),
                            actuators.momentum(loop.actuator, state.actuator, state.Omega),
-                           disturbance=disturbance_at(scenario, key, k))
+                           disturbance=disturbance_at(scenario, key, k), managed=_or_none(state.managed))
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
@@ -253,7 +254,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def one_tick(carry, ds):
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
-        sample, record = _tick_sample(loop, state, new, out), _flight_record(scenario, loop, state, out, k, key)
+        sample = _tick_sample(loop, state, new, out)
+        record = _flight_record(scenario, loop, state, out, k, key)._replace(managed=_or_none(new.managed))
         share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
         flight = flight_metrics.update(flight, sample, k < n, share)
         if masked:

@@ -1,0 +1,69 @@
+"""Momentum management beside the wheels (docs/model.md §8.6) and the environment's torques
+(§4) in the loop: the external torques they put on the body are the only change of its
+total angular momentum, thrusters dump between their thresholds, magnetorquers unload
+at the rate the cross-product law predicts on an orbit."""
+
+import jax
+import numpy as np
+import pytest
+
+import so3jax as sj
+from so3jax.missions import mission as missions
+
+J = [[900.0, 6.0, -4.0], [6.0, 800.0, 5.0], [-4.0, 5.0, 600.0]]
+HOLD = ["dt=0.1", "control.period=1.0", "record_every=10", "controllers=['pd']", f"inertia.J={J}",
+        "reference.kind='inertial'", "disturbance.amplitude=0.0", "disturbance.noise_std=0.0",
+        "sensors.gyro=false", "sensors.star_tracker=false", "estimator.kind='truth'",
+        "actuator.wheels.initial_speed=[300.0, 300.0, 300.0, 300.0]"]
+
+
+def fly(overrides):
+    """(mission, history) of a mission that holds an inertial attitude on its wheels."""
+    m = missions.load(None, HOLD + overrides)
+    controller, gains = m.controller("pd")
+    result = sj.simulate(m.scenario(), controller, gains, m.seed, loop=m.loop(), record_every=m.record_every)
+    return m, jax.tree.map(np.asarray, result.history)
+
+
+def total_momentum(m, h):
+    """R (J Omega + h_w) (M, 3) [N m s] in the inertial frame, h_w the wheels' (relative) momentum."""
+    wheels = m.actuator["wheels"]
+    G = np.asarray(wheels["axes"], float).T
+    h_w = (G @ (np.broadcast_to(wheels["spin_inertia"], (4,)) * h.actuator).T).T
+    return np.einsum("mij,mj->mi", h.R, np.einsum("mij,mj->mi", h.J, h.Omega) + h_w), h_w
+
+
+def integral(t, f):
+    """The trapezoid integral of f (M, 3) from t[0] to each t (M, 3)."""
+    steps = 0.5 * (f[1:] + f[:-1]) * np.diff(t)[:, None]
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(steps, axis=0)])
+
+
+@pytest.fixture(scope="module")
+def dumped():
+    return fly(["T=600.0", "momentum.kind='thrusters'", "momentum.thrusters.torque=0.2",
+                "momentum.thrusters.start=60.0", "momentum.thrusters.stop=20.0",
+                "momentum.thrusters.min_on_time=3.0"])
+
+
+def test_thrusters_change_the_total_momentum_by_their_pulses_alone(dumped):
+    m, h = dumped
+    H, _ = total_momentum(m, h)
+    # each record is a tick; the pulse fired there is held over the period, in body axes
+    impulse = np.cumsum(np.einsum("mij,mj->mi", h.R, h.managed) * m.period, axis=0)
+    np.testing.assert_allclose(H[1:] - H[0], impulse[:-1], atol=1e-3 * np.abs(impulse).max())
+    assert np.abs(impulse).max() > 50.0  # N m s: the thrusters did the work
+
+
+def test_thrusters_dump_from_above_start_to_below_stop_and_then_rest(dumped):
+    m, h = dumped
+    _, h_w = total_momentum(m, h)
+    size = np.linalg.norm(h_w, axis=1)
+    firing = np.any(h.managed != 0.0, axis=1)
+    assert size[0] > 60.0 and firing[0]
+    below = np.flatnonzero(size < 20.0)
+    assert below.size and size[-1] < 20.0 and size[-1] > 20.0 - 0.2 * 3.0 * 2
+    assert not np.any(firing[below[0] + 3:])  # a firing begun lasts its minimum on-time, then dumping stops
+    runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], firing[:below[0] + 3].astype(int), [0]]))))[::2]
+    assert runs.min() >= 3  # min_on_time = 3 s: three ticks
+    np.testing.assert_array_equal(np.abs(h.managed[firing]).max(axis=1), 0.2)
