@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import so3jax as sj
+from so3jax.dynamics import environment as env
 from so3jax.missions import mission as missions
 
 J = [[900.0, 6.0, -4.0], [6.0, 800.0, 5.0], [-4.0, 5.0, 600.0]]
@@ -67,3 +68,61 @@ def test_thrusters_dump_from_above_start_to_below_stop_and_then_rest(dumped):
     runs = np.diff(np.flatnonzero(np.diff(np.concatenate([[0], firing[:below[0] + 3].astype(int), [0]]))))[::2]
     assert runs.min() >= 3  # min_on_time = 3 s: three ticks
     np.testing.assert_array_equal(np.abs(h.managed[firing]).max(axis=1), 0.2)
+
+
+@pytest.fixture(scope="module")
+def unloaded():
+    """One orbit of magnetorquer unloading, noise-free, the dipole never at its limit."""
+    return fly(["T=5600.0", "orbit.inclination=60.0", "orbit.raan=30.0", "orbit.earth_angle=45.0",
+                "momentum.kind='magnetorquers'", "momentum.magnetorquers.gain=4e-4",
+                "momentum.magnetorquers.max_dipole=1e4", "momentum.magnetorquers.magnetometer_noise=0.0"])
+
+
+def test_magnetorquers_change_the_total_momentum_by_m_cross_b_alone(unloaded):
+    m, h = unloaded
+    H, _ = total_momentum(m, h)
+    environment = m.scenario().environment
+    B_N = np.asarray(jax.vmap(lambda t: env.magnetic_field_n(environment.orbit, t))(h.t))
+    torque_N = np.cross(np.einsum("mij,mj->mi", h.R, h.managed), B_N)  # R (m x R^T B) = (R m) x B
+    np.testing.assert_allclose(H - H[0], integral(h.t, torque_N), atol=2e-3 * np.abs(H - H[0]).max())
+
+
+def test_magnetorquers_unload_at_the_rate_of_the_cross_product_law(unloaded):
+    """dh/dt = -k (h - b^ (b^ . h)) along the orbit's field (the attitude held near R = I): the
+    total momentum, which the wheels hold but for the body's share (J Omega, under 1 %),
+    follows that equation integrated on its own."""
+    m, h = unloaded
+    h_w, _ = total_momentum(m, h)
+    orbit, k = m.scenario().environment.orbit, 4e-4
+    field = jax.jit(lambda t: env.magnetic_field_n(orbit, t))
+
+    def rate(t, x):
+        b = np.asarray(field(t))
+        b = b / np.linalg.norm(b)
+        return -k * (x - b * (b @ x))
+
+    predicted, x = [h_w[0]], h_w[0]
+    for t0, t1 in zip(h.t[:-1], h.t[1:]):  # RK4 between the records
+        dt = t1 - t0
+        k1 = rate(t0, x)
+        k2 = rate(t0 + dt / 2, x + dt / 2 * k1)
+        k3 = rate(t0 + dt / 2, x + dt / 2 * k2)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + rate(t1, x + dt * k3))
+        predicted.append(x)
+    assert np.linalg.norm(h_w[-1]) < 0.3 * np.linalg.norm(h_w[0])  # unloaded
+    np.testing.assert_allclose(h_w, predicted, atol=0.02 * np.linalg.norm(h_w[0]))
+
+
+def test_the_environment_s_torques_change_the_total_momentum_alone():
+    """Gravity gradient, drag, solar pressure and a residual dipole on a held, tilted attitude:
+    R (J Omega + h_w) changes by the integral of R times their sum, recomputed from the records."""
+    m, h = fly(["T=600.0", "orbit.inclination=50.0", "reference.inertial.attitude=[0.3, -0.2, 0.1]",
+                "initial.attitude=[0.3, -0.2, 0.1]", "environment.gravity_gradient={}",
+                "environment.aerodynamic={area=4.0, centre_of_pressure=[0.3, 0.1, -0.2]}",
+                "environment.solar_pressure={}", "environment.magnetic={dipole=[1.0, -2.0, 0.5]}"])
+    H, _ = total_momentum(m, h)
+    environment = m.scenario().environment
+    torque = np.asarray(jax.vmap(lambda t, R, J: environment.torque(t, R, J))(h.t, h.R, h.J))
+    change = integral(h.t, np.einsum("mij,mj->mi", h.R, torque))
+    assert np.abs(change).max() > 1e-2  # N m s: the torques did something
+    np.testing.assert_allclose(H - H[0], change, atol=1e-4 * np.abs(change).max())

@@ -16,6 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax.core.pytree import pytree_dataclass
+from so3jax.dynamics import environment as env
 
 
 class EnvironmentTorque(abc.ABC):
@@ -52,8 +53,6 @@ class Environment:
 
     def magnetic_field_body(self, t, R):
         """The geomagnetic field in body axes, R^T B_N (3, *b) [T]."""
-        from so3jax.dynamics import environment as env  # TEMP
-
         return _batched(lambda orbit, R, J: R.T @ env.magnetic_field_n(orbit, t), self.orbit, R, R)
 
 

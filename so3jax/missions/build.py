@@ -13,8 +13,10 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.components.inertias import InertiaContext
 from so3jax.components.references import ReferenceContext
+from so3jax.dynamics.environment import circular_orbit
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
+from so3jax.dynamics.space import Environment
 
 
 def scenario(mission, params=None, dtype=None) -> Scenario:
@@ -59,9 +61,6 @@ def environment(mission, n, dtype):
     """The mission's :class:`~so3jax.dynamics.space.Environment`: its orbit (``[orbit]``, of rate
     n [rad/s]: a sample's in a sweep) and the torque models of ``[environment]``
     (:mod:`so3jax.components.environment`), in ``dtype``."""
-    from so3jax.dynamics.environment import circular_orbit
-    from so3jax.dynamics.space import Environment
-
     as_array = lambda x: jnp.asarray(x, dtype)
     angles = {name: as_array(np.deg2rad(value)) for name, value in mission.orbit.items()}
     orbit = circular_orbit(as_array(n), **angles)
