@@ -313,7 +313,7 @@ def components_table(kind: str, heading: str = "###") -> str:
     from so3jax.components import registry as components
 
     table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator", "reference": "reference",
-             "inertia": "inertia"}[kind]
+             "inertia": "inertia", "momentum": "momentum", "environment": "environment"}[kind]
     out = []
     for name in components.names(kind):
         spec = components.get(kind, name)
@@ -324,7 +324,7 @@ def components_table(kind: str, heading: str = "###") -> str:
             facts.append("reads the " + " and the ".join(spec.needs) + " measurements")
         if spec.truth:
             facts.append("reads the true state")
-        select = f"`[{table}.{name}]`" if kind == "sensor" else f"`{table}.kind = \"{name}\"`"
+        select = f"`[{table}.{name}]`" if kind in ("sensor", "environment") else f"`{table}.kind = \"{name}\"`"
         out.append(f"{heading} `{name}`\n\n{_prose(spec.doc)}. Chosen by {select}"
                    + (f"; {', '.join(facts)}" if facts else "") + ".\n")
         if spec.params:
@@ -561,6 +561,8 @@ def render(what: str, args: tuple = ()) -> str:
         "actuators": lambda: components_table("actuator", *rest),
         "references": lambda: components_table("reference", *rest),
         "inertias": lambda: components_table("inertia", *rest),
+        "momentum": lambda: components_table("momentum", *rest),
+        "environment": lambda: components_table("environment", *rest),
         "controllers": lambda: controllers_table(*rest),
         "tune": tune_table,
         "sweep": sweep_table,

@@ -72,7 +72,8 @@ _OFFSET = Param("centre_of_pressure", [0.05, 0.02, 0.0], "m", shapes=((3,),),
 components.register(components.ComponentSpec(
     kind="environment", name="gravity_gradient", component=GravityGradient, params=(),
     build=lambda v, ctx: GravityGradient(),
-    doc="the gravity gradient 3 n^2 r_b x J r_b of the true inertia (r_b: the nadir-to-body direction in body axes)",
+    doc="the gravity gradient 3 n^2 r_b x J r_b of the true inertia (r_b: the unit radius, Earth to spacecraft, "
+        "in body axes)",
 ))
 components.register(components.ComponentSpec(
     kind="environment", name="magnetic", component=ResidualDipole,

@@ -159,7 +159,8 @@ def trajectory_arrays(results: dict) -> dict:
     """{controller/quantity: array} of the recorded histories (t shared). A wiring without
     an estimate (continuous: the law reads the true state) stores the truth as R_hat,
     Omega_hat and zero biases, and a zero covariance without a filter; wheel_speed is
-    (M, 0) without wheels."""
+    (M, 0) without wheels, wheel_momentum zeros; momentum_management: the momentum
+    manager's held input, where one is flown."""
     arrays = {}
     for name, r in results.items():
         h = r.history
@@ -167,7 +168,10 @@ def trajectory_arrays(results: dict) -> dict:
                   "Omega_hat": recorded(h.Omega_hat, h.Omega), "bias": recorded(h.bias, np.zeros_like(h.Omega)),
                   "bias_hat": recorded(h.bias_hat, np.zeros_like(h.Omega)), "tau_cmd": h.tau_cmd, "tau_applied": h.tau,
                   "wheel_speed": h.actuator if np.ndim(h.actuator) == 2 else np.zeros((len(h.t), 0)),
-                  "disturbance": h.disturbance, "covariance": recorded(h.covariance, np.zeros((len(h.t), 6, 6)))}
+                  "disturbance": h.disturbance, "covariance": recorded(h.covariance, np.zeros((len(h.t), 6, 6))),
+                  "wheel_momentum": h.momentum}
+        if h.managed is not None:  # a momentum manager's held input (thrusters: torque; magnetorquers: dipole)
+            values["momentum_management"] = h.managed
         arrays.update({f"{name}/{k}": np.asarray(v) for k, v in values.items()})
     return arrays
 

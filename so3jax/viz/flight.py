@@ -1,4 +1,4 @@
-"""Figures of the flight loop (docs/model.md §8): estimation, torques, wheels, momentum.
+"""Figures of the flight loop (docs/model.md §8): estimation, torques, wheels, momentum and its management.
 
 Each takes {controller name: History of the sampled wiring with NumPy leaves}, the phase start times [s]
 and the horizon T [s]; it returns a matplotlib figure.
@@ -138,6 +138,29 @@ def wheel_figures(histories, phase_times, T, w: dict) -> dict:
     capacity = np.abs(np.asarray(w["axes"]).T) @ (w["spin_inertia"] * w["max_speed"])
     return {"wheel_speeds.png": wheel_speed_figure(histories, phase_times, T, w["max_speed"]),
             "momentum.png": momentum_figure(histories, phase_times, T, capacity)}
+
+
+# what a momentum manager holds between its ticks, by registered name: (symbol, unit)
+MANAGED = {"thrusters": ("thruster torque", "N m"), "magnetorquers": ("dipole m", "A m²")}
+
+
+def momentum_management_figure(kind: str, histories, phase_times, T):
+    """The momentum manager's held input per body axis (thrusters: the torque fired [N m];
+    magnetorquers: the dipole [A m²]) and the wheels' |h_w| [N m s] it keeps down."""
+    what, unit = MANAGED.get(kind, ("input", ""))
+    fig = Figure(figsize=(10, 9))
+    axes = fig.subplots(4, 1, sharex=True)
+    for i, ax in enumerate(axes[:3]):
+        for name, h in histories.items():
+            ax.plot(h.t, h.managed[:, i], lw=0.8, **controller_style(name))
+        _frame(ax, phase_times, T, f"{what} {AXES[i]} [{unit}]")
+    for name, h in histories.items():
+        axes[3].plot(h.t, np.linalg.norm(h.momentum, axis=1), lw=1.0, **controller_style(name))
+    _frame(axes[3], phase_times, T, "|h_w| [N m s]")
+    axes[0].legend(fontsize=8, loc="upper right")
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(f"Momentum management ({kind})")
+    return fig
 
 
 # figures of an actuator's own state, by registered actuator name:

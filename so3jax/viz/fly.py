@@ -1,6 +1,6 @@
 """The figures of ``so3jax fly``: with continuous control the attitude error and the
-torque; with sampled control the attitude, the gyro bias, the torque and the actuator's
-figures (:mod:`so3jax.viz.flight`)."""
+torque; with sampled control the attitude, the gyro bias, the torque, the actuator's
+figures and the momentum manager's (:mod:`so3jax.viz.flight`)."""
 
 from __future__ import annotations
 
@@ -21,4 +21,7 @@ def figures(mission, histories: dict) -> dict:
     }
     kind = mission.actuator["kind"]
     figures.update(flight_plots.actuator_figures(kind, histories, phases, mission.T, mission.actuator[kind]))
+    if mission.momentum["kind"] != "none":
+        figures["momentum_management.png"] = flight_plots.momentum_management_figure(
+            mission.momentum["kind"], histories, phases, mission.T)
     return figures
