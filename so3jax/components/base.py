@@ -188,5 +188,10 @@ class MomentumManager(abc.ABC):
     def body_torque(self, held, environment, t, R):
         """The external torque on the body (3, *b) [N m] at t [s], attitude R (3, 3, *b)."""
 
+    def feedforward(self, held):
+        """The torque the flight software expects the device to put on the body (3, *b) [N m],
+        taken off the actuator's command so that the wheels absorb it; None: none."""
+        return None
+
     def check(self) -> None:
         """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""

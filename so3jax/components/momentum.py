@@ -10,7 +10,9 @@ moves the wheels' momentum h_w (h_rel, body frame [N m s]) toward a target.
   from a magnetometer's reading B_m, scaled down as a whole to the per-axis limits; the
   body feels m x B (the cross-product law: torque -k (Δh - (B^·Δh) B^), Δh = h_w - h_target).
 
-The attitude law sees their torques as disturbances, which the wheels absorb. Firing
+The attitude law sees their torques as disturbances, which the wheels absorb; the thrusters'
+pulses, known to the flight software, are also taken off the wheels' command
+(``feedforward``), so that the body feels them only where the wheels cannot follow. Firing
 decisions are piecewise constant in the state: a gradient (``so3jax tune``) sees the torque
 of the pulses fired and not how a change of gains would move them.
 """
@@ -43,12 +45,14 @@ class ThrusterState(NamedTuple):
 @pytree_dataclass
 class Thrusters(MomentumManager):
     """Thruster momentum dumping: torque (3,) [N m] per axis pair; start, stop [N m s]
-    thresholds on |h_w|; pulses of ``min_periods`` control periods at least (>= 1)."""
+    thresholds on |h_w|; pulses of ``min_periods`` control periods at least (>= 1);
+    feedforward_pulses: the wheels are commanded to absorb each pulse (tau_c - tau_m)."""
 
     torque: jax.Array
     start: jax.Array
     stop: jax.Array
     min_periods: int = static_field(default=1)
+    feedforward_pulses: bool = static_field(default=True)
 
     def init(self, batch_shape, dtype):
         zero = jnp.zeros((3, *batch_shape), dtype)
@@ -67,6 +71,9 @@ class Thrusters(MomentumManager):
 
     def body_torque(self, held, environment, t, R):
         return held
+
+    def feedforward(self, held):
+        return held if self.feedforward_pulses else None
 
     def check(self):
         torque, start, stop = (checks.concrete(x, name) for x, name in (
@@ -116,7 +123,8 @@ class Magnetorquers(MomentumManager):
 def _thrusters(values, ctx):
     periods = max(1, math.ceil(values["min_on_time"] / ctx.period - 1e-9))
     torque = np.broadcast_to(values["torque"], (3,)).copy()
-    return Thrusters(ctx.as_array(torque), ctx.as_array(values["start"]), ctx.as_array(values["stop"]), periods)
+    return Thrusters(ctx.as_array(torque), ctx.as_array(values["start"]), ctx.as_array(values["stop"]), periods,
+                     values["feedforward"])
 
 
 def _thrusters_values(values: dict) -> dict:
@@ -137,6 +145,8 @@ components.register(components.ComponentSpec(
         Param("start", 60.0, "N m s", low=0.0, doc="dumping starts when |h_w| exceeds this"),
         Param("stop", 20.0, "N m s", low=0.0, doc="dumping stops when |h_w| falls below this"),
         Param("min_on_time", 1.0, "s", low=0.0, doc="shortest firing (rounded up to whole control periods)"),
+        Param("feedforward", True, boolean=True,
+              doc="the wheels are commanded to absorb each pulse (the command tau_c - tau_m)"),
     ),
     complete=_thrusters_values,
     build=_thrusters,

@@ -185,6 +185,13 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None, managed=(
     return field
 
 
+def _less_feedforward(loop: Loop, tau_c, managed):
+    """The command the actuator gets: tau_c less the momentum manager's feedforward (the
+    torque it expects to put on the body, for the wheels to absorb), where it has one."""
+    feedforward = None if loop.momentum is None else loop.momentum.feedforward(managed)
+    return tau_c if feedforward is None else tau_c - feedforward
+
+
 def external_torque(scenario: Scenario, loop: Loop, d, managed, t, R, J):
     """d plus the environment's torques and the momentum manager's (3, *b) [N m] at t [s],
     attitude R, inertia J; d itself where the mission has neither (the paper's arithmetic)."""
@@ -221,18 +228,18 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         with_inverse = loop.actuator.stored_momentum(state.actuator) is None and not scenario.variable_inertia_term
         stages = stepped.stage_terms(scenario, constants, t, p, with_inverse)
 
-    def law(t, x, wanted):
-        if not continuous:
-            return state.held, ()
-        h_w = loop.actuator.uncompensated_momentum(x.actuator, x.Omega)
-        tau, controller_dot = controller.torque(gains, x.controller, Feedback(x.R.R, x.Omega, h_w), wanted, t)
-        return loop.actuator.command(x.actuator, tau, x.Omega), controller_dot
-
     manager, managed = state.manager, state.managed
     if continuous and loop.momentum is not None:  # the manager ticks every step
         h_rel = loop.actuator.stored_momentum(state.actuator)
         manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
                                                  scenario.environment, t, state.R, key, k)
+
+    def law(t, x, wanted):
+        if not continuous:
+            return state.held, ()
+        h_w = loop.actuator.uncompensated_momentum(x.actuator, x.Omega)
+        tau, controller_dot = controller.torque(gains, x.controller, Feedback(x.R.R, x.Omega, h_w), wanted, t)
+        return loop.actuator.command(x.actuator, _less_feedforward(loop, tau, managed), x.Omega), controller_dot
     field = _field(scenario, loop, p, d, law, stages, managed)
     x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
     new = state._replace(
@@ -295,12 +302,12 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     h_w = loop.actuator.uncompensated_momentum(state.actuator, estimate.Omega_hat)
     feedback = Feedback(estimate.R_hat, estimate.Omega_hat, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
-    held = loop.actuator.command(state.actuator, tau_cmd, estimate.Omega_hat)
     manager, managed = state.manager, state.managed
     if loop.momentum is not None:
         h_rel = loop.actuator.stored_momentum(state.actuator)
         manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
                                                  scenario.environment, t, state.R, key, j)
+    held = loop.actuator.command(state.actuator, _less_feedforward(loop, tau_cmd, managed), estimate.Omega_hat)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
     else:
