@@ -126,3 +126,15 @@ def test_the_environment_s_torques_change_the_total_momentum_alone():
     change = integral(h.t, np.einsum("mij,mj->mi", h.R, torque))
     assert np.abs(change).max() > 1e-2  # N m s: the torques did something
     np.testing.assert_allclose(H - H[0], change, atol=1e-4 * np.abs(change).max())
+
+
+def test_thrusters_tick_every_step_in_the_continuous_wiring():
+    """The continuous wiring (the law in every RK4 stage) with wheels: the thrusters decide at
+    every step (a record holds the step's), and their pulses are again the only change of the
+    total momentum."""
+    m, h = fly(["T=40.0", "record_every=1", "control.mode='continuous'", "momentum.kind='thrusters'",
+                "momentum.thrusters.torque=0.2", "momentum.thrusters.start=60.0", "momentum.thrusters.stop=20.0"])
+    H, _ = total_momentum(m, h)
+    impulse = np.cumsum(np.einsum("mij,mj->mi", h.R, h.managed) * m.dt, axis=0)
+    assert np.all(np.abs(h.managed[:, 2]) == 0.2)  # |h_w| ~ 111 N m s > start: firing about z throughout
+    np.testing.assert_allclose(H[1:] - H[0], impulse[:-1], atol=1e-3 * np.abs(impulse).max())

@@ -185,6 +185,15 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None, managed=(
     return field
 
 
+def manage(scenario: Scenario, loop: Loop, state: State, t, key, j):
+    """The momentum manager's tick j at t [s] (every step in the continuous wiring): (its next
+    state, the input it holds until its next tick), from the wheels' momentum and the true
+    attitude in ``state``."""
+    h_rel = loop.actuator.stored_momentum(state.actuator)
+    return loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative, scenario.environment, t,
+                                 state.R, key, j)
+
+
 def _less_feedforward(loop: Loop, tau_c, managed):
     """The command the actuator gets: tau_c less the momentum manager's feedforward (the
     torque it expects to put on the body, for the wheels to absorb), where it has one."""
@@ -230,9 +239,7 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
 
     manager, managed = state.manager, state.managed
     if continuous and loop.momentum is not None:  # the manager ticks every step
-        h_rel = loop.actuator.stored_momentum(state.actuator)
-        manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
-                                                 scenario.environment, t, state.R, key, k)
+        manager, managed = manage(scenario, loop, state, t, key, k)
 
     def law(t, x, wanted):
         if not continuous:
@@ -304,9 +311,7 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
     manager, managed = state.manager, state.managed
     if loop.momentum is not None:
-        h_rel = loop.actuator.stored_momentum(state.actuator)
-        manager, managed = loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative,
-                                                 scenario.environment, t, state.R, key, j)
+        manager, managed = manage(scenario, loop, state, t, key, j)
     held = loop.actuator.command(state.actuator, _less_feedforward(loop, tau_cmd, managed), estimate.Omega_hat)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)

@@ -37,6 +37,7 @@ from so3jax.sim.loop import (
     broadcast,
     check_loop,
     initial_state,
+    manage,
     observe,
     phase,
     step,
@@ -237,7 +238,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
                            seen.tau, seen.sample.angle, seen.J, state.controller, seen.tau_cmd,
                            _or_none(state.actuator),
                            actuators.momentum(loop.actuator, state.actuator, state.Omega),
-                           disturbance=disturbance_at(scenario, key, k), managed=_or_none(state.managed))
+                           disturbance=disturbance_at(scenario, key, k),
+                           managed=None if loop.momentum is None else manage(scenario, loop, state, seen.t, key, k)[1])
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
