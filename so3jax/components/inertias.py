@@ -45,8 +45,12 @@ class Targets(Param):
     def parse(self, value, where: str):
         if not isinstance(value, (list, tuple)) or not value:
             raise ValueError(f"{where} must be a list of inertias [kg m^2] or scales, got {checks.short(value)}")
-        return tuple(checks.number(v, f"{where}[{i}] (a scale)", low=0.0) if not isinstance(v, (list, tuple))
-                     else checks.array(v, f"{where}[{i}] [kg m^2]", (3, 3)) for i, v in enumerate(value))
+        out = tuple(checks.number(v, f"{where}[{i}] (a scale)") if not isinstance(v, (list, tuple))
+                    else checks.array(v, f"{where}[{i}] [kg m^2]", (3, 3)) for i, v in enumerate(value))
+        bad = [i for i, v in enumerate(out) if np.ndim(v) == 0 and not v > 0]
+        if bad:
+            raise ValueError(f"{where}[{bad[0]}]: a scale must be positive, got {out[bad[0]]}")
+        return out
 
     def domain(self) -> str:
         return "each a (3, 3) matrix or a scale > 0"
@@ -65,9 +69,6 @@ def _events_values(values: dict) -> dict:
                          "constants: one of each per event")
     if np.any(np.diff(times) <= 0):
         raise ValueError(f"inertia.events.times [s] must increase, got {times.tolist()}")
-    for i, target in enumerate(targets):
-        if np.ndim(target) == 0 and not target > 0:
-            raise ValueError(f"inertia.events.targets[{i}]: a scale must be positive, got {target}")
     check_inertia("inertia.events.initial", values["initial"], warn=False)
     for i, target in enumerate(targets):
         if np.ndim(target):

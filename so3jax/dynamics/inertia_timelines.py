@@ -55,7 +55,8 @@ class InertiaEvents(InertiaProfile):
     def _event(self, k, t):
         tau = self.time_constants[k]
         step = tau <= 0
-        decay = jnp.exp(-jnp.maximum(t - self.times[k], 0.0) / jnp.where(step, 1.0, tau))
+        since = jnp.where(t >= self.times[k], t - self.times[k], 0.0)  # J' from the event's time on
+        decay = jnp.exp(-since / jnp.where(step, 1.0, tau))
         return self.targets[k] - (self.targets[k] - self.starts[k]) * jnp.where(step, 0.0, decay)
 
     def check(self):
@@ -102,7 +103,7 @@ class InertiaTable(InertiaProfile):
         t = jnp.asarray(t, self.times.dtype)
         i = jnp.clip(jnp.searchsorted(self.times, t, side="right") - 1, 0, self.times.shape[0] - 2)
         t0, t1 = self.times[i], self.times[i + 1]
-        fraction = jnp.clip((t - t0) / (t1 - t0), 0.0, 1.0)
+        fraction = jnp.where(t < t0, 0.0, jnp.where(t >= t1, 1.0, (t - t0) / (t1 - t0)))  # J' from t on
         return self.inertias[i] + (self.inertias[i + 1] - self.inertias[i]) * fraction
 
     def matrices(self):

@@ -65,11 +65,12 @@ def make_batch(inertia_scales, seeds, dtype) -> Batch:
 
 
 def scale_inertia(scenario: Scenario, scale) -> Scenario:
-    """The scenario with every matrix of its inertia profile multiplied by ``scale``
-    (a scalar, or (B,) for a batch: the matrices get a leading batch axis)."""
+    """The scenario with every matrix (or stack of matrices) of its inertia profile multiplied
+    by ``scale`` (a scalar, or (B,) for a batch: each gets a leading batch axis)."""
     inertia = scenario.inertia
-    scale = jnp.asarray(scale)[..., None, None]
-    scaled = dataclasses.replace(inertia, **{name: scale * J for name, J in inertia.matrices().items()})
+    scale = jnp.asarray(scale)
+    scaled = dataclasses.replace(inertia, **{name: scale.reshape(scale.shape + (1,) * jnp.ndim(J)) * J
+                                             for name, J in inertia.matrices().items()})
     return dataclasses.replace(scenario, inertia=scaled)
 
 
