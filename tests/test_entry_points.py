@@ -3,7 +3,8 @@
 ``rollout``, ``rollout_batch`` and ``simulate`` on a tiny sampled-data mission (T = 0.3 s,
 dt = 0.05 s, control period 0.1 s: three ticks) under ``jax.jit``, ``jax.vmap`` and
 ``jax.grad`` or ``jax.jacfwd``; every estimator (truth, raw, mekf), actuator (ideal,
-saturated, wheels) and registered controller appears in one of the loops, so that few
+saturated, wheels), momentum manager, environment torque and registered controller
+appears in one of the loops, so that few
 programs compile: per loop, the un-jitted ``rollout`` (the reference), one jitted program
 holding the rollout under ``vmap`` (over seeds) of its derivative and ``rollout_batch``,
 and ``simulate``. Reverse mode, the costly one to compile, in one loop (every component's
@@ -34,6 +35,10 @@ TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
 LOOPS = [("mekf", "ideal", "pd", "forward"), ("truth", "wheels", "adaptive", "reverse"),
          ("raw", "saturated", "open_loop", "forward"), ("raw", "wheels", "mrp_feedback", "forward"),
          ("truth", "saturated", "sliding_mode", "forward")]
+# the momentum managers beside the wheels, and the environment's torques, in the loops with wheels
+MANAGED = {"adaptive": ["momentum.kind='magnetorquers'", "environment.gravity_gradient={}",
+                        "environment.aerodynamic={}", "environment.solar_pressure={}", "environment.magnetic={}"],
+           "mrp_feedback": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3", "momentum.thrusters.stop=0.0"]}
 SEEDS = jnp.arange(2)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
@@ -44,6 +49,9 @@ def test_every_registered_component_is_flown():
     estimators, actuators, controllers, _ = (set(parts) for parts in zip(*LOOPS))
     assert estimators == set(components.names("estimator")) and actuators == set(components.names("actuator"))
     assert controllers == set(registry.names())
+    flown = " ".join(" ".join(overrides) for overrides in MANAGED.values())
+    assert all(f"'{name}'" in flown for name in components.names("momentum") if name != "none")
+    assert all(f"environment.{name}=" in flown for name in components.names("environment"))
 
 
 class Setup:
@@ -52,7 +60,7 @@ class Setup:
 
     def __init__(self, estimator, actuator, controller, mode):
         overrides = [*TINY, f'estimator.kind="{estimator}"', f'actuator.kind="{actuator}"',
-                     f'controllers=["{controller}"]']
+                     f'controllers=["{controller}"]', *MANAGED.get(controller, [])]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", sj.InertiaWarning)
             m = missions.load(None, overrides)

@@ -43,33 +43,33 @@ class Environment:
         if not self.torques:
             return jnp.zeros(R.shape[:1] + R.shape[2:], R.dtype)
 
-        def one(orbit, R, J):
-            total = self.torques[0].torque(orbit, t, R, J)
-            for model in self.torques[1:]:
-                total = total + model.torque(orbit, t, R, J)
+        def one(environment, R, J):
+            total = environment.torques[0].torque(environment.orbit, t, R, J)
+            for model in environment.torques[1:]:
+                total = total + model.torque(environment.orbit, t, R, J)
             return total
 
-        return _batched(one, self.orbit, R, J)
+        return _batched(one, self, R, J)
 
     def magnetic_field_body(self, t, R):
         """The geomagnetic field in body axes, R^T B_N (3, *b) [T]."""
-        return _batched(lambda orbit, R, J: R.T @ env.magnetic_field_n(orbit, t), self.orbit, R, R)
+        return _batched(lambda environment, R, J: R.T @ env.magnetic_field_n(environment.orbit, t), self, R, R)
 
 
-def _batched(fn, orbit, R, J):
-    """fn(orbit, R (3, 3), J (3, 3)) -> (3,) over the trailing batch axes of R; J and the
-    orbit's leaves (scalars) broadcast to them."""
+def _batched(fn, environment, R, J):
+    """fn(environment, R (3, 3), J (3, 3)) -> (3,) over the trailing batch axes b of R. In a
+    natively batched rollout every leaf of the scenario, the environment's too, carries
+    them (of size 1 where the batch shares it): each is broadcast to b and mapped over."""
     batch = R.shape[2:]
     if not batch:
-        squeeze = lambda x, core: x.reshape(x.shape[:core]) if x.ndim > core else x
-        return fn(jax.tree.map(lambda x: squeeze(jnp.asarray(x), 0), orbit), R, squeeze(J, 2))
+        return fn(environment, R, J)
     size = math.prod(batch)
 
     def spread(x, core):
         x = jnp.asarray(x)
-        x = x.reshape(x.shape + (1,) * (core + len(batch) - x.ndim))
         return jnp.broadcast_to(x, x.shape[:core] + batch).reshape(x.shape[:core] + (size,))
 
-    out = jax.vmap(fn, in_axes=-1, out_axes=-1)(jax.tree.map(lambda x: spread(x, 0), orbit), spread(R, 2),
-                                                 spread(J, 2))
+    leaves = jax.tree.map(lambda x: spread(x, jnp.ndim(x) - len(batch)), environment)
+    J = J.reshape(J.shape + (1,) * (R.ndim - J.ndim))
+    out = jax.vmap(fn, in_axes=-1, out_axes=-1)(leaves, spread(R, 2), spread(J, 2))
     return out.reshape((3,) + batch)
