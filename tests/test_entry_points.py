@@ -38,7 +38,8 @@ LOOPS = [("mekf", "ideal", "pd", "forward"), ("truth", "wheels", "adaptive", "re
 # the momentum managers beside the wheels, and the environment's torques, in the loops with wheels
 MANAGED = {"adaptive": ["momentum.kind='magnetorquers'", "environment.gravity_gradient={}",
                         "environment.aerodynamic={}", "environment.solar_pressure={}", "environment.magnetic={}"],
-           "mrp_feedback": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3", "momentum.thrusters.stop=0.0"]}
+           "mrp_feedback": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3",
+                            "momentum.thrusters.stop=0.0"]}
 SEEDS = jnp.arange(2)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
