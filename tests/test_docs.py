@@ -59,14 +59,16 @@ def test_site_builds_strict_with_generated_tables(site):
 def test_every_registered_component_and_mission_key_is_on_the_fly_page(site):
     html = _page(site, "commands/fly")
     names = _fresh("schema_docs.registered_names()")
-    assert set(names) == {"controller", "sensor", "estimator", "actuator", "reference"}
+    assert set(names) == {"controller", "sensor", "estimator", "actuator", "momentum", "environment", "reference",
+                          "inertia"}
     for kind, registered in names.items():
         assert registered, kind
         for name in registered:
             assert f'id="{name}"' in html or f"<code>{name}</code>" in html, (kind, name)
     chosen = {"controller": ("controller.{}.", "gains.{}."), "sensor": ("[sensors.{}]",),
               "estimator": ('estimator.kind = "{}"',), "actuator": ('actuator.kind = "{}"',),
-              "reference": ('reference.kind = "{}"',)}
+              "reference": ('reference.kind = "{}"',), "inertia": ('inertia.kind = "{}"',),
+              "momentum": ('momentum.kind = "{}"',), "environment": ("[environment.{}]",)}
     for kind, registered in names.items():
         for name in registered:  # how a mission names it
             assert any(pattern.format(name) in html for pattern in chosen[kind]), (kind, name)

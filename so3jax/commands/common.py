@@ -26,7 +26,10 @@ def registered(tunable: bool = False) -> str:
             f"sensors ([sensors.NAME]): {', '.join(components.names('sensor'))}; "
             f"estimators (estimator.kind): {', '.join(components.names('estimator'))}; "
             f"actuators (actuator.kind): {', '.join(components.names('actuator'))}; "
-            f"references (reference.kind): {', '.join(components.names('reference'))}.")
+            f"momentum management (momentum.kind): {', '.join(components.names('momentum'))}; "
+            f"environment torques ([environment.NAME]): {', '.join(components.names('environment'))}; "
+            f"references (reference.kind): {', '.join(components.names('reference'))}; "
+            f"inertias (inertia.kind): {', '.join(components.names('inertia'))}.")
 
 
 def controllers_help(default: str) -> str:
