@@ -17,6 +17,17 @@ from so3jax.sim.loop import Loop
 from tests.helpers import custom_scenario
 
 SCENARIO = custom_scenario(4.0, 0.01, noise=True, Omega0=(0.01, 0.0, -0.01))
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _not_in_the_persistent_cache():
+    """These programs (both modes through the sampled loop, compiled once) are no other test's:
+    they are not written to the session's persistent cache, whose write of an executable this
+    large is the slowest and has crashed a worker on a loaded machine."""
+    minimum = jax.config.jax_persistent_cache_min_compile_time_secs
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1e9)
+    yield
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", minimum)
 LOG_GAINS = jnp.log(jnp.asarray([0.5714, 25.0]))  # the paper's PD gains
 # Motor torque limits [N m]: the paper's PD commands ~0.5 N m here, so with 0.6 N m some
 # wheel is at its limit over 2.45 s of the 4 s (with 0.02 N m, every wheel all the time).
