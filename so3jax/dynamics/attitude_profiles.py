@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import so3
+from so3jax.core import so3, tables
 from so3jax.core.pytree import pytree_dataclass
 from so3jax.dynamics.reference import Reference
 
@@ -365,28 +365,12 @@ def read_attitude_table(path) -> tuple[np.ndarray, np.ndarray]:
     [w, x, y, z]) of unit quaternions (to 1e-6; normalized). For :func:`tabulated`."""
     path = Path(path)
     if path.suffix == ".npz":
-        with np.load(path) as data:
-            missing = [name for name in ("t", "q") if name not in data.files]
-            if missing:
-                raise ValueError(f"{path}: no array {missing[0]!r} (arrays t (K,) and q (K, 4) [w, x, y, z] needed)")
-            times, q = np.asarray(data["t"], np.float64), np.asarray(data["q"], np.float64)
+        times, q = tables.read_npz_arrays(path, {"t": "(K,)", "q": "(K, 4) [w, x, y, z]"})
         rows = [f"q[{i}]" for i in range(len(q))]
     else:
-        with open(path) as f:
-            header = [name.strip() for name in f.readline().split(",")]
-        missing = [name for name in _TABLE_COLUMNS if name not in header]
-        if missing:
-            raise ValueError(f"{path}: the header line names no column {missing[0]!r} "
-                             f"(columns {', '.join(_TABLE_COLUMNS)} needed), it reads {','.join(header)!r}")
-        try:
-            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
-        except ValueError as e:
-            reason = str(e).splitlines()[0]
-            raise ValueError(f"{path}: not a table of numbers after the header line ({reason})") from None
-        if table.shape[1] != len(header):
-            raise ValueError(f"{path}: {table.shape[1]} columns of numbers, {len(header)} named in the header")
-        times = table[:, header.index("t")]
-        q = table[:, [header.index(name) for name in _TABLE_COLUMNS[1:]]]
+        columns = tables.read_csv_columns(path, _TABLE_COLUMNS)
+        times = columns["t"]
+        q = np.stack([columns[name] for name in _TABLE_COLUMNS[1:]], axis=-1)
         rows = [f"line {i + 2}" for i in range(len(q))]
     if times.ndim != 1 or q.shape != (times.shape[0], 4):
         raise ValueError(f"{path}: t must have shape (K,) and q (K, 4), not {times.shape} and {q.shape}")

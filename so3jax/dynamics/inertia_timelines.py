@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.core import tables
 from so3jax.core.pytree import pytree_dataclass
 from so3jax.dynamics.inertia import check_inertia
 from so3jax.dynamics.plant import InertiaProfile
@@ -136,29 +137,9 @@ def read_inertia_table(path) -> tuple[np.ndarray, np.ndarray]:
     naming the columns of :data:`TABLE_COLUMNS`, in any order) or a .npz file (arrays t (K,)
     and J (K, 3, 3))."""
     path = Path(path)
-    try:
-        if path.suffix == ".npz":
-            with np.load(path) as data:
-                missing = [name for name in ("t", "J") if name not in data.files]
-                if missing:
-                    raise ValueError(f"{path}: no array {missing[0]!r} (arrays t (K,) and J (K, 3, 3) needed)")
-                return np.asarray(data["t"], np.float64), np.asarray(data["J"], np.float64)
-        with open(path) as f:
-            header = [name.strip() for name in f.readline().split(",")]
-        missing = [name for name in TABLE_COLUMNS if name not in header]
-        if missing:
-            raise ValueError(f"{path}: the header line names no column {missing[0]!r} "
-                             f"(columns {', '.join(TABLE_COLUMNS)} needed), it reads {','.join(header)!r}")
-        rows = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
-    except OSError as error:
-        raise ValueError(f"{path}: cannot be read ({error.strerror or error})") from None
-    except ValueError as error:
-        if str(error).startswith(str(path)):
-            raise
-        raise ValueError(f"{path}: not a table of numbers after the header line ({str(error).splitlines()[0]})") \
-            from None
-    if rows.shape[1] != len(header):
-        raise ValueError(f"{path}: {rows.shape[1]} columns of numbers, {len(header)} named in the header")
-    xx, yy, zz, xy, xz, yz = (rows[:, header.index(name)] for name in TABLE_COLUMNS[1:])
+    if path.suffix == ".npz":
+        return tables.read_npz_arrays(path, {"t": "(K,)", "J": "(K, 3, 3)"})
+    columns = tables.read_csv_columns(path, TABLE_COLUMNS)
+    xx, yy, zz, xy, xz, yz = (columns[name] for name in TABLE_COLUMNS[1:])
     J = np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
-    return rows[:, header.index("t")], J
+    return columns["t"], J
