@@ -36,10 +36,9 @@ LOOPS = [("mekf", "ideal", "pd", "forward"), ("truth", "wheels", "adaptive", "re
          ("raw", "saturated", "open_loop", "forward"), ("raw", "wheels", "mrp_feedback", "forward"),
          ("truth", "saturated", "sliding_mode", "forward")]
 # the momentum managers beside the wheels, and the environment's torques, in the loops with wheels
-MANAGED = {"adaptive": ["momentum.kind='magnetorquers'", "environment.gravity_gradient={}",
-                        "environment.aerodynamic={}", "environment.solar_pressure={}", "environment.magnetic={}"],
-           "mrp_feedback": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3",
-                            "momentum.thrusters.stop=0.0"]}
+MANAGED = {"mrp_feedback": ["momentum.kind='magnetorquers'", "environment.gravity_gradient={}",
+                            "environment.aerodynamic={}", "environment.solar_pressure={}", "environment.magnetic={}"],
+           "adaptive": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3", "momentum.thrusters.stop=0.0"]}
 SEEDS = jnp.arange(2)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
