@@ -232,6 +232,7 @@ def test_sweep_profile_runs_as_committed():
     assert {r["variant"] for r in report["rows"]} >= {"dispersed", "library trigonometry"}
 
 
+@pytest.mark.slow  # a reverse-mode program of its own (~20 s of compilation); the gradients: tests/test_gradients.py
 @pytest.mark.parametrize("mission", [(), pytest.param(("--mission", "missions/flight.toml"), marks=pytest.mark.slow)],
                          ids=["paper", "flight"])
 def test_gradients_benchmark_runs_as_committed(mission):
