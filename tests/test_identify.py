@@ -263,7 +263,7 @@ def test_regression_is_exact_on_noise_free_telemetry(clean, options):
         np.testing.assert_allclose(result["disturbance"], 0.0, atol=1e-7)  # N m (the torque: ~0.35)
 
 
-@pytest.mark.parametrize("start", ["regression", "3000 I"])
+@pytest.mark.parametrize("start", ["regression", pytest.param("3000 I", marks=pytest.mark.slow)])  # a far start
 @pytest.mark.parametrize("options", [pytest.param(BARE, id="bare", marks=pytest.mark.slow),  # its own compile (~18 s)
                                      pytest.param(DEFAULTS, id="defaults")])
 def test_simulation_is_exact_on_noise_free_telemetry(clean, options, start):
