@@ -38,6 +38,14 @@ peak (a numpy matmul on every BLAS thread) that each run's rate reaches.
 
     python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 400 --samples 128 --chunk 128
 
+--undispersed also times, right after each run and on the same samples, the same sweep with
+its dispersed component parameters left at the mission's values (every sample flying the
+mission's loop: the batched loop without dispersion, the scenario still dispersed), and
+gives the ratio of the rates per round (``dispersed_over_undispersed``):
+
+    python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 100 --samples 256 --chunk 128 \
+        --rounds 3 --undispersed
+
 Prints one JSON object: ``runs`` (one per round, layout and controller; with --numba, also
 the Numba rate and the ratio), ``full_sweep`` (per layout: the median rate over rounds and
 the extrapolation) and, with --numba, ``numba_head_to_head`` (per layout and controller:
@@ -118,7 +126,7 @@ def _child(spec: dict) -> list:
         gains = jax.tree.map(np.asarray, config.gains[controller])
         rmse = {}  # first sample of a chunk -> so3jax's rmse of the chunk
 
-        def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse):
+        def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse, leaves=leaves):
             for start in range(first, last, chunk):
                 if claims is not None and not sweep._take(claims, controller, start):
                     continue
@@ -151,6 +159,13 @@ def _child(spec: dict) -> list:
                 "so3jax_over_numba": wall_n / wall,  # the ratio of the rates
                 "numba_rmse_max_rel_diff": float(np.max(np.abs(numba_out["rmse"] - ours) / np.abs(ours))),
             }
+        if spec.get("undispersed") and leaves and jax.process_count() == 1:  # every component at the mission's values
+            run(0, chunk, leaves={}, rmse={})  # compile, not timed
+            start_u = time.perf_counter()
+            run(0, n, leaves={}, rmse={})
+            wall_u = time.perf_counter() - start_u
+            head_to_head |= {"undispersed_wall_s": wall_u, "undispersed_trajectory_steps_per_s": n * n_steps / wall_u,
+                             "dispersed_over_undispersed": wall_u / wall}  # the ratio of the rates
         if spec.get("flops"):
             flops = _step_flops(config, controller, params)
             head_to_head |= {"flops_per_trajectory_step": flops, "flops_per_s": flops * n * n_steps / wall,
@@ -286,6 +301,9 @@ def main() -> None:
     parser.add_argument("--flops", action="store_true",
                         help="also XLA's FLOPs per trajectory-step of the sweep path (paper's wiring) and the share "
                              "of the machine's float64 matmul peak reached")
+    parser.add_argument("--undispersed", action="store_true",
+                        help="also time each run's samples with the dispersed component parameters at the mission's "
+                             "values (the batched loop without dispersion), right after it")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -303,7 +321,7 @@ def main() -> None:
             for name, (processes, devices, layout) in layouts.items():
                 spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "config": args.config,
                         "controllers": args.controllers.split(","), "numba": args.numba,
-                        "flops": args.flops}
+                        "flops": args.flops, "undispersed": args.undispersed}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
     finally:
         if hog is not None:

@@ -171,9 +171,9 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
             warnings.simplefilter("ignore", InertiaWarning)  # the drawn J0 and J1 = 2 J0, as in the sweep
             result = fly.fly(mission.from_dict(_with(tables, overrides)))[0]["pd"]
         for key in ("rmse", "effort"):
-            np.testing.assert_allclose(float(result.metrics._asdict()[key]), t[f"pd_{key}"][i], rtol=1e-9, err_msg=key)
+            np.testing.assert_allclose(float(result.metrics._asdict()[key]), t[f"pd_{key}"][i], rtol=1e-12, err_msg=key)
         for key, value in result.flight._asdict().items():
-            np.testing.assert_allclose(float(value), t[f"pd_{key}"][i], rtol=1e-9, atol=1e-12, err_msg=key)
+            np.testing.assert_allclose(float(value), t[f"pd_{key}"][i], rtol=1e-12, atol=1e-15, err_msg=key)
         alone = pointing.signals(result.history)
         np.testing.assert_allclose(alone.performance, e_p[i], rtol=1e-9, atol=1e-15)
         np.testing.assert_allclose(alone.knowledge, e_k[i], rtol=1e-7, atol=1e-13)  # arcsec-level errors

@@ -2,16 +2,17 @@
 
 ``rollout``, ``rollout_batch`` and ``simulate`` on a tiny sampled-data mission (T = 0.3 s,
 dt = 0.05 s, control period 0.1 s: three ticks) under ``jax.jit``, ``jax.vmap`` and
-``jax.grad`` or ``jax.jacfwd``; every estimator (truth, raw, mekf), actuator (ideal,
-saturated, wheels), momentum manager, environment torque and registered controller
-appears in one of the loops, so that few
+``jax.grad`` or ``jax.jacfwd``, each trajectory of a batch flying its own loop (the
+mission's, and the mission's with every parameter but the wheels' axes 0.1 % larger).
+Every estimator (truth, raw, mekf), actuator (ideal, saturated, wheels), momentum manager,
+environment torque and registered controller appears in one of the loops, so that few
 programs compile: per loop, the un-jitted ``rollout`` (the reference), one jitted program
-holding the rollout under ``vmap`` (over seeds) of its derivative and ``rollout_batch``,
-and ``simulate``. Reverse mode, the costly one to compile, in one loop (every component's
-reverse mode is also checked where it is tested: tests/test_loop.py for the MEKF); forward
-mode in the others. The results are finite and equal to the un-jitted call (to round-off:
-XLA fuses the programs differently); the derivative equals central differences of the
-jitted rollout.
+holding the rollout under ``vmap`` (over seeds and loops) of its derivative and
+``rollout_batch``, and ``simulate``. Reverse mode, the costly one to compile, in one loop
+(every component's reverse mode is also checked where it is tested: tests/test_loop.py
+for the MEKF); forward mode in the others. The results are finite and equal to the
+un-jitted call (to round-off: XLA fuses the programs differently); the derivative equals
+central differences of the jitted rollout.
 """
 
 from __future__ import annotations
@@ -39,7 +40,7 @@ LOOPS = [("mekf", "ideal", "pd", "forward"), ("truth", "wheels", "adaptive", "re
 MANAGED = {"mrp_feedback": ["momentum.kind='magnetorquers'", "environment.gravity_gradient={}",
                             "environment.aerodynamic={}", "environment.solar_pressure={}", "environment.magnetic={}"],
            "adaptive": ["momentum.kind='thrusters'", "momentum.thrusters.start=1e-3", "momentum.thrusters.stop=0.0"]}
-SEEDS = jnp.arange(2)
+SEEDS = jnp.arange(2)  # trajectory i: seed i, loop i (Setup.loops)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
 FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
@@ -66,6 +67,10 @@ class Setup:
             m = missions.load(None, overrides)
             self.scenario = dataclasses.replace(m.scenario(), Omega0=OMEGA0)
         self.loop = m.loop()
+        scaled = lambda path, x: (x * 1.001 if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating)
+                                  and "axes" not in jax.tree_util.keystr(path) else x)  # wheel axes stay unit
+        larger = jax.tree_util.tree_map_with_path(scaled, self.loop)
+        self.loops = jax.tree.map(lambda a, b: jnp.stack([a, b]), self.loop, larger)  # one per trajectory
         self.controller, self.gains = m.controller(controller)
         self.gains = jax.tree.map(lambda g: jnp.asarray(g, jnp.float64), self.gains)
         self.mode = mode
@@ -73,22 +78,23 @@ class Setup:
     def with_omega0(self, omega0):
         return dataclasses.replace(self.scenario, Omega0=omega0)
 
-    def rollout(self, gains, omega0, seed):
-        return sj.rollout(self.with_omega0(omega0), self.controller, gains, seed, loop=self.loop, record_every=6)
+    def rollout(self, gains, omega0, seed, loop=None):
+        return sj.rollout(self.with_omega0(omega0), self.controller, gains, seed, loop=loop or self.loop,
+                          record_every=6)
 
     def transformed(self, gains, omega0, seeds):
-        """The jitted program: the rollout under vmap over seeds of its derivative (its rmse
-        differentiated in gains and Omega0 by jax.grad or jax.jacfwd, the whole Result
-        alongside), and rollout_batch over the same seeds."""
+        """The jitted program: the rollout under vmap over seeds and loops of its derivative
+        (its rmse differentiated in gains and Omega0 by jax.grad or jax.jacfwd, the whole
+        Result alongside), and rollout_batch over the same seeds and loops."""
 
-        def rmse(gains, omega0, seed):
-            result = self.rollout(gains, omega0, seed)
+        def rmse(gains, omega0, seed, loop):
+            result = self.rollout(gains, omega0, seed, loop)
             return result.metrics.rmse, result
 
         derivative = (jax.grad if self.mode == "reverse" else jax.jacfwd)(rmse, argnums=(0, 1), has_aux=True)
-        grad, mapped = jax.vmap(derivative, in_axes=(None, None, 0))(gains, omega0, seeds)
+        grad, mapped = jax.vmap(derivative, in_axes=(None, None, 0, 0))(gains, omega0, seeds, self.loops)
         batch = sj.rollout_batch(self.with_omega0(omega0), self.controller, gains, seeds, scenario_axes=None,
-                                 loop=self.loop, record_every=6)
+                                 loop=self.loops, loop_axes=0, record_every=6)
         return mapped, grad, batch
 
 
@@ -139,19 +145,22 @@ def test_jit_and_vmap_equal_the_unjitted_rollout(flown):
 
 
 def test_simulate_equals_the_unjitted_rollout_and_vmap(flown):
-    """simulate (jitted inside) at seed 0 against the un-jitted rollout, at seed 1 (the
-    same compiled program) against the vmapped rollout's second trajectory; in the loops
-    with wheels (simulate is rollout under jit: its own compilation per loop)."""
+    """simulate (jitted inside) at seed 0 against the un-jitted rollout, at seed 1 with the
+    second loop (the same compiled program) against the vmapped rollout's second
+    trajectory; in the loops with wheels (simulate is rollout under jit: its own
+    compilation per loop)."""
     setup, reference, _, (mapped, _, _) = flown
     if not isinstance(setup.loop.actuator, sj.Wheels):
         pytest.skip("simulate is checked in the loops with wheels")
     simulate = lambda seed: jax.tree.map(np.asarray, sj.simulate(setup.scenario, setup.controller, setup.gains, seed,
-                                                                 loop=setup.loop, record_every=6))
+                                                                 loop=first(setup.loops, seed), record_every=6))
     assert_trees_close(simulate(0), reference)
     assert_trees_close(simulate(1), first(mapped, 1))
 
 
 def test_rollout_batch_equals_vmap(flown):
+    """Each trajectory with its own loop: natively batched (the components' parameters with
+    a batch axis) as vmapped."""
     _, _, _, (mapped, _, batch) = flown
     assert_finite(first(batch))
     for part in ("metrics", "final", "flight", "history"):

@@ -176,9 +176,7 @@ class Wheels(Actuator):
 
     def init(self, batch_shape, dtype):
         """Omega_w(0) broadcast to (N, *batch_shape) [rad/s]."""
-        speed = jnp.asarray(self.initial_speed).astype(dtype)
-        speed = speed.reshape(speed.shape + (1,) * len(batch_shape))
-        return jnp.broadcast_to(speed, speed.shape[:1] + tuple(batch_shape))
+        return so3.broadcast(jnp.asarray(self.initial_speed).astype(dtype), 1, batch_shape)
 
     def _spin_inertia_matrix(self, dtype):
         """G_s J_s G_s^T (3, 3) [kg m^2] of the wheels the body carries."""
@@ -197,7 +195,7 @@ class Wheels(Actuator):
         """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (docs/model.md §8.4): the body without
         the wheels' spin inertia."""
         J = jnp.asarray(J)
-        return J - self._spin_inertia_matrix(J.dtype).reshape((3, 3) + (1,) * (J.ndim - 2))
+        return J - so3.broadcast(self._spin_inertia_matrix(J.dtype), 2, J.shape[2:])
 
     def momentum(self, state, Omega):
         """h_w = G_s J_s (G_s^T Omega + Omega_w) (3, *b) [N m s] (docs/model.md §8.4), as the flight

@@ -26,9 +26,7 @@ from so3jax.core.pytree import pytree_dataclass, static_field
 
 
 def _batch(x, core_ndim, batch_shape, dtype):
-    x = jnp.asarray(x).astype(dtype)
-    x = x.reshape(x.shape[:core_ndim] + (1,) * (core_ndim + len(batch_shape) - x.ndim) + x.shape[core_ndim:])
-    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
+    return so3.broadcast(jnp.asarray(x).astype(dtype), core_ndim, batch_shape)
 
 
 def _zero_std(Omega):

@@ -4,7 +4,8 @@ Noise: eta_{s,j} = jax.random.normal(fold_in(fold_in(K_sens, s), j), (3,), dtype
 K_sens = fold_in(key(seed), 2^32 - 1), stream s = 1 (gyro white noise), 2 (gyro bias walk),
 3 (star tracker), j the tick. The disturbance draws fold_in(key(seed), k) at step k < 2^32 - 1,
 so turning sensors on changes no disturbance draw, and no key is both folded and drawn from.
-Arrays follow :mod:`so3jax.core.so3` (batch axes last); parameters have no batch axes.
+Arrays follow :mod:`so3jax.core.so3` (batch axes last); a parameter is shared by a batch
+(no batch axes) or per trajectory (its core shape, then the batch axes).
 """
 
 from __future__ import annotations
@@ -33,9 +34,9 @@ def sensor_noise(key, stream: int, j, dtype):
 
 
 def _like(x, like):
-    """A parameter without batch axes, cast and shaped to broadcast against ``like`` (3, *b)."""
-    x = jnp.asarray(x).astype(like.dtype)
-    return so3.batch_like(x, x.ndim, like)
+    """A scalar parameter, shared (()) or per trajectory (*b), cast and shaped to broadcast
+    against ``like`` (3, *b)."""
+    return so3.batch_like(jnp.asarray(x).astype(like.dtype), 0, like)
 
 
 def _check(name: str, x, shape=()) -> None:
@@ -59,8 +60,7 @@ class Gyro(Sensor):
 
     def init(self, batch_shape, dtype):
         """b_0 as (3, *batch_shape) [rad/s]."""
-        b = jnp.asarray(self.bias0).astype(dtype)
-        return jnp.broadcast_to(b.reshape((3,) + (1,) * len(batch_shape)), (3, *batch_shape))
+        return so3.broadcast(jnp.asarray(self.bias0).astype(dtype), 1, batch_shape)
 
     def measure(self, bias, R, Omega, key, j, period):
         """(b_{j+1}, omega_m) from the true rate Omega (3, *b) at tick j [rad/s]."""

@@ -93,6 +93,13 @@ def eye_like(v):
     return jnp.broadcast_to(eye, (3, 3) + v.shape[1:])
 
 
+def broadcast(x, core_ndim, batch_shape):
+    """x (core, [batch or unit axes]) -> (core, *batch_shape)."""
+    x = jnp.asarray(x)
+    x = x.reshape(x.shape + (1,) * (core_ndim + len(batch_shape) - x.ndim))
+    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
+
+
 def batch_like(x, core_ndim, like):
     """x (core shape, no batch) with trailing unit axes to broadcast against ``like``,
     a (3, *batch) array: for shared quantities (a nominal inertia, a common reference)."""

@@ -46,7 +46,7 @@ from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 from so3jax.missions.mission import Mission, _build_loop
 from so3jax.sim import memory
-from so3jax.sim.rollout import rollout, rollout_batch
+from so3jax.sim.rollout import rollout_batch
 
 STRUCTURED = {
     ("deployment", "tau_J"): "tau_J",
@@ -304,8 +304,8 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
     parameter: values}), leading batch axis. The samples share the mission's loop and run
     natively batched (:func:`so3jax.sim.rollout.rollout_batch`, the values of a vmap of
-    rollouts); with dispersed component parameters, each sample's loop is its own (a vmap
-    of rollouts). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
+    rollouts); with dispersed component parameters, each sample flies its own loop (the
+    components' parameters with a batch axis). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
     memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
     estimator that every sample shares (the noise levels the filter assumes, tuned).
     pointing: also the attitude errors at the start of every block of ``record_every``
@@ -316,25 +316,21 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     m, dtype = mission, params.J0.dtype
     scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
-    if not leaves:
-        shared_loop = loop(m, shared, dtype) if shared else m.loop(dtype)
-        nominal = build.scenario(m, dtype=dtype)
-        shared_parts = {name: getattr(nominal, name) for name, shared in (
-            ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
-            ("inertia", m.inertia["kind"] != "paper"),  # dispersed only as the paper's profile
-        ) if shared}
-        axes = 0
-        if shared_parts:  # one for the batch
-            scenarios = dataclasses.replace(scenarios, **shared_parts)
-            axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
-        return _results(rollout_batch(scenarios, controller, gains, params.seed, scenario_axes=axes, loop=shared_loop,
-                                      record_every=record_every), pointing)
-
-    def one(s, seed, values):
-        return _results(rollout(s, controller, gains, seed, loop=loop(m, {**shared, **values}, dtype),
-                                record_every=record_every), pointing)
-
-    return jax.vmap(one)(scenarios, params.seed, leaves)
+    nominal = build.scenario(m, dtype=dtype)
+    shared_parts = {name: getattr(nominal, name) for name, shared_part in (
+        ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
+        ("inertia", m.inertia["kind"] != "paper"),  # dispersed only as the paper's profile
+    ) if shared_part}
+    axes = 0
+    if shared_parts:  # one for the batch
+        scenarios = dataclasses.replace(scenarios, **shared_parts)
+        axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
+    if leaves:  # each sample's loop: its components' parameters with a batch axis
+        loops, loop_axes = jax.vmap(lambda values: loop(m, {**shared, **values}, dtype))(leaves), 0
+    else:
+        loops, loop_axes = (loop(m, shared, dtype) if shared else m.loop(dtype)), None
+    return _results(rollout_batch(scenarios, controller, gains, params.seed, scenario_axes=axes, loop=loops,
+                                  loop_axes=loop_axes, record_every=record_every), pointing)
 
 
 def _results(result, pointing: bool = False) -> dict:

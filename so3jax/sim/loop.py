@@ -39,6 +39,7 @@ from so3jax.controllers.base import Controller, Desired, Feedback, tracking_erro
 from so3jax.core import _trig, so3
 from so3jax.core.integrate import OnSO3, rk4_step
 from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.core.so3 import broadcast
 from so3jax.dynamics import plant, stepped
 from so3jax.dynamics.inertia import _concrete
 from so3jax.dynamics.plant import inertia_rate
@@ -52,7 +53,8 @@ class Loop:
 
     period_steps: control period in plant steps (Delta_c = m dt, docs/model.md §8.1); None for
     the continuous-time controller of the paper's mode. The components' parameters have
-    no batch axes: a batch of trajectories shares them (``so3.batch_like``).
+    no batch axes where a batch of trajectories shares them (``so3.batch_like``), or
+    their batch axes last where each trajectory has its own (``rollout_batch``'s loop_axes).
     """
 
     sensors: Sensors = Sensors()
@@ -116,13 +118,6 @@ def desired(scenario: Scenario, t, phase, integrated_R_d, like) -> Desired:
     ref = scenario.reference
     R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(ref.attitude(t, phase), 2, like)
     return Desired(R_d, so3.batch_like(ref.rate(t, phase), 1, like), so3.batch_like(ref.rate_dot(t, phase), 1, like))
-
-
-def broadcast(x, core_ndim, batch_shape):
-    """x (core, [batch or unit axes]) -> (core, *batch)."""
-    x = jnp.asarray(x)
-    x = x.reshape(x.shape + (1,) * (core_ndim + len(batch_shape) - x.ndim))
-    return jnp.broadcast_to(x, x.shape[:core_ndim] + tuple(batch_shape))
 
 
 def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape=(), loop: Loop = PAPER_LOOP) -> State:

@@ -354,6 +354,7 @@ def rollout_batch(
     scenario_axes=0,
     gains_axes=None,
     loop: Loop = PAPER_LOOP,
+    loop_axes=None,
     record_every: int | None = None,
     unroll: int = 1,
 ) -> Result:
@@ -361,9 +362,11 @@ def rollout_batch(
     inside): the same values up to round-off (~1e-16 relative). Which of the two is
     faster depends on the device and batch size: see benchmarks/throughput.py.
 
-    scenario_axes / gains_axes: vmap-style in_axes prefixes, 0 (leading batch axis)
-    or None (shared by the batch); the loop's components are shared (their parameters
-    without batch axes, broadcast by the components themselves). A shared reference or inertia is evaluated once per
+    scenario_axes / gains_axes / loop_axes: vmap-style in_axes prefixes, 0 (leading batch
+    axis) or None (shared by the batch). The components broadcast their parameters
+    themselves: a shared one has no batch axis, a per-trajectory one its batch axis last
+    (a loop built per trajectory: ``jax.vmap`` of a function returning a Loop, loop_axes=0).
+    A shared reference or inertia is evaluated once per
     stage for the whole batch. Outputs have the batch axis first, as vmap's would.
     On CPU, batches above ``CPU_SUB_BATCH`` run as consecutive sub-batches of that size.
     """
@@ -371,7 +374,8 @@ def rollout_batch(
     if seeds.ndim != 1 or not jnp.issubdtype(seeds.dtype, jnp.integer):
         raise ValueError(f"seeds must be a (B,) array of integers, got shape {seeds.shape} and dtype {seeds.dtype}")
     args = (scenario, gains, seeds, loop)
-    for arg, tree, axes_prefix in (("scenario", scenario, scenario_axes), ("gains", gains, gains_axes)):
+    for arg, tree, axes_prefix in (("scenario", scenario, scenario_axes), ("gains", gains, gains_axes),
+                                   ("loop", loop, loop_axes)):
         try:
             leaf_axes = _axes_tree(axes_prefix, tree)
         except ValueError as err:
@@ -384,9 +388,10 @@ def rollout_batch(
                     f"{arg}{jax.tree_util.keystr(path)} must have a leading batch axis of size {seeds.shape[0]} "
                     f"(that of seeds), got shape {jnp.shape(leaf)}"
                 )
-    check_inputs(_batch_last(scenario, scenario_axes), controller, gains, loop, record_every, batch_last=True,
+    first = jax.tree.map(lambda x, ax: x if ax is None else x[0], loop, _axes_tree(loop_axes, loop))
+    check_inputs(_batch_last(scenario, scenario_axes), controller, gains, first, record_every, batch_last=True,
                  gains_batch_axes=1 if gains_axes == 0 else 0)
-    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, _axes_tree(None, loop))
+    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, _axes_tree(loop_axes, loop))
 
     def run(args):
         scenario, gains, seeds, loop = args
@@ -395,7 +400,8 @@ def rollout_batch(
             controller,
             _batch_last(gains, gains_axes),
             seeds,
-            loop=loop,
+            loop=jax.tree.map(lambda x, ax: x if ax is None else jnp.moveaxis(x, 0, -1), loop,
+                              _axes_tree(loop_axes, loop)),
             record_every=record_every,
             unroll=unroll,
         )
