@@ -30,7 +30,7 @@ the ratio so3jax / Numba of a round compares runs seconds apart:
     python benchmarks/sweep.py --devices 2 --T 20 --samples 256 --chunk 128 --rounds 2 --numba
 
 --flops adds XLA's count of FLOPs per trajectory-step of the sweep path (one natively
-batched step of 64 samples, the paper's wiring) and the share of the machine's float64
+batched step of 64 samples, and in the sampled wiring a control tick per period) and the share of the machine's float64
 peak (a numpy matmul on every BLAS thread) that each run's rate reaches.
 
 --config times another sweep file's samples the same way, e.g. the flight mission's
@@ -197,13 +197,14 @@ def _child(spec: dict) -> list:
 def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     """XLA's count of FLOPs per trajectory-step of the sweep path: one natively batched
     step (``so3jax.sim.loop.step`` with the per-sample constants of ``so3jax.dynamics.stepped``, and the
-    disturbance draw) of ``batch`` samples, per trajectory. The paper's (continuous) wiring."""
+    disturbance draw) of ``batch`` samples, per trajectory; in the sampled wiring, plus a
+    control tick (``so3jax.sim.loop.tick``) per control period's steps. The mission's nominal loop."""
     import jax
     import jax.numpy as jnp
 
     from so3jax.dynamics import stepped
     from so3jax.missions import build
-    from so3jax.sim.loop import initial_state, step
+    from so3jax.sim.loop import initial_state, step, tick
     from so3jax.sim.rollout import _batch_last, _keys, disturbance_at
 
     mission = config.mission
@@ -216,13 +217,19 @@ def _step_flops(config, controller: str, params, batch: int = 64) -> float:
     key = _keys(part.seed)
     state = initial_state(scenario, law, gains, (batch,), loop)
 
+    def flops(f, *args):
+        cost = jax.jit(f).lower(*args).compile().cost_analysis()
+        return float((cost[0] if isinstance(cost, (list, tuple)) else cost)["flops"])
+
     def one(scenario, constants, key, state):
         k = jnp.int32(0)
         return step(scenario, law, gains, disturbance_at(scenario, key, k), state, k, loop, constants)
 
-    cost = jax.jit(one).lower(scenario, stepped.constants(scenario), key, state).compile().cost_analysis()
-    cost = cost[0] if isinstance(cost, (list, tuple)) else cost
-    return float(cost["flops"]) / batch
+    total = flops(one, scenario, stepped.constants(scenario), key, state)
+    if not loop.continuous:
+        total += flops(lambda scenario, key, state: tick(scenario, loop, law, gains, key, state, jnp.int32(1)),
+                       scenario, key, state) / loop.period_steps
+    return total / batch
 
 
 def _layout(text: str) -> tuple[int, int, str]:
@@ -299,8 +306,8 @@ def main() -> None:
                         help="one-process layouts: also time the Numba dispersed baseline on the same samples, "
                              "after so3jax in each round, on as many threads as devices")
     parser.add_argument("--flops", action="store_true",
-                        help="also XLA's FLOPs per trajectory-step of the sweep path (paper's wiring) and the share "
-                             "of the machine's float64 matmul peak reached")
+                        help="also XLA's FLOPs per trajectory-step of the sweep path (a step, plus a tick per "
+                             "control period) and the share of the machine's float64 matmul peak reached")
     parser.add_argument("--undispersed", action="store_true",
                         help="also time each run's samples with the dispersed component parameters at the mission's "
                              "values (the batched loop without dispersion), right after it")
