@@ -105,6 +105,12 @@ def test_fly_command_end_to_end(tmp_path):
         assert npz["adaptive/wheel_speed"].shape == (20, 4) and npz["pd/disturbance"].shape == (20, 3)
         P = npz["pd/covariance"]
         assert P.shape == (20, 6, 6) and np.allclose(P, np.swapaxes(P, 1, 2)) and np.all(np.linalg.eigvalsh(P) > 0)
+        # the records start blocks of 100 steps: the last at 19 s; the state at T = 20 s stored beside them
+        assert npz["pd/t"][-1] == pytest.approx(19.0) and float(npz["pd/final_t"]) == pytest.approx(20.0)
+        R, Omega = npz["adaptive/final_R"], npz["adaptive/final_Omega"]
+        assert R.shape == (3, 3) and np.allclose(R.T @ R, np.eye(3), atol=1e-12) and Omega.shape == (3,)
+        assert npz["adaptive/final_wheel_speed"].shape == (4,)
+        assert 0 < np.linalg.norm(R - npz["adaptive/R"][-1]) < 0.1  # a second on from the last record
     for fig in ("attitude", "bias", "torque", "wheel_speeds", "momentum"):
         assert (out / f"{fig}.png").stat().st_size > 10_000
     assert json.loads((out / "metrics.json").read_text())["pd"] == report["pd"]

@@ -14,6 +14,7 @@ from so3jax.commands.common import (
     output_folder,
     registered,
 )
+from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs import fly
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
@@ -62,7 +63,8 @@ def _fly_into(args, mission) -> int:
     reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
                          "mission_file": None if args.mission is None else str(args.mission)}
     write_json(args.out / "metrics.json", reports)
-    save_npz(args.out / "trajectory.npz", **fly.trajectory_arrays(results))
+    save_npz(args.out / "trajectory.npz",
+             **fly.trajectory_arrays(results, steps_for_horizon(mission.T, mission.dt) * mission.dt))
     telemetry = fly.write_telemetry(args.out, mission, results)
     figures = [] if args.no_figures else fly.write_figures(args.out, mission, results)
     diverged = [n for n in mission.controllers if reports[n]["diverged"]]

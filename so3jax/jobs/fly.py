@@ -155,14 +155,22 @@ def recorded(x, otherwise):
     return otherwise if x is None else x
 
 
-def trajectory_arrays(results: dict) -> dict:
-    """{controller/quantity: array} of the recorded histories (t shared). A wiring without
+def trajectory_arrays(results: dict, t_final: float) -> dict:
+    """{controller/quantity: array} of the recorded histories (t shared), and the state at
+    the horizon's end t_final = N dt [s] (``final_t``, ``final_R``, ``final_Omega``,
+    ``final_wheel_speed``): the records start a block of ``record_every`` steps, so the
+    last is one block before the end. A wiring without
     an estimate (continuous: the law reads the true state) stores the truth as R_hat,
     Omega_hat and zero biases, and a zero covariance without a filter; wheel_speed is
     (M, 0) without wheels, wheel_momentum zeros; momentum_management: the momentum
     manager's held input, where one is flown."""
     arrays = {}
     for name, r in results.items():
+        final = r.final
+        arrays.update({f"{name}/final_t": np.asarray(t_final), f"{name}/final_R": np.asarray(final.R),
+                       f"{name}/final_Omega": np.asarray(final.Omega),
+                       f"{name}/final_wheel_speed": (np.asarray(final.actuator) if np.ndim(final.actuator) == 1
+                                                     else np.zeros(0))})
         h = r.history
         values = {"t": h.t, "R": h.R, "Omega": h.Omega, "R_hat": recorded(h.R_hat, h.R),
                   "Omega_hat": recorded(h.Omega_hat, h.Omega), "bias": recorded(h.bias, np.zeros_like(h.Omega)),
