@@ -132,3 +132,15 @@ def test_thrusters_tick_every_step_in_the_continuous_wiring():
     impulse = np.cumsum(np.einsum("mij,mj->mi", h.R, h.managed) * m.dt, axis=0)
     assert np.all(np.abs(h.managed[:, 2]) == 0.2)  # |h_w| ~ 111 N m s > start: firing about z throughout
     np.testing.assert_allclose(H[1:] - H[0], impulse[:-1], atol=1e-3 * np.abs(impulse).max())
+
+
+@pytest.mark.parametrize("overrides, message", [
+    (["actuator.kind='ideal'"], "needs an actuator that stores momentum"),
+    (["actuator.kind='saturated'", "momentum.kind='magnetorquers'"], "the Saturated actuator stores none"),
+    (["momentum.thrusters.start=20.0", "momentum.thrusters.stop=30.0"], "must be below start"),
+])
+def test_momentum_management_s_bad_settings_are_one_line_errors_before_compiling(overrides, message):
+    """A manager beside an actuator that stores no momentum, thresholds the wrong way round:
+    refused by the mission's checks (nothing traced)."""
+    with pytest.raises(ValueError, match=message):
+        missions.load(None, ["momentum.kind='thrusters'", *overrides])

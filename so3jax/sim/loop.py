@@ -339,6 +339,11 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     check_wiring(m is None, flown, components.MEASUREMENTS, type(loop.estimator), type(loop.estimator).__name__)
     for part in (loop.sensors, loop.estimator, loop.actuator):
         part.check()
+    if loop.momentum is not None:
+        if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float64)) is None:
+            raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "
+                             f"(actuator.kind = 'wheels'); the {type(loop.actuator).__name__} actuator stores none")
+        loop.momentum.check()
     spin = loop.actuator.spin_inertia_values()  # NumPy, None where traced: nothing is added to a trace
     if spin is not None:
         for name, J in inertias.items():
