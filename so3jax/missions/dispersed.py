@@ -7,7 +7,8 @@ Keys are the mission's leaves (``deployment.tau_J``, ``sensors.gyro.arw``,
 distributions and keep :mod:`so3jax.missions.dispersions`' variate layout:
 
 * ``inertia.J0``, ``inertia.J1``, ``inertia.J2``: ``{scale, axis_scale, rotation_deg,
-  products}`` (:class:`~so3jax.missions.dispersions.InertiaDispersion`; J1's is applied to the
+  products}``, or ``{scale, second_moments, rotation_deg}`` (a rigid body by construction)
+  (:class:`~so3jax.missions.dispersions.InertiaDispersion`; J1's is applied to the
   sample's J0 when the mission gives J1 as a scale of J0);
 * ``initial.attitude``: ``{max_angle_deg}``, R(0) = R_mission(0) exp(hat(v)), v uniform
   on SO(3) up to that angle; ``initial.rate``: ``{norm}``, |Omega(0)| drawn from the
@@ -55,7 +56,7 @@ STRUCTURED = {
     ("disturbance", "frequency"): "frequency",
     ("disturbance", "noise_std"): "noise_std",
 }
-_INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products")
+_INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products", "second_moments")
 _LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
@@ -192,7 +193,7 @@ def _distribution(value, where: str) -> disp.Distribution:
 def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
     t = checks.table({"t": value}, "t", _INERTIA_KEYS, where)
     changes = {name: _distribution(t[name], f"{where}.{name}")
-               for name in ("scale", "axis_scale", "products") if name in t}
+               for name in ("scale", "axis_scale", "products", "second_moments") if name in t}
     if "rotation_deg" in t:
         changes["rotation_deg"] = checks.number(t["rotation_deg"], f"{where}.rotation_deg", low=0.0, high=180.0)
     return dataclasses.replace(default, **changes)

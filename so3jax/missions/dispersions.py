@@ -186,8 +186,30 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
             raise ValueError(f"inertia.{J}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
         if inertia.nominal is not None:
             check_inertia(f"{J} (inertia.{J}.nominal)", np.asarray(inertia.nominal, dtype=float), warn=warn)
+        if inertia.second_moments is not None:
+            _check_second_moments(inertia, f"inertia.{J}")
     if not 0.0 <= d.initial_angle_deg <= 180.0:
         raise ValueError(f"initial.max_angle_deg must be in [0, 180], got {d.initial_angle_deg}")
+
+
+def _check_second_moments(inertia: InertiaDispersion, where: str) -> None:
+    """ValueError unless the principal form can draw only bodies: its factors >= 0 (a fixed
+    value, a uniform or a lognormal: a normal's tail draws negative moments), no
+    axis_scale or products beside it, and a nominal that is a body (within round-off)."""
+    dist = inertia.second_moments
+    if isinstance(dist, Normal):
+        raise ValueError(f"{where}.second_moments: a normal can draw a negative second moment; "
+                         "use a lognormal or a uniform on [0, ...]")
+    check_domain(dist, f"{where}.second_moments", 0.0, strict=False)
+    if inertia.axis_scale != Fixed(1.0) or inertia.products != Fixed(0.0):
+        raise ValueError(f"{where}: second_moments (a body by construction) replaces axis_scale and products; "
+                         "give one form or the other")
+    if inertia.nominal is not None:
+        principal = np.linalg.eigvalsh(np.asarray(inertia.nominal, float))
+        s = second_moments(principal)
+        if np.any(s < -1e-9 * np.sum(principal)):
+            raise ValueError(f"{where}.second_moments needs a nominal inertia that a rigid body has: its principal "
+                             f"moments {np.round(principal, 6).tolist()} break the triangle inequality")
 
 
 def describe(dist: Distribution) -> Any:
@@ -203,12 +225,18 @@ def describe(dist: Distribution) -> Any:
 
 @dataclasses.dataclass(frozen=True)
 class InertiaDispersion:
-    """J = scale * Q (D J_nom D) Q^T + P  [kg m^2].
+    """J = scale * Q (D J_nom D) Q^T + P  [kg m^2], or, with ``second_moments``, a rigid
+    body by construction: J = scale * Q V (tr(S) I - S) V^T Q^T.
 
     scale: overall factor; axis_scale: a_i (three independent draws) on the moment about
     body axis i, D = diag(sqrt(a)) (so J_ij -> sqrt(a_i a_j) J_ij; a_i <= 0 is redrawn);
     rotation_deg: Q uniform on SO(3) up to this angle [deg], the principal axes rotated;
     products: P symmetric, zero diagonal, its xy, xz, yz entries three independent draws.
+    second_moments: factors f_i (three independent draws, >= 0) on the nominal's second
+    moments of mass about its principal axes V, s_i = tr(J_nom) / 2 - lambda_i >= 0 [kg m^2]
+    (J_nom = V diag(lambda) V^T); S = diag(f_i s_i). Every draw is then a body's inertia:
+    its principal moments s_j + s_k meet the triangle inequality. It takes the variates of
+    axis_scale, which it replaces with products.
     nominal: J_nom (3x3); None for J1, whose nominal is the sample's J0 (so scale is the
     deployment growth J1/J0, 2 in the paper).
     """
@@ -218,10 +246,21 @@ class InertiaDispersion:
     axis_scale: Distribution = Fixed(1.0)
     rotation_deg: float = 0.0
     products: Distribution = Fixed(0.0)
+    second_moments: Distribution | None = None
 
     def apply(self, variates: _Variates, J_nom):
         """(J, scale) from 11 variates, vectorized over leading axes."""
         s = self.scale.sample(*variates.take(1))[..., 0]
+        if self.second_moments is not None:
+            f = self.second_moments.sample(*variates.take(3))
+            Q = rotation_matrix(rotation_vector(*variates.take(4), math.radians(self.rotation_deg)))
+            variates.take(3)  # the products' variates: unused, so that the layout stays
+            moments, V = np.linalg.eigh(np.asarray(J_nom, float))
+            S = f * np.maximum(second_moments(moments), 0.0)  # a nominal on the triangle's edge: s_i = 0
+            body = np.sum(S, axis=-1, keepdims=True) - S  # principal moments s_j + s_k
+            QV = Q @ V
+            J = s[..., None, None] * ((QV * body[..., None, :]) @ np.swapaxes(QV, -1, -2))
+            return 0.5 * (J + np.swapaxes(J, -1, -2)), s
         root = np.sqrt(self.axis_scale.sample(*variates.take(3)))
         Q = rotation_matrix(rotation_vector(*variates.take(4), math.radians(self.rotation_deg)))
         p = self.products.sample(*variates.take(3))
@@ -229,6 +268,14 @@ class InertiaDispersion:
         P[..., [0, 1, 0, 2, 1, 2], [1, 0, 2, 0, 2, 1]] = p[..., [0, 0, 1, 1, 2, 2]]
         J = s[..., None, None] * (Q @ (root[..., :, None] * J_nom * root[..., None, :]) @ np.swapaxes(Q, -1, -2)) + P
         return 0.5 * (J + np.swapaxes(J, -1, -2)), s
+
+
+def second_moments(principal):
+    """s_i = (lambda_1 + lambda_2 + lambda_3) / 2 - lambda_i [kg m^2], the second moments of
+    mass about the principal axes from the principal moments lambda (..., 3): all >= 0
+    exactly where the moments meet the triangle inequality (a rigid body)."""
+    principal = np.asarray(principal, float)
+    return 0.5 * np.sum(principal, axis=-1, keepdims=True) - principal
 
 
 @dataclasses.dataclass(frozen=True)
