@@ -35,7 +35,7 @@ def test_each_sensor_is_its_own_entry():
     assert m.loop().estimator.arw == 2e-6 and m.loop().estimator.sigma_st == 3e-5  # the filter assumes the sensors'
     m = missions.load(None, ["sensors.star_tracker=false", "estimator.kind=truth"])
     assert "star_tracker" not in m.sensors and m.sensors["gyro"]["arw"] == 1e-6
-    with pytest.raises(ValueError, match="sensors.gyro must be a table, or false for no gyro"):
+    with pytest.raises(ValueError, match="sensors.gyro must be a table, or false to leave it out"):
         missions.load(None, ["sensors.gyro=true"])
     with pytest.raises(ValueError, match="estimator 'mekf' needs"):
         missions.load(None, ["sensors.gyro=false"])

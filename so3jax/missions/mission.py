@@ -211,18 +211,25 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
-def _sensors(given: dict, default: dict) -> dict:
-    """{name: values} of the sensors flown: the base mission's (``default``), each merged
-    with its given table (false: left out), plus any other registered sensor given a table."""
-    given = checks.table({"sensors": given}, "sensors", components.names("sensor"))
+def _components(kind: str, table: str, given, default) -> dict:
+    """{name: values} of a set of registered components, each in its own ``[table.NAME]``: the
+    base mission's (``default``), each merged with its given table, plus any other given a
+    table; false leaves one out."""
+    given = checks.table({table: given}, table, components.names(kind))
     out = {}
-    for name in components.names("sensor"):
-        table = given.get(name, {} if name in default else False)
-        if table is False:
+    for name in components.names(kind):
+        values = given.get(name, {} if name in default else False)
+        if values is False:
             continue
-        if not isinstance(table, dict):
-            raise ValueError(f"sensors.{name} must be a table, or false for no {name}, got {checks.short(table)}")
-        out[name] = components.get("sensor", name).parse(table, f"sensors.{name}")
+        if not isinstance(values, dict):
+            raise ValueError(f"{table}.{name} must be a table, or false to leave it out, got {checks.short(values)}")
+        out[name] = components.get(kind, name).parse(values, f"{table}.{name}")
+    return out
+
+
+def _sensors(given: dict, default: dict) -> dict:
+    """{name: values} of the sensors flown (:func:`_components`), at most one per measured quantity."""
+    out = _components("sensor", "sensors", given, default)
     providers = {}
     for name in out:
         quantity = components.get("sensor", name).provides
@@ -230,21 +237,6 @@ def _sensors(given: dict, default: dict) -> dict:
             raise ValueError(f"sensors.{providers[quantity]} and sensors.{name} both measure the {quantity}: "
                              f"leave one out (sensors.{providers[quantity]}=false)")
         providers[quantity] = name
-    return out
-
-
-def _environment(given) -> dict:
-    """{model: values} of the environment's torque models given a table in ``[environment]``
-    (:mod:`so3jax.components.environment`; none by default; false: left out)."""
-    given = checks.table({"environment": given}, "environment", components.names("environment"))
-    out = {}
-    for name in components.names("environment"):
-        table = given.get(name, False)
-        if table is False:
-            continue
-        if not isinstance(table, dict):
-            raise ValueError(f"environment.{name} must be a table, or false, got {checks.short(table)}")
-        out[name] = components.get("environment", name).parse(table, f"environment.{name}")
     return out
 
 
@@ -299,7 +291,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     estimator = _chosen(full, "estimator", "estimator", base)
     actuator = _chosen(full, "actuator", "actuator", base)
     momentum = _chosen(full, "momentum", "momentum", base)
-    environment = _environment(d.get("environment", {}))
+    environment = _components("environment", "environment", d.get("environment", {}), {})  # none by default
     reference = _chosen(full, "reference", "reference", base)
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
