@@ -126,33 +126,46 @@ FLIGHT_SWEEP["dispersions"]["actuator"] = {"wheels": {
 }}
 
 
-def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
+@pytest.fixture(scope="module")
+def flight_sweep(tmp_path_factory):
+    """(config, output folder, summary) of FLIGHT_SWEEP run on one device, one chunk."""
+    from so3jax.jobs import sweep
+
+    cfg = sweep.config_from_dict(FLIGHT_SWEEP)
+    out = tmp_path_factory.mktemp("flight") / "out"
+    return cfg, out, sweep.run_sweep(cfg, out, progress=False)
+
+
+def samples(out: Path) -> dict:
+    with np.load(out / "samples.npz") as f:
+        return {k: f[k] for k in f.files}
+
+
+def test_a_flight_sweep_flies_each_sample_s_drawn_values(flight_sweep):
     """A sweep of the flight mission dispersing a sensor, actuator leaves (torque limits,
     misalignment, spin-inertia errors) and an inertia leaf: each sample's metrics, flight
     metrics and pointing errors equal those of the mission written with that sample's values
     and flown on its own (the filter assuming the nominal gyro), and differ between samples;
     the mission's requirements are checked over the samples."""
-    from so3jax.jobs import fly, sweep
+    from so3jax.jobs import fly
     from so3jax.jobs.sweep import pointing as sweep_pointing
     from so3jax.results.io import to_builtin
     from so3jax.sim import pointing
 
-    cfg = sweep.config_from_dict(FLIGHT_SWEEP)
+    cfg, out, summary = flight_sweep
     assert cfg.pointing  # the mission declares requirements
-    summary = sweep.run_sweep(cfg, tmp_path / "out", progress=False)
-    with np.load(tmp_path / "out" / "samples.npz") as f:
-        t = {k: f[k] for k in f.files}
-    with np.load(tmp_path / "out" / "chunks" / "pd-000000000.npz") as f:
+    t = samples(out)
+    with np.load(out / "chunks" / "pd-000000000.npz") as f:
         e_p, e_k = f["pointing_performance"], f["pointing_knowledge"]
     assert e_p.shape == e_k.shape == (8, 10, 3)
-    assert (tmp_path / "out" / "pointing.png").exists()
+    assert (out / "pointing.png").exists()
     checked = summary["pointing"]["pd"]["requirements"]
     assert [q["passed"] for q in checked] == [True, False]
     assert sweep_pointing.failed(summary) == [f"pd: {checked[1]['requirement']}"]
     x = pointing.magnitudes(e_p)[..., 3].ravel()  # mixed APE at 0.5: the 40th smallest of 80
     assert checked[1]["value"] == pytest.approx(np.sort(x)[39] * pointing.ARCSEC, rel=1e-12)
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
-    assert (tmp_path / "out" / "flight.png").exists()  # time at a torque limit against the dispersed limit
+    assert (out / "flight.png").exists()  # time at a torque limit against the dispersed limit
     for i in (0, 5):
         J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"]
                     for a in "xyz"]
@@ -179,6 +192,36 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(tmp_path):
         np.testing.assert_allclose(alone.knowledge, e_k[i], rtol=1e-7, atol=1e-13)  # arcsec-level errors
         np.testing.assert_allclose(alone.t, sweep_pointing.times(cfg, 10), rtol=1e-12, atol=1e-15)
         assert t["pd_time_at_torque_limit"][i] > 0  # the limits bind: the dispersed limits matter
+
+
+def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight_sweep, tmp_path):
+    """The same flight sweep over 4 forced host devices, in chunks of 32 (8 per device, the
+    samples padded): in a subprocess (XLA flags must precede JAX). Each sample's loop is built
+    per trajectory inside the batched program: the values equal the one-device run's to
+    round-off, 1e-12 relative, and 1e-16 absolute for the round-off-sized ones (the
+    orthogonality error, the MEKF's arcsecond-level attitude error)."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    child = ("import json, sys, pathlib; from so3jax import configure_xla; configure_xla(); import jax; "
+             "jax.config.update('jax_enable_x64', True); from so3jax.jobs import sweep; "
+             "d = json.loads(sys.argv[1]); d['sweep']['chunk'] = 32; "
+             "sweep.run_sweep(sweep.config_from_dict(d), pathlib.Path(sys.argv[2]), progress=False); "
+             "print(jax.device_count())")
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4")
+    proc = subprocess.run([sys.executable, "-c", child, json.dumps(FLIGHT_SWEEP), str(tmp_path / "out")], env=env,
+                          capture_output=True, text=True, timeout=600, check=False)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.split()[-1] == "4"
+    one, four = samples(flight_sweep[1]), samples(tmp_path / "out")
+    assert sorted(one) == sorted(four)
+    for key, values in one.items():
+        if values.dtype.kind == "f":
+            np.testing.assert_allclose(four[key], values, rtol=1e-12, atol=1e-16, err_msg=key)
+        else:
+            np.testing.assert_array_equal(four[key], values, err_msg=key)
 
 
 def _with(tables: dict, overrides: list) -> dict:
