@@ -317,14 +317,14 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     m, dtype = mission, params.J0.dtype
     scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
-    nominal = build.scenario(m, dtype=dtype)
-    shared_parts = {name: getattr(nominal, name) for name, shared_part in (
+    shared_parts = [name for name, shared_part in (
         ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
         ("inertia", m.inertia["kind"] != "paper"),  # dispersed only as the paper's profile
-    ) if shared_part}
+    ) if shared_part]
     axes = 0
-    if shared_parts:  # one for the batch
-        scenarios = dataclasses.replace(scenarios, **shared_parts)
+    if shared_parts:  # one for the batch: the mission's own
+        nominal = build.scenario(m, dtype=dtype)
+        scenarios = dataclasses.replace(scenarios, **{name: getattr(nominal, name) for name in shared_parts})
         axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
     if leaves:  # each sample's loop: its components' parameters with a batch axis
         loops, loop_axes = jax.vmap(lambda values: loop(m, {**shared, **values}, dtype))(leaves), 0

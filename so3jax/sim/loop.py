@@ -340,7 +340,7 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     for part in (loop.sensors, loop.estimator, loop.actuator):
         part.check()
     if loop.momentum is not None:
-        if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float64)) is None:
+        if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float32)) is None:  # by structure
             raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "
                              f"(actuator.kind = 'wheels'); the {type(loop.actuator).__name__} actuator stores none")
         loop.momentum.check()

@@ -26,6 +26,7 @@ from so3jax.components import actuators
 from so3jax.controllers.base import Controller, Feedback, tracking_error
 from so3jax.controllers.gains import check_gains
 from so3jax.core import so3
+from so3jax.core.so3 import broadcast
 from so3jax.dynamics import stepped
 from so3jax.dynamics.disturbance import NOISE
 from so3jax.dynamics.scenario import Scenario, check_scenario
@@ -34,7 +35,6 @@ from so3jax.sim.loop import (
     PAPER_LOOP,
     Loop,
     State,
-    broadcast,
     check_loop,
     initial_state,
     manage,
@@ -388,10 +388,11 @@ def rollout_batch(
                     f"{arg}{jax.tree_util.keystr(path)} must have a leading batch axis of size {seeds.shape[0]} "
                     f"(that of seeds), got shape {jnp.shape(leaf)}"
                 )
-    first = jax.tree.map(lambda x, ax: x if ax is None else x[0], loop, _axes_tree(loop_axes, loop))
+    per_loop = _axes_tree(loop_axes, loop)
+    first = jax.tree.map(lambda x, ax: x if ax is None else x[0], loop, per_loop)  # one trajectory's, for the checks
     check_inputs(_batch_last(scenario, scenario_axes), controller, gains, first, record_every, batch_last=True,
                  gains_batch_axes=1 if gains_axes == 0 else 0)
-    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, _axes_tree(loop_axes, loop))
+    axes = (_axes_tree(scenario_axes, scenario), _axes_tree(gains_axes, gains), 0, per_loop)
 
     def run(args):
         scenario, gains, seeds, loop = args
@@ -400,8 +401,7 @@ def rollout_batch(
             controller,
             _batch_last(gains, gains_axes),
             seeds,
-            loop=jax.tree.map(lambda x, ax: x if ax is None else jnp.moveaxis(x, 0, -1), loop,
-                              _axes_tree(loop_axes, loop)),
+            loop=jax.tree.map(lambda x, ax: x if ax is None else jnp.moveaxis(x, 0, -1), loop, per_loop),
             record_every=record_every,
             unroll=unroll,
         )
