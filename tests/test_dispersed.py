@@ -85,12 +85,12 @@ def test_bad_dispersions_are_one_line_errors(flight, table, message):
 
 
 def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
-    """sweeps/default.toml's dispersions on missions/paper.toml draw the samples that
-    sweeps/default/samples.csv records, within 1e-12 relative."""
-    from so3jax.missions import config as cfg
+    """sweeps/default.toml's dispersions on its mission (missions/paper.toml on a rigid body's J0)
+    draw the samples that sweeps/default/samples.csv records, within 1e-12 relative."""
+    from so3jax.jobs import sweep
 
-    table = cfg.read_toml(ROOT / "sweeps" / "default.toml")["dispersions"]
-    d, leaves = dispersed.parse(table, mission.load(ROOT / "missions" / "paper.toml"))
+    config = sweep.load_config(ROOT / "sweeps" / "default.toml")
+    d, leaves = dispersed.parse(config.table, config.mission)
     assert leaves == ()
     rows = list(csv.DictReader(open(ROOT / "sweeps" / "default" / "samples.csv")))
     s = disp.draw_samples(d, 0, len(rows), 20)

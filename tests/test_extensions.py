@@ -139,6 +139,8 @@ sigma = 1e-5
 kind = "lowpass"
 [actuator]
 kind = "ideal"
+[momentum]
+kind = "none"
 [gains.damper]
 c = 1000.0
 """

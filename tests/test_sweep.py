@@ -25,7 +25,16 @@ from so3jax.missions import build
 from so3jax.missions import dispersions as disp
 
 ROOT = Path(__file__).resolve().parents[1]
-SETTINGS = ("sweep.samples=11", "T=2700.0", "dt=0.5", "sweep.chunk=8")
+# The paper's own inertias dispersed by the matrix form (tests/data/sweep_reference_samples.csv records them)
+PAPER_INERTIAS = (
+    "inertia.J0.nominal=[[625.0, 5.5, 3.0], [5.5, 350.0, 4.0], [3.0, 4.0, 1000.0]]",
+    "dispersions.inertia.J0={scale={dist='lognormal', median=1.0, sigma=0.1}, rotation_deg=10.0, "
+    "axis_scale={dist='uniform', low=0.9, high=1.1}, products={dist='normal', mean=0.0, std=10.0}}",
+    "dispersions.inertia.J1={scale={dist='uniform', low=1.8, high=2.2}, products={dist='normal', mean=0.0, std=10.0}}",
+    "dispersions.inertia.J2={scale={dist='lognormal', median=1.0, sigma=0.1}, rotation_deg=10.0, "
+    "axis_scale={dist='uniform', low=0.9, high=1.1}, products={dist='normal', mean=0.0, std=20.0}}",
+)
+SETTINGS = ("sweep.samples=11", "T=2700.0", "dt=0.5", "sweep.chunk=8", *PAPER_INERTIAS)
 METRIC_COLUMNS = ("rmse", "rmse_unrotated", "effort", "rmse_capture", "effort_deployment", "max_angle_detumble",
                   "diverged")
 

@@ -141,8 +141,8 @@ components.register(components.ComponentSpec(
 components.register(components.ComponentSpec(
     kind="momentum", name="thrusters", component=Thrusters,
     params=(
-        Param("torque", 0.1, "N m", shapes=((), (3,)), low=0.0, doc="the torque of a firing pair, per body axis"),
-        Param("start", 60.0, "N m s", low=0.0, doc="dumping starts when |h_w| exceeds this"),
+        Param("torque", 0.2, "N m", shapes=((), (3,)), low=0.0, doc="the torque of a firing pair, per body axis"),
+        Param("start", 50.0, "N m s", low=0.0, doc="dumping starts when |h_w| exceeds this"),
         Param("stop", 20.0, "N m s", low=0.0, doc="dumping stops when |h_w| falls below this"),
         Param("min_on_time", 1.0, "s", low=0.0, doc="shortest firing (rounded up to whole control periods)"),
         Param("feedforward", True, boolean=True,

@@ -18,6 +18,9 @@ from so3jax.core.params import Param
 from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J0, PAPER_J2, PHASE_NAMES
 
 CONTROL_MODES = ("sampled", "continuous")
+# The flight mission's inertia at capture [kg m^2]: the paper's J0 with J_zz = 900, a rigid
+# body's (the paper's J_zz = 1000 exceeds J_xx + J_yy = 975, the triangle inequality).
+BODY_J0 = tuple(tuple(900.0 if (i, j) == (2, 2) else x for j, x in enumerate(row)) for i, row in enumerate(PAPER_J0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,8 +66,8 @@ KEYS = (
     Param("control.period", 0.1, "s", low=0.0, doc="control period (sampled mode), a whole number of steps dt"),
     Param("inertia.J", None, "kg m^2", shapes=((3, 3),),
           doc="a constant inertia J(t) = J throughout (excludes inertia.J0, J1, J2)"),
-    Param("inertia.J0.nominal", _matrix(PAPER_J0), "kg m^2", shapes=((3, 3),),
-          doc="inertia at capture (the paper's J0)"),
+    Param("inertia.J0.nominal", _matrix(BODY_J0), "kg m^2", shapes=((3, 3),),
+          doc="inertia at capture (the paper's J0 with J_zz = 900, a rigid body's)"),
     Param("inertia.J1.scale", 2.0, low=0.0, doc="deployed inertia J1 = scale J0"),
     Param("inertia.J1.nominal", None, "kg m^2", shapes=((3, 3),), doc="deployed inertia J1 (instead of a scale of J0)"),
     Param("inertia.J2.nominal", _matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),

@@ -28,7 +28,7 @@ from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
 from so3jax.core import checks
 from so3jax.dynamics.inertia import check_inertia
-from so3jax.dynamics.paper import PHASE_NAMES
+from so3jax.dynamics.paper import PAPER_J0, PHASE_NAMES
 from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
 from so3jax.missions import build, keys
 from so3jax.missions import config as cfg
@@ -37,7 +37,8 @@ from so3jax.results.io import to_builtin
 from so3jax.sim import memory, pointing
 from so3jax.sim.loop import Loop, check_loop, check_wiring
 
-# docs/model.md §8.5: the paper's mission flown with sensors, an MEKF and four wheels in a pyramid.
+# docs/model.md §8.5: the paper's mission flown with sensors, an MEKF, four wheels in a pyramid and
+# thrusters dumping their momentum, on a rigid body's J0 (keys.BODY_J0).
 # The mission's own keys are their declarations' defaults (so3jax.missions.keys), the
 # components' values their registrations' defaults.
 FLIGHT = {
@@ -45,7 +46,7 @@ FLIGHT = {
     "sensors": {"gyro": {}, "star_tracker": {}},
     "estimator": {"kind": "mekf"},
     "actuator": {"kind": "wheels"},
-    "momentum": {"kind": "none"},
+    "momentum": {"kind": "thrusters"},
     "reference": {"kind": "paper"},
     "controller": {},
     "gains": {},
@@ -54,7 +55,8 @@ FLIGHT = {
 # docs/model.md §4-§5: the paper's experiment in the same schema: the controller reads the true state
 # in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
 PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"},
-             actuator={"kind": "ideal"})
+             actuator={"kind": "ideal"}, momentum={"kind": "none"},
+             inertia=dict(FLIGHT["inertia"], J0={"nominal": [list(row) for row in PAPER_J0]}))
 
 _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}

@@ -342,7 +342,8 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     if loop.momentum is not None:
         if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float32)) is None:  # by structure
             raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "
-                             f"(actuator.kind = 'wheels'); the {type(loop.actuator).__name__} actuator stores none")
+                             f"(actuator.kind = 'wheels'); the {type(loop.actuator).__name__} actuator stores none "
+                             "(with it: momentum.kind = 'none')")
         loop.momentum.check()
     spin = loop.actuator.spin_inertia_values()  # NumPy, None where traced: nothing is added to a trace
     if spin is not None:

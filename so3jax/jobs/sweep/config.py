@@ -12,22 +12,22 @@ from so3jax.jobs import margins
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
+from so3jax.missions import keys
 from so3jax.missions import mission as missions
 
-# The default sweep (sweeps/default.toml, on the paper's mission).
+# The default sweep (sweeps/default.toml): the paper's mission on a rigid body's J0
+# (keys.BODY_J0), its inertias dispersed as rigid bodies.
 DEFAULT = {
+    "inertia": {"J0": {"nominal": [list(row) for row in keys.BODY_J0]}},
     "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0,
               "limit_share": 0.05, "pointing": False, "margins_at": []},
     "dispersions": {
         "inertia": {
             "J0": {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},
-                   "axis_scale": {"dist": "uniform", "low": 0.9, "high": 1.1}, "rotation_deg": 10.0,
-                   "products": {"dist": "normal", "mean": 0.0, "std": 10.0}},
-            "J1": {"scale": {"dist": "uniform", "low": 1.8, "high": 2.2},
-                   "products": {"dist": "normal", "mean": 0.0, "std": 10.0}},
+                   "second_moments": {"dist": "lognormal", "median": 1.0, "sigma": 0.1}, "rotation_deg": 10.0},
+            "J1": {"scale": {"dist": "uniform", "low": 1.8, "high": 2.2}},
             "J2": {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},
-                   "axis_scale": {"dist": "uniform", "low": 0.9, "high": 1.1}, "rotation_deg": 10.0,
-                   "products": {"dist": "normal", "mean": 0.0, "std": 20.0}},
+                   "second_moments": {"dist": "lognormal", "median": 1.0, "sigma": 0.1}, "rotation_deg": 10.0},
         },
         "seed": "random",
         "deployment": {"tau_J": {"dist": "uniform", "low": 200.0, "high": 400.0}},
