@@ -167,7 +167,7 @@ def test_bad_candidates_are_refused_in_one_line(candidates, message):
 
 
 def test_tuning_over_the_sweep_s_dispersions_keeps_its_samples_out():
-    table = {"mission": "../missions/paper.toml", "sweep": {"seed": 1},
+    table = {"mission": "../missions/flight.toml", "sweep": {"seed": 1},
                          "tune": {"iterations": 1, "dispersions": "sweep", "train": {"seeds": [1], "samples": 4},
                                   "validation": {"seeds": [2], "samples": 4}}}
     with pytest.raises(ValueError, match="would tune pd on the missions that judge it"):

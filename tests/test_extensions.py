@@ -139,8 +139,6 @@ sigma = 1e-5
 kind = "lowpass"
 [actuator]
 kind = "ideal"
-[momentum]
-kind = "none"
 [gains.damper]
 c = 1000.0
 """

@@ -42,7 +42,7 @@ BLOCKS = {"attitude": slice(0, 3), "bias": slice(3, 6)}
 RATE = [0.01, 0.02, -0.015]  # rad/s, off every principal axis of J0
 J0 = [[625.0, 5.5, 3.0], [5.5, 350.0, 4.0], [3.0, 4.0, 1000.0]]  # the paper's, kg m^2
 J_SYMMETRIC = [[500.0, 0.0, 0.0], [0.0, 500.0, 0.0], [0.0, 0.0, 500.0]]
-TORQUE_FREE = ['controllers=["open_loop"]', 'actuator.kind="ideal"', 'momentum.kind="none"', "disturbance.amplitude=0.0",
+TORQUE_FREE = ['controllers=["open_loop"]', 'actuator.kind="ideal"', "disturbance.amplitude=0.0",
                "disturbance.noise_std=0.0"]
 CASES = {  # on the flight mission's defaults (missions/flight.toml)
     "still": TORQUE_FREE + [f"inertia.J={J0}", "initial.rate=[0.0, 0.0, 0.0]"],

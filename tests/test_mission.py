@@ -126,7 +126,7 @@ def test_a_diverged_flight_is_reported_as_diverged_never_as_a_number(tmp_path):
     """A PD with k_Omega Delta_c / J far above 2 diverges under sampled control: null in
     JSON, "diverged" in the table, exit code 1."""
     args = ("fly", "--T", "20", "--controllers", "pd", "--no-figures", "--set", "gains.pd.k_Omega=1e6",
-            "--set", "actuator.kind=ideal", "--set", "momentum.kind=none", "--out", str(tmp_path))
+            "--set", "actuator.kind=ideal", "--out", str(tmp_path))
     proc = run_cli(*args, "--json", cwd=tmp_path)
     assert proc.returncode == 1, proc.stderr
     r = json.loads(proc.stdout.strip().splitlines()[-1])["pd"]

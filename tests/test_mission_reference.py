@@ -134,8 +134,7 @@ def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
     from so3jax.sim.rollout import rollout
 
     m = missions.load(None, ["T=2.0", "control.mode='continuous'", "sensors.gyro=false", "sensors.star_tracker=false",
-                             "estimator.kind='truth'", "actuator.kind='ideal'", "momentum.kind='none'", "controllers=['pd']",
-                             *EVENTS,
+                             "estimator.kind='truth'", "actuator.kind='ideal'", "controllers=['pd']", *EVENTS,
                              "phases.names=['a']", "phases.start=[0.0]", "reference.kind='slews'",
                              "reference.slews.attitudes=[[0.02, 0.0, 0.0]]", "reference.slews.times=[0.5]"])
     dispersions, leaves = dispersed.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)

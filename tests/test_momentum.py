@@ -134,6 +134,15 @@ def test_thrusters_tick_every_step_in_the_continuous_wiring():
     np.testing.assert_allclose(H[1:] - H[0], impulse[:-1], atol=1e-3 * np.abs(impulse).max())
 
 
+def test_the_flight_mission_s_thrusters_come_with_its_wheels():
+    """Another actuator without a [momentum] table flies no momentum management; the
+    thrusters named beside it are refused (below)."""
+    assert missions.load().momentum["kind"] == "thrusters"
+    for kind in ("ideal", "saturated"):
+        assert missions.load(None, [f"actuator.kind='{kind}'"]).momentum == {"kind": "none", "none": {}}
+    assert missions.load(None, ["actuator.kind='wheels'"]).momentum["kind"] == "thrusters"
+
+
 @pytest.mark.parametrize("overrides, message", [
     (["actuator.kind='ideal'"], "needs an actuator that stores momentum"),
     (["actuator.kind='saturated'", "momentum.kind='magnetorquers'"], "the Saturated actuator stores none"),

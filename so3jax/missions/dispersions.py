@@ -209,7 +209,8 @@ def _check_second_moments(inertia: InertiaDispersion, where: str) -> None:
         s = second_moments(principal)
         if np.any(s < -1e-9 * np.sum(principal)):
             raise ValueError(f"{where}.second_moments needs a nominal inertia that a rigid body has: its principal "
-                             f"moments {np.round(principal, 6).tolist()} break the triangle inequality")
+                             f"moments {np.round(principal, 6).tolist()} break the triangle inequality (give the "
+                             "nominal a rigid body's, or disperse it with axis_scale and products)")
 
 
 def describe(dist: Distribution) -> Any:
