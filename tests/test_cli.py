@@ -130,6 +130,7 @@ def test_warnings_are_one_line_each_and_shown_once(in_process, capsys):
     """A mission J0 that breaks the triangle inequality (a warning), then a bad dispersion
     of J1's scale (an error)."""
     code = cli.main(["sweep", "--set", "inertia.J0.nominal=[[100.0, 0, 0], [0, 120.0, 0], [0, 0, 300.0]]",
+                     "--set", "dispersions.inertia.J0={scale={dist='lognormal', median=1.0, sigma=0.1}}",
                      "--set", "dispersions.inertia.J1.scale=0.0", "--out", str(in_process / "s")])
     err = capsys.readouterr().err.splitlines()
     assert code == 2

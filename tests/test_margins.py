@@ -411,12 +411,13 @@ def test_disk_alpha_is_disk_margin_s_to_the_grid_s_resolution(point):
     assert float(alpha) == pytest.approx(1 / np.linalg.norm(half, 2, axis=(1, 2)).max(), rel=1e-10)
     np.testing.assert_allclose(np.asarray(axes), 1 / np.abs(np.diagonal(half, axis1=1, axis2=2)).max(axis=0),
                                rtol=1e-10)
-    # disk_margin refines the peak between the grid's points: the grid's alpha is at least its, by < 0.1 %
+    # disk_margin refines the peak between the grid's points (5.6 % apart in frequency): the
+    # grid's alpha is at least its, by < 1 %
     disks = mg.disk_margin(lin)
     assert disks.stable and 0.3 < disks.multiloop.alpha < 1.5
-    assert disks.multiloop.alpha * (1 - 1e-12) <= float(alpha) <= disks.multiloop.alpha * (1 + 1e-3)
+    assert disks.multiloop.alpha * (1 - 1e-12) <= float(alpha) <= disks.multiloop.alpha * (1 + 1e-2)
     for traced, disk in zip(np.asarray(axes), disks.axes):
-        assert disk.alpha * (1 - 1e-12) <= traced <= disk.alpha * (1 + 1e-3)
+        assert disk.alpha * (1 - 1e-12) <= traced <= disk.alpha * (1 + 1e-2)
 
 
 def test_the_margin_s_gradient_matches_finite_differences_of_itself(point):

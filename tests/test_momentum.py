@@ -3,6 +3,8 @@
 total angular momentum, thrusters dump between their thresholds, magnetorquers unload
 at the rate the cross-product law predicts on an orbit."""
 
+from pathlib import Path
+
 import jax
 import numpy as np
 import pytest
@@ -141,6 +143,9 @@ def test_the_flight_mission_s_thrusters_come_with_its_wheels():
     for kind in ("ideal", "saturated"):
         assert missions.load(None, [f"actuator.kind='{kind}'"]).momentum == {"kind": "none", "none": {}}
     assert missions.load(None, ["actuator.kind='wheels'"]).momentum["kind"] == "thrusters"
+    flight = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"
+    assert missions.load(flight, ["actuator.kind='ideal'"]).momentum["kind"] == "none"
+    assert missions.load(flight, ["actuator.kind='ideal'", "momentum.kind='none'"]).momentum["kind"] == "none"
 
 
 @pytest.mark.parametrize("overrides, message", [

@@ -13,6 +13,7 @@ import pytest
 
 from so3jax import commands as cli
 from so3jax.jobs import compare
+from so3jax.missions import keys
 from so3jax.results import io, runfolder
 from so3jax.sim import memory
 
@@ -95,6 +96,7 @@ def test_started_is_when_the_run_started_and_a_resume_keeps_it(tmp_path, monkeyp
 def _comparison(validation_seeds, bootstrap=200) -> compare.CompareConfig:
     """A fixed-gains candidate (judged on the held-out seeds) and a tuned one."""
     return compare.parse({"mission": "../missions/paper.toml", "T": 1.0,
+                          "inertia": {"J0": {"nominal": [list(row) for row in keys.BODY_J0]}},  # dispersed as a body
                           "compare": {"bootstrap": bootstrap,
                                       "candidates": {"fixed": {"controller": "pd", "gains": "paper"},
                                                      "tuned": {"controller": "pd"}}},

@@ -121,11 +121,11 @@ def test_each_sample_s_margins_are_its_mission_s_flown_alone(sweep):
             for name in ("gain_margin_upper_db", "phase_margin_deg", "delay_margin_s"):
                 np.testing.assert_allclose(v[name][i, k], [getattr(a, name) for a in classical.axes], rtol=1e-9,
                                            err_msg=name)
-            # the lower margin as its gain factor in (0, 1): one near 0 (-89 dB, |L_i| ~ 3e4 as omega -> 0) moves
-            # by 1e-7 of itself for 1e-16 of A, which batching changes
+            # the lower margin as its gain factor in (0, 1): one near 0 (-84 dB, |L_i| ~ 2e4 as omega -> 0) moves
+            # by up to 1e-5 of itself for 1e-16 of A, which batching changes
             lower = lambda db: 10.0 ** (np.asarray(db) / 20.0)
             np.testing.assert_allclose(lower(v["gain_margin_lower_db"][i, k]),
-                                       lower([a.gain_margin_lower_db for a in classical.axes]), rtol=1e-9, atol=1e-10)
+                                       lower([a.gain_margin_lower_db for a in classical.axes]), rtol=1e-9, atol=1e-9)
 
 
 def test_a_sample_s_component_value_moves_its_margins_only(sweep):

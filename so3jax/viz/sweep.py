@@ -137,18 +137,21 @@ FLIGHT_PANELS = (
      "attitude_estimation_rms", "attitude estimation RMS [arcsec]", ARCSEC),
     ("actuator.wheels.max_torque", "smallest wheel torque limit u_max [N m]", 1.0,
      "time_at_torque_limit", "time at a torque limit [s]", 1.0),
+    ("amplitude", "disturbance amplitude [N m]", 1.0,
+     "max_wheel_speed_ratio", "peak wheel speed / its limit [-]", 1.0),
 )
 
 
 def _flight_figure(config, cols: dict, good: dict, color: dict, title: str):
     """Estimation error against star-tracker noise, time at a limit against the torque
-    limit: the panels whose parameter the sweep disperses (None: none)."""
+    limit, the wheels' peak speed (the momentum they store) against the disturbance: the
+    panels whose parameter the sweep disperses (None: none)."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
     panels = []
     for x, xlabel, x_scale, y, ylabel, y_scale in FLIGHT_PANELS:
         elements = [cols[k] for k in cols if k == x or k.startswith(f"{x}_")]  # one column, or one per element
-        if elements and f"{config.controllers[0]}_{y}" in cols:
+        if elements and np.ptp(np.min(elements, axis=0)) > 0 and f"{config.controllers[0]}_{y}" in cols:
             panels.append((np.min(elements, axis=0), xlabel, x_scale, y, ylabel, y_scale))
     if not panels:
         return None
@@ -156,6 +159,8 @@ def _flight_figure(config, cols: dict, good: dict, color: dict, title: str):
     for ax, (x, xlabel, x_scale, y, ylabel, y_scale) in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
         for c in config.controllers:
             ax.scatter(x[good[c]] * x_scale, cols[f"{c}_{y}"][good[c]] * y_scale, s=6, alpha=0.6, **color[c])
+        if y == "max_wheel_speed_ratio":
+            ax.axhline(1.0, color="0.3", linestyle="--", linewidth=1.0, label="speed limit")
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)

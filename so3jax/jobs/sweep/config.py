@@ -10,9 +10,8 @@ from pathlib import Path
 from so3jax.core import checks
 from so3jax.jobs import margins
 from so3jax.missions import config as cfg
-from so3jax.missions import dispersed
+from so3jax.missions import dispersed, keys
 from so3jax.missions import dispersions as disp
-from so3jax.missions import keys
 from so3jax.missions import mission as missions
 
 # The default sweep (sweeps/default.toml): the paper's mission on a rigid body's J0
