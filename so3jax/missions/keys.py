@@ -15,12 +15,12 @@ import dataclasses
 from so3jax.controllers import registry
 from so3jax.core import checks
 from so3jax.core.params import Param
-from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J0, PAPER_J2, PHASE_NAMES
+from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J2, PHASE_NAMES
 
 CONTROL_MODES = ("sampled", "continuous")
 # The flight mission's inertia at capture [kg m^2]: the paper's J0 with J_zz = 900, a rigid
 # body's (the paper's J_zz = 1000 exceeds J_xx + J_yy = 975, the triangle inequality).
-BODY_J0 = tuple(tuple(900.0 if (i, j) == (2, 2) else x for j, x in enumerate(row)) for i, row in enumerate(PAPER_J0))
+BODY_J0 = ((625.0, 5.5, 3.0), (5.5, 350.0, 4.0), (3.0, 4.0, 900.0))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -49,7 +49,8 @@ class Names(Param):
         return "distinct names"
 
 
-def _matrix(J) -> list:
+def matrix(J) -> list:
+    """A 3x3 matrix as TOML data (a list of rows)."""
     return [list(row) for row in J]
 
 
@@ -66,11 +67,11 @@ KEYS = (
     Param("control.period", 0.1, "s", low=0.0, doc="control period (sampled mode), a whole number of steps dt"),
     Param("inertia.J", None, "kg m^2", shapes=((3, 3),),
           doc="a constant inertia J(t) = J throughout (excludes inertia.J0, J1, J2)"),
-    Param("inertia.J0.nominal", _matrix(BODY_J0), "kg m^2", shapes=((3, 3),),
+    Param("inertia.J0.nominal", matrix(BODY_J0), "kg m^2", shapes=((3, 3),),
           doc="inertia at capture (the paper's J0 with J_zz = 900, a rigid body's)"),
     Param("inertia.J1.scale", 2.0, low=0.0, doc="deployed inertia J1 = scale J0"),
     Param("inertia.J1.nominal", None, "kg m^2", shapes=((3, 3),), doc="deployed inertia J1 (instead of a scale of J0)"),
-    Param("inertia.J2.nominal", _matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),
+    Param("inertia.J2.nominal", matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),
     Param("deployment.tau_J", 300.0, "s", doc="deployment time constant (positive)"),
     Param("orbit.n", 0.0011067834463349404, "rad/s", low=0.0,
           doc="orbital rate (the default: orbital_rate(), a 500 km circular orbit); the radius follows from it"),

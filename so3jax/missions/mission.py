@@ -56,7 +56,7 @@ FLIGHT = {
 # in every RK4 stage and its torque reaches the body exactly (missions/paper.toml spells it out).
 PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kind": "truth"},
              actuator={"kind": "ideal"}, momentum={"kind": "none"},
-             inertia=dict(FLIGHT["inertia"], J0={"nominal": [list(row) for row in PAPER_J0]}))
+             inertia=dict(FLIGHT["inertia"], J0={"nominal": keys.matrix(PAPER_J0)}))
 
 _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}

@@ -130,15 +130,16 @@ def _pointing_figure(config, cols: dict, phases: list, color: dict):
 
 
 ARCSEC = 180 / np.pi * 3600  # arcsec per rad
-# (x parameter, its label, its scale to the label's unit, y metric, its label and scale): a
-# panel is drawn where the sweep disperses its x parameter (per element: the smallest)
+# (x parameter, its label, its scale to the label's unit, y metric, its label and scale, a
+# labelled level of y or None): a panel is drawn where the sweep disperses its x parameter
+# (per element: the smallest)
 FLIGHT_PANELS = (
     ("sensors.star_tracker.sigma", "star-tracker noise sigma [arcsec]", ARCSEC,
-     "attitude_estimation_rms", "attitude estimation RMS [arcsec]", ARCSEC),
+     "attitude_estimation_rms", "attitude estimation RMS [arcsec]", ARCSEC, None),
     ("actuator.wheels.max_torque", "smallest wheel torque limit u_max [N m]", 1.0,
-     "time_at_torque_limit", "time at a torque limit [s]", 1.0),
+     "time_at_torque_limit", "time at a torque limit [s]", 1.0, None),
     ("amplitude", "disturbance amplitude [N m]", 1.0,
-     "max_wheel_speed_ratio", "peak wheel speed / its limit [-]", 1.0),
+     "max_wheel_speed_ratio", "peak wheel speed / its limit [-]", 1.0, (1.0, "speed limit")),
 )
 
 
@@ -149,18 +150,20 @@ def _flight_figure(config, cols: dict, good: dict, color: dict, title: str):
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
     panels = []
-    for x, xlabel, x_scale, y, ylabel, y_scale in FLIGHT_PANELS:
+    for x, *rest in FLIGHT_PANELS:
         elements = [cols[k] for k in cols if k == x or k.startswith(f"{x}_")]  # one column, or one per element
-        if elements and np.ptp(np.min(elements, axis=0)) > 0 and f"{config.controllers[0]}_{y}" in cols:
-            panels.append((np.min(elements, axis=0), xlabel, x_scale, y, ylabel, y_scale))
+        smallest = np.min(elements, axis=0) if elements else None
+        if smallest is not None and np.ptp(smallest) > 0 and f"{config.controllers[0]}_{rest[2]}" in cols:
+            panels.append((smallest, *rest))
     if not panels:
         return None
     fig = Figure(figsize=(5 * len(panels), 3.8), layout="constrained")
-    for ax, (x, xlabel, x_scale, y, ylabel, y_scale) in zip(fig.subplots(1, len(panels), squeeze=False)[0], panels):
+    for ax, (x, xlabel, x_scale, y, ylabel, y_scale, level) in zip(fig.subplots(1, len(panels), squeeze=False)[0],
+                                                                     panels):
         for c in config.controllers:
             ax.scatter(x[good[c]] * x_scale, cols[f"{c}_{y}"][good[c]] * y_scale, s=6, alpha=0.6, **color[c])
-        if y == "max_wheel_speed_ratio":
-            ax.axhline(1.0, color="0.3", linestyle="--", linewidth=1.0, label="speed limit")
+        if level is not None:
+            ax.axhline(level[0], color="0.3", linestyle="--", linewidth=1.0, label=level[1])
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)

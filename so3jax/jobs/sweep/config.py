@@ -17,7 +17,7 @@ from so3jax.missions import mission as missions
 # The default sweep (sweeps/default.toml): the paper's mission on a rigid body's J0
 # (keys.BODY_J0), its inertias dispersed as rigid bodies.
 DEFAULT = {
-    "inertia": {"J0": {"nominal": [list(row) for row in keys.BODY_J0]}},
+    "inertia": {"J0": {"nominal": keys.matrix(keys.BODY_J0)}},
     "sweep": {"samples": 1024, "seed": 0, "chunk": 128, "max_draws": 20, "divergence_angle_deg": 150.0,
               "limit_share": 0.05, "pointing": False, "margins_at": []},
     "dispersions": {
