@@ -27,7 +27,8 @@ def test_paper_json_and_figures(tmp_path):
     proc = run_cli("paper", "--T", "40", "--json", "--out", str(out), "--record-every", "50", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert set(report) == {"pd", "adaptive", "config"}
+    assert set(report) == {"pd", "adaptive", "units", "config"}
+    assert report["units"]["rmse"] == "rad/s" and report["units"]["max_angle_phase"] == "rad"
     for name in ("pd", "adaptive"):
         m = report[name]
         assert set(m) >= {"rmse", "rmse_unrotated", "effort", "rmse_phase", "effort_phase", "rms_angle_phase",

@@ -110,6 +110,10 @@ def test_the_report_pairs_the_sweep_s_columns():
     pair = result["laws"]["sliding_mode"]["against_reference"]
     assert pair["samples"] == 49 and pair["relative_change"]["mean"] == pytest.approx(-0.2, rel=1e-12)
     assert result["laws"]["sliding_mode"]["sweep"]["diverged"] == 1 and "against_reference" not in result["laws"]["pd"]
+    measured = {k for law in result["laws"].values() for part in ("held_out", "sweep") for k in law[part]}
+    measured |= set(pair["tails"]) | {"budget_effort", "relative_change"}
+    assert measured - set(result["units"]) == {"diverged_count", "samples", "diverged", "ci95"}  # counts, intervals
+    assert result["units"]["rmse_median"] == "rad/s" and result["units"]["budget_effort"] == "N^2 m^2 s"
     table = compare.markdown(io.to_builtin(result))
     assert "| sliding_mode | g = 1 |" in table and "-20.0 % [-20.0, -20.0]" in table and "1 of 50" in table
     assert compare_plots.figure(config, columns, compare.pairs(config)).axes[1].get_ylabel() == "RMSE change vs PD [%]"

@@ -166,6 +166,9 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(flight_sweep):
     assert checked[1]["value"] == pytest.approx(np.sort(x)[39] * pointing.ARCSEC, rel=1e-12)
     assert len(np.unique(t["pd_effort"])) == 8 and len(np.unique(t["pd_rmse"])) == 8
     assert (out / "flight.png").exists()  # time at a torque limit against the dispersed limit
+    column_units = summary["units"]["columns"]  # pointing [arcsec]; a dispersed leaf's declared unit
+    assert {column_units[k] for k in column_units if k.endswith("_arcsec")} == {"arcsec"}
+    assert column_units["actuator.wheels.max_torque_1"] == "N m" and set(column_units) == set(t)
     for i in (0, 5):
         J = {name: [[t[f"{name}_{a}{b}" if f"{name}_{a}{b}" in t else f"{name}_{b}{a}"][i] for b in "xyz"]
                     for a in "xyz"]

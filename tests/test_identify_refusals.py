@@ -168,6 +168,9 @@ def test_the_report_of_a_degenerate_estimate_prints():
               "residual_rms": 1.0, "iterations": 3, "converged": True}
     summary = reports.summary(result)
     assert summary["principal_axes_std_deg"][:2] == [None, None]
+    labels = ("units", "converged", "iterations", "J_entries")
+    numbers = {k for k, v in summary.items() if k not in labels and v is not None}
+    assert numbers <= set(summary["units"]) and summary["units"]["residual_rms"] == "N m s"  # each value's unit
     text = reports.format_report(summary)
     assert "+- n/a deg" in text and "2000.0000" in text
 

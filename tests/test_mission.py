@@ -90,7 +90,8 @@ def test_fly_command_end_to_end(tmp_path):
     proc = run_cli("fly", "--T", "20", "--json", "--out", str(out), "--controllers", "pd,adaptive", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     report = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert set(report) == {"pd", "adaptive", "config"}
+    assert set(report) == {"pd", "adaptive", "units", "config"}
+    assert report["units"]["attitude_estimation_rms"] == "rad" and report["units"]["bias_estimation_rms"] == "rad/s"
     for name in ("pd", "adaptive"):
         r = report[name]
         assert r["diverged"] is False and len(r["rmse_phase"]) == 1  # only the capture phase is reached in 20 s

@@ -27,7 +27,11 @@ def test_requirements_are_checked_reported_and_set_the_exit_code(tmp_path, capsy
     code = cli.main([*FLY, "--out", str(out), "--set", f"requirements = [{MET}, {MISSED}, {HOLD}]"])
     assert code == 1
     assert "requirements failed: pd" in capsys.readouterr().err
-    report = json.loads((out / "metrics.json").read_text())["pd"]
+    saved = json.loads((out / "metrics.json").read_text())
+    report = saved["pd"]
+    assert saved["units"]["attitude_estimation_rms"] == "rad" and saved["units"]["max_angle_phase"] == "rad"
+    assert set(saved["units"]) == {k for k in report if k not in ("pointing", "requirements")}
+    assert report["pointing"]["unit"] == "arcsec"
     met, missed, hold = report["requirements"]
     assert hold["passed"] and hold["samples"] == 5 and hold["requirement"].endswith("hold: <= 1e+07 arcsec")
     assert (met["passed"], missed["passed"]) == (True, False)

@@ -215,6 +215,10 @@ def test_outputs(reference):
     assert len(t["index"]) == 11 and set(t["status"]) == {"simulated"}
     header = (out / "samples.csv").read_text().splitlines()[0].split(",")
     assert header == list(t)
+    column_units = json.loads((out / "summary.json").read_text())["units"]["columns"]  # every column's unit
+    assert list(column_units) == header
+    assert [column_units[k] for k in ("J0_xx", "tau_J", "pd_rmse", "pd_max_angle_capture", "adaptive_diverged")] == [
+        "kg m^2", "s", "rad/s", "rad", "-"]
     for c in ("pd", "adaptive"):
         for metric in ("rmse", "effort"):
             assert set(summary["controllers"][c][metric]) == {"mission", "capture", "deployment", "detumble"}

@@ -85,6 +85,9 @@ def test_the_sweep_reports_each_sample_s_margins(sweep):
     with np.load(sweep.out / "samples.npz") as table:
         np.testing.assert_array_equal(table["pd_disk_db_at_19.9s"], sweep.values["disk_db"][:, 1])
         np.testing.assert_array_equal(table["pd_pm_deg_at_10s"], sweep.values["phase_margin_deg"][:, 0].min(axis=1))
+    column_units = sweep.summary["units"]["columns"]
+    assert [column_units[f"pd_{k}_at_10s"] for k in ("loop_stable", "disk_db", "gm_lower_db", "pm_deg", "delay_s")] == [
+        "-", "dB", "dB", "deg", "s"]
     assert "Stability margins of pd's loop" in (sweep.out / "summary.md").read_text()
     assert (sweep.out / "margins.png").exists()
 

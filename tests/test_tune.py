@@ -122,6 +122,9 @@ def test_run_writes_its_results_and_every_gradient_is_finite(tmp_path):
     assert best["controller"] == "pd" and best["iteration"] == 2 and set(best["gains"]) == {"k_R", "k_Omega"}
     assert json.loads((tmp_path / "validation.json").read_text()) == json.loads(json.dumps(report))
     assert report["scenarios"]["seeds"] == [10, 11]  # held out
+    measured = set(report["tuned"]) | set(report["cost"]) | {"best_cost", "wall_s", "T", "inertia_scale"}
+    assert measured - set(report["units"]) == {"gains", "diverged", "diverged_count", "mode", "objective", "initial",
+                                               "tuned"}  # each number's unit; gains in the controller's docs
     assert report["tuned"]["gains"] == best["gains"]
     assert report["cost"]["tuned"] < report["cost"]["initial"]
     # a best_gains.json is a valid starting point for another campaign

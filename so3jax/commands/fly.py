@@ -17,7 +17,7 @@ from so3jax.commands.common import (
 from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs import fly
 from so3jax.missions import mission as missions
-from so3jax.results import runfolder
+from so3jax.results import runfolder, units
 from so3jax.results.io import dumps, save_npz, write_json
 from so3jax.sim import memory
 
@@ -60,6 +60,7 @@ def _fly_into(args, mission) -> int:
           + " ...", file=sys.stderr, flush=True)
     results, wall = fly.fly(mission, args.precision)
     reports = {name: fly.report(mission, r) for name, r in results.items()}
+    reports["units"] = units.table(reports[mission.controllers[0]])
     reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
                          "mission_file": None if args.mission is None else str(args.mission)}
     write_json(args.out / "metrics.json", reports)

@@ -240,12 +240,19 @@ def paired(x, y, resamples: int, rng: np.random.Generator) -> dict:
     }
 
 
+# compare.json's units (so3jax.results.units): RMSE [rad/s], effort [N^2 m^2 s]; a paired
+# relative change and a share of wins are ratios; an interval (ci95) has its value's unit.
+UNITS = {"mean_rmse": "rad/s", "mean_effort": "N^2 m^2 s", "budget_effort": "N^2 m^2 s", "rmse_median": "rad/s",
+         f"rmse_p{TAILS:g}": "rad/s", "effort_median": "N^2 m^2 s", "relative_change": "-", "share": "-",
+         f"p{TAILS:g}": "rad/s", f"p{TAILS:g}_reference": "rad/s", "difference": "rad/s"}
+
+
 def judge(config: CompareConfig, reports: dict, columns: dict, requirements: dict | None = None) -> dict:
     """Each law's held-out validation, its sweep statistics, its pairing with the reference,
     and the mission's pointing requirements checked over its sweep ({law: [requirement]})."""
     rng = np.random.default_rng(config.seed)
     ok = {law: (columns[f"{law}_diverged"] == 0) & np.isfinite(columns[f"{law}_rmse"]) for law in config.laws}
-    out = {"reference": config.reference, "laws": {}}
+    out = {"reference": config.reference, "units": UNITS, "laws": {}}
     for law in config.laws:
         rmse = columns[f"{law}_rmse"][ok[law]]
         effort = columns[f"{law}_effort"][ok[law]]

@@ -5,7 +5,6 @@ control, actuators), each controller on the same mission and seed: the job ``so3
 from __future__ import annotations
 
 import functools
-import math
 import time
 import warnings
 from pathlib import Path
@@ -17,7 +16,7 @@ from so3jax.components import registry as components
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.identify import telemetry
 from so3jax.parallel import devices
-from so3jax.results import io
+from so3jax.results import io, units
 from so3jax.results.io import save_npz, to_builtin
 from so3jax.sim import memory, pointing
 from so3jax.sim.metrics import cell, reached_phases, reported
@@ -100,25 +99,28 @@ def format_table(mission, reports: dict) -> str:
     def row(label, fn, fmt):
         lines.append(f"{label:34s}" + "".join(f"{_cell(fn(reports[n]), fmt):>{width}s}" for n in names))
 
-    row("RMSE [rad/s]", lambda r: r["rmse"], ".4e")
-    row("effort (delivered) [N^2 m^2 s]", lambda r: r["effort"], ".2f")
+    def metric(label, name, fmt, phase=None):
+        """A metric's row in the unit tables show it in (:mod:`so3jax.results.units`)."""
+        value = (lambda r: r[name]) if phase is None else (lambda r: r[name][phase])
+        row(f"{label} [{units.shown_unit(name)}]", lambda r: units.shown(name, value(r)), fmt)
+
+    metric("RMSE", "rmse", ".4e")
+    metric("effort (delivered)", "effort", ".2f")
     for p in range(len(reports[names[0]]["rmse_phase"])):
         label = mission.phase_names[p]
-        row(f"  RMSE {label} [rad/s]", lambda r, p=p: r["rmse_phase"][p], ".4e")
-        row(f"  max attitude error {label} [deg]", lambda r, p=p: None if r["max_angle_phase"][p] is None
-            else math.degrees(r["max_angle_phase"][p]), ".3f")
-    row("max |tau| delivered [N m]", lambda r: r["max_torque"], ".4f")
+        metric(f"  RMSE {label}", "rmse_phase", ".4e", p)
+        metric(f"  max attitude error {label}", "max_angle_phase", ".3f", p)
+    metric("max |tau| delivered", "max_torque", ".4f")
     if mission.period_steps is not None:
-        row("command effort [N^2 m^2 s]", lambda r: r["command_effort"], ".2f")
-        label = components.get("actuator", mission.actuator["kind"]).effort_label
-        row(f"{label} [N^2 m^2 s]", lambda r: r["actuator_effort"], ".2f")
-        row("attitude estimation RMS [arcsec]", lambda r: _arcsec(r["attitude_estimation_rms"]), ".2f")
-        row("attitude estimation max [arcsec]", lambda r: _arcsec(r["attitude_estimation_max"]), ".2f")
-        row("bias estimation RMS [deg/h]", lambda r: _deg_h(r["bias_estimation_rms"]), ".4f")
-        row("bias estimation max [deg/h]", lambda r: _deg_h(r["bias_estimation_max"]), ".4f")
+        metric("command effort", "command_effort", ".2f")
+        metric(components.get("actuator", mission.actuator["kind"]).effort_label, "actuator_effort", ".2f")
+        metric("attitude estimation RMS", "attitude_estimation_rms", ".2f")
+        metric("attitude estimation max", "attitude_estimation_max", ".2f")
+        metric("bias estimation RMS", "bias_estimation_rms", ".4f")
+        metric("bias estimation max", "bias_estimation_max", ".4f")
         row("max wheel speed / limit", lambda r: r["max_wheel_speed_ratio"], ".3f")
-        row("time at a torque limit [s]", lambda r: r["time_at_torque_limit"], ".1f")
-        row("time at a speed limit [s]", lambda r: r["time_at_speed_limit"], ".1f")
+        metric("time at a torque limit", "time_at_torque_limit", ".1f")
+        metric("time at a speed limit", "time_at_speed_limit", ".1f")
     level = reports[names[0]]["pointing"]["levels"][0]
     for p, phase in enumerate(reports[names[0]]["pointing"]["phases"]):
         for index in [r["index"] for r in phase["rows"] if r["level"] == level]:
@@ -140,14 +142,6 @@ def format_requirements(reports: dict) -> str:
     for name, r in reports.items():
         lines += [f"{name}: {pointing.outcome(q)}" for q in r["requirements"]]
     return "\n".join(lines)
-
-
-def _arcsec(x):
-    return None if x is None else math.degrees(x) * 3600.0
-
-
-def _deg_h(x):
-    return None if x is None else math.degrees(x) * 3600.0
 
 
 def recorded(x, otherwise):

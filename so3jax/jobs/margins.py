@@ -230,5 +230,5 @@ def figures(linearizations: dict) -> dict:
 
 def write(out: Path, reports: dict, linearizations: dict, config: dict, with_figures: bool) -> list:
     """margins.json (the reports and the mission as flown) and the figures; the figures' paths."""
-    io.write_json(Path(out) / "margins.json", {**reports, "config": config})
+    io.write_json(Path(out) / "margins.json", {**reports, "units": margins.UNITS, "config": config})
     return io.save_figures(out, figures(linearizations)) if with_figures else []

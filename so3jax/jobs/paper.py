@@ -9,7 +9,7 @@ import jax
 import numpy as np
 
 from so3jax.missions import mission as missions
-from so3jax.results import io
+from so3jax.results import io, units
 from so3jax.sim import memory
 from so3jax.sim.metrics import UNREACHED, cell, phase_values, reported
 
@@ -107,8 +107,10 @@ def format_table(metrics: dict) -> str:
 
 
 def report(mission, scenario, results: dict, precision: str, wall: float, budget) -> dict:
-    """metrics.json: each controller's metrics (:func:`metrics_dict`) and the run's configuration."""
+    """metrics.json: each controller's metrics (:func:`metrics_dict`), their units and the run's
+    configuration."""
     out = {name: metrics_dict(r, scenario.steps_per_phase) for name, r in results.items()}
+    out["units"] = units.table(out[CONTROLLERS[0]])
     out["config"] = {
         "T": mission.T,
         "dt": mission.dt,

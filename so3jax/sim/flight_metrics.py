@@ -38,6 +38,10 @@ class FlightMetrics(NamedTuple):
     time_at_speed_limit: jax.Array  # s
     max_wheel_speed_ratio: jax.Array  # max |Omega_w,i| / Omega_max,i
 
+    units = {"attitude_estimation_rms": "rad", "attitude_estimation_max": "rad", "bias_estimation_rms": "rad/s",
+             "bias_estimation_max": "rad/s", "command_effort": "N^2 m^2 s", "actuator_effort": "N^2 m^2 s",
+             "time_at_torque_limit": "s", "time_at_speed_limit": "s", "max_wheel_speed_ratio": "-"}
+
 
 def init(dtype, batch_shape=()) -> Accumulator:
     zero = jnp.zeros(batch_shape, dtype)

@@ -586,6 +586,13 @@ def closed_loop_modes(lin: Linearization) -> Modes:
 # --- classical margins, loop at a time ---------------------------------------------------
 
 
+# The units of the margins' JSON keys (so3jax.results.units).
+UNITS = {"t": "s", "spectral_radius": "-", "fixed_spectral_radius": "-", "alpha": "-", "frequency": "rad/s",
+         "gain_margin_lower_db": "dB", "gain_margin_upper_db": "dB", "phase_crossover_lower": "rad/s",
+         "phase_crossover_upper": "rad/s", "phase_margin_deg": "deg", "gain_crossover": "rad/s",
+         "delay_margin_s": "s", "delay_margin_periods": "-"}
+
+
 @dataclasses.dataclass(frozen=True)
 class AxisMargins:
     """Margins of axis i's loop, the other axes closed (:func:`loop_at_a_time`)."""

@@ -41,14 +41,18 @@ class Metrics(NamedTuple):
     rmse: jax.Array  # rad/s
     rmse_unrotated: jax.Array  # rad/s
     effort: jax.Array  # N^2 m^2 s
-    rmse_phase: jax.Array  # (P,)
-    effort_phase: jax.Array  # (P,)
+    rmse_phase: jax.Array  # (P,) rad/s
+    effort_phase: jax.Array  # (P,) N^2 m^2 s
     rms_angle_phase: jax.Array  # (P,) rad
     max_angle_phase: jax.Array  # (P,) rad
     max_torque_phase: jax.Array  # (P,) N m
     max_torque: jax.Array  # N m
     orthogonality_error: jax.Array  # |R^T R - I|_F at the end
     diverged: jax.Array  # bool: a state became non-finite
+
+    units = {"rmse": "rad/s", "rmse_unrotated": "rad/s", "effort": "N^2 m^2 s", "rmse_phase": "rad/s",
+             "effort_phase": "N^2 m^2 s", "rms_angle_phase": "rad", "max_angle_phase": "rad",
+             "max_torque_phase": "N m", "max_torque": "N m", "orthogonality_error": "-", "diverged": "-"}
 
 
 def init(n_phases: int, dtype, batch_shape=()) -> Accumulator:

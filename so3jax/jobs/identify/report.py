@@ -20,6 +20,14 @@ def _std(covariance) -> np.ndarray:
     return np.sqrt(np.maximum(np.diag(covariance), 0.0))
 
 
+# identification.json's units (so3jax.results.units); a standard deviation has its value's unit.
+UNITS = {"J": "kg m^2", "J_entries_std": "kg m^2", "J_entries_covariance": "kg^2 m^4", "principal_moments": "kg m^2",
+         "principal_moments_std": "kg m^2", "principal_axes": "-", "principal_axes_std_deg": "deg", "bias": "rad/s",
+         "bias_std": "rad/s", "disturbance": "N m / s^k (row k: the coefficient of t^k)",
+         "disturbance_std": "N m / s^k", "sigma_gyro": "rad/s",
+         "sigma_star": "rad", "sigma_momentum_jump": "N m s"}
+
+
 def summary(fit) -> dict:
     """The estimate as JSON-ready data: J and its entries' covariance, principal moments and
     axes with 1 sigma, the bias and disturbance with theirs, the residuals' RMS."""
@@ -35,6 +43,9 @@ def summary(fit) -> dict:
     for key in ("intervals", "windows", "sigma_gyro", "sigma_star", "sigma_momentum_jump", "warning"):
         if key in fit:
             out[key] = fit[key]
+    # residual_rms: the momentum equation's [N m s] (regression), or the measurements' residuals
+    # in their noise's standard deviations (simulation, which fits over windows)
+    out["units"] = {**UNITS, "residual_rms": "-" if "windows" in fit else "N m s"}
     return to_builtin(out)
 
 

@@ -4,27 +4,25 @@ effort [N^2 m^2 s] per controller and phase, paired comparisons, and their markd
 from __future__ import annotations
 
 import math
+import re
 from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.components import registry as components
 from so3jax.jobs.sweep import margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersions as disp
+from so3jax.missions import keys
+from so3jax.results import units
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics, cell, finite_values, reported
 
 STAT_NAMES = ("mean", "std", "p50", "p95", "p99", "max")
-# The flight metrics a sweep of a sampled loop summarizes (FlightMetrics fields), with units.
-FLIGHT = {
-    "attitude_estimation_rms": "rad",
-    "bias_estimation_rms": "rad/s",
-    "command_effort": "N^2 m^2 s",
-    "time_at_torque_limit": "s",
-    "time_at_speed_limit": "s",
-    "max_wheel_speed_ratio": "-",
-}
+# The flight metrics a sweep of a sampled loop summarizes (FlightMetrics fields).
+FLIGHT = ("attitude_estimation_rms", "bias_estimation_rms", "command_effort", "time_at_torque_limit",
+          "time_at_speed_limit", "max_wheel_speed_ratio")
 
 
 def reached_phases(config: SweepConfig) -> list[tuple[int, str]]:
@@ -98,6 +96,58 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
     return cols
 
 
+# The units of samples.csv's parameter columns (a dispersed component parameter's is its
+# declared unit; a controller's metric's its metric's, a phase's that of the per-phase metric).
+PARAMETER_UNITS = {"index": "-", "status": "-", "draws": "-", "disturbance_seed": "-", "physical": "-",
+                   "J0_trace_ratio": "-", "J2_trace_ratio": "-", "initial_angle_deg": "deg",
+                   **{f"attitude_error_{a}": "rad" for a in "xyz"}, **{f"Omega0_{a}": "rad/s" for a in "xyz"},
+                   **{key: keys.KEY[path].unit for key, path in (("tau_J", "deployment.tau_J"), ("n", "orbit.n"),
+                      ("amplitude", "disturbance.amplitude"), ("frequency", "disturbance.frequency"),
+                      ("noise_std", "disturbance.noise_std"))},
+                   **{f"{J}_scale": "-" for J in ("J0", "J1", "J2")},
+                   **{f"{J}_{e}": "kg m^2" for J in ("J0", "J1", "J2") for e in ("xx", "yy", "zz", "xy", "xz", "yz")}}
+_FLAGS = ("nonfinite", "diverged", "at_limit", "loop_stable")  # 1, 0 (NaN: not simulated)
+
+
+def column_units(config: SweepConfig, names) -> dict:
+    """{column: unit} of samples.csv's columns ``names``: parameters, dispersed component
+    parameters, then each controller's metrics, pointing [arcsec] and margins [dB, deg, s]."""
+    leaves = {leaf.key: leaf for leaf in config.leaves}
+    phases = [name for _, name in reached_phases(config)]
+    out = {}
+    for name in names:
+        key = next((k for k in leaves if name == k or name.rsplit("_", 1)[0] == k), None)
+        controller = next((c for c in config.controllers if name.startswith(c + "_")), None)
+        if name in PARAMETER_UNITS:
+            out[name] = PARAMETER_UNITS[name]
+        elif key is not None:
+            table, component, param = key.split(".")
+            kind = "sensor" if table == "sensors" else table
+            out[name] = next(p.unit for p in components.get(kind, component).params if p.name == param) or "-"
+        elif controller is not None:
+            out[name] = _metric_unit(name[len(controller) + 1:], phases)
+        else:
+            raise KeyError(f"samples.csv column {name!r} has no unit")
+    return out
+
+
+def _metric_unit(metric: str, phases: list) -> str:
+    base = re.sub(r"_at_[^_]+s$", "", metric)  # margins: <margin>_at_<t>s
+    phase = next((p for p in phases if base.endswith("_" + p)), None)
+    if base in units.METRICS:
+        return units.METRICS[base]
+    if phase is not None and base.removesuffix("_" + phase) + "_phase" in units.METRICS:
+        return units.METRICS[base.removesuffix("_" + phase) + "_phase"]
+    if base.endswith("_arcsec"):
+        return "arcsec"
+    if base in _FLAGS:
+        return "-"
+    for suffix, unit in (("_db", "dB"), ("_deg", "deg"), ("_s", "s")):
+        if base.endswith(suffix):
+            return unit
+    raise KeyError(f"samples.csv column of metric {metric!r} has no unit")
+
+
 def flight_fields(results: dict) -> list[str]:
     """The flight metrics the results hold (those of a sampled loop; none otherwise)."""
     held = set().union(*(r.keys() for r in results.values())) if results else set()
@@ -121,7 +171,8 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
     """Statistics of RMSE [rad/s] and effort [N^2 m^2 s] per controller and phase over the
     samples that did not diverge (each with its number of samples; None where there is
     none); counts and parameters of diverged and rejected samples; paired comparisons (every
-    pair of controllers in config order, on the samples where neither diverged)."""
+    pair of controllers in config order, on the samples where neither diverged); the unit of
+    each samples.csv column and of each summarized metric."""
     cols = columns(config, samples, results)
     phases = reached_phases(config)
     summary: dict[str, Any] = {
@@ -136,6 +187,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             "redraws": int((samples.draws[samples.valid] - 1).sum()),
             "nonphysical_inertia": int((samples.valid & ~cols["physical"]).sum()),
         },
+        "units": {"columns": column_units(config, cols), "metrics": units.table(("rmse", "effort", *FLIGHT))},
         "controllers": {},
         "paired": {},
     }
@@ -218,11 +270,12 @@ def format_summary(summary: dict) -> str:
     if flight:
         lines += ["", "| flight metric | controller | " + " | ".join(STAT_NAMES) + " | samples |",
                   "|---|---|" + "---:|" * (len(STAT_NAMES) + 1)]
-        for metric, unit in FLIGHT.items():
+        for metric in FLIGHT:
             for c in flight:
                 st = summary["controllers"][c]["flight"][metric]
-                cells = ["—" if st[k] is None else cell(st[k], ".4g") for k in STAT_NAMES]
-                lines.append(f"| {metric} [{unit}] | {c} | " + " | ".join(cells) + f" | {st['samples']} |")
+                cells = ["—" if st[k] is None else cell(units.shown(metric, st[k]), ".4g") for k in STAT_NAMES]
+                lines.append(f"| {metric} [{units.shown_unit(metric)}] | {c} | " + " | ".join(cells)
+                             + f" | {st['samples']} |")
     lines += ["", "| controller | simulated | diverged | non-finite |" + (" at a limit |" if flight else ""),
               "|---|---:|---:|---:|" + ("---:|" if flight else "")]
     for c, e in summary["controllers"].items():
@@ -247,7 +300,8 @@ def format_summary(summary: dict) -> str:
             )
         for metric, q in pair.get("flight_difference", {}).items():
             if q["mean"] is not None:
-                lines.append(f"- {metric} [{FLIGHT[metric]}]: {b} - {a} median {q['p50']:.4g}, "
+                q = {k: units.shown(metric, v) for k, v in q.items()}
+                lines.append(f"- {metric} [{units.shown_unit(metric)}]: {b} - {a} median {q['p50']:.4g}, "
                              f"5-95 % [{q['p5']:.4g}, {q['p95']:.4g}], mean {q['mean']:.4g}")
     lines += pointing.format_lines(summary)
     lines += margins.format_summary(summary)

@@ -43,6 +43,12 @@ from so3jax.parallel.devices import place
 from so3jax.results import io, runfolder
 from so3jax.viz.tune import plot_history
 
+# validation.json's units (so3jax.results.units): a cost is relative to its references, a
+# disk margin's alpha a ratio; an inertia scale is a ratio.
+UNITS = {"rmse": "rad/s", "effort": "N^2 m^2 s", "mean_rmse": "rad/s", "mean_effort": "N^2 m^2 s", "cost": "-",
+         "best_cost": "-", "inertia_scale": "-", "min_db": "dB", "db": "dB", "smallest_db": "dB", "alpha": "-",
+         "alpha_required": "-", "times": "s", "wall_s": "s", "T": "s", "weight": "-"}
+
 
 def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True) -> dict:
     """Run (or resume) a tuning campaign into folder ``out``; returns validation.json's content.
@@ -224,6 +230,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             "weight": float(refs.weight),
         },
     }
+    report["units"] = UNITS
     report = io.to_builtin(report)
     if distributed.writer():
         io.write_json(out / "validation.json", report)
