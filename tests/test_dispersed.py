@@ -6,6 +6,7 @@ import csv
 import warnings
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -235,3 +236,69 @@ def _with(tables: dict, overrides: list) -> dict:
     for item in overrides:
         cfg.set_dotted(d, *cfg.parse_override(item))
     return d
+
+
+EVENTS = {"T": 10.0, "controllers": ["pd"], "record_every": 10, "reference": {"kind": "inertial"},
+          "control": {"mode": "continuous"}, "sensors": {"gyro": False, "star_tracker": False},
+          "estimator": {"kind": "truth"},
+          "actuator": {"kind": "ideal"}, "momentum": {"kind": "none"},  # the smallest loop: a quick compile
+          "phases": {"names": ["mission"], "start": [0.0]},
+          "inertia": {"kind": "events", "events": {"initial": [[900.0, 0.0, 0.0], [0.0, 800.0, 0.0], [0.0, 0.0, 600.0]],
+                                                   "times": [2.0, 6.0], "targets": [1.5, 0.8],
+                                                   "time_constants": [0.0, 1.5]}}}
+EVENT_DISPERSIONS = {"inertia": {"events": {"times": {"dist": "uniform", "low": 1.0, "high": 7.0},
+                                            "time_constants": {"dist": "uniform", "low": 0.0, "high": 3.0},
+                                            "targets": {"dist": "lognormal", "median": 1.0, "sigma": 0.2}}}}
+
+
+def test_dispersed_inertia_events_fly_each_sample_s_own_timeline():
+    """inertia.events times, time constants and scales drawn per sample (a sample whose times
+    do not increase rejected): each sample's J(t) is that of the mission written with its
+    values, and the batch flies each sample's own (a batch of one sample's values repeated
+    gives that sample's metrics; the same compiled program)."""
+    from so3jax.missions import build
+    from so3jax.missions import mission as missions
+
+    m = missions.from_dict(EVENTS)
+    parsed, leaves = dispersed.parse(EVENT_DISPERSIONS, m)
+    samples = dispersed.draw(parsed, leaves, 0, 6, 20)
+    times = samples.leaves["inertia.events.times"]
+    np.testing.assert_array_equal(samples.valid, np.diff(times, axis=1)[:, 0] > 0)
+    valid = np.flatnonzero(samples.valid)  # a sweep flies the valid samples alone
+    assert len(valid) >= 3
+    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
+    nominal = build.scenario(m, dtype=np.float64)
+    profiles = jax.vmap(lambda v: dispersed.event_inertia(m, v, nominal))(inputs[1])
+    t = np.linspace(0.0, 10.0, 41)
+    for j, i in enumerate(valid):
+        own = {"initial": EVENTS["inertia"]["events"]["initial"], "times": times[i].tolist(),
+               "targets": samples.leaves["inertia.events.targets"][i].tolist(),
+               "time_constants": samples.leaves["inertia.events.time_constants"][i].tolist()}
+        alone = build.scenario(missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": own}}))
+        profile = jax.tree.map(lambda x, j=j: x[j], profiles)
+        np.testing.assert_allclose(jax.vmap(lambda s: profile(s, 0))(t), jax.vmap(lambda s: alone.inertia(s, 0))(t),
+                                   rtol=1e-14, atol=1e-9)
+    controller, gains = m.controller("pd")
+    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    assert len(np.unique(np.asarray(batch["rmse"]))) == len(valid)
+    repeated = jax.tree.map(lambda x: np.repeat(x[1:2], len(valid), axis=0), inputs)
+    one = dispersed.sample_metrics(repeated, gains, controller=controller, mission=m)
+    for name in ("rmse", "effort", "max_torque", "max_angle_phase"):
+        np.testing.assert_allclose(one[name][0], batch[name][1], rtol=1e-12, err_msg=name)
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}}, "dispersible event param"),
+    ({"inertia": {"events": {"times": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, r"must be >= 0"),
+])
+def test_bad_event_dispersions_are_one_line_errors(table, message):
+    from so3jax.missions import mission as missions
+
+    with pytest.raises(ValueError, match=message):
+        dispersed.parse(table, missions.from_dict(EVENTS))
+    matrix_targets = dict(EVENTS["inertia"]["events"], targets=[EVENTS["inertia"]["events"]["initial"], 0.8])
+    with pytest.raises(ValueError, match="only targets that are all scales"):
+        dispersed.parse({"inertia": {"events": {"targets": 1.0}}},
+                        missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": matrix_targets}}))
+    with pytest.raises(ValueError, match="not 'events'"):
+        dispersed.parse({"inertia": {"events": {"times": 1.0}}}, missions.from_dict({"T": 10.0}))

@@ -61,6 +61,9 @@ _LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
 MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
+# The inertia events' dispersible parameters: {parameter: (low, strict)}; a sample whose
+# event times do not increase is rejected (:func:`draw_leaves`).
+EVENT_LEAVES = {"times": (0.0, False), "time_constants": (0.0, False), "targets": (0.0, True)}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,9 +137,11 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             fields[STRUCTURED[path]] = _distribution(value, where)
         elif path[0] in _LOOP_TABLES:
             leaves.append(_leaf(path, value, where, mission))
+        elif path[0] == "inertia" and len(path) == 3 and path[1] == "events":
+            leaves.append(_event_leaf(path, value, where, mission))
         else:
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
-                             "orbit.n, "
+                             "orbit.n, inertia.events.times/time_constants/targets (scales), "
                              "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
                              "parameters of the mission's sensors, estimator, actuator and momentum management")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
@@ -224,6 +229,25 @@ def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     return Leaf(".".join(path), dist, np.shape(current), spec.low, spec.high)
 
 
+def _event_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A parameter of the mission's inertia events (:data:`EVENT_LEAVES`): each element drawn
+    on its own; the targets when every one is a scale of the inertia at its event."""
+    param = path[2]
+    if mission.inertia["kind"] != "events":
+        raise ValueError(f"{where}: the mission's inertia is of kind {mission.inertia['kind']!r}, not 'events'")
+    if param not in EVENT_LEAVES:
+        raise ValueError(f"{where}: dispersible event parameters are {', '.join(EVENT_LEAVES)}")
+    values = mission.inertia["events"]
+    if param == "targets" and not np.all(values["scales"] > 0):
+        raise ValueError(f"{where}: only targets that are all scales of the inertia at their event are dispersed "
+                         "(a matrix target: disperse a scale of it instead)")
+    current = values["scales"] if param == "targets" else values[param]
+    dist = _distribution(value, where)
+    low, strict = EVENT_LEAVES[param]
+    disp.check_domain(dist, where, low, strict)
+    return Leaf(".".join(path), dist, np.shape(current), low if not strict else np.nextafter(low, np.inf), np.inf)
+
+
 # --- drawing ---------------------------------------------------------------------------------
 
 
@@ -250,6 +274,8 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
     for leaf in leaves:
         if leaf.bound is not None:
             valid &= within_bound(leaf.bound, values, n_samples)
+    if "inertia.events.times" in values:
+        valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
     return values, valid
 
 
@@ -317,15 +343,20 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     m, dtype = mission, params.J0.dtype
     scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
+    events = {k: v for k, v in leaves.items() if k.startswith("inertia.")}
+    leaves = {k: v for k, v in leaves.items() if k not in events}
     shared_parts = [name for name, shared_part in (
         ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
-        ("inertia", m.inertia["kind"] != "paper"),  # dispersed only as the paper's profile
+        ("inertia", m.inertia["kind"] != "paper" and not events),  # the paper's profile, or dispersed events
     ) if shared_part]
     axes = 0
     if shared_parts:  # one for the batch: the mission's own
         nominal = build.scenario(m, dtype=dtype)
         scenarios = dataclasses.replace(scenarios, **{name: getattr(nominal, name) for name in shared_parts})
         axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
+    if events:  # each sample's inertia events (natively batched: InertiaEvents broadcasts its leaves)
+        nominal = build.scenario(m, dtype=dtype)
+        scenarios = dataclasses.replace(scenarios, inertia=jax.vmap(lambda v: event_inertia(m, v, nominal))(events))
     if leaves:  # each sample's loop: its components' parameters with a batch axis
         loops, loop_axes = jax.vmap(lambda values: loop(m, {**shared, **values}, dtype))(leaves), 0
     else:
@@ -354,6 +385,15 @@ def pointing_errors(history) -> dict:
     if history.R_hat is not None:
         out["pointing_knowledge"] = error(history.R_hat)
     return out
+
+
+def event_inertia(mission: Mission, values: dict, scenario):
+    """The mission's inertia events with dispersed parameters {key: value} replaced (traceable)."""
+    events = dict(mission.inertia["events"])
+    for key, value in values.items():
+        param = key.split(".")[-1]
+        events["scales" if param == "targets" else param] = value
+    return build.inertia(dataclasses.replace(mission, inertia={**mission.inertia, "events": events}), scenario)
 
 
 def loop(mission: Mission, values: dict, dtype):

@@ -120,6 +120,8 @@ def column_units(config: SweepConfig, names) -> dict:
         controller = next((c for c in config.controllers if name.startswith(c + "_")), None)
         if name in PARAMETER_UNITS:
             out[name] = PARAMETER_UNITS[name]
+        elif key == "inertia.events.targets" or name.startswith("inertia.events.targets_"):
+            out[name] = "-"  # scales of the inertia at the event
         elif key is not None:
             table, component, param = key.split(".")
             kind = "sensor" if table == "sensors" else table
