@@ -45,6 +45,13 @@ def require():
                 simIncludeRW=simIncludeRW)
 
 
+def reference_attitude(mission) -> np.ndarray:
+    """R_d's rotation vector [rad]: reference.inertial's, or 0 for the paper's at n = 0."""
+    if mission.reference["kind"] == "inertial":
+        return np.asarray(mission.reference["inertial"]["attitude"], float)
+    return np.zeros(3)
+
+
 def _column(v) -> list:
     return [[float(x)] for x in v]
 
@@ -101,7 +108,7 @@ def fly(mission, name: str) -> Flown:
     sim.AddModelToTask("dynamicsTask", nav)
 
     reference = bsk["inertial3D"].inertial3D()
-    reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(mission.reference["inertial"]["attitude"]).as_mrp()]
+    reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(reference_attitude(mission)).as_mrp()]
     error = bsk["attTrackingError"].attTrackingError()
     error.attNavInMsg.subscribeTo(nav.attOutMsg)
     error.attRefInMsg.subscribeTo(reference.attRefOutMsg)
