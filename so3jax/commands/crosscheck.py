@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from so3jax.commands.common import add_precision_argument, mission_overrides, output_folder
+from so3jax.commands.common import mission_overrides, output_folder
 from so3jax.jobs import crosscheck
 from so3jax.jobs.crosscheck import basilisk, representable
 from so3jax.missions import mission as missions
@@ -32,13 +32,10 @@ def register(subparsers) -> None:
                    help="output folder (default results/crosscheck)")
     p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
     p.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
-    add_precision_argument(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, precision="float64")  # a comparison at round-off: float64 only
 
 
 def run(args) -> int:
-    if args.precision != "float64":
-        raise ValueError("crosscheck compares at round-off: it flies float64 (--precision float64)")
     mission = missions.load(args.mission, mission_overrides(args, keys=("T",)))
     representable.check(mission)
     basilisk.require()
