@@ -40,7 +40,7 @@ class Nonnegative:
     value adds (e.g. what to write instead)."""
 
     scale: float
-    negative: str = ""
+    negative: str = dataclasses.field(default="", compare=False)  # a message, not the domain
     shapes = None  # the default's shape
 
     def check(self, name: str, value: np.ndarray, batch_axes: int) -> None:
