@@ -24,17 +24,20 @@ J_S = np.array([0.16, 0.12, 0.2, 0.16])
 
 
 class BasiliskMRPFeedback:
-    """The module's Update as its C source orders it, in NumPy: the integral advanced by
-    K dt sigma before the torque (dt = 0 at the first call), clipped per component, the
-    integral term only for K_i > 0, the wheels' momentum from speeds and G_s, J_s."""
+    """The module's Update as its C source orders it, in NumPy: dt from the stored prior
+    call time (0 when it is 0: 'no previous call', so a first call at t = 0 makes the
+    second's dt 0 too), the integral advanced by K dt sigma before the torque, clipped per
+    component, the integral term only for K_i > 0, the wheels' momentum from speeds and
+    G_s, J_s, the known torque added to L_r."""
 
-    def __init__(self, K, P, K_i, limit, inertia, law_type):
+    def __init__(self, K, P, K_i, limit, inertia, law_type, known=(0.0, 0.0, 0.0)):
         self.K, self.P, self.K_i, self.limit, self.I, self.law_type = K, P, K_i, limit, inertia, law_type
-        self.int_sigma, self.prior = np.zeros(3), None
+        self.known = np.asarray(known)
+        self.int_sigma, self.prior_time = np.zeros(3), 0.0
 
     def update(self, t, sigma, omega_BR, omega_RN, domega_RN, wheel_speeds=None):
-        dt = 0.0 if self.prior is None else t - self.prior
-        self.prior = t
+        dt = 0.0 if self.prior_time == 0 else t - self.prior_time
+        self.prior_time = t
         omega = omega_BR + omega_RN
         z = np.zeros(3)
         if self.K_i > 0:
@@ -49,7 +52,7 @@ class BasiliskMRPFeedback:
             for i in range(G_S.shape[1]):
                 H = H + J_S[i] * (G_S[:, i] @ omega + wheel_speeds[i]) * G_S[:, i]
         v = omega_RN + self.K_i * z if self.law_type == 0 else omega
-        L = L - np.cross(v, H) + self.I @ (np.cross(omega, omega_RN) - domega_RN)
+        L = L - np.cross(v, H) + self.I @ (np.cross(omega, omega_RN) - domega_RN) + self.known
         return -L
 
 
@@ -86,15 +89,19 @@ def test_mrp_is_scipys_short_set():
 @pytest.mark.parametrize("law_type", [0, 1])
 @pytest.mark.parametrize("K_i", [0.0, 2e-4])
 @pytest.mark.parametrize("wheels", [False, True])
-def test_ticks_follow_the_modules_update(law_type, K_i, wheels):
-    """Ten ticks of torque-then-update against the module's Update, the integral limit
-    binding (K_i > 0) on some ticks; dt = 0 at the first tick as in the module."""
+@pytest.mark.parametrize("t0", [0.0, 0.3])
+def test_ticks_follow_the_modules_update(law_type, K_i, wheels, t0):
+    """Ten ticks of torque-then-update from t0 against the module's Update, the integral
+    limit binding (K_i > 0) on some ticks; dt = 0 at the first tick, and at the second
+    where the first is at t = 0 (the module's prior time 0 reads as 'no previous call')."""
     gains = MRPFeedbackGains(*map(jnp.asarray, (2.0, 30.0, K_i, 0.02)))
-    controller = mrp_feedback(J_hat=jnp.asarray(I_HAT), law_type=law_type)
-    module = BasiliskMRPFeedback(2.0, 30.0, K_i, 0.02, I_HAT, law_type)
+    known = (0.01, -0.02, 0.005) if wheels else None
+    controller = mrp_feedback(J_hat=jnp.asarray(I_HAT), law_type=law_type, known_torque=known)
+    module = BasiliskMRPFeedback(2.0, 30.0, K_i, 0.02, I_HAT, law_type, known or (0.0, 0.0, 0.0))
     state = controller.init(gains)
     period, clipped = 0.5, 0
     for j in range(10):
+        t = t0 + j * period
         R, Omega, R_d, Omega_d, Omega_d_dot = random_state()
         speeds = RNG.normal(size=4) * 50 if wheels else None
         h_w = None
@@ -102,13 +109,15 @@ def test_ticks_follow_the_modules_update(law_type, K_i, wheels):
             h_w = jnp.asarray(sum(J_S[i] * (G_S[:, i] @ Omega + speeds[i]) * G_S[:, i] for i in range(4)))
         feedback = Feedback(jnp.asarray(R), jnp.asarray(Omega), h_w)
         desired = Desired(*map(jnp.asarray, (R_d, Omega_d, Omega_d_dot)))
-        tau, _ = controller.torque(gains, state, feedback, desired, jnp.asarray(j * period))
-        expected = module.update(j * period, *guidance(R, Omega, R_d, Omega_d, Omega_d_dot), speeds)
+        tau, _ = controller.torque(gains, state, feedback, desired, jnp.asarray(t))
+        expected = module.update(t, *guidance(R, Omega, R_d, Omega_d, Omega_d_dot), speeds)
         np.testing.assert_allclose(tau, expected, rtol=1e-11, atol=1e-13)
-        state = controller.update(gains, state, feedback, desired, jnp.asarray(j * period), jnp.asarray(period))
+        state = controller.update(gains, state, feedback, desired, jnp.asarray(t), jnp.asarray(period))
         if K_i > 0:
             np.testing.assert_allclose(state.integral, module.int_sigma, rtol=1e-12, atol=1e-16)
             clipped += int(np.any(np.abs(module.int_sigma) >= 0.02 - 1e-15))
+            if j == 1 and t0 == 0:
+                assert np.all(module.int_sigma == 0)  # the first two ticks add nothing
     assert K_i == 0 or clipped > 0
 
 
@@ -142,13 +151,13 @@ def test_lyapunov_function_decreases(lyapunov_run):
 
 
 def test_sampled_ticks_carry_dt_and_the_limit():
-    """In the sampled wiring the state's dt is 0 until the first tick, then the period; the
-    integral stays within its limit."""
+    """In the sampled wiring the state's dt is 0 until the second tick (the first is at
+    t = 0), then the period; the integral stays within its limit."""
     scenario = custom_scenario(5.0, 0.01, R0=Rotation.from_rotvec([0.3, 0.2, -0.1]).as_matrix())
     gains = MRPFeedbackGains(*map(jnp.asarray, (2.0, 30.0, 1e-3, 0.05)))
     result = sj.simulate(scenario, mrp_feedback(), gains, loop=Loop(period_steps=10), record_every=10)
     dt, integral = np.asarray(result.history.controller.dt), np.asarray(result.history.controller.integral)
-    assert dt[0] == 0.0 and np.all(dt[1:] == 0.1)
+    assert np.all(dt[:2] == 0.0) and np.all(dt[2:] == 0.1)
     assert np.all(np.abs(integral) <= 0.05) and np.any(np.abs(integral) == 0.05)
 
 
@@ -176,7 +185,7 @@ def test_registration_and_gain_domains():
     spec = registry.get("mrp_feedback")
     assert "mrp_feedback" in registry.names(tunable=True)
     check_gains(spec.defaults)  # K_i = 0 is in its domain
-    with pytest.raises(ValueError, match="K_i must be >= 0"):
+    with pytest.raises(ValueError, match=r"K_i must be >= 0, got -1.0 \(.*K_i = -1, use 0\)$"):
         check_gains(spec.defaults._replace(K_i=-1.0))
     with pytest.raises(ValueError, match="K must be positive"):
         check_gains(spec.defaults._replace(K=0.0))

@@ -36,14 +36,17 @@ class Positive:
 @dataclasses.dataclass(frozen=True)
 class Nonnegative:
     """g >= 0 elementwise (0 turns a term off). scale: the gain's typical size, in its
-    unit: the tuner's parameter is g / scale."""
+    unit: the tuner's parameter is g / scale. negative: what the message on a negative
+    value adds (e.g. what to write instead)."""
 
     scale: float
+    negative: str = dataclasses.field(default="", compare=False)  # a message, not the domain
     shapes = None  # the default's shape
 
     def check(self, name: str, value: np.ndarray, batch_axes: int) -> None:
         if np.any(value < 0):
-            raise ValueError(f"gain {name} must be >= 0, got {value}")
+            hint = f" ({self.negative})" if self.negative else ""
+            raise ValueError(f"gain {name} must be >= 0, got {value}{hint}")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -8,19 +8,24 @@ the rate error, [I] the nominal inertia (option ``J_hat``) and h_w the wheels' m
     z   = int_sigma + [I] delta_omega
     H   = [I] Omega + h_w,   h_w = sum_i J_s,i (g_i^T Omega + Omega_w,i) g_i
     v   = Omega_r + K_i z   (law_type 0)   or   Omega   (law_type 1)
-    L_r = K sigma + P delta_omega + P K_i z - v x H + [I](Omega x Omega_r - Omega_r')
+    L_r = K sigma + P delta_omega + P K_i z - v x H + [I](Omega x Omega_r - Omega_r') + L
     tau = -L_r
 
-Omega_r' is the reference's inertial angular acceleration in body axes, R^T R_d Omega_d'.
-The integral advances at each control tick before the torque is computed, with dt the
-time since the previous tick (0 at the first tick), as the module's ``Update`` does. Its
-code clips K int(sigma), the accumulated K dt sigma, where its documentation speaks of
+Omega_r' is the reference's inertial angular acceleration in body axes, R^T R_d Omega_d';
+L is the module's known external torque (option ``known_torque``, knownTorquePntB_B,
+zero by default). The integral advances at each control tick before the torque is
+computed, with dt the time since the previous tick, as the module's ``Update`` does: the
+module keeps the previous call's time, 0 standing for 'no previous call', so dt is 0 at
+the first tick and at every tick that follows a tick at t = 0 (the sampled loop's first
+tick is at t = 0: its first two ticks add nothing to the integral). The module's code
+clips K int(sigma), the accumulated K dt sigma, where its documentation speaks of
 clipping int(sigma): this law follows the code. The module turns the integral off for
-K_i <= 0 (z = 0); here the integral is accumulated for every K_i >= 0 and every term it
-enters is multiplied by K_i, so the torque is the module's and its derivative with
-respect to K_i at K_i = 0 is that of the K_i > 0 law. In the continuous wiring the
-integral is integrated with the plant, held where a component sits at its limit and
-sigma would push it further out (conditional integration).
+K_i <= 0 (z = 0; its examples write K_i = -1); here K_i must be >= 0 (0: off), the
+integral is accumulated for every K_i >= 0 and every term it enters is multiplied by
+K_i, so the torque is the module's and its derivative with respect to K_i at K_i = 0 is
+that of the K_i > 0 law. In the continuous wiring the integral is integrated with the
+plant, held where a component sits at its limit and sigma would push it further out
+(conditional integration).
 
 The wheels' momentum is the one the actuator does not compensate itself
 (:meth:`so3jax.components.base.Actuator.uncompensated_momentum`, in ``Feedback.wheel_momentum``):
@@ -52,7 +57,8 @@ class MRPFeedbackGains(NamedTuple):
     K_i: jax.Array  # rad / (N m s^2), >= 0 (0: no integral term)
     integral_limit: jax.Array  # N m s, bound of each component of int(K sigma dt)
 
-    domains = {"K_i": Nonnegative(scale=1e-4)}  # 0 turns the integral off; 1e-4: Basilisk's examples' size
+    # 0 turns the integral off; 1e-4: Basilisk's examples' size
+    domains = {"K_i": Nonnegative(scale=1e-4, negative="0 turns the integral off: for Basilisk's K_i = -1, use 0")}
 
 
 # K = 4 k_R and P = k_Omega of the paper's PD (sigma ~ e / 4 for small errors); no integral.
@@ -63,7 +69,7 @@ LAW_TYPES = (0, 1)
 
 class IntegralState(NamedTuple):
     integral: jax.Array  # (3,) int(K sigma dt), N m s, as of the previous tick
-    dt: jax.Array  # () time since the previous tick [s]: 0 until the first tick has run
+    dt: jax.Array  # () the next tick's dt [s]: 0 until a tick at t != 0 has run (the module's priorTime = 0)
 
 
 def _tan_quarter_ratio(theta2):
@@ -87,6 +93,7 @@ class MRPFeedback(Controller):
 
     J_hat: Any = None
     law_type: int = 0
+    known_torque: Any = None
 
     gains_type = MRPFeedbackGains
 
@@ -94,6 +101,7 @@ class MRPFeedback(Controller):
         if self.law_type not in LAW_TYPES:
             raise ValueError(f"law_type must be 0 or 1, got {self.law_type!r}")
         object.__setattr__(self, "J_hat", hashable(self.J_hat))
+        object.__setattr__(self, "known_torque", hashable(self.known_torque))
 
     def init(self, gains):
         dtype = jnp.result_type(gains.K, float)
@@ -123,22 +131,27 @@ class MRPFeedback(Controller):
             - so3.cross(v, H)
             + inertial_terms(nominal, Omega, err)[1]
         )
+        if self.known_torque is not None:
+            L_r = L_r + so3.batch_like(jnp.asarray(self.known_torque, L_r.dtype), 1, L_r)
         held = (jnp.abs(integral) >= limit) & (integral * sigma > 0)
         integral_dot = jnp.where(held, jnp.zeros_like(sigma), gains.K * sigma)
         return -L_r, IntegralState(integral_dot, jnp.zeros_like(state.dt))
 
     def update(self, gains, state, feedback, desired, t, period):
-        """The integral advanced at a tick (before the torque, as the module's Update), dt = period."""
+        """The integral advanced at a tick at t [s] (before the torque, as the module's Update);
+        the next tick's dt: the period, or 0 after a tick at t = 0 (the module's priorTime = 0)."""
         sigma = mrp(tracking_error(feedback, desired).R_e)
         limit = so3.batch_like(gains.integral_limit, 0, sigma)
+        dt = jnp.where(jnp.asarray(t) == 0, jnp.zeros_like(period), period)
         return IntegralState(self._advanced(gains, state, sigma, limit),
-                             jnp.broadcast_to(period, state.dt.shape).astype(state.dt.dtype))
+                             jnp.broadcast_to(dt, state.dt.shape).astype(state.dt.dtype))
 
 
-def mrp_feedback(J_hat=None, law_type: int = 0) -> MRPFeedback:
+def mrp_feedback(J_hat=None, law_type: int = 0, known_torque=None) -> MRPFeedback:
     """Basilisk's mrpFeedback law (module docstring); J_hat: the nominal inertia [I]
-    (3, 3) [kg m^2], the identity by default; law_type 0 or 1 (v = Omega_r + K_i z or Omega)."""
-    return MRPFeedback(J_hat, law_type)
+    (3, 3) [kg m^2], the identity by default; law_type 0 or 1 (v = Omega_r + K_i z or Omega);
+    known_torque: the known external torque L (3,) in body axes [N m], zero by default."""
+    return MRPFeedback(J_hat, law_type, known_torque)
 
 
 register(
@@ -150,6 +163,8 @@ register(
         defaults=DEFAULT_GAINS,
         check=check_gains,
         options=(J_HAT, Param("law_type", 0, low=0, high=1, integer=True,
-                              doc="0: v = Omega_r + K_i z; 1: v = Omega (Basilisk's controlLawType)")),
+                              doc="0: v = Omega_r + K_i z; 1: v = Omega (Basilisk's controlLawType)"),
+                 Param("known_torque", None, "N m", shapes=((3,),),
+                       doc="known external torque in body axes, cancelled (Basilisk's knownTorquePntB_B; default 0)")),
     )
 )

@@ -1,0 +1,163 @@
+"""A mission flown by Basilisk's own modules: the spacecraft hub, reactionWheelStateEffector
+with rwMotorTorque (or extForceTorque for an ideal actuator), simpleNav without noise,
+inertial3D, attTrackingError and mrpFeedback. The dynamics task steps at the mission's dt
+and runs before the flight-software task, which ticks at the control period: a tick reads
+the state at its time and its command is held over the period, as in so3jax's sampled loop.
+Basilisk is imported here only (the ``basilisk`` extra)."""
+
+from __future__ import annotations
+
+import time
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+INSTALL = 'pip install -e ".[basilisk]"'
+
+
+class Flown(NamedTuple):
+    """Basilisk's run at each control tick t [s] (M,): R (M, 3, 3) body to inertial,
+    Omega (M, 3) [rad/s], wheel_speed (M, N) [rad/s] relative to the body, torque (M, 3)
+    mrpFeedback's command [N m]; wall [s]: building and flying."""
+
+    t: np.ndarray
+    R: np.ndarray
+    Omega: np.ndarray
+    wheel_speed: np.ndarray
+    torque: np.ndarray
+    wall: float
+
+
+def require():
+    """Basilisk's modules, or a one-line ValueError saying how to install them."""
+    try:
+        from Basilisk.architecture import messaging
+        from Basilisk.fswAlgorithms import attTrackingError, inertial3D, mrpFeedback, rwMotorTorque
+        from Basilisk.simulation import extForceTorque, reactionWheelStateEffector, simpleNav, spacecraft
+        from Basilisk.utilities import SimulationBaseClass, macros, simIncludeRW
+    except ImportError:
+        raise ValueError(f"Basilisk is not installed: {INSTALL}") from None
+    return dict(messaging=messaging, attTrackingError=attTrackingError, inertial3D=inertial3D,
+                mrpFeedback=mrpFeedback, rwMotorTorque=rwMotorTorque, extForceTorque=extForceTorque,
+                reactionWheelStateEffector=reactionWheelStateEffector, simpleNav=simpleNav,
+                spacecraft=spacecraft, SimulationBaseClass=SimulationBaseClass, macros=macros,
+                simIncludeRW=simIncludeRW)
+
+
+def reference_attitude(mission) -> np.ndarray:
+    """R_d's rotation vector [rad]: reference.inertial's, or 0 for the paper's at n = 0."""
+    if mission.reference["kind"] == "inertial":
+        return np.asarray(mission.reference["inertial"]["attitude"], float)
+    return np.zeros(3)
+
+
+def _column(v) -> list:
+    return [[float(x)] for x in v]
+
+
+def fly(mission, name: str) -> Flown:
+    """Controller ``name`` (mrp_feedback) on ``mission`` (checked by
+    :func:`so3jax.jobs.crosscheck.representable.check`), flown over T."""
+    bsk = require()
+    start = time.perf_counter()
+    macros, messaging = bsk["macros"], bsk["messaging"]
+    sim = bsk["SimulationBaseClass"].SimBaseClass()
+    dynamics = sim.CreateNewProcess("dynamics", 20)  # the higher priority runs first at a shared time
+    software = sim.CreateNewProcess("software", 10)
+    dt_ns, period_ns = macros.sec2nano(mission.dt), macros.sec2nano(mission.period)
+    dynamics.addTask(sim.CreateNewTask("dynamicsTask", dt_ns))
+    software.addTask(sim.CreateNewTask("softwareTask", period_ns))
+
+    J = np.asarray(mission.J0, float)
+    wheels = mission.actuator["kind"] == "wheels"
+    values = mission.actuator.get("wheels", {})
+    sc = bsk["spacecraft"].Spacecraft()
+    sc.ModelTag = "spacecraft"
+    sc.hub.mHub = 1.0  # [kg]: translation is not flown (no gravity, no force)
+    sc.hub.sigma_BNInit = _column(Rotation.from_rotvec(mission.initial["attitude"]).as_mrp())
+    sc.hub.omega_BN_BInit = _column(mission.initial["rate"])
+    sim.AddModelToTask("dynamicsTask", sc)
+
+    if wheels:
+        axes = np.asarray(values["axes"], float)  # (N, 3) rows
+        n = len(axes)
+        per = {k: np.broadcast_to(np.asarray(values[k], float), (n,))
+               for k in ("spin_inertia", "max_torque", "max_speed", "initial_speed")}
+        factory = bsk["simIncludeRW"].rwFactory()
+        for i, g in enumerate(axes):
+            rw = factory.create("custom", [float(x) for x in g], Js=float(per["spin_inertia"][i]),
+                                u_max=float(per["max_torque"][i]), Omega_max=float(per["max_speed"][i]) / macros.RPM,
+                                RWModel=messaging.BalancedWheels)
+            rw.Omega = float(per["initial_speed"][i])  # [rad/s], not through the factory's rpm
+            rw.Omega_max = float(per["max_speed"][i])
+            rw.Jt = rw.Jg = 0.0  # a wheel's inertia about its spin axis only, as so3jax's
+            rw.mass = 0.0  # the hub carries the whole inertia J, the wheels' spin inertia included
+        effector = bsk["reactionWheelStateEffector"].ReactionWheelStateEffector()
+        factory.addToSpacecraft("wheels", effector, sc)
+        sim.AddModelToTask("dynamicsTask", effector, 2)
+        wheel_config = factory.getConfigMessage()
+    else:
+        external = bsk["extForceTorque"].ExtForceTorque()
+        sc.addDynamicEffector(external)
+        sim.AddModelToTask("dynamicsTask", external, 2)
+    sc.hub.IHubPntBc_B = J.tolist()
+
+    nav = bsk["simpleNav"].SimpleNav()  # no noise: its error covariance is zero
+    nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    sim.AddModelToTask("dynamicsTask", nav)
+
+    reference = bsk["inertial3D"].inertial3D()
+    reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(reference_attitude(mission)).as_mrp()]
+    error = bsk["attTrackingError"].attTrackingError()
+    error.attNavInMsg.subscribeTo(nav.attOutMsg)
+    error.attRefInMsg.subscribeTo(reference.attRefOutMsg)
+
+    options, gains = mission.options[name], mission.gains[name]
+    control = bsk["mrpFeedback"].mrpFeedback()
+    control.K, control.P = float(gains.K), float(gains.P)
+    control.Ki, control.integralLimit = float(gains.K_i), float(gains.integral_limit)
+    control.controlLawType = int(options.get("law_type", 0))
+    known = options.get("known_torque")
+    control.knownTorquePntB_B = [0.0, 0.0, 0.0] if known is None else [float(x) for x in known]
+    J_hat = np.eye(3) if options.get("J_hat") is None else np.asarray(options["J_hat"], float)
+    vehicle = messaging.VehicleConfigMsgPayload()
+    vehicle.ISCPntB_B = [float(x) for x in J_hat.ravel()]
+    vehicle_msg = messaging.VehicleConfigMsg().write(vehicle)
+    control.guidInMsg.subscribeTo(error.attGuidOutMsg)
+    control.vehConfigInMsg.subscribeTo(vehicle_msg)
+    for module in (reference, error, control):
+        sim.AddModelToTask("softwareTask", module)
+
+    if wheels:
+        effector_in = effector.rwMotorCmdInMsg
+        motors = bsk["rwMotorTorque"].rwMotorTorque()
+        motors.controlAxes_B = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        motors.vehControlInMsg.subscribeTo(control.cmdTorqueOutMsg)
+        motors.rwParamsInMsg.subscribeTo(wheel_config)
+        effector_in.subscribeTo(motors.rwMotorTorqueOutMsg)
+        sim.AddModelToTask("softwareTask", motors)
+        control.rwParamsInMsg.subscribeTo(wheel_config)  # the wheels' momentum in the law
+        control.rwSpeedsInMsg.subscribeTo(effector.rwSpeedOutMsg)
+    else:
+        external.cmdTorqueInMsg.subscribeTo(control.cmdTorqueOutMsg)
+
+    state_log = sc.scStateOutMsg.recorder(period_ns)
+    torque_log = control.cmdTorqueOutMsg.recorder(period_ns)
+    logs = [state_log, torque_log]
+    if wheels:
+        speed_log = effector.rwSpeedOutMsg.recorder(period_ns)
+        logs.append(speed_log)
+    for log in logs:
+        sim.AddModelToTask("softwareTask", log)
+
+    sim.InitializeSimulation()
+    sim.ConfigureStopTime(macros.sec2nano(mission.T) - period_ns)  # the ticks so3jax records: 0 .. T - period
+    sim.ExecuteSimulation()
+
+    t = np.asarray(state_log.times(), float) * macros.NANO2SEC
+    sigma = np.asarray(state_log.sigma_BN, float)
+    R = Rotation.from_mrp(sigma).as_matrix()  # body to inertial: the transpose of Basilisk's [BN]
+    speeds = np.asarray(speed_log.wheelSpeeds, float)[:, :n] if wheels else np.zeros((len(t), 0))
+    return Flown(t, R, np.asarray(state_log.omega_BN_B, float), speeds,
+                 np.asarray(torque_log.torqueRequestBody, float), time.perf_counter() - start)

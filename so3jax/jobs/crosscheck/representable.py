@@ -1,0 +1,75 @@
+"""What Basilisk's modules can fly exactly: a one-line ValueError naming the first mission
+feature ``so3jax crosscheck basilisk`` cannot represent, before anything is built or
+compiled (docs/commands/crosscheck.md lists them)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+CONTROLLERS = ("mrp_feedback",)  # so3jax's law -> Basilisk's module: mrpFeedback
+ACTUATORS = ("ideal", "wheels")  # extForceTorque; reactionWheelStateEffector with rwMotorTorque
+
+
+def _refuse(feature: str, remedy: str):
+    raise ValueError(f"Basilisk cannot fly {feature} here: {remedy}")
+
+
+def _whole_ns(seconds: float) -> bool:
+    """Basilisk's clock counts whole nanoseconds."""
+    ns = seconds * 1e9
+    return abs(ns - round(ns)) <= 1e-6 * max(1.0, ns)
+
+
+def check(mission) -> None:
+    """One-line ValueError where ``mission`` holds a feature Basilisk's modules do not fly
+    as so3jax does; nothing returned otherwise."""
+    m = mission
+    others = [name for name in m.controllers if name not in CONTROLLERS]
+    if others:
+        _refuse(f"controller {', '.join(others)}", "it flies mrp_feedback (its mrpFeedback module): "
+                "--set 'controllers=[\"mrp_feedback\"]'")
+    if m.period_steps is None:
+        _refuse("continuous control (control.mode = \"continuous\")",
+                "its flight software ticks: control.mode = \"sampled\" with a control.period")
+    for what, seconds in (("dt", m.dt), ("control.period", m.period)):
+        if not _whole_ns(seconds):
+            _refuse(f"{what} = {seconds:g} s", "its clock counts whole nanoseconds")
+    if m.inertia["kind"] != "paper" or not m.constant_inertia:
+        kind = m.inertia["kind"] if m.inertia["kind"] != "paper" else "paper (deployment and docking)"
+        _refuse(f"the inertia profile inertia.kind = {kind}", "a constant inertia ([inertia] J = ...)")
+    if m.reference["kind"] != "inertial" and not (m.reference["kind"] == "paper" and m.n == 0):
+        _refuse(f"reference.kind = \"{m.reference['kind']}\"", "an inertial attitude (reference.kind = \"inertial\", "
+                "its inertial3D module; or the paper's at orbit.n = 0)")
+    if m.disturbance["amplitude"] != 0 or m.disturbance["noise_std"] != 0:
+        _refuse("the disturbance torque", "disturbance.amplitude = 0 and disturbance.noise_std = 0")
+    if m.environment:
+        names = ", ".join(f"environment.{name}" for name in m.environment)
+        _refuse(f"environment torques ({names})", "leave [environment] out")
+    if m.momentum["kind"] != "none":
+        _refuse(f"momentum management (momentum.kind = \"{m.momentum['kind']}\")", "momentum.kind = \"none\"")
+    if m.sensors:
+        names = ", ".join(m.sensors)
+        _refuse(f"sensors ({names})", "its simpleNav's noise is its own draw: feed back the true state "
+                f"({', '.join(f'sensors.{n}=false' for n in m.sensors)}, estimator.kind = \"truth\")")
+    if m.estimator["kind"] != "truth":
+        _refuse(f"estimator.kind = \"{m.estimator['kind']}\"", "estimator.kind = \"truth\" (simpleNav without noise)")
+    kind = m.actuator["kind"]
+    if kind not in ACTUATORS:
+        _refuse(f"actuator.kind = \"{kind}\"", "actuator.kind = \"ideal\" (extForceTorque) or \"wheels\"")
+    if kind == "wheels":
+        _wheels(m.actuator["wheels"], m.options)
+
+
+def _wheels(values: dict, options: dict) -> None:
+    """The wheels as reactionWheelStateEffector flies them, mrpFeedback's law for the compensation."""
+    if values.get("motor_torque") is not None:
+        _refuse("actuator.wheels.motor_torque", "leave it out: the controller commands the wheels")
+    if np.any(np.asarray(values.get("misalignment", 0.0)) != 0):
+        _refuse("actuator.wheels.misalignment", "leave it out: the wheels spin about the axes the software knows")
+    if np.any(np.asarray(values.get("spin_inertia_error", 0.0)) != 0):
+        _refuse("actuator.wheels.spin_inertia_error", "0: the wheels have the spin inertia the software knows")
+    law_type = options.get("mrp_feedback", {}).get("law_type", 0)
+    if values["momentum_compensation"] and law_type == 0:
+        _refuse("the wheels' momentum compensation with law_type 0",
+                "its mrpFeedback puts the wheels' momentum in the law: actuator.wheels.momentum_compensation = false "
+                "(or controller.mrp_feedback.law_type = 1, which is the compensation)")
