@@ -238,57 +238,81 @@ def _with(tables: dict, overrides: list) -> dict:
     return d
 
 
-EVENTS = {"T": 10.0, "controllers": ["pd"], "record_every": 10, "reference": {"kind": "inertial"},
+EVENTS = {"T": 12.0, "controllers": ["pd"], "record_every": 10,
           "control": {"mode": "continuous"}, "sensors": {"gyro": False, "star_tracker": False},
-          "estimator": {"kind": "truth"},
-          "actuator": {"kind": "ideal"}, "momentum": {"kind": "none"},  # the smallest loop: a quick compile
+          "estimator": {"kind": "truth"}, "actuator": {"kind": "ideal"},  # the smallest loop: a quick compile
+          "momentum": {"kind": "none"},
           "phases": {"names": ["mission"], "start": [0.0]},
           "inertia": {"kind": "events", "events": {"initial": [[900.0, 0.0, 0.0], [0.0, 800.0, 0.0], [0.0, 0.0, 600.0]],
                                                    "times": [2.0, 6.0], "targets": [1.5, 0.8],
-                                                   "time_constants": [0.0, 1.5]}}}
+                                                   "time_constants": [0.0, 1.5]}},
+          "reference": {"kind": "slews", "slews": {"attitudes": [[0.1, 0.0, 0.0], [0.1, 0.1, 0.0]],
+                                                   "times": [3.0, 8.0], "max_rate": 0.05,
+                                                   "max_acceleration": 0.05}}}  # each slew 4 s
+OFFSET = {"dist": "uniform", "low": -3.0, "high": 3.0, "relative": "offset"}  # [s]: some slews overlap
 EVENT_DISPERSIONS = {"inertia": {"events": {"times": {"dist": "uniform", "low": 1.0, "high": 7.0},
                                             "time_constants": {"dist": "uniform", "low": 0.0, "high": 3.0},
-                                            "targets": {"dist": "lognormal", "median": 1.0, "sigma": 0.2}}}}
+                                            "targets": {"dist": "lognormal", "median": 1.0, "sigma": 0.2}}},
+                     "reference": {"slews": {"times": OFFSET, "attitudes": {"dist": "normal", "mean": 0.0, "std": 0.02,
+                                                                            "relative": "offset"}}}}
 
 
-def test_dispersed_inertia_events_fly_each_sample_s_own_timeline():
-    """inertia.events times, time constants and scales drawn per sample (a sample whose times
-    do not increase rejected): each sample's J(t) is that of the mission written with its
-    values, and the batch flies each sample's own (a batch of one sample's values repeated
-    gives that sample's metrics; the same compiled program)."""
+def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
+    """Slew times and attitudes (offsets from the mission's) and inertia-event times, time
+    constants and scales drawn per sample; a sample whose slews overlap or whose event times do
+    not increase is rejected, as the mission file's checks refuse them. Each sample's R_d,
+    Omega_d, Omega_d' (its own slews, evaluated lane by lane in a batch) and J(t) are those
+    of the mission written with its values, and the batch flies each sample's own: a batch
+    of one sample's values repeated gives that sample's metrics (the same compiled program)."""
     from so3jax.missions import build
     from so3jax.missions import mission as missions
 
     m = missions.from_dict(EVENTS)
     parsed, leaves = dispersed.parse(EVENT_DISPERSIONS, m)
-    samples = dispersed.draw(parsed, leaves, 0, 6, 20)
-    times = samples.leaves["inertia.events.times"]
-    np.testing.assert_array_equal(samples.valid, np.diff(times, axis=1)[:, 0] > 0)
+    samples = dispersed.draw(parsed, leaves, 0, 16, 20, mission=m)
+    slews, events = samples.leaves["reference.slews.times"], samples.leaves["inertia.events.times"]
+    offsets = slews - np.array([3.0, 8.0])
+    assert np.all(np.abs(offsets) <= 3.0) and len(np.unique(offsets)) == 32
+    overlap = np.diff(slews, axis=1)[:, 0] < 3.9  # 0.1 rad (+- 0.02 per axis) per slew: about 4 s each
+    assert np.any(overlap) and not np.any(samples.valid & overlap)
+    assert not np.any(samples.valid & (np.diff(events, axis=1)[:, 0] <= 0))
     valid = np.flatnonzero(samples.valid)  # a sweep flies the valid samples alone
     assert len(valid) >= 3
     inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
-    nominal = build.scenario(m, dtype=np.float64)
-    profiles = jax.vmap(lambda v: dispersed.event_inertia(m, v, nominal))(inputs[1])
-    t = np.linspace(0.0, 10.0, 41)
+    scenarios = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p))(*inputs)
+    batch_last = lambda tree: jax.tree.map(lambda x: np.moveaxis(x, 0, -1), tree)  # a batched rollout's layout
+
+    @jax.jit
+    def evaluate(reference, inertia):  # R_d, Omega_d, Omega_d', J at the times t, time first
+        at = lambda f: jax.vmap(lambda s: f(s, 0))(np.linspace(0.0, 12.0, 25))
+        return at(reference.attitude), at(reference.rate), at(reference.rate_dot), at(inertia)
+
+    batched = evaluate(batch_last(scenarios.reference), batch_last(scenarios.inertia))
     for j, i in enumerate(valid):
-        own = {"initial": EVENTS["inertia"]["events"]["initial"], "times": times[i].tolist(),
-               "targets": samples.leaves["inertia.events.targets"][i].tolist(),
-               "time_constants": samples.leaves["inertia.events.time_constants"][i].tolist()}
-        alone = build.scenario(missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": own}}))
-        profile = jax.tree.map(lambda x, j=j: x[j], profiles)
-        np.testing.assert_allclose(jax.vmap(lambda s: profile(s, 0))(t), jax.vmap(lambda s: alone.inertia(s, 0))(t),
-                                   rtol=1e-14, atol=1e-9)
+        own = {"reference": {"kind": "slews", "slews": dict(
+                   EVENTS["reference"]["slews"], times=slews[i].tolist(),
+                   attitudes=samples.leaves["reference.slews.attitudes"][i].tolist())},
+               "inertia": {"kind": "events", "events": {
+                   "initial": EVENTS["inertia"]["events"]["initial"], "times": events[i].tolist(),
+                   "targets": samples.leaves["inertia.events.targets"][i].tolist(),
+                   "time_constants": samples.leaves["inertia.events.time_constants"][i].tolist()}}}
+        alone = build.scenario(missions.from_dict({**EVENTS, **own}))
+        expected = evaluate(alone.reference, alone.inertia)
+        for name, got, want, tol in zip(("R_d", "Omega_d", "Omega_d'", "J"), batched, expected,
+                                        (1e-14, 1e-15, 1e-15, 1e-10)):  # exp's round-off; J ~ 1e3 kg m^2
+            np.testing.assert_allclose(got[..., j], want, rtol=0, atol=tol, err_msg=name)
     controller, gains = m.controller("pd")
-    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    fly = jax.jit(dispersed.sample_metrics, static_argnames=("controller", "mission"))
+    batch = fly(inputs, gains, controller=controller, mission=m)
     assert len(np.unique(np.asarray(batch["rmse"]))) == len(valid)
     repeated = jax.tree.map(lambda x: np.repeat(x[1:2], len(valid), axis=0), inputs)
-    one = dispersed.sample_metrics(repeated, gains, controller=controller, mission=m)
+    one = fly(repeated, gains, controller=controller, mission=m)
     for name in ("rmse", "effort", "max_torque", "max_angle_phase"):
         np.testing.assert_allclose(one[name][0], batch[name][1], rtol=1e-12, err_msg=name)
 
 
 @pytest.mark.parametrize("table, message", [
-    ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}}, "dispersible event param"),
+    ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}}, "dispersible inertia param"),
     ({"inertia": {"events": {"times": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, r"must be >= 0"),
 ])
 def test_bad_event_dispersions_are_one_line_errors(table, message):

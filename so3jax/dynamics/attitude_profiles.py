@@ -7,8 +7,11 @@ Body-frame convention: R_d maps desired-body to inertial, R_d' = R_d hat(Omega_d
 Omega_d = vee(R_d^T R_d') [rad/s] and Omega_d' [rad/s^2] its time derivative. Every method
 is JAX-traceable in t [s] (jit, vmap, grad), computes in the dtype of the reference's
 arrays (the builders keep their inputs' dtype) and ignores ``phase``. The builders check
-their inputs (one-line ValueErrors): :func:`eigenaxis_slews` and :func:`tabulated` read the
-values, so they take concrete arrays; """
+their inputs (one-line ValueErrors): :func:`tabulated` reads the values, so it takes concrete
+arrays; :func:`eigenaxis_slews` checks concrete values and builds traced ones unchecked (a
+sweep's samples, vmapped). A reference whose leaves carry a trailing batch axis of several
+trajectories (each sample's own slews, in a natively batched rollout) is evaluated lane by
+lane."""
 
 from __future__ import annotations
 
@@ -45,6 +48,18 @@ def _shared(reference, core_ndims: dict):
     changes = {name: getattr(reference, name)[..., 0] for name, ndim in core_ndims.items()
                if jnp.ndim(getattr(reference, name)) > ndim}
     return dataclasses.replace(reference, **changes) if changes else reference
+
+
+def _per_lane(reference, core_ndims: dict, method, t, phase):
+    """``method(reference, t, phase)`` of a reference shared by a batch (:func:`_shared`), or,
+    where its leaves carry a trailing batch axis of several trajectories (a sweep's samples'
+    own references), lane by lane: the outputs' batch axis last."""
+    lanes = {name: jnp.ndim(getattr(reference, name)) > ndim and jnp.shape(getattr(reference, name))[-1] > 1
+             for name, ndim in core_ndims.items()}
+    if not any(lanes.values()):
+        return method(_shared(reference, core_ndims), t, phase)
+    axes = dataclasses.replace(reference, **{name: -1 if lane else None for name, lane in lanes.items()})
+    return jax.vmap(lambda r: method(r, t, phase), in_axes=(axes,), out_axes=-1)(reference)
 
 
 def _check_rotations(name: str, r) -> None:
@@ -141,8 +156,8 @@ class EigenaxisSlews(Reference):
              "max_rate": 0, "max_acceleration": 0}
 
     def _profile(self, t):
-        """(k, s = t - times[k], theta, theta', theta'') of the last slew k started (k = 0 before the first)."""
-        self = _shared(self, self._CORE)  # noqa: PLW0642 (the same reference, its leaves unbatched)
+        """(k, s = t - times[k], theta, theta', theta'') of the last slew k started (k = 0 before
+        the first), of a reference whose leaves have their core ndim."""
         t = _time(t, self.times)
         k = jnp.maximum(jnp.searchsorted(self.times, t, side="right", method="compare_all") - 1, 0)
         s = t - self.times[k]
@@ -152,18 +167,26 @@ class EigenaxisSlews(Reference):
 
     def rate(self, t, phase):
         """Omega_d = axis_k theta_k' [rad/s]."""
-        k, _, _, rate, _ = self._profile(t)
-        return _shared(self, self._CORE).axes[k] * rate
+        return _per_lane(self, self._CORE, EigenaxisSlews._rate, t, phase)
 
     def rate_dot(self, t, phase):
         """Omega_d' = axis_k theta_k'' [rad/s^2]."""
-        k, _, _, _, acceleration = self._profile(t)
-        return _shared(self, self._CORE).axes[k] * acceleration
+        return _per_lane(self, self._CORE, EigenaxisSlews._rate_dot, t, phase)
 
     def attitude(self, t, phase):
         """R_d = starts[k] exp(hat(axis_k) theta_k); the target starts[k + 1] itself once slew k ends."""
+        return _per_lane(self, self._CORE, EigenaxisSlews._attitude, t, phase)
+
+    def _rate(self, t, phase):
+        k, _, _, rate, _ = self._profile(t)
+        return self.axes[k] * rate
+
+    def _rate_dot(self, t, phase):
+        k, _, _, _, acceleration = self._profile(t)
+        return self.axes[k] * acceleration
+
+    def _attitude(self, t, phase):
         k, s, theta, _, _ = self._profile(t)
-        self = _shared(self, self._CORE)  # noqa: PLW0642
         turning = so3.matmul(self.starts[k], so3.exp(self.axes[k] * theta, select=True))
         return jnp.where(s >= self.durations[k], self.starts[k + 1], turning)
 
@@ -179,13 +202,34 @@ def _slew_plan(start, attitudes, max_rate, max_acceleration):
     return starts, axes, angles, pulses, coasts, 2.0 * pulses + coasts
 
 
+def overlapping(start, attitudes, times, max_rate, max_acceleration) -> np.ndarray:
+    """Whether each plan of a batch is impossible: its times (..., K) [s] not finite, not
+    ascending or below 0, or a slew ending after the next one starts (:func:`eigenaxis_slews`'
+    checks; start (..., 3, 3), attitudes (..., K, 3, 3), max_rate and max_acceleration (...),
+    each possibly shared by the batch), in float64."""
+    times = np.asarray(times, np.float64)
+    batch = times.shape[:-1]
+
+    def flat(x, core: int):  # broadcast to the batch, one batch axis
+        x = np.asarray(x, np.float64)
+        x = np.broadcast_to(x, batch + x.shape[x.ndim - core:])
+        return x.reshape((-1,) + x.shape[len(batch):])
+
+    plan = jax.vmap(_slew_plan)(flat(start, 2), flat(attitudes, 3), flat(max_rate, 0), flat(max_acceleration, 0))
+    ends = times + np.asarray(plan[-1], np.float64).reshape(times.shape)
+    tolerance = 16.0 * np.finfo(np.float64).eps * np.maximum(1.0, np.abs(ends))
+    bad = ~np.all(np.isfinite(times), axis=-1) | (times[..., 0] < 0.0) | np.any(np.diff(times, axis=-1) < 0.0, axis=-1)
+    return bad | np.any(ends[..., :-1] > times[..., 1:] + tolerance[..., :-1], axis=-1)
+
+
 def eigenaxis_slews(start, attitudes, times, max_rate, max_acceleration) -> EigenaxisSlews:
     """Rest-to-rest eigenaxis slews from ``start`` (3, 3) = R_d(0) through ``attitudes`` (K, 3, 3),
     slew k starting at times[k] [s] (ascending, times[0] >= 0), each in minimum time under
     |Omega_d| <= max_rate [rad/s] and raised-sine acceleration pulses of peak max_acceleration
     [rad/s^2] (:func:`slew_duration`); the attitude is held between slews. Slew k turns about the
     fixed axis of log(R_{k-1}^T R_k) (R_{-1} = start). ValueError where a slew would end after the
-    next one starts (``durations`` gives each slew's duration).
+    next one starts (``durations`` gives each slew's duration). Traceable: traced values are
+    not checked (a sweep checks each sample's where it draws them).
     """
     dtype = _float_dtype(attitudes)
     attitudes = jnp.asarray(attitudes, dtype=dtype)
@@ -197,6 +241,9 @@ def eigenaxis_slews(start, attitudes, times, max_rate, max_acceleration) -> Eige
     _check_shape("eigenaxis_slews times", times, (K,))
     if K == 0:
         raise ValueError("eigenaxis_slews: no attitudes (attitudes must have shape (K, 3, 3) with K >= 1)")
+    if any(isinstance(x, jax.core.Tracer) for x in (start, attitudes, times, max_rate, max_acceleration)):
+        return EigenaxisSlews(times, *_slew_plan(start, attitudes, max_rate, max_acceleration), max_rate,
+                              max_acceleration)  # traced (a sweep's samples): checked where they are drawn
     for name, value in (("max_rate", max_rate), ("max_acceleration", max_acceleration)):
         if value.shape != () or not float(value) > 0.0 or not np.isfinite(float(value)):
             raise ValueError(f"eigenaxis_slews: {name} must be a positive finite scalar, not {np.asarray(value)}")

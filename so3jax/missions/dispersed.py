@@ -16,9 +16,14 @@ distributions and keep :mod:`so3jax.missions.dispersions`' variate layout:
 * ``seed``: ``"random"``, a disturbance and sensor-noise seed per sample, or ``"mission"``
   (the default), the mission's seed for every sample.
 
-Every other leaf is a parameter of a flown sensor, estimator or actuator: each element
-of its value is drawn independently from its own variates, ``fold_in(fold_in(key(seed),
-k), crc32(leaf))``, so adding or removing a dispersion moves no other. A sample with a
+Every other leaf is a parameter of a flown sensor, estimator or actuator, or of the
+mission's reference or inertia kind (:data:`SCENARIO_LEAVES`: slew times and attitudes,
+inertia-event times, ...): each element of its value is drawn independently from its own
+variates, ``fold_in(fold_in(key(seed), k), crc32(leaf))``, so adding or removing a
+dispersion moves no other; a distribution with ``relative = "offset"`` (``"scale"``) draws
+what is added to (multiplies) the mission's value. Each sample's reference and inertia are
+built from its values (:func:`scenario_values`); a sample whose values the kind's checks
+refuse (slews that overlap) is rejected. A sample with a
 value outside the parameter's declared domain is rejected (never simulated), and so is
 one that breaks a bound a component's own check sets between two of its parameters
 (:data:`MAGNITUDE_LIMITS`: a wheel's initial speed within its speed limit, as ``fly``
@@ -34,14 +39,17 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import zlib
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from so3jax.components import registry as components
 from so3jax.core import checks, so3
+from so3jax.dynamics import attitude_profiles as profiles
 from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
@@ -61,15 +69,24 @@ _LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
 MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
-# The inertia events' dispersible parameters: {parameter: (low, strict)}; a sample whose
-# event times do not increase is rejected (:func:`draw_leaves`).
-EVENT_LEAVES = {"times": (0.0, False), "time_constants": (0.0, False), "targets": (0.0, True)}
+# The scenario's dispersible parameters, by reference and inertia kind: {(table, kind):
+# {parameter: (low, strict)}}. Each sample's reference or inertia is built from its values
+# (:func:`scenario_values`); one its kind's checks refuse is rejected (:func:`draw_leaves`).
+SCENARIO_LEAVES = {
+    ("reference", "inertial"): {"attitude": (-math.inf, False)},
+    ("reference", "lvlh"): {"offset": (-math.inf, False)},
+    ("reference", "slews"): {"start": (-math.inf, False), "attitudes": (-math.inf, False), "times": (0.0, False)},
+    ("inertia", "events"): {"times": (0.0, False), "time_constants": (0.0, False), "targets": (0.0, True)},
+}
+# A distribution's ``relative`` key: "offset", the mission's value plus the draw; "scale", times it.
+RELATIVE = ("offset", "scale")
 
 
 @dataclasses.dataclass(frozen=True)
 class Leaf:
-    """A dispersed component parameter: its dotted key, distribution, the shape of the
-    mission's value, and the parameter's domain [low, high]. bound: (parameter, its
+    """A dispersed component or scenario parameter: its dotted key, distribution (of the value,
+    or of its offset from or scale of the mission's value, element by element), the shape of
+    the mission's value, and the parameter's domain [low, high]. bound: (parameter, its
     mission value, limit, its mission value), flattened, of a :data:`MAGNITUDE_LIMITS`
     pair this leaf is either side of (each sample's |parameter| <= limit, element by
     element, the dispersed side's drawn values in place of the mission's)."""
@@ -80,6 +97,8 @@ class Leaf:
     low: float
     high: float
     bound: tuple | None = None
+    relative: str | None = None  # "offset" or "scale" of the mission's value (:data:`RELATIVE`)
+    nominal: tuple = ()  # the mission's value, flattened (a relative leaf's)
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
@@ -137,11 +156,11 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             fields[STRUCTURED[path]] = _distribution(value, where)
         elif path[0] in _LOOP_TABLES:
             leaves.append(_leaf(path, value, where, mission))
-        elif path[0] == "inertia" and len(path) == 3 and path[1] == "events":
-            leaves.append(_event_leaf(path, value, where, mission))
+        elif path[0] in ("reference", "inertia") and len(path) == 3:
+            leaves.append(_scenario_leaf(path, value, where, mission))
         else:
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
-                             "orbit.n, inertia.events.times/time_constants/targets (scales), "
+                             "orbit.n, the parameters of the reference and inertia kinds of SCENARIO_LEAVES, "
                              "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
                              "parameters of the mission's sensors, estimator, actuator and momentum management")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
@@ -224,28 +243,81 @@ def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     if spec.integer or spec.boolean or spec.choices or current is None:
         raise ValueError(f"{where}: only real-valued parameters are dispersed ({param} is "
                          f"{'not set in the mission' if current is None else 'not a real number'})")
+    return _checked_leaf(".".join(path), value, where, current, spec.low, spec.high, strict=False)
+
+
+def _checked_leaf(key: str, value, where: str, current, low: float, high: float, strict: bool) -> Leaf:
+    """A leaf of the mission's value ``current`` in [low, high] (low excluded where strict): a
+    distribution of the value or, with ``relative = "offset"`` ("scale") in its table, of
+    what is added to (multiplies) the mission's value, element by element; ValueError where
+    it cannot draw into the domain (an offset: for no element; the elements drawn outside it
+    reject their samples)."""
+    relative = None
+    if isinstance(value, dict) and "relative" in value:
+        relative = checks.choice(value["relative"], f"{where}.relative", RELATIVE)
+        value = {k: v for k, v in value.items() if k != "relative"}
     dist = _distribution(value, where)
-    disp.check_domain(dist, where, spec.low, strict=False)
-    return Leaf(".".join(path), dist, np.shape(current), spec.low, spec.high)
+    nominal = np.asarray(current, np.float64)
+    if relative == "offset" and math.isfinite(low) and isinstance(dist, (disp.Fixed, disp.Uniform)):
+        largest = float(nominal.max()) + (dist.value if isinstance(dist, disp.Fixed) else dist.high)
+        if not largest > low:
+            raise ValueError(f"{where}: the mission's value plus {disp.describe(dist)} never exceeds {low:g}")
+    elif relative == "scale" and low >= 0.0:
+        disp.check_domain(dist, f"{where} (a scale)", 0.0, strict)
+    elif relative is None:
+        disp.check_domain(dist, where, low, strict)
+    low = float(np.nextafter(low, np.inf)) if strict else low
+    return Leaf(key, dist, np.shape(current), low, high, relative=relative,
+                nominal=_flat(nominal) if relative else ())
 
 
-def _event_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
-    """A parameter of the mission's inertia events (:data:`EVENT_LEAVES`): each element drawn
-    on its own; the targets when every one is a scale of the inertia at its event."""
-    param = path[2]
-    if mission.inertia["kind"] != "events":
-        raise ValueError(f"{where}: the mission's inertia is of kind {mission.inertia['kind']!r}, not 'events'")
-    if param not in EVENT_LEAVES:
-        raise ValueError(f"{where}: dispersible event parameters are {', '.join(EVENT_LEAVES)}")
-    values = mission.inertia["events"]
-    if param == "targets" and not np.all(values["scales"] > 0):
+def _scenario_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A parameter of the mission's reference or inertia kind (:data:`SCENARIO_LEAVES`); an
+    inertia event's targets when every one is a scale of the inertia at its event."""
+    table, kind, param = path
+    flown = getattr(mission, table)["kind"]
+    if kind != flown:
+        raise ValueError(f"{where}: the mission's {table} is of kind {flown!r}, not {kind!r}")
+    params = SCENARIO_LEAVES.get((table, kind))
+    if params is None or param not in params:
+        raise ValueError(f"{where}: dispersible {table} parameters are "
+                         + "; ".join(f"{k}: {', '.join(v)}" for (t, k), v in SCENARIO_LEAVES.items() if t == table))
+    values = getattr(mission, table)[kind]
+    if (table, kind, param) == ("inertia", "events", "targets") and not np.all(values["scales"] > 0):
         raise ValueError(f"{where}: only targets that are all scales of the inertia at their event are dispersed "
                          "(a matrix target: disperse a scale of it instead)")
-    current = values["scales"] if param == "targets" else values[param]
-    dist = _distribution(value, where)
-    low, strict = EVENT_LEAVES[param]
-    disp.check_domain(dist, where, low, strict)
-    return Leaf(".".join(path), dist, np.shape(current), low if not strict else np.nextafter(low, np.inf), np.inf)
+    current = values["scales"] if (kind, param) == ("events", "targets") else values[param]
+    low, strict = params[param]
+    return _checked_leaf(".".join(path), value, where, current, low, math.inf, strict)
+
+
+def scenario_values(mission: Mission, values: dict) -> Mission:
+    """The mission with its reference's and inertia's dispersed parameters {key: value}
+    replaced (traceable: only :func:`so3jax.missions.build.scenario` reads the result)."""
+    tables = {}
+    for key, value in values.items():
+        table, kind, param = key.split(".")
+        chosen = tables.setdefault(table, {**getattr(mission, table), kind: dict(getattr(mission, table)[kind])})
+        chosen[kind]["scales" if (kind, param) == ("events", "targets") else param] = value
+    return dataclasses.replace(mission, **tables)
+
+
+def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
+    """(N,) whether each sample's reference and inertia pass their kind's checks (a mission
+    file's): slews that do not overlap, event times that increase (the other dispersible
+    parameters' domains are their leaves')."""
+    valid = np.ones(n_samples, bool)
+    if any(k.startswith("reference.slews.") for k in values):
+        given = mission.reference["slews"]
+        drawn = {name: values.get(f"reference.slews.{name}", np.asarray(given[name], np.float64))
+                 for name in ("start", "attitudes", "times")}
+        rotation = lambda v: Rotation.from_rotvec(np.reshape(v, (-1, 3))).as_matrix().reshape(np.shape(v) + (3,))
+        times = np.broadcast_to(drawn["times"], (n_samples, len(given["times"])))
+        valid &= ~profiles.overlapping(rotation(drawn["start"]), rotation(drawn["attitudes"]), times,
+                                       given["max_rate"], given["max_acceleration"])
+    if "inertia.events.times" in values:
+        valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
+    return valid
 
 
 # --- drawing ---------------------------------------------------------------------------------
@@ -269,13 +341,14 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
         v = disp._variates(words)
         u, z = v.take(max(size, 1))
         x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))
+        if leaf.relative is not None:
+            nominal = np.reshape(leaf.nominal, leaf.shape)
+            x = nominal + x if leaf.relative == "offset" else nominal * x
         values[leaf.key] = x
         valid &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
     for leaf in leaves:
         if leaf.bound is not None:
             valid &= within_bound(leaf.bound, values, n_samples)
-    if "inertia.events.times" in values:
-        valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
     return values, valid
 
 
@@ -289,12 +362,18 @@ def within_bound(bound: tuple, values: dict, n_samples: int) -> np.ndarray:
 
 
 def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int, max_draws: int,
-         first: int = 0) -> disp.Samples:
-    """Samples first .. first + n_samples - 1 with their dispersed component values
-    (``leaves``); valid: a positive definite inertia within max_draws and every component
-    value in its domain; outside: the samples rejected for a component value alone."""
+         first: int = 0, mission: Mission | None = None) -> disp.Samples:
+    """Samples first .. first + n_samples - 1 with their dispersed component and scenario
+    values (``leaves``); valid: a positive definite inertia within max_draws, every value in
+    its domain and, with dispersed reference or inertia parameters, the sample's reference
+    and inertia passing their kind's checks (``mission``: the mission the leaves disperse);
+    outside: the samples rejected for a component or scenario value alone."""
     samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
     values, in_domain = draw_leaves(leaves, seed, n_samples, first)
+    if any(leaf.key.split(".")[0] in ("reference", "inertia") for leaf in leaves):
+        if mission is None:
+            raise TypeError("draw: dispersed reference or inertia parameters need the mission (mission=)")
+        in_domain &= _scenario_valid(mission, values, n_samples)
     return samples._replace(valid=samples.valid & in_domain, leaves=values, outside=samples.valid & ~in_domain)
 
 
@@ -341,22 +420,24 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     Pure: jit, grad and :func:`so3jax.parallel.devices.split` compose with it."""
     params, leaves = inputs
     m, dtype = mission, params.J0.dtype
-    scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
-    events = {k: v for k, v in leaves.items() if k.startswith("inertia.")}
-    leaves = {k: v for k, v in leaves.items() if k not in events}
+    own = {k: v for k, v in leaves.items() if k.split(".")[0] in ("reference", "inertia")}
+    leaves = {k: v for k, v in leaves.items() if k not in own}
+    if own:  # each sample's reference or inertia, of its dispersed values
+        scenarios = jax.vmap(lambda p, v: build.scenario(scenario_values(m, v), p))(params, own)
+    else:
+        scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
+    dispersed_tables = {k.split(".")[0] for k in own}
     shared_parts = [name for name, shared_part in (
-        ("reference", not isinstance(scenarios.reference, PiecewiseConstantRate)),  # no sample's own
-        ("inertia", m.inertia["kind"] != "paper" and not events),  # the paper's profile, or dispersed events
+        ("reference", "reference" not in dispersed_tables  # a constant rate depends on the sample's orbit rate
+         and not isinstance(scenarios.reference, PiecewiseConstantRate)),
+        ("inertia", "inertia" not in dispersed_tables and m.inertia["kind"] != "paper"),  # the paper's: per sample
     ) if shared_part]
     axes = 0
     if shared_parts:  # one for the batch: the mission's own
         nominal = build.scenario(m, dtype=dtype)
         scenarios = dataclasses.replace(scenarios, **{name: getattr(nominal, name) for name in shared_parts})
         axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
-    if events:  # each sample's inertia events (natively batched: InertiaEvents broadcasts its leaves)
-        nominal = build.scenario(m, dtype=dtype)
-        scenarios = dataclasses.replace(scenarios, inertia=jax.vmap(lambda v: event_inertia(m, v, nominal))(events))
     if leaves:  # each sample's loop: its components' parameters with a batch axis
         loops, loop_axes = jax.vmap(lambda values: loop(m, {**shared, **values}, dtype))(leaves), 0
     else:
@@ -385,15 +466,6 @@ def pointing_errors(history) -> dict:
     if history.R_hat is not None:
         out["pointing_knowledge"] = error(history.R_hat)
     return out
-
-
-def event_inertia(mission: Mission, values: dict, scenario):
-    """The mission's inertia events with dispersed parameters {key: value} replaced (traceable)."""
-    events = dict(mission.inertia["events"])
-    for key, value in values.items():
-        param = key.split(".")[-1]
-        events["scales" if param == "targets" else param] = value
-    return build.inertia(dataclasses.replace(mission, inertia={**mission.inertia, "events": events}), scenario)
 
 
 def loop(mission: Mission, values: dict, dtype):

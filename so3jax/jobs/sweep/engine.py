@@ -128,7 +128,8 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     # every check before the first file (sweep.json): a refused sweep writes nothing
     dtype = jnp.result_type(float)
-    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws)
+    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws,
+                             mission=config.mission)
     inputs = dispersed.inputs(samples, dtype)
     valid = np.flatnonzero(samples.valid)
     n_steps = steps_for_horizon(config.T, config.dt)

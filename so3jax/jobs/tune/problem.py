@@ -100,7 +100,7 @@ def build_problem(config: TuneConfig) -> Problem:
 
 def draw_batch(sampler: Sampler, seed: int, samples: int, first: int, dtype, mesh) -> DispersedBatch:
     """Dispersed missions first .. first + samples - 1 of sampling seed ``seed``."""
-    drawn = dispersed.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, first)
+    drawn = dispersed.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, first, sampler.mission)
     valid = np.asarray(drawn.valid)
     if not valid.any():
         raise ValueError(f"every dispersed mission {first}..{first + samples - 1} of sampling seed {seed} is rejected "
