@@ -38,6 +38,8 @@ peak (a numpy matmul on every BLAS thread) that each run's rate reaches.
 
     python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 400 --samples 128 --chunk 128
 
+--set KEY=VALUE overrides an entry of the sweep file, as ``so3jax sweep --set`` does.
+
 --undispersed also times, right after each run and on the same samples, the same sweep with
 its dispersed component parameters left at the mission's values (every sample flying the
 mission's loop: the batched loop without dispersion, the scenario still dispersed), and
@@ -100,13 +102,13 @@ def _child(spec: dict) -> list:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
-        config = sweep.load_config(spec.get("config"), (f"T={spec['T']}",))
+        config = sweep.load_config(spec.get("config"), (f"T={spec['T']}", *spec.get("overrides", ())))
     n_steps = steps_for_horizon(config.T, config.dt)
     layout = spec.get("layout", "chunks")
     mesh = sweep.batch_mesh(layout)
     chunk = sweep.padded_chunk(spec["chunk"], mesh.size)
     n = -(-spec["samples"] // chunk) * chunk
-    drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws)
+    drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws, mission=config.mission)
     params, leaves = dispersed.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
     key = config.mission
     use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop
@@ -302,6 +304,8 @@ def main() -> None:
     parser.add_argument("--hog", action="store_true",
                         help="pin process i of several to core i and keep the last core half busy with a busy loop")
     parser.add_argument("--config", help="sweep file (default: the built-in default sweep, sweeps/default.toml)")
+    parser.add_argument("--set", action="append", default=[], dest="overrides", metavar="KEY=VALUE",
+                        help="override an entry of the sweep file, as so3jax sweep --set (repeatable)")
     parser.add_argument("--numba", action="store_true",
                         help="one-process layouts: also time the Numba dispersed baseline on the same samples, "
                              "after so3jax in each round, on as many threads as devices")
@@ -327,6 +331,7 @@ def main() -> None:
         for _ in range(args.rounds):  # rounds alternate the layouts: a shared machine's load hits each alike
             for name, (processes, devices, layout) in layouts.items():
                 spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "config": args.config,
+                        "overrides": args.overrides,
                         "controllers": args.controllers.split(","), "numba": args.numba,
                         "flops": args.flops, "undispersed": args.undispersed}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]

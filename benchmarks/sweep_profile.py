@@ -56,7 +56,8 @@ def main() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
         config = sweep.load_config(None, (f"T={args.T}",))
-        samples = dispersed.draw(config.dispersions, config.leaves, config.seed, args.batch, config.max_draws)
+        samples = dispersed.draw(config.dispersions, config.leaves, config.seed, args.batch, config.max_draws,
+                                 mission=config.mission)
     params, _ = dispersed.inputs(samples, jnp.float64)
     mission = config.mission
     per_sample = jax.vmap(lambda p: build.scenario(mission, p))(params)

@@ -167,28 +167,25 @@ class EigenaxisSlews(Reference):
 
     def rate(self, t, phase):
         """Omega_d = axis_k theta_k' [rad/s]."""
-        return _per_lane(self, self._CORE, EigenaxisSlews._rate, t, phase)
+        return self.terms(t, phase)[1]
 
     def rate_dot(self, t, phase):
         """Omega_d' = axis_k theta_k'' [rad/s^2]."""
-        return _per_lane(self, self._CORE, EigenaxisSlews._rate_dot, t, phase)
+        return self.terms(t, phase)[2]
 
     def attitude(self, t, phase):
         """R_d = starts[k] exp(hat(axis_k) theta_k); the target starts[k + 1] itself once slew k ends."""
-        return _per_lane(self, self._CORE, EigenaxisSlews._attitude, t, phase)
+        return self.terms(t, phase)[0]
 
-    def _rate(self, t, phase):
-        k, _, _, rate, _ = self._profile(t)
-        return self.axes[k] * rate
+    def terms(self, t, phase):
+        """(R_d, Omega_d, Omega_d') from one evaluation of the profile."""
+        return _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase)
 
-    def _rate_dot(self, t, phase):
-        k, _, _, _, acceleration = self._profile(t)
-        return self.axes[k] * acceleration
-
-    def _attitude(self, t, phase):
-        k, s, theta, _, _ = self._profile(t)
+    def _terms(self, t, phase):
+        k, s, theta, rate, acceleration = self._profile(t)
         turning = so3.matmul(self.starts[k], so3.exp(self.axes[k] * theta, select=True))
-        return jnp.where(s >= self.durations[k], self.starts[k + 1], turning)
+        return jnp.where(s >= self.durations[k], self.starts[k + 1], turning), self.axes[k] * rate, \
+            self.axes[k] * acceleration
 
 
 @jax.jit

@@ -33,6 +33,11 @@ class Reference(abc.ABC):
     @abc.abstractmethod
     def attitude(self, t, phase): ...
 
+    def terms(self, t, phase):
+        """(R_d, Omega_d, Omega_d') at t: what the loop reads at every stage (a reference that
+        computes them from shared terms overrides it)."""
+        return self.attitude(t, phase), self.rate(t, phase), self.rate_dot(t, phase)
+
 
 @pytree_dataclass
 class PiecewiseConstantRate(Reference):

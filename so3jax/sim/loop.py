@@ -115,9 +115,9 @@ def integrates_reference(scenario: Scenario) -> bool:
 
 def desired(scenario: Scenario, t, phase, integrated_R_d, like) -> Desired:
     """R_d, Omega_d, Omega_d' at t; a reference shared by a batch is computed once."""
-    ref = scenario.reference
-    R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(ref.attitude(t, phase), 2, like)
-    return Desired(R_d, so3.batch_like(ref.rate(t, phase), 1, like), so3.batch_like(ref.rate_dot(t, phase), 1, like))
+    attitude, rate, rate_dot = scenario.reference.terms(t, phase)
+    R_d = integrated_R_d if isinstance(integrated_R_d, jax.Array) else so3.batch_like(attitude, 2, like)
+    return Desired(R_d, so3.batch_like(rate, 1, like), so3.batch_like(rate_dot, 1, like))
 
 
 def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape=(), loop: Loop = PAPER_LOOP) -> State:
