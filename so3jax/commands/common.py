@@ -61,6 +61,13 @@ def output_folder(text: str) -> Path:
     return Path(text)
 
 
+def add_output_arguments(parser: argparse.ArgumentParser, folder: str, figures: str = "the PNG figures") -> None:
+    """--out (default ``folder``), --json and --no-figures, as the commands that write one run's folder take them."""
+    parser.add_argument("--out", type=output_folder, default=Path(folder), help=f"output folder (default {folder})")
+    parser.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
+    parser.add_argument("--no-figures", action="store_true", help=f"skip {figures}")
+
+
 def mission_overrides(args, keys=("T", "seed", "record_every")) -> list[str]:
     """The mission overrides of a command's arguments: --set's, then ``KEY=VALUE`` for each of
     ``keys`` (a mission key and its option) given, then --controllers."""

@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from so3jax.commands.common import mission_overrides, output_folder
+from so3jax.commands.common import add_output_arguments, mission_overrides
 from so3jax.jobs import crosscheck
 from so3jax.jobs.crosscheck import basilisk, representable
 from so3jax.missions import mission as missions
@@ -28,10 +28,7 @@ def register(subparsers) -> None:
     p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a mission entry, e.g. --set gains.mrp_feedback.K_i=0 (repeatable)")
-    p.add_argument("--out", type=output_folder, default=Path("results/crosscheck"),
-                   help="output folder (default results/crosscheck)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figure")
+    add_output_arguments(p, "results/crosscheck", "the PNG figure")
     p.set_defaults(func=run, precision="float64")  # a comparison at round-off: float64 only
 
 

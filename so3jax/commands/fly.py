@@ -8,10 +8,10 @@ from pathlib import Path
 
 from so3jax.commands.common import (
     add_memory_argument,
+    add_output_arguments,
     add_precision_argument,
     controllers_help,
     mission_overrides,
-    output_folder,
     registered,
 )
 from so3jax.dynamics.scenario import steps_for_horizon
@@ -36,9 +36,7 @@ def register(subparsers) -> None:
     p.add_argument("--record-every", type=int, help="trajectory sampling [steps] (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a mission entry, e.g. --set control.period=0.05 (repeatable)")
-    p.add_argument("--out", type=output_folder, default=Path("results/fly"), help="output folder (default results/fly)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_output_arguments(p, "results/fly")
     add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=run)

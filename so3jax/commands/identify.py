@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from so3jax.commands.common import add_precision_argument, output_folder
+from so3jax.commands.common import add_output_arguments, add_precision_argument
 from so3jax.jobs.identify import CHECKS, METHODS, inertia, telemetry
 from so3jax.jobs.identify import report as reports
 from so3jax.missions import mission as missions
@@ -43,10 +43,7 @@ def register(subparsers) -> None:
     p.add_argument("--initial-inertia", metavar="J",
                    help="simulation: first guess, a number (isotropic) or a 3x3 JSON list [kg m^2] "
                         "(default: the regression's estimate)")
-    p.add_argument("--out", type=output_folder, default=Path("results/identify"),
-                   help="output folder (default results/identify)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the residual figure")
+    add_output_arguments(p, "results/identify", "the residual figure")
     add_precision_argument(p)
     p.set_defaults(func=run)
 

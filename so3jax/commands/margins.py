@@ -6,7 +6,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from so3jax.commands.common import add_precision_argument, mission_overrides, output_folder, registered
+from so3jax.commands.common import add_output_arguments, add_precision_argument, mission_overrides, registered
 from so3jax.jobs import margins
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
@@ -30,10 +30,7 @@ def register(subparsers) -> None:
     p.add_argument("--controllers", help="comma-separated controllers (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a mission entry, e.g. --set gains.pd.k_Omega=40.0 (repeatable)")
-    p.add_argument("--out", type=output_folder, default=Path("results/margins"),
-                   help="output folder (default results/margins)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_output_arguments(p, "results/margins")
     add_precision_argument(p)
     p.set_defaults(func=run)
 

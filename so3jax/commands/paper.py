@@ -4,9 +4,8 @@
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from so3jax.commands.common import add_memory_argument, add_precision_argument, output_folder, registered
+from so3jax.commands.common import add_memory_argument, add_output_arguments, add_precision_argument, registered
 from so3jax.jobs import paper
 from so3jax.jobs.fly import fly
 from so3jax.results import runfolder
@@ -28,10 +27,7 @@ def register(subparsers) -> None:
     p.add_argument("--record-every", type=int, help="history sampling [steps] (default 100)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override an entry of the paper's mission (missions/paper.toml), e.g. --set orbit.n=1e-3")
-    p.add_argument("--out", type=output_folder, default=Path("results/paper"),
-                   help="output folder (default results/paper)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (last line of stdout)")
-    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_output_arguments(p, "results/paper")
     add_memory_argument(p)
     add_precision_argument(p)
     p.set_defaults(func=run)
