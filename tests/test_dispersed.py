@@ -250,7 +250,9 @@ EVENTS = {"T": 12.0, "controllers": ["pd"], "record_every": 10,
                                                    "times": [3.0, 8.0], "max_rate": 0.05,
                                                    "max_acceleration": 0.05}}}  # each slew 4 s
 OFFSET = {"dist": "uniform", "low": -3.0, "high": 3.0, "relative": "offset"}  # [s]: some slews overlap
-EVENT_DISPERSIONS = {"inertia": {"events": {"times": {"dist": "uniform", "low": 1.0, "high": 7.0},
+BODY = {"scale": {"dist": "lognormal", "median": 1.0, "sigma": 0.1},  # an inertia drawn as inertia.J0 is
+        "second_moments": {"dist": "lognormal", "median": 1.0, "sigma": 0.1}, "rotation_deg": 5.0}
+EVENT_DISPERSIONS = {"inertia": {"events": {"initial": BODY, "times": {"dist": "uniform", "low": 1.0, "high": 7.0},
                                             "time_constants": {"dist": "uniform", "low": 0.0, "high": 3.0},
                                             "targets": {"dist": "lognormal", "median": 1.0, "sigma": 0.2}}},
                      "reference": {"slews": {"times": OFFSET, "attitudes": {"dist": "normal", "mean": 0.0, "std": 0.02,
@@ -259,8 +261,9 @@ EVENT_DISPERSIONS = {"inertia": {"events": {"times": {"dist": "uniform", "low": 
 
 def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
     """Slew times and attitudes (offsets from the mission's) and inertia-event times, time
-    constants and scales drawn per sample; a sample whose slews overlap or whose event times do
-    not increase is rejected, as the mission file's checks refuse them. Each sample's R_d,
+    constants, scales and the initial inertia (a rigid body's) drawn per sample; a sample
+    whose slews overlap or whose event times do not increase is rejected, as the mission
+    file's checks refuse them. Each sample's R_d,
     Omega_d, Omega_d' (its own slews, evaluated lane by lane in a batch) and J(t) are those
     of the mission written with its values, and the batch flies each sample's own: a batch
     of one sample's values repeated gives that sample's metrics (the same compiled program)."""
@@ -293,7 +296,8 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
                    EVENTS["reference"]["slews"], times=slews[i].tolist(),
                    attitudes=samples.leaves["reference.slews.attitudes"][i].tolist())},
                "inertia": {"kind": "events", "events": {
-                   "initial": EVENTS["inertia"]["events"]["initial"], "times": events[i].tolist(),
+                   "initial": samples.leaves["inertia.events.initial"][i].tolist(),
+                   "times": events[i].tolist(),
                    "targets": samples.leaves["inertia.events.targets"][i].tolist(),
                    "time_constants": samples.leaves["inertia.events.time_constants"][i].tolist()}}}
         alone = build.scenario(missions.from_dict({**EVENTS, **own}))
@@ -311,8 +315,40 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
         np.testing.assert_allclose(one[name][0], batch[name][1], rtol=1e-12, err_msg=name)
 
 
+def test_a_dispersed_linear_change_gives_each_sample_its_own_table():
+    """inertia.linear: the start inertia drawn as a rigid body's (the second-moments form), the
+    times around the mission's; each sample's J(t), its table evaluated lane by lane in a
+    batch, is the mission's written with its values."""
+    from so3jax.missions import build
+    from so3jax.missions import mission as missions
+
+    J = EVENTS["inertia"]["events"]["initial"]
+    linear = {**EVENTS, "reference": {"kind": "inertial"},
+              "inertia": {"kind": "linear", "linear": {"start": J, "end": (1.5 * np.asarray(J)).tolist(),
+                                                       "times": [2.0, 8.0]}}}
+    m = missions.from_dict(linear)
+    table = {"inertia": {"linear": {"start": BODY, "times": {**OFFSET, "low": -1.0, "high": 1.0}}}}
+    samples = dispersed.draw(*dispersed.parse(table, m), 0, 4, 20, mission=m)
+    start = samples.leaves["inertia.linear.start"]
+    moments = np.linalg.eigvalsh(start)
+    assert samples.valid.all() and np.all(moments[:, 0] + moments[:, 1] >= moments[:, 2])  # bodies
+    assert len(np.unique(start[:, 0, 0])) == 4 and np.allclose(start, np.swapaxes(start, 1, 2))
+    inputs = dispersed.inputs(samples, np.float64)
+    profiles = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p).inertia)(*inputs)
+    lanes = jax.tree.map(lambda x: np.moveaxis(x, 0, -1), profiles)
+    t = np.linspace(0.0, 10.0, 11)
+    got = jax.jit(lambda table: jax.vmap(lambda s: table(s, 0))(t))(lanes)
+    for i in range(4):
+        own = {"start": start[i].tolist(), "end": linear["inertia"]["linear"]["end"],
+               "times": samples.leaves["inertia.linear.times"][i].tolist()}
+        alone = build.scenario(missions.from_dict({**linear, "inertia": {"kind": "linear", "linear": own}})).inertia
+        np.testing.assert_allclose(got[..., i], jax.vmap(lambda s: alone(s, 0))(t), rtol=1e-14)
+
+
 @pytest.mark.parametrize("table, message", [
-    ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}}, "dispersible inertia param"),
+    ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}},
+     r"unknown key\(s\) in \[dispersions.inertia.events.initial\]: dist, high, low"),  # an inertia's form
+    ({"inertia": {"events": {"start": 1.0}}}, "dispersible inertia param"),
     ({"inertia": {"events": {"times": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, r"must be >= 0"),
 ])
 def test_bad_event_dispersions_are_one_line_errors(table, message):
@@ -321,7 +357,7 @@ def test_bad_event_dispersions_are_one_line_errors(table, message):
     with pytest.raises(ValueError, match=message):
         dispersed.parse(table, missions.from_dict(EVENTS))
     matrix_targets = dict(EVENTS["inertia"]["events"], targets=[EVENTS["inertia"]["events"]["initial"], 0.8])
-    with pytest.raises(ValueError, match="only targets that are all scales"):
+    with pytest.raises(ValueError, match="all are scales of the inertia at their event, or all inertias"):
         dispersed.parse({"inertia": {"events": {"targets": 1.0}}},
                         missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": matrix_targets}}))
     with pytest.raises(ValueError, match="not 'events'"):

@@ -20,6 +20,8 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, Callable, NamedTuple
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
@@ -94,6 +96,14 @@ def _linear_values(values: dict) -> dict:
     return values
 
 
+def _linear(values: dict, as_array):
+    """The linear change's table: checked where concrete, traced as it is (a sweep's samples,
+    checked where they are drawn)."""
+    if any(isinstance(values[k], jax.core.Tracer) for k in ("start", "end", "times")):
+        return timelines.InertiaTable(as_array(values["times"]), as_array(jnp.stack([values["start"], values["end"]])))
+    return timelines.table(as_array(values["times"]), as_array(np.stack([values["start"], values["end"]])))
+
+
 def _table_values(values: dict) -> dict:
     """The table's samples: from ``file`` or inline ``times`` and ``inertias``, one of the two."""
     inline = values.get("times") is not None or values.get("inertias") is not None
@@ -140,7 +150,7 @@ components.register(components.ComponentSpec(
         Param("times", None, "s", shapes=((2,),), doc="the change's start and end"),
     ),
     complete=_linear_values,
-    build=lambda v, ctx: timelines.table(ctx.as_array(v["times"]), ctx.as_array(np.stack([v["start"], v["end"]]))),
+    build=lambda v, ctx: _linear(v, ctx.as_array),
     doc="a linear change from start to end between two times (e.g. fuel use), held outside",
 ))
 components.register(components.ComponentSpec(

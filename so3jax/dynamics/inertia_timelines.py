@@ -94,13 +94,17 @@ def events(initial, times, targets, scales, time_constants) -> InertiaEvents:
 class InertiaTable(InertiaProfile):
     """J(t) interpolated linearly between samples (times[i], inertias[i]), held at the first
     before times[0] and at the last after times[-1]; J' piecewise constant. Build with
-    :func:`table`; shared by a batch (no batch axis)."""
+    :func:`table`. Leaves may carry a trailing batch axis (a sweep's samples' own tables,
+    evaluated lane by lane)."""
 
     times: jax.Array  # (K,) s, increasing, K >= 2
     inertias: jax.Array  # (K, 3, 3)
     convex_phases = True
 
     def __call__(self, t, phase):
+        if jnp.ndim(self.times) > 1 or jnp.ndim(self.inertias) > 3:  # per trajectory: batch axis last
+            axes = InertiaTable(-1 if jnp.ndim(self.times) > 1 else None, -1 if jnp.ndim(self.inertias) > 3 else None)
+            return jax.vmap(lambda table: table(t, phase), in_axes=(axes,), out_axes=-1)(self)
         t = jnp.asarray(t, self.times.dtype)
         i = jnp.clip(jnp.searchsorted(self.times, t, side="right") - 1, 0, self.times.shape[0] - 2)
         t0, t1 = self.times[i], self.times[i + 1]

@@ -18,7 +18,8 @@ distributions and keep :mod:`so3jax.missions.dispersions`' variate layout:
 
 Every other leaf is a parameter of a flown sensor, estimator or actuator, or of the
 mission's reference or inertia kind (:data:`SCENARIO_LEAVES`: slew times and attitudes,
-inertia-event times, ...): each element of its value is drawn independently from its own
+inertia-event times, ...; an inertia matrix by an inertia.J0-style table, each matrix from
+11 variates of its own): each element of its value is drawn independently from its own
 variates, ``fold_in(fold_in(key(seed), k), crc32(leaf))``, so adding or removing a
 dispersion moves no other; a distribution with ``relative = "offset"`` (``"scale"``) draws
 what is added to (multiplies) the mission's value. Each sample's reference and inertia are
@@ -69,17 +70,21 @@ _LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
 MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
+INERTIA = "inertia"  # an inertia matrix [kg m^2], dispersed as inertia.J0 is (an InertiaDispersion)
 # The scenario's dispersible parameters, by reference and inertia kind: {(table, kind):
-# {parameter: (low, strict)}}. Each sample's reference or inertia is built from its values
+# {parameter: (low, strict) or INERTIA}}. Each sample's reference or inertia is built from its values
 # (:func:`scenario_values`); one its kind's checks refuse is rejected (:func:`draw_leaves`).
 SCENARIO_LEAVES = {
     ("reference", "inertial"): {"attitude": (-math.inf, False)},
     ("reference", "lvlh"): {"offset": (-math.inf, False)},
     ("reference", "slews"): {"start": (-math.inf, False), "attitudes": (-math.inf, False), "times": (0.0, False)},
-    ("inertia", "events"): {"times": (0.0, False), "time_constants": (0.0, False), "targets": (0.0, True)},
+    ("inertia", "events"): {"initial": INERTIA, "times": (0.0, False), "time_constants": (0.0, False),
+                            "targets": (0.0, True)},
+    ("inertia", "linear"): {"start": INERTIA, "end": INERTIA, "times": (0.0, False)},
 }
 # A distribution's ``relative`` key: "offset", the mission's value plus the draw; "scale", times it.
 RELATIVE = ("offset", "scale")
+INERTIA_VARIATES = 11  # per inertia matrix drawn (disp.InertiaDispersion.apply)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -99,6 +104,7 @@ class Leaf:
     bound: tuple | None = None
     relative: str | None = None  # "offset" or "scale" of the mission's value (:data:`RELATIVE`)
     nominal: tuple = ()  # the mission's value, flattened (a relative leaf's)
+    inertia: disp.InertiaDispersion | None = None  # inertia matrices (..., 3, 3) drawn as inertia.J0 is
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
@@ -107,7 +113,8 @@ def _flatten(table: dict, prefix: str = "") -> dict:
     out = {}
     for key, value in table.items():
         path = f"{prefix}{key}"
-        structured = path in ("inertia.J0", "inertia.J1", "inertia.J2", "initial.attitude", "initial.rate")
+        structured = (path in ("inertia.J0", "inertia.J1", "inertia.J2", "initial.attitude", "initial.rate")
+                      or path.split(".")[0] in ("reference", "inertia") and path.count(".") == 2)
         if isinstance(value, dict) and "dist" not in value and not structured:
             out.update(_flatten(value, path + "."))
         else:
@@ -146,11 +153,11 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
                 raise ValueError(f"{where}: a constant inertia ([inertia] J) is dispersed as inertia.J0")
             fields[path[1]] = _inertia(value, where, fields[path[1]])
         elif key == "initial.attitude":
-            t = checks.table({"t": value}, "t", ("max_angle_deg",), where)
+            t = checks.table({"": value}, "", ("max_angle_deg",), where)
             fields["initial_angle_deg"] = checks.number(t.get("max_angle_deg", 0.0), f"{where}.max_angle_deg",
                                                         0.0, 180.0)
         elif key == "initial.rate":
-            t = checks.table({"t": value}, "t", ("norm",), where)
+            t = checks.table({"": value}, "", ("norm",), where)
             fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
         elif path in STRUCTURED:
             fields[STRUCTURED[path]] = _distribution(value, where)
@@ -215,7 +222,7 @@ def _distribution(value, where: str) -> disp.Distribution:
 
 
 def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
-    t = checks.table({"t": value}, "t", _INERTIA_KEYS, where)
+    t = checks.table({"": value}, "", _INERTIA_KEYS, where)
     changes = {name: _distribution(t[name], f"{where}.{name}")
                for name in ("scale", "axis_scale", "products", "second_moments") if name in t}
     if "rotation_deg" in t:
@@ -283,11 +290,21 @@ def _scenario_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
         raise ValueError(f"{where}: dispersible {table} parameters are "
                          + "; ".join(f"{k}: {', '.join(v)}" for (t, k), v in SCENARIO_LEAVES.items() if t == table))
     values = getattr(mission, table)[kind]
-    if (table, kind, param) == ("inertia", "events", "targets") and not np.all(values["scales"] > 0):
-        raise ValueError(f"{where}: only targets that are all scales of the inertia at their event are dispersed "
-                         "(a matrix target: disperse a scale of it instead)")
-    current = values["scales"] if (kind, param) == ("events", "targets") else values[param]
-    low, strict = params[param]
+    current, domain = values[param], params[param]
+    if (kind, param) == ("events", "targets"):
+        scales = values["scales"] > 0
+        if scales.any() and not scales.all():
+            raise ValueError(f"{where}: the targets are dispersed where all are scales of the inertia at their "
+                             "event, or all inertias")
+        current, domain = (values["scales"], domain) if scales.all() else (values["matrices"], INERTIA)
+    if domain == INERTIA:
+        matrices = np.asarray(current, np.float64)
+        inertia = _inertia(value, where, disp.InertiaDispersion(nominal=None))
+        for J in matrices.reshape(-1, 3, 3):
+            disp.check_inertia_dispersion(dataclasses.replace(inertia, nominal=_matrix(J)), where, warn=False)
+        return Leaf(".".join(path), disp.Fixed(0.0), matrices.shape, -math.inf, math.inf, inertia=inertia,
+                    nominal=_flat(matrices))
+    low, strict = domain
     return _checked_leaf(".".join(path), value, where, current, low, math.inf, strict)
 
 
@@ -298,7 +315,9 @@ def scenario_values(mission: Mission, values: dict) -> Mission:
     for key, value in values.items():
         table, kind, param = key.split(".")
         chosen = tables.setdefault(table, {**getattr(mission, table), kind: dict(getattr(mission, table)[kind])})
-        chosen[kind]["scales" if (kind, param) == ("events", "targets") else param] = value
+        if (kind, param) == ("events", "targets"):
+            param = "scales" if jnp.ndim(value) == 1 else "matrices"
+        chosen[kind][param] = value
     return dataclasses.replace(mission, **tables)
 
 
@@ -317,6 +336,11 @@ def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarra
                                        given["max_rate"], given["max_acceleration"])
     if "inertia.events.times" in values:
         valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
+    if "inertia.linear.times" in values:
+        valid &= np.diff(values["inertia.linear.times"], axis=1)[:, 0] > 0
+    for key, x in values.items():
+        if key.startswith("inertia.") and np.shape(x)[-2:] == (3, 3):
+            valid &= np.all(disp.is_positive_definite(x), axis=tuple(range(1, np.ndim(x) - 2)))
     return valid
 
 
@@ -336,8 +360,14 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
     values, valid = {}, np.ones(n_samples, bool)
     for leaf in leaves:
         size = int(np.prod(leaf.shape))
+        n_words = 2 * INERTIA_VARIATES * (size // 9) if leaf.inertia is not None else 2 * max(size, 1)
         words = np.asarray(_leaf_words(np.uint32(seed), np.arange(first, first + n_samples, dtype=np.uint32),
-                                       np.uint32(zlib.crc32(leaf.key.encode())), 2 * max(size, 1)))
+                                       np.uint32(zlib.crc32(leaf.key.encode())), n_words))
+        if leaf.inertia is not None:  # each matrix from its own 11 variates, as inertia.J0's
+            nominal = np.reshape(leaf.nominal, (-1, 3, 3))
+            variates = disp._variates(words.reshape(n_samples, len(nominal), 2 * INERTIA_VARIATES))
+            values[leaf.key] = leaf.inertia.apply(variates, nominal)[0].reshape((n_samples, *leaf.shape))
+            continue
         v = disp._variates(words)
         u, z = v.take(max(size, 1))
         x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))

@@ -179,17 +179,23 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
     for name, (where, low, strict) in DOMAINS.items():
         check_domain(getattr(d, name), where, low, strict)
     for J in ("J0", "J1", "J2"):
-        inertia = getattr(d, J)
-        for field, (low, strict) in INERTIA_DOMAINS.items():
-            check_domain(getattr(inertia, field), f"inertia.{J}.{field}", low, strict)
-        if not 0.0 <= inertia.rotation_deg <= 180.0:
-            raise ValueError(f"inertia.{J}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
-        if inertia.nominal is not None:
-            check_inertia(f"{J} (inertia.{J}.nominal)", np.asarray(inertia.nominal, dtype=float), warn=warn)
-        if inertia.second_moments is not None:
-            _check_second_moments(inertia, f"inertia.{J}")
+        check_inertia_dispersion(getattr(d, J), f"inertia.{J}", warn=warn)
     if not 0.0 <= d.initial_angle_deg <= 180.0:
         raise ValueError(f"initial.max_angle_deg must be in [0, 180], got {d.initial_angle_deg}")
+
+
+def check_inertia_dispersion(inertia: InertiaDispersion, where: str, *, warn: bool = True) -> None:
+    """ValueError unless ``inertia``'s distributions draw in their domains and its nominal is
+    an inertia (an InertiaWarning where it breaks the triangle inequality, if ``warn``)."""
+    for field, (low, strict) in INERTIA_DOMAINS.items():
+        check_domain(getattr(inertia, field), f"{where}.{field}", low, strict)
+    if not 0.0 <= inertia.rotation_deg <= 180.0:
+        raise ValueError(f"{where}.rotation_deg must be in [0, 180], got {inertia.rotation_deg}")
+    if inertia.nominal is not None:
+        check_inertia(f"{where.rsplit('.', 1)[-1]} ({where}.nominal)", np.asarray(inertia.nominal, dtype=float),
+                      warn=warn)
+    if inertia.second_moments is not None:
+        _check_second_moments(inertia, where)
 
 
 def _check_second_moments(inertia: InertiaDispersion, where: str) -> None:

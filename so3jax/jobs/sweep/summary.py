@@ -120,7 +120,7 @@ def column_units(config: SweepConfig, names) -> dict:
         controller = next((c for c in config.controllers if name.startswith(c + "_")), None)
         if name in PARAMETER_UNITS:
             out[name] = PARAMETER_UNITS[name]
-        elif key == "inertia.events.targets" or name.startswith("inertia.events.targets_"):
+        elif key == "inertia.events.targets" and len(leaves[key].shape) == 1:
             out[name] = "-"  # scales of the inertia at the event
         elif key is not None:
             table, component, param = key.split(".")
