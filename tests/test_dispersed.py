@@ -315,33 +315,36 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
         np.testing.assert_allclose(one[name][0], batch[name][1], rtol=1e-12, err_msg=name)
 
 
-def test_a_dispersed_linear_change_gives_each_sample_its_own_table():
-    """inertia.linear: the start inertia drawn as a rigid body's (the second-moments form), the
-    times around the mission's; each sample's J(t), its table evaluated lane by lane in a
-    batch, is the mission's written with its values."""
+@pytest.mark.parametrize("kind", ["linear", "table"])
+def test_a_dispersed_inertia_table_gives_each_sample_its_own(kind):
+    """inertia.linear (its start) and inertia.table (its inertias): each inertia drawn as a
+    rigid body's (the second-moments form), the times around the mission's; each sample's
+    J(t), its table evaluated lane by lane in a batch, is the mission's written with its
+    values."""
     from so3jax.missions import build
     from so3jax.missions import mission as missions
 
-    J = EVENTS["inertia"]["events"]["initial"]
-    linear = {**EVENTS, "reference": {"kind": "inertial"},
-              "inertia": {"kind": "linear", "linear": {"start": J, "end": (1.5 * np.asarray(J)).tolist(),
-                                                       "times": [2.0, 8.0]}}}
-    m = missions.from_dict(linear)
-    table = {"inertia": {"linear": {"start": BODY, "times": {**OFFSET, "low": -1.0, "high": 1.0}}}}
+    J = np.asarray(EVENTS["inertia"]["events"]["initial"])
+    given = ({"start": J.tolist(), "end": (1.5 * J).tolist(), "times": [2.0, 8.0]} if kind == "linear"
+             else {"times": [2.0, 5.0, 8.0], "inertias": [J.tolist(), (1.2 * J).tolist(), (0.9 * J).tolist()]})
+    drawn = "start" if kind == "linear" else "inertias"
+    mission = {**EVENTS, "reference": {"kind": "inertial"}, "inertia": {"kind": kind, kind: given}}
+    m = missions.from_dict(mission)
+    table = {"inertia": {kind: {drawn: BODY, "times": {**OFFSET, "low": -1.0, "high": 1.0}}}}
     samples = dispersed.draw(*dispersed.parse(table, m), 0, 4, 20, mission=m)
-    start = samples.leaves["inertia.linear.start"]
-    moments = np.linalg.eigvalsh(start)
-    assert samples.valid.all() and np.all(moments[:, 0] + moments[:, 1] >= moments[:, 2])  # bodies
-    assert len(np.unique(start[:, 0, 0])) == 4 and np.allclose(start, np.swapaxes(start, 1, 2))
+    inertias = samples.leaves[f"inertia.{kind}.{drawn}"]
+    moments = np.linalg.eigvalsh(inertias)
+    assert samples.valid.all() and np.all(moments[..., 0] + moments[..., 1] >= moments[..., 2])  # bodies
+    assert len(np.unique(inertias[..., 0, 0])) == inertias[..., 0, 0].size
+    np.testing.assert_allclose(inertias, np.swapaxes(inertias, -1, -2), rtol=1e-15)
     inputs = dispersed.inputs(samples, np.float64)
     profiles = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p).inertia)(*inputs)
     lanes = jax.tree.map(lambda x: np.moveaxis(x, 0, -1), profiles)
     t = np.linspace(0.0, 10.0, 11)
-    got = jax.jit(lambda table: jax.vmap(lambda s: table(s, 0))(t))(lanes)
+    got = jax.jit(lambda profile: jax.vmap(lambda s: profile(s, 0))(t))(lanes)
     for i in range(4):
-        own = {"start": start[i].tolist(), "end": linear["inertia"]["linear"]["end"],
-               "times": samples.leaves["inertia.linear.times"][i].tolist()}
-        alone = build.scenario(missions.from_dict({**linear, "inertia": {"kind": "linear", "linear": own}})).inertia
+        own = {**given, drawn: inertias[i].tolist(), "times": samples.leaves[f"inertia.{kind}.times"][i].tolist()}
+        alone = build.scenario(missions.from_dict({**mission, "inertia": {"kind": kind, kind: own}})).inertia
         np.testing.assert_allclose(got[..., i], jax.vmap(lambda s: alone(s, 0))(t), rtol=1e-14)
 
 

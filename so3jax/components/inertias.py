@@ -96,12 +96,19 @@ def _linear_values(values: dict) -> dict:
     return values
 
 
+def _table(times, inertias, as_array):
+    """An inertia table: checked where concrete (:func:`~so3jax.dynamics.inertia_timelines.table`),
+    built as it is where traced (a sweep's samples, checked where they are drawn)."""
+    if any(isinstance(x, jax.core.Tracer) for x in (times, inertias)):
+        return timelines.InertiaTable(as_array(times), as_array(inertias))
+    return timelines.table(as_array(times), as_array(inertias))
+
+
 def _linear(values: dict, as_array):
-    """The linear change's table: checked where concrete, traced as it is (a sweep's samples,
-    checked where they are drawn)."""
-    if any(isinstance(values[k], jax.core.Tracer) for k in ("start", "end", "times")):
-        return timelines.InertiaTable(as_array(values["times"]), as_array(jnp.stack([values["start"], values["end"]])))
-    return timelines.table(as_array(values["times"]), as_array(np.stack([values["start"], values["end"]])))
+    """The linear change's table of two samples."""
+    ends = (values["start"], values["end"])
+    stack = jnp.stack if any(isinstance(x, jax.core.Tracer) for x in ends) else np.stack
+    return _table(values["times"], stack(ends), as_array)
 
 
 def _table_values(values: dict) -> dict:
@@ -162,6 +169,6 @@ components.register(components.ComponentSpec(
         Param("inertias", None, "kg m^2", shapes=((None, 3, 3),), doc="the samples' inertias"),
     ),
     complete=_table_values,
-    build=lambda v, ctx: timelines.table(ctx.as_array(v["times"]), ctx.as_array(v["inertias"])),
+    build=lambda v, ctx: _table(v["times"], v["inertias"], ctx.as_array),
     doc="a tabulated inertia history, linear between samples, held outside",
 ))

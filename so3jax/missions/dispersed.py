@@ -81,6 +81,7 @@ SCENARIO_LEAVES = {
     ("inertia", "events"): {"initial": INERTIA, "times": (0.0, False), "time_constants": (0.0, False),
                             "targets": (0.0, True)},
     ("inertia", "linear"): {"start": INERTIA, "end": INERTIA, "times": (0.0, False)},
+    ("inertia", "table"): {"inertias": INERTIA, "times": (-math.inf, False)},
 }
 # A distribution's ``relative`` key: "offset", the mission's value plus the draw; "scale", times it.
 RELATIVE = ("offset", "scale")
@@ -336,8 +337,9 @@ def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarra
                                        given["max_rate"], given["max_acceleration"])
     if "inertia.events.times" in values:
         valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
-    if "inertia.linear.times" in values:
-        valid &= np.diff(values["inertia.linear.times"], axis=1)[:, 0] > 0
+    for key in ("inertia.linear.times", "inertia.table.times"):
+        if key in values:
+            valid &= np.all(np.diff(values[key], axis=1) > 0, axis=1)
     for key, x in values.items():
         if key.startswith("inertia.") and np.shape(x)[-2:] == (3, 3):
             valid &= np.all(disp.is_positive_definite(x), axis=tuple(range(1, np.ndim(x) - 2)))
