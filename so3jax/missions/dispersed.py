@@ -77,7 +77,8 @@ INERTIA = "inertia"  # an inertia matrix [kg m^2], dispersed as inertia.J0 is (a
 SCENARIO_LEAVES = {
     ("reference", "inertial"): {"attitude": (-math.inf, False)},
     ("reference", "lvlh"): {"offset": (-math.inf, False)},
-    ("reference", "slews"): {"start": (-math.inf, False), "attitudes": (-math.inf, False), "times": (0.0, False)},
+    ("reference", "slews"): {"start": (-math.inf, False), "attitudes": (-math.inf, False), "times": (0.0, False),
+                             "max_rate": (0.0, True), "max_acceleration": (0.0, True)},
     ("inertia", "events"): {"initial": INERTIA, "times": (0.0, False), "time_constants": (0.0, False),
                             "targets": (0.0, True)},
     ("inertia", "linear"): {"start": INERTIA, "end": INERTIA, "times": (0.0, False)},
@@ -330,11 +331,11 @@ def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarra
     if any(k.startswith("reference.slews.") for k in values):
         given = mission.reference["slews"]
         drawn = {name: values.get(f"reference.slews.{name}", np.asarray(given[name], np.float64))
-                 for name in ("start", "attitudes", "times")}
+                 for name in ("start", "attitudes", "times", "max_rate", "max_acceleration")}
         rotation = lambda v: Rotation.from_rotvec(np.reshape(v, (-1, 3))).as_matrix().reshape(np.shape(v) + (3,))
         times = np.broadcast_to(drawn["times"], (n_samples, len(given["times"])))
         valid &= ~profiles.overlapping(rotation(drawn["start"]), rotation(drawn["attitudes"]), times,
-                                       given["max_rate"], given["max_acceleration"])
+                                       drawn["max_rate"], drawn["max_acceleration"])
     if "inertia.events.times" in values:
         valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
     for key in ("inertia.linear.times", "inertia.table.times"):
