@@ -178,8 +178,23 @@ class EigenaxisSlews(Reference):
         return self.terms(t, phase)[0]
 
     def terms(self, t, phase):
-        """(R_d, Omega_d, Omega_d') from one evaluation of the profile."""
-        return _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase)
+        """(R_d, Omega_d, Omega_d') from one evaluation of the profile. A batch of plans (its
+        leaves with a trailing batch axis) evaluates the profile only while a lane slews: held,
+        every lane's attitude is a start of its plan and its rates are 0, the same values."""
+        held, slewing = _per_lane(self, self._CORE, EigenaxisSlews._held, t, phase)
+        if jnp.ndim(slewing) == 0:  # shared by the batch: one evaluation
+            return _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase)
+        zeros = jnp.zeros(held.shape[1:], held.dtype)
+        return jax.lax.cond(jnp.any(slewing), lambda: _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase),
+                            lambda: (held, zeros, zeros))
+
+    def _held(self, t, phase):
+        """(R_d where no slew is under way: starts[k], or starts[k + 1] once slew k ends;
+        whether slew k is under way, 0 < t - times[k] < durations[k])."""
+        t = _time(t, self.times)
+        k = jnp.maximum(jnp.searchsorted(self.times, t, side="right", method="compare_all") - 1, 0)
+        s = t - self.times[k]
+        return jnp.where(s >= self.durations[k], self.starts[k + 1], self.starts[k]), (s > 0) & (s < self.durations[k])
 
     def _terms(self, t, phase):
         k, s, theta, rate, acceleration = self._profile(t)
