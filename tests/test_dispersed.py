@@ -348,6 +348,44 @@ def test_a_dispersed_inertia_table_gives_each_sample_its_own(kind):
         np.testing.assert_allclose(got[..., i], jax.vmap(lambda s: alone(s, 0))(t), rtol=1e-14)
 
 
+def test_a_dispersed_attitude_table_gives_each_sample_its_own_times():
+    """reference.table: its times around the mission's (a sample whose times do not increase
+    rejected); each sample's R_d, Omega_d, Omega_d', its table evaluated lane by lane in a
+    batch, are those of the mission written with its times."""
+    from so3jax.missions import build
+    from so3jax.missions import mission as missions
+
+    half = np.sqrt(0.5)
+    mission = {**EVENTS, "inertia": {"J": EVENTS["inertia"]["events"]["initial"]},
+               "reference": {"kind": "table", "table": {
+                   "times": [0.0, 1.0, 2.0, 3.0], "quaternions": [[1.0, 0.0, 0.0, 0.0], [0.99, 0.1, 0.0, 0.0],
+                                                                 [0.98, 0.1, 0.1, 0.0], [half, 0.0, 0.0, half]]}}}
+    mission["reference"]["table"]["quaternions"] = (np.asarray(mission["reference"]["table"]["quaternions"])
+                                                    / np.linalg.norm(mission["reference"]["table"]["quaternions"],
+                                                                     axis=1, keepdims=True)).tolist()
+    m = missions.from_dict(mission)
+    table = {"reference": {"table": {"times": {**OFFSET, "low": -0.9, "high": 0.9}}}}
+    samples = dispersed.draw(*dispersed.parse(table, m), 0, 12, 20, mission=m)
+    times = samples.leaves["reference.table.times"]
+    np.testing.assert_array_equal(samples.valid, np.all(np.diff(times, axis=1) > 0, axis=1))
+    valid = np.flatnonzero(samples.valid)
+    assert 2 <= len(valid) < 12
+    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
+    references = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p).reference)(*inputs)
+
+    @jax.jit
+    def evaluate(reference):
+        at = lambda f: jax.vmap(lambda s: f(s, 0))(np.linspace(-0.5, 3.5, 17))
+        return at(reference.attitude), at(reference.rate), at(reference.rate_dot)
+
+    got = evaluate(jax.tree.map(lambda x: np.moveaxis(x, 0, -1), references))
+    for j, i in enumerate(valid):
+        own = {**mission["reference"]["table"], "times": times[i].tolist()}
+        alone = build.scenario(missions.from_dict({**mission, "reference": {"kind": "table", "table": own}}))
+        for x, y in zip(got, evaluate(alone.reference)):
+            np.testing.assert_allclose(x[..., j], y, rtol=1e-12, atol=1e-15)
+
+
 @pytest.mark.parametrize("table, message", [
     ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}},
      r"unknown key\(s\) in \[dispersions.inertia.events.initial\]: dist, high, low"),  # an inertia's form

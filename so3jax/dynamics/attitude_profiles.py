@@ -302,7 +302,6 @@ class Tabulated(Reference):
 
     def _interval(self, t):
         """(k, t held in [t_0, t_{K-1}], dt/dt (1 inside, 0 where held), t' -> exp(hat(p(t'))) on interval k)."""
-        self = _shared(self, self._CORE)  # noqa: PLW0642 (the same reference, its leaves unbatched)
         times, t = self.times, _time(t, self.times)
         held = jnp.where(t < times[0], times[0], jnp.where(t > times[-1], times[-1], t))
         moving = jnp.where(held == t, 1.0, 0.0).astype(t.dtype)
@@ -321,16 +320,25 @@ class Tabulated(Reference):
 
     def attitude(self, t, phase):
         """R_d(t) = R_k exp(hat(p(t)))."""
-        k, held, _, turn = self._interval(t)
-        return so3.matmul(_shared(self, self._CORE).rotations[k], turn(held))
+        return _per_lane(self, self._CORE, Tabulated._attitude, t, phase)
 
     def rate(self, t, phase):
         """Omega_d = vee(R_d^T R_d') = vee(E^T E') [rad/s], E = exp(hat(p(t))) (forward mode)."""
-        _, held, moving, turn = self._interval(t)
-        return _body_rate(turn, held, moving)
+        return _per_lane(self, self._CORE, Tabulated._rate, t, phase)
 
     def rate_dot(self, t, phase):
         """Omega_d' [rad/s^2] (forward mode over Omega_d)."""
+        return _per_lane(self, self._CORE, Tabulated._rate_dot, t, phase)
+
+    def _attitude(self, t, phase):
+        k, held, _, turn = self._interval(t)
+        return so3.matmul(self.rotations[k], turn(held))
+
+    def _rate(self, t, phase):
+        _, held, moving, turn = self._interval(t)
+        return _body_rate(turn, held, moving)
+
+    def _rate_dot(self, t, phase):
         _, held, moving, turn = self._interval(t)
         return jax.jvp(lambda t: _body_rate(turn, t, moving), (held,), (moving,))[1]
 
@@ -381,6 +389,8 @@ def tabulated(times, rotations, rates=None) -> Tabulated:
     neighbouring knots (central inside, one-sided at the ends)."""
     dtype = _float_dtype(rotations)
     rotations, times = jnp.asarray(rotations, dtype=dtype), jnp.asarray(times, dtype=dtype)
+    if isinstance(times, jax.core.Tracer) and rates is None:  # a sweep's sample: checked where drawn
+        return Tabulated(times, rotations, *_table_terms(times, rotations, None))
     _check_shape("tabulated times", times, (None,))
     K = times.shape[0]
     if K < 2:

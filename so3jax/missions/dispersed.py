@@ -77,6 +77,7 @@ INERTIA = "inertia"  # an inertia matrix [kg m^2], dispersed as inertia.J0 is (a
 SCENARIO_LEAVES = {
     ("reference", "inertial"): {"attitude": (-math.inf, False)},
     ("reference", "lvlh"): {"offset": (-math.inf, False)},
+    ("reference", "table"): {"times": (-math.inf, False)},
     ("reference", "slews"): {"start": (-math.inf, False), "attitudes": (-math.inf, False), "times": (0.0, False),
                              "max_rate": (0.0, True), "max_acceleration": (0.0, True)},
     ("inertia", "events"): {"initial": INERTIA, "times": (0.0, False), "time_constants": (0.0, False),
@@ -338,7 +339,7 @@ def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarra
                                        drawn["max_rate"], drawn["max_acceleration"])
     if "inertia.events.times" in values:
         valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
-    for key in ("inertia.linear.times", "inertia.table.times"):
+    for key in ("inertia.linear.times", "inertia.table.times", "reference.table.times"):
         if key in values:
             valid &= np.all(np.diff(values[key], axis=1) > 0, axis=1)
     for key, x in values.items():
