@@ -44,7 +44,7 @@ def _crosscheck_into(args, mission) -> int:
     print(f"flying {', '.join(mission.controllers)} in so3jax and in Basilisk: {mission.T:g} s at dt = "
           f"{mission.dt:g} s, control period {mission.period:g} s ...", file=sys.stderr, flush=True)
     reports, differences, _ = crosscheck.crosscheck(mission, args.precision)
-    out = {**reports, "config": {**mission.describe(), "precision": args.precision,
+    out = {**reports, "units": crosscheck.UNITS, "config": {**mission.describe(), "precision": args.precision,
                                  "mission_file": str(args.mission), "simulator": args.simulator}}
     write_json(args.out / "crosscheck.json", out)
     save_npz(args.out / "differences.npz", **{f"{name}/{field}": value for name, d in differences.items()

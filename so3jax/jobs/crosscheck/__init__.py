@@ -15,6 +15,9 @@ from so3jax.jobs import fly as flights
 from so3jax.jobs.crosscheck import basilisk, representable
 
 QUANTITIES = (("attitude", "rad"), ("rate", "rad/s"), ("wheel_speed", "rad/s"), ("torque", "N m"))
+# crosscheck.json's units (so3jax.results.units)
+UNITS = {**{f"max_{q}": unit for q, unit in QUANTITIES}, "max_torque_relative": "-", "max_torque_command": "N m",
+         "wall_time_s": "s"}
 
 
 class Differences(NamedTuple):
