@@ -43,15 +43,15 @@ class ReferenceContext(NamedTuple):
     paper: Any
 
 
-def _rotation(rotvec, as_array=np.asarray):
+def rotation(rotvec, as_array=np.asarray):
     """exp(hat(rotvec)) of a rotation vector (3,) or several (K, 3): in float64 by Rodrigues'
     formula where concrete, by :func:`so3jax.core.so3.exp` where traced (a sweep's samples)."""
     if isinstance(rotvec, jax.core.Tracer):
         v = jnp.asarray(rotvec)
         return jnp.moveaxis(so3.exp(jnp.moveaxis(v, -1, 0)), (0, 1), (-2, -1))
     v = np.asarray(rotvec, np.float64)
-    if v.ndim == 2:
-        return as_array(np.stack([_rotation(x) for x in v]))
+    if v.ndim > 1:
+        return as_array(np.stack([rotation(x) for x in v]))
     angle = float(np.linalg.norm(v))
     K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
     return as_array(np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K))
@@ -67,7 +67,7 @@ def constant_rate(rate, start, ctx: ReferenceContext) -> ref.PiecewiseConstantRa
 
 
 def _lvlh(values, ctx: ReferenceContext):
-    offset = _rotation(values["offset"], ctx.as_array)
+    offset = rotation(values["offset"], ctx.as_array)
     orbit = jnp.stack([jnp.zeros(()), -ctx.as_array(ctx.orbit_rate), jnp.zeros(())])  # LVLH's rate, in LVLH
     return constant_rate(offset.T @ orbit, offset, ctx)
 
@@ -80,7 +80,7 @@ components.register(components.ComponentSpec(
 components.register(components.ComponentSpec(
     kind="reference", name="inertial", component=ref.PiecewiseConstantRate,
     params=(Param("attitude", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="R_d = exp(hat(attitude))"),),
-    build=lambda v, ctx: constant_rate(np.zeros(3), _rotation(v["attitude"], ctx.as_array), ctx),
+    build=lambda v, ctx: constant_rate(np.zeros(3), rotation(v["attitude"], ctx.as_array), ctx),
     doc="a fixed inertial attitude: Omega_d = 0",
 ))
 components.register(components.ComponentSpec(
@@ -108,7 +108,7 @@ def _slews_values(values: dict) -> dict:
 
 
 def _slews(values: dict, as_array):
-    return profiles.eigenaxis_slews(_rotation(values["start"], as_array), _rotation(values["attitudes"], as_array),
+    return profiles.eigenaxis_slews(rotation(values["start"], as_array), rotation(values["attitudes"], as_array),
                                     as_array(values["times"]), as_array(values["max_rate"]),
                                     as_array(values["max_acceleration"]))
 

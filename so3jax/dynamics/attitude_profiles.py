@@ -50,12 +50,18 @@ def _shared(reference, core_ndims: dict):
     return dataclasses.replace(reference, **changes) if changes else reference
 
 
+def _lanes(reference, core_ndims: dict) -> dict:
+    """{leaf: whether it carries a trailing batch axis of several trajectories} (a sweep's
+    samples' own references)."""
+    return {name: jnp.ndim(getattr(reference, name)) > ndim and jnp.shape(getattr(reference, name))[-1] > 1
+            for name, ndim in core_ndims.items()}
+
+
 def _per_lane(reference, core_ndims: dict, method, t, phase):
     """``method(reference, t, phase)`` of a reference shared by a batch (:func:`_shared`), or,
-    where its leaves carry a trailing batch axis of several trajectories (a sweep's samples'
-    own references), lane by lane: the outputs' batch axis last."""
-    lanes = {name: jnp.ndim(getattr(reference, name)) > ndim and jnp.shape(getattr(reference, name))[-1] > 1
-             for name, ndim in core_ndims.items()}
+    where its leaves carry a trailing batch axis of several trajectories (:func:`_lanes`),
+    lane by lane: the outputs' batch axis last."""
+    lanes = _lanes(reference, core_ndims)
     if not any(lanes.values()):
         return method(_shared(reference, core_ndims), t, phase)
     axes = dataclasses.replace(reference, **{name: -1 if lane else None for name, lane in lanes.items()})
@@ -158,9 +164,7 @@ class EigenaxisSlews(Reference):
     def _profile(self, t):
         """(k, s = t - times[k], theta, theta', theta'') of the last slew k started (k = 0 before
         the first), of a reference whose leaves have their core ndim."""
-        t = _time(t, self.times)
-        k = jnp.maximum(jnp.searchsorted(self.times, t, side="right", method="compare_all") - 1, 0)
-        s = t - self.times[k]
+        k, s = self._slew_at(t)
         profile = _slew_profile(s, self.angles[k], self.pulses[k], self.coasts[k], self.durations[k],
                                 self.max_acceleration)
         return (k, s) + profile
@@ -181,9 +185,9 @@ class EigenaxisSlews(Reference):
         """(R_d, Omega_d, Omega_d') from one evaluation of the profile. A batch of plans (its
         leaves with a trailing batch axis) evaluates the profile only while a lane slews: held,
         every lane's attitude is a start of its plan and its rates are 0, the same values."""
-        held, slewing = _per_lane(self, self._CORE, EigenaxisSlews._held, t, phase)
-        if jnp.ndim(slewing) == 0:  # shared by the batch: one evaluation
+        if not any(_lanes(self, self._CORE).values()):  # shared by the batch: one evaluation
             return _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase)
+        held, slewing = _per_lane(self, self._CORE, EigenaxisSlews._held, t, phase)
         zeros = jnp.zeros(held.shape[1:], held.dtype)
         return jax.lax.cond(jnp.any(slewing), lambda: _per_lane(self, self._CORE, EigenaxisSlews._terms, t, phase),
                             lambda: (held, zeros, zeros))
@@ -191,10 +195,14 @@ class EigenaxisSlews(Reference):
     def _held(self, t, phase):
         """(R_d where no slew is under way: starts[k], or starts[k + 1] once slew k ends;
         whether slew k is under way, 0 < t - times[k] < durations[k])."""
+        k, s = self._slew_at(t)
+        return jnp.where(s >= self.durations[k], self.starts[k + 1], self.starts[k]), (s > 0) & (s < self.durations[k])
+
+    def _slew_at(self, t):
+        """(k, t - times[k]) of the last slew k started (k = 0 before the first)."""
         t = _time(t, self.times)
         k = jnp.maximum(jnp.searchsorted(self.times, t, side="right", method="compare_all") - 1, 0)
-        s = t - self.times[k]
-        return jnp.where(s >= self.durations[k], self.starts[k + 1], self.starts[k]), (s > 0) & (s < self.durations[k])
+        return k, t - self.times[k]
 
     def _terms(self, t, phase):
         k, s, theta, rate, acceleration = self._profile(t)
@@ -229,9 +237,13 @@ def overlapping(start, attitudes, times, max_rate, max_acceleration) -> np.ndarr
 
     plan = jax.vmap(_slew_plan)(flat(start, 2), flat(attitudes, 3), flat(max_rate, 0), flat(max_acceleration, 0))
     ends = times + np.asarray(plan[-1], np.float64).reshape(times.shape)
-    tolerance = 16.0 * np.finfo(np.float64).eps * np.maximum(1.0, np.abs(ends))
     bad = ~np.all(np.isfinite(times), axis=-1) | (times[..., 0] < 0.0) | np.any(np.diff(times, axis=-1) < 0.0, axis=-1)
-    return bad | np.any(ends[..., :-1] > times[..., 1:] + tolerance[..., :-1], axis=-1)
+    return bad | np.any(_late(times, ends, np.finfo(np.float64).eps), axis=-1)
+
+
+def _late(times, ends, eps):
+    """(..., K - 1) whether slew k ends after slew k + 1 starts (beyond 16 eps of round-off)."""
+    return ends[..., :-1] > times[..., 1:] + 16.0 * eps * np.maximum(1.0, np.abs(ends[..., :-1]))
 
 
 def eigenaxis_slews(start, attitudes, times, max_rate, max_acceleration) -> EigenaxisSlews:
@@ -270,8 +282,7 @@ def eigenaxis_slews(start, attitudes, times, max_rate, max_acceleration) -> Eige
     _check_rotations("eigenaxis_slews attitudes", attitudes)
     plan = _slew_plan(start, attitudes, max_rate, max_acceleration)
     ends = t + np.asarray(plan[-1], np.float64)
-    tolerance = 16.0 * float(jnp.finfo(dtype).eps) * np.maximum(1.0, np.abs(ends))
-    late = np.flatnonzero(ends[:-1] > t[1:] + tolerance[:-1])
+    late = np.flatnonzero(_late(t, ends, float(jnp.finfo(dtype).eps)))
     if late.size:
         k = int(late[0])
         raise ValueError(f"eigenaxis_slews: slew {k} ends at {ends[k]:.9g} s (duration {ends[k] - t[k]:.9g} s), "

@@ -12,7 +12,7 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.inertias import InertiaContext
-from so3jax.components.references import ReferenceContext
+from so3jax.components.references import ReferenceContext, rotation
 from so3jax.dynamics.environment import circular_orbit
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
@@ -88,11 +88,3 @@ def reference(mission, scenario: Scenario, n):
     context = ReferenceContext(lambda x: jnp.asarray(x, dtype), n, scenario.phase_times, scenario.reference)
     with jax.ensure_compile_time_eval():  # a builder that checks its values sees them, also inside jit
         return components.get("reference", kind).build(mission.reference[kind], context)
-
-
-def rotation(rotvec) -> np.ndarray:
-    """exp(hat(rotvec)) (3, 3), Rodrigues' formula in float64."""
-    v = np.asarray(rotvec, float)
-    angle = float(np.linalg.norm(v))
-    K = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]]) / max(angle, 1e-300)
-    return np.eye(3) + np.sin(angle) * K + (1.0 - np.cos(angle)) * (K @ K)

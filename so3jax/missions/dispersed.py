@@ -46,7 +46,6 @@ import zlib
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from so3jax.components import registry as components
 from so3jax.core import checks, so3
@@ -313,7 +312,10 @@ def _scenario_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
 
 def scenario_values(mission: Mission, values: dict) -> Mission:
     """The mission with its reference's and inertia's dispersed parameters {key: value}
-    replaced (traceable: only :func:`so3jax.missions.build.scenario` reads the result)."""
+    replaced (traceable: only :func:`so3jax.missions.build.scenario` reads the result); the
+    mission itself without any."""
+    if not values:
+        return mission
     tables = {}
     for key, value in values.items():
         table, kind, param = key.split(".")
@@ -333,13 +335,10 @@ def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarra
         given = mission.reference["slews"]
         drawn = {name: values.get(f"reference.slews.{name}", np.asarray(given[name], np.float64))
                  for name in ("start", "attitudes", "times", "max_rate", "max_acceleration")}
-        rotation = lambda v: Rotation.from_rotvec(np.reshape(v, (-1, 3))).as_matrix().reshape(np.shape(v) + (3,))
         times = np.broadcast_to(drawn["times"], (n_samples, len(given["times"])))
-        valid &= ~profiles.overlapping(rotation(drawn["start"]), rotation(drawn["attitudes"]), times,
-                                       drawn["max_rate"], drawn["max_acceleration"])
-    if "inertia.events.times" in values:
-        valid &= np.all(np.diff(values["inertia.events.times"], axis=1) > 0, axis=1)
-    for key in ("inertia.linear.times", "inertia.table.times", "reference.table.times"):
+        valid &= ~profiles.overlapping(disp.rotation_matrix(drawn["start"]), disp.rotation_matrix(drawn["attitudes"]),
+                                       times, drawn["max_rate"], drawn["max_acceleration"])
+    for key in ("inertia.events.times", "inertia.linear.times", "inertia.table.times", "reference.table.times"):
         if key in values:
             valid &= np.all(np.diff(values[key], axis=1) > 0, axis=1)
     for key, x in values.items():
@@ -457,10 +456,7 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
     own = {k: v for k, v in leaves.items() if k.split(".")[0] in ("reference", "inertia")}
     leaves = {k: v for k, v in leaves.items() if k not in own}
-    if own:  # each sample's reference or inertia, of its dispersed values
-        scenarios = jax.vmap(lambda p, v: build.scenario(scenario_values(m, v), p))(params, own)
-    else:
-        scenarios = jax.vmap(lambda p: build.scenario(m, p))(params)
+    scenarios = jax.vmap(lambda p, v: build.scenario(scenario_values(m, v), p))(params, own)  # own: its own
     dispersed_tables = {k.split(".")[0] for k in own}
     shared_parts = [name for name, shared_part in (
         ("reference", "reference" not in dispersed_tables  # a constant rate depends on the sample's orbit rate

@@ -19,8 +19,8 @@ import math
 
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics
+from so3jax.sim.pointing import ARCSEC  # arcsec per rad
 
-ARCSEC = math.degrees(1.0) * 3600.0  # arcsec per rad
 DEG_PER_HOUR = math.degrees(1.0) * 3600.0  # deg/h per rad/s
 
 # SI unit of each metric ("-": dimensionless, or a flag).
