@@ -48,9 +48,16 @@ class InertiaEvents(InertiaProfile):
     convex_phases = True
 
     def __call__(self, t, phase):
+        return self.in_step(t, phase, t)
+
+    def in_step(self, t, phase, midpoint):
+        """J at time t [s] within the integration step whose midpoint is ``midpoint`` [s]
+        (:func:`~so3jax.dynamics.plant.stage_inertia`): a step from that step on when its
+        time is at most the midpoint, a blend from its time on."""
         J = self.initial
         for k in range(self.times.shape[0]):
-            J = jnp.where(t >= self.times[k], self._event(k, t), J)
+            switch = jnp.where(self.time_constants[k] <= 0, midpoint, t)
+            J = jnp.where(switch >= self.times[k], self._event(k, t), J)
         return J
 
     def _event(self, k, t):

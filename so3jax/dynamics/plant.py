@@ -6,7 +6,9 @@ actuator puts on the body, the disturbance and the momentum the actuator stores
 
 An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
 ``phase`` is the index of the mission phase that holds at the start of the current
-step (docs/model.md §5), so a profile may switch laws without straddling a step.
+step (docs/model.md §5), so a profile may switch laws without straddling a step. A profile
+with steps of its own (inertia events) also has ``in_step(t, phase, midpoint)``
+(:func:`stage_inertia`): its steps switch on the integration step, not on the stage time.
 """
 
 from __future__ import annotations
@@ -109,6 +111,15 @@ class InertiaFunction(InertiaProfile):
 
     def __call__(self, t, phase):
         return self.fn(t)
+
+
+def stage_inertia(profile, t, phase, midpoint):
+    """J at time t [s] within the integration step whose midpoint is ``midpoint`` [s]
+    (docs/model.md §5): a profile's own steps switch at the integration step nearest
+    their time, on all four RK4 stages, as the paper's phases do, so no step straddles
+    one; everything else is J(t)."""
+    in_step = getattr(profile, "in_step", None)
+    return profile(t, phase) if in_step is None else in_step(t, phase, midpoint)
 
 
 def inertia_rate(profile, t, phase):

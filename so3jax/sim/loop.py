@@ -42,7 +42,7 @@ from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.core.so3 import broadcast
 from so3jax.dynamics import plant, stepped
 from so3jax.dynamics.inertia import _concrete
-from so3jax.dynamics.plant import inertia_rate
+from so3jax.dynamics.plant import inertia_rate, stage_inertia
 from so3jax.dynamics.scenario import Scenario
 from so3jax.sim import metrics
 
@@ -103,6 +103,18 @@ def time(scenario: Scenario, k):
     return k.astype(dtype) * jnp.asarray(scenario.dt, dtype)
 
 
+def midpoint(scenario: Scenario, t):
+    """t + dt/2 [s]: the midpoint of the step starting at t, where the inertia's own steps
+    switch (:func:`so3jax.dynamics.plant.stage_inertia`)."""
+    return t + 0.5 * jnp.asarray(scenario.dt, scenario.R0.dtype)
+
+
+def inertia(scenario: Scenario, t, p):
+    """J [kg m^2] of the step starting at t [s] in phase p, as its first stage sees it:
+    what the records show."""
+    return stage_inertia(scenario.inertia, t, p, midpoint(scenario, t))
+
+
 def phase(scenario: Scenario, k):
     """Index of the phase holding at step k (phase switches on step boundaries)."""
     return sum((k >= K).astype(jnp.int32) for K in scenario.phase_steps) if scenario.phase_steps else 0
@@ -149,8 +161,9 @@ def _integrated(state: State, with_controller: bool) -> State:
     return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
 
 
-def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None, managed=()):
-    """The vector field of one step (phase and disturbance held). law(t, x, desired) ->
+def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None, managed=()):
+    """The vector field of one step (phase and disturbance held; midpoint: t_k + dt/2 [s],
+    where the inertia's own steps switch). law(t, x, desired) ->
     (actuator input, controller state rate): the controller in every stage
     (continuous), or the held input (sampled). stages: the step's precomputed time terms
     (:func:`so3jax.dynamics.stepped.stage_terms`), taken in the order RK4 calls the field; None:
@@ -165,7 +178,8 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, stages=None, managed=(
         R_d = x.R_d.R if isinstance(x.R_d, OnSO3) else terms.R_d
         wanted = desired(scenario, t, phase, R_d, Omega)
         held, controller_dot = law(t, x, wanted)
-        J = so3.batch_like(scenario.inertia(t, phase), 2, Omega) if terms.J is None else terms.J
+        J = terms.J if terms.J is not None else so3.batch_like(stage_inertia(scenario.inertia, t, phase, midpoint),
+                                                               2, Omega)
         J_dot = (
             so3.batch_like(inertia_rate(scenario.inertia, t, phase), 2, Omega)
             if scenario.variable_inertia_term
@@ -242,7 +256,7 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         h_w = loop.actuator.uncompensated_momentum(x.actuator, x.Omega)
         tau, controller_dot = controller.torque(gains, x.controller, Feedback(x.R.R, x.Omega, h_w), wanted, t)
         return loop.actuator.command(x.actuator, _less_feedforward(loop, tau, managed), x.Omega), controller_dot
-    field = _field(scenario, loop, p, d, law, stages, managed)
+    field = _field(scenario, loop, p, d, law, midpoint(scenario, t), stages, managed)
     x, (held, wanted) = rk4_step(field, t, jnp.asarray(scenario.dt, dtype), _integrated(state, continuous))
     new = state._replace(
         manager=manager,
@@ -278,7 +292,7 @@ def observe(scenario: Scenario, controller: Controller, gains, state: State, k, 
                                   state.Omega)
     batch = state.Omega.shape[1:]
     wanted = Desired(*(broadcast(x, x.ndim - len(batch), batch) for x in wanted))
-    J = broadcast(so3.batch_like(scenario.inertia(t, p), 2, state.Omega), 2, batch)
+    J = broadcast(so3.batch_like(inertia(scenario, t, p), 2, state.Omega), 2, batch)
     return Observation(t, tau, wanted, sample(state, tau, wanted), J, tau_cmd)
 
 

@@ -36,6 +36,7 @@ from so3jax.sim.loop import (
     Loop,
     State,
     check_loop,
+    inertia,
     initial_state,
     manage,
     observe,
@@ -306,7 +307,7 @@ def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k, key) ->
     est = out.estimate
     batch = state.Omega.shape[1:]
     R_d, Omega_d = (broadcast(x, n, batch) for x, n in ((out.desired.R_d, 2), (out.desired.Omega_d, 1)))
-    J = broadcast(so3.batch_like(scenario.inertia(out.t, phase(scenario, k)), 2, state.Omega), 2, batch)
+    J = broadcast(so3.batch_like(inertia(scenario, out.t, phase(scenario, k)), 2, state.Omega), 2, batch)
     return History(
         out.t, state.R, state.Omega, R_d, Omega_d, err.Omega_e, out.tau_applied, so3.angle(err.R_e), J,
         state.controller, out.tau_cmd, _or_none(state.actuator),

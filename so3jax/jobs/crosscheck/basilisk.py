@@ -1,4 +1,5 @@
-"""A mission flown by Basilisk's own modules: the spacecraft hub, reactionWheelStateEffector
+"""A mission flown by Basilisk's own modules: the spacecraft hub (its inertia set between
+runs at each inertia step), reactionWheelStateEffector
 with rwMotorTorque (or extForceTorque for an ideal actuator), simpleNav without noise,
 inertial3D, attTrackingError and mrpFeedback. The dynamics task steps at the mission's dt
 and runs before the flight-software task, which ticks at the control period: a tick reads
@@ -52,6 +53,17 @@ def reference_attitude(mission) -> np.ndarray:
     return np.zeros(3)
 
 
+def inertias(mission) -> tuple[np.ndarray, list]:
+    """J(0) [kg m^2] and [(t [s], J after)] of each inertia step in (0, T): so3jax's profile
+    (a step's target resolved), which :mod:`.representable` admitted as steps."""
+    profile = mission.scenario("float64").inertia
+    if mission.inertia["kind"] != "events":
+        return np.asarray(mission.J0, float), []
+    times, targets = np.asarray(profile.times, float), np.asarray(profile.targets, float)
+    initial = np.asarray(profile(0.0, 0), float)
+    return initial, [(t, J) for t, J in zip(times, targets) if 0.0 < t < mission.T]
+
+
 def _column(v) -> list:
     return [[float(x)] for x in v]
 
@@ -69,7 +81,7 @@ def fly(mission, name: str) -> Flown:
     dynamics.addTask(sim.CreateNewTask("dynamicsTask", dt_ns))
     software.addTask(sim.CreateNewTask("softwareTask", period_ns))
 
-    J = np.asarray(mission.J0, float)
+    J, steps = inertias(mission)
     wheels = mission.actuator["kind"] == "wheels"
     values = mission.actuator.get("wheels", {})
     sc = bsk["spacecraft"].Spacecraft()
@@ -152,7 +164,13 @@ def fly(mission, name: str) -> Flown:
         sim.AddModelToTask("softwareTask", log)
 
     sim.InitializeSimulation()
-    sim.ConfigureStopTime(macros.sec2nano(mission.T) - period_ns)  # the ticks so3jax records: 0 .. T - period
+    stop = macros.sec2nano(mission.T) - period_ns  # the ticks so3jax records: 0 .. T - period
+    for t, J_after in steps:  # the step ending at t flies the inertia before, the next one J_after
+        if macros.sec2nano(t) <= stop:
+            sim.ConfigureStopTime(macros.sec2nano(t))
+            sim.ExecuteSimulation()
+            sc.hub.IHubPntBc_B = J_after.tolist()
+    sim.ConfigureStopTime(stop)
     sim.ExecuteSimulation()
 
     t = np.asarray(state_log.times(), float) * macros.NANO2SEC

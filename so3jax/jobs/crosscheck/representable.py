@@ -34,9 +34,7 @@ def check(mission) -> None:
     for what, seconds in (("dt", m.dt), ("control.period", m.period)):
         if not _whole_ns(seconds):
             _refuse(f"{what} = {seconds:g} s", "its clock counts whole nanoseconds")
-    if m.inertia["kind"] != "paper" or not m.constant_inertia:
-        kind = m.inertia["kind"] if m.inertia["kind"] != "paper" else "paper (deployment and docking)"
-        _refuse(f"the inertia profile inertia.kind = {kind}", "a constant inertia ([inertia] J = ...)")
+    _inertia(m)
     if m.reference["kind"] != "inertial" and not (m.reference["kind"] == "paper" and m.n == 0):
         _refuse(f"reference.kind = \"{m.reference['kind']}\"", "an inertial attitude (reference.kind = \"inertial\", "
                 "its inertial3D module; or the paper's at orbit.n = 0)")
@@ -58,6 +56,25 @@ def check(mission) -> None:
         _refuse(f"actuator.kind = \"{kind}\"", "actuator.kind = \"ideal\" (extForceTorque) or \"wheels\"")
     if kind == "wheels":
         _wheels(m.actuator["wheels"], m.options)
+
+
+def _inertia(m) -> None:
+    """A constant inertia, or steps at the plant's step boundaries: Basilisk's hub holds one
+    inertia per step, set between runs (a blend's J' Omega term it does not have)."""
+    kind = m.inertia["kind"]
+    remedy = "a constant inertia ([inertia] J = ...) or inertia.kind = \"events\" with time_constants 0 (steps)"
+    if kind == "paper" and m.constant_inertia:
+        return
+    if kind != "events":
+        _refuse(f"the inertia profile inertia.kind = {'paper (deployment and docking)' if kind == 'paper' else kind}",
+                remedy)
+    values = m.inertia["events"]
+    if np.any(np.asarray(values["time_constants"]) != 0):
+        _refuse("an inertia event's blend (time_constants > 0)", remedy)
+    for t in np.asarray(values["times"], float):
+        steps = t / m.dt
+        if not _whole_ns(t) or abs(steps - round(steps)) > 1e-9 * max(1.0, steps):
+            _refuse(f"an inertia step at {t:g} s", f"its hub changes inertia between steps: a multiple of dt = {m.dt:g} s")
 
 
 def _wheels(values: dict, options: dict) -> None:
