@@ -33,6 +33,8 @@ ONLY_MRP = 'controllers=["mrp_feedback"]'
     ("crosscheck.toml", ['reference.kind="slews"', "reference.slews.attitudes=[[0.1, 0.0, 0.0]]",
                          "reference.slews.times=[10.0]"], 'reference.kind = "slews"'),
     ("crosscheck.toml", ["gains.mrp_feedback.K_i=-1.0"], "K_i = -1, use 0"),
+    ("crosscheck.toml", ["inertia.events.time_constants=[5.0]"], "an inertia event's blend"),
+    ("crosscheck.toml", ["inertia.events.times=[60.004]"], "an inertia step at 60.004 s"),
 ])
 def test_what_basilisk_cannot_fly_is_one_line(mission, sets, message, in_process, capsys, monkeypatch):
     """Named in one line, exit 2, with Basilisk's import refused (nothing reaches it)."""
@@ -62,10 +64,11 @@ BOUNDS = {"max_attitude": 1e-13, "max_rate": 1e-15, "max_wheel_speed": 1e-11, "m
 
 
 @pytest.mark.parametrize("sets", [
-    ["T=100.0"],  # the shipped mission: wheels, law_type 0 with the wheels' momentum in the law, integral on
+    ["T=100.0"],  # the shipped mission: wheels, law_type 0 with the wheels' momentum in the law, integral on,
+    # its inertia's step at 60 s
     ["T=20.0", "actuator.wheels.momentum_compensation=true", "controller.mrp_feedback.law_type=1",
      "controller.mrp_feedback.known_torque=[0.01, -0.02, 0.005]"],  # the compensation is law_type 1's term
-    ["T=20.0", 'actuator.kind="ideal"'],  # extForceTorque
+    ["T=65.0", 'actuator.kind="ideal"'],  # extForceTorque, the hub alone, across the step
 ], ids=["wheels", "compensated", "ideal"])
 def test_so3jax_and_basilisk_agree_at_round_off(sets, cli_env, capsys):
     pytest.importorskip("Basilisk")

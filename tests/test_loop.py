@@ -214,3 +214,30 @@ def test_open_loop_torque_spins_the_body_up():
     law = sj.controllers.open_loop((0.0, 0.0, 0.3))
     r = sj.simulate(scenario, law, sj.controllers.NoGains(), loop=_sampled(10))
     np.testing.assert_allclose(r.final.Omega, [0.0, 0.0, 0.3 * 5.0 / 60.0], atol=1e-12)
+
+
+
+def test_an_inertia_step_event_switches_on_the_step_as_the_paper_s_phases_do():
+    """A step of the paper's profile is phase-held: it enters with the step starting at
+    t_dock, on all four RK4 stages. The same profile as two events (a blend, then a step)
+    advances every step the same, to round-off: the event's step switches on the step
+    nearest its time (here 2.004 s, between steps: step 200), not in the last stage of the
+    step ending there (which differs by O(dJ dt))."""
+    from so3jax.dynamics import inertia_timelines as timelines
+    from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
+    from so3jax.dynamics.plant import PaperInertia
+    from so3jax.sim.loop import initial_state, step
+
+    J0, J2 = jnp.asarray(PAPER_J0), jnp.asarray(PAPER_J2)
+    base = dataclasses.replace(sj.paper_scenario(3.0, 0.01), Omega0=jnp.asarray([0.3, -0.2, 0.25]),
+                               phase_times=(1.0, 2.004))
+    paper = dataclasses.replace(base, inertia=PaperInertia(J0, 2.0 * J0, J2, jnp.asarray(1.0), jnp.asarray(0.5)))
+    events = dataclasses.replace(base, inertia=timelines.events(
+        J0, jnp.asarray([1.0, 2.004]), jnp.stack([jnp.zeros((3, 3)), J2]), jnp.asarray([2.0, 0.0]),
+        jnp.asarray([0.5, 0.0])))
+    controller = sj.geometric_pd()
+    state = initial_state(base, controller, PD)
+    advance = jax.jit(lambda s, k: step(s, controller, PD, jnp.zeros(3), state, k)[0].Omega)
+    for k in (0, 99, 100, 150, 199, 200, 250):
+        np.testing.assert_allclose(advance(events, k), advance(paper, k), rtol=0, atol=1e-16, err_msg=f"step {k}")
+    assert float(jnp.max(jnp.abs(advance(paper, 200) - advance(paper, 199)))) > 1e-6  # the step matters

@@ -170,6 +170,7 @@ def fly(mission, name: str) -> Flown:
             sim.ConfigureStopTime(macros.sec2nano(t))
             sim.ExecuteSimulation()
             sc.hub.IHubPntBc_B = J_after.tolist()
+            sc.updateSCMassProps(float(t))  # from the next step on; the hub alone would keep the old one a step longer
     sim.ConfigureStopTime(stop)
     sim.ExecuteSimulation()
 
