@@ -3,12 +3,15 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from so3jax.commands.common import add_output_arguments, mission_overrides
 from so3jax.jobs import crosscheck
-from so3jax.jobs.crosscheck import basilisk, representable
+from so3jax.jobs.crosscheck import basilisk, representable, statistics
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
 from so3jax.results.io import dumps, save_npz, write_json
@@ -28,8 +31,18 @@ def register(subparsers) -> None:
     p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a mission entry, e.g. --set gains.mrp_feedback.K_i=0 (repeatable)")
+    p.add_argument("--runs", type=_runs, default=32,
+                   help="runs of each side where the mission has navigation errors, compared as distributions "
+                        "(default 32)")
     add_output_arguments(p, "results/crosscheck", "the PNG figure")
     p.set_defaults(func=run, precision="float64")  # a comparison at round-off: float64 only
+
+
+def _runs(text: str) -> int:
+    value = int(text) if text.strip().lstrip("+").isdigit() else 0
+    if value < 2:
+        raise argparse.ArgumentTypeError(f"must be a whole number >= 2, got {text!r}")
+    return value
 
 
 def run(args) -> int:
@@ -41,11 +54,16 @@ def run(args) -> int:
 
 
 def _crosscheck_into(args, mission) -> int:
+    noisy = representable.navigation_errors(mission)
+    runs = f", {args.runs} runs each" if noisy else ""
     print(f"flying {', '.join(mission.controllers)} in so3jax and in Basilisk: {mission.T:g} s at dt = "
-          f"{mission.dt:g} s, control period {mission.period:g} s ...", file=sys.stderr, flush=True)
+          f"{mission.dt:g} s, control period {mission.period:g} s{runs} ...", file=sys.stderr, flush=True)
+    config = {**mission.describe(), "precision": args.precision, "mission_file": str(args.mission),
+              "simulator": args.simulator}
+    if noisy:
+        return _distributions_into(args, mission, config)
     reports, differences, _ = crosscheck.crosscheck(mission, args.precision)
-    out = {**reports, "units": crosscheck.UNITS, "config": {**mission.describe(), "precision": args.precision,
-                                 "mission_file": str(args.mission), "simulator": args.simulator}}
+    out = {**reports, "units": crosscheck.UNITS, "config": config}
     write_json(args.out / "crosscheck.json", out)
     save_npz(args.out / "differences.npz", **{f"{name}/{field}": value for name, d in differences.items()
                                               for field, value in d._asdict().items()})
@@ -55,4 +73,21 @@ def _crosscheck_into(args, mission) -> int:
     else:
         print(crosscheck.format_table(reports))
         print(f"\nresults in {args.out}/ (crosscheck.json, differences.npz, {len(figures)} figure)")
+    return 0
+
+
+def _distributions_into(args, mission, config) -> int:
+    """Navigation errors: each side's runs compared as distributions (:mod:`so3jax.jobs.crosscheck.statistics`)."""
+    reports, runs = statistics.crosscheck(mission, args.runs, args.precision)
+    out = {**reports, "units": statistics.UNITS, "config": {**config, "runs": args.runs}}
+    write_json(args.out / "crosscheck.json", out)
+    save_npz(args.out / "runs.npz", **{f"{name}/{side}/{q}": np.array([r[q] for r in getattr(flown, side)])
+                                       for name, flown in runs.items() for side in ("so3jax", "basilisk")
+                                       for q, _ in statistics.QUANTITIES})
+    figures = [] if args.no_figures else statistics.write_figures(args.out, mission, runs)
+    if args.json:
+        print(dumps(out))
+    else:
+        print(statistics.format_table(reports))
+        print(f"\nresults in {args.out}/ (crosscheck.json, runs.npz, {len(figures)} figure)")
     return 0

@@ -3,7 +3,16 @@ the registry of each kind and the built-in sensors, estimators, actuators and th
 mission's reference and inertia kinds, registered
 when this package is imported (the registry imports no member)."""
 
-from so3jax.components import actuators, environment, estimators, inertias, momentum, references, sensors  # noqa: F401 (registration)
+from so3jax.components import (  # noqa: F401 (registration)
+    actuators,
+    environment,
+    estimators,
+    inertias,
+    momentum,
+    navigation,
+    references,
+    sensors,
+)
 from so3jax.components.registry import BuildContext, ComponentSpec, get, names, register, unregister
 
 __all__ = ["BuildContext", "ComponentSpec", "get", "names", "register", "unregister"]

@@ -1,5 +1,6 @@
-"""The figure of ``so3jax crosscheck``: |so3jax - Basilisk| of each compared quantity
-against time, a panel per quantity, a line per controller."""
+"""The figures of ``so3jax crosscheck``: |so3jax - Basilisk| of each compared quantity
+against time, a panel per quantity, a line per controller; with navigation errors, each
+quantity's per-run values of both sides."""
 
 from __future__ import annotations
 
@@ -25,4 +26,28 @@ def differences_figure(mission, differences: dict, quantities) -> Figure:
     axes[-1].set_xlabel("t [s]")
     axes[0].set_title(f"|so3jax - Basilisk| at each recorded tick ({mission.T:g} s, control period "
                       f"{mission.period:g} s, dt = {mission.dt:g} s)")
+    return fig
+
+
+def runs_figure(mission, runs: dict, quantities) -> Figure:
+    """runs: {controller: statistics.Runs}; a panel per quantity, each side's per-run RMS as
+    points with its mean and the mean's 95 % interval."""
+    fig = Figure(figsize=(10, 3.2 * len(quantities)))
+    axes = fig.subplots(len(quantities), 1)
+    for ax, (q, unit) in zip(axes, quantities):
+        labels = []
+        for i, (name, flown) in enumerate(runs.items()):
+            for k, side in enumerate(("so3jax", "basilisk")):
+                x = 2 * i + k
+                values = np.array([r[q] for r in getattr(flown, side)])
+                mean, half = values.mean(), 1.96 * values.std(ddof=1) / np.sqrt(len(values))
+                ax.plot(np.full(len(values), x) + np.linspace(-0.15, 0.15, len(values)), values, ".", alpha=0.5,
+                        color="C0" if side == "so3jax" else "C1")
+                ax.errorbar([x + 0.3], [mean], [half], fmt="o", color="k", capsize=3)
+                labels.append(f"{name}\n{'so3jax' if side == 'so3jax' else 'Basilisk'}")
+        ax.set_xticks(range(len(labels)), labels, fontsize=8)
+        ax.set_ylabel(f"RMS {q.replace('_', ' ')} [{unit}]")
+        ax.grid(True, axis="y", alpha=0.3)
+    axes[0].set_title(f"per-run RMS over {mission.T:g} s, each side its own draws (mean and its 95 % interval)")
+    fig.tight_layout()
     return fig

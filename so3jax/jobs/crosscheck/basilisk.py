@@ -20,26 +20,29 @@ INSTALL = 'pip install -e ".[basilisk]"'
 class Flown(NamedTuple):
     """Basilisk's run at each control tick t [s] (M,): R (M, 3, 3) body to inertial,
     Omega (M, 3) [rad/s], wheel_speed (M, N) [rad/s] relative to the body, torque (M, 3)
-    mrpFeedback's command [N m]; wall [s]: building and flying."""
+    mrpFeedback's command [N m], simpleNav's estimate R_hat (M, 3, 3) and Omega_hat (M, 3)
+    [rad/s]; wall [s]: building and flying."""
 
     t: np.ndarray
     R: np.ndarray
     Omega: np.ndarray
     wheel_speed: np.ndarray
     torque: np.ndarray
+    R_hat: np.ndarray
+    Omega_hat: np.ndarray
     wall: float
 
 
 def require():
     """Basilisk's modules, or a one-line ValueError saying how to install them."""
     try:
-        from Basilisk.architecture import messaging
+        from Basilisk.architecture import bskLogging, messaging
         from Basilisk.fswAlgorithms import attTrackingError, inertial3D, mrpFeedback, rwMotorTorque
         from Basilisk.simulation import extForceTorque, reactionWheelStateEffector, simpleNav, spacecraft
         from Basilisk.utilities import SimulationBaseClass, macros, simIncludeRW
     except ImportError:
         raise ValueError(f"Basilisk is not installed: {INSTALL}") from None
-    return dict(messaging=messaging, attTrackingError=attTrackingError, inertial3D=inertial3D,
+    return dict(bskLogging=bskLogging, messaging=messaging, attTrackingError=attTrackingError, inertial3D=inertial3D,
                 mrpFeedback=mrpFeedback, rwMotorTorque=rwMotorTorque, extForceTorque=extForceTorque,
                 reactionWheelStateEffector=reactionWheelStateEffector, simpleNav=simpleNav,
                 spacecraft=spacecraft, SimulationBaseClass=SimulationBaseClass, macros=macros,
@@ -68,9 +71,23 @@ def _column(v) -> list:
     return [[float(x)] for x in v]
 
 
-def fly(mission, name: str) -> Flown:
+def navigation_errors(mission) -> tuple[list, list]:
+    """simpleNav's PMatrix (18 x 18) and walkBounds (18): the mission's nav_attitude (MRP,
+    rows 6-8) and nav_rate (rows 9-11) walks (:mod:`so3jax.components.navigation`), zero
+    for a sensor not flown."""
+    P, bounds = np.zeros((18, 18)), np.zeros(18)
+    for name, rows in (("nav_attitude", slice(6, 9)), ("nav_rate", slice(9, 12))):
+        values = mission.sensors.get(name)
+        if values is not None:
+            P[rows, rows] = float(values["sigma"]) * np.eye(3)
+            bounds[rows] = float(values["bound"])
+    return P.tolist(), bounds.tolist()
+
+
+def fly(mission, name: str, seed: int | None = None) -> Flown:
     """Controller ``name`` (mrp_feedback) on ``mission`` (checked by
-    :func:`so3jax.jobs.crosscheck.representable.check`), flown over T."""
+    :func:`so3jax.jobs.crosscheck.representable.check`), flown over T; seed: simpleNav's
+    RNGSeed (default: the mission's)."""
     bsk = require()
     start = time.perf_counter()
     macros, messaging = bsk["macros"], bsk["messaging"]
@@ -115,9 +132,15 @@ def fly(mission, name: str) -> Flown:
         sim.AddModelToTask("dynamicsTask", external, 2)
     sc.hub.IHubPntBc_B = J.tolist()
 
-    nav = bsk["simpleNav"].SimpleNav()  # no noise: its error covariance is zero
+    logging = bsk["bskLogging"]
+    level = logging.getDefaultLogLevel()
+    logging.setDefaultLogLevel(logging.BSK_ERROR)  # its error model would warn at every tick of a bound under 3 sigma
+    nav = bsk["simpleNav"].SimpleNav()  # at each tick, first: its error walks once per tick, as so3jax's
+    logging.setDefaultLogLevel(level)
     nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-    sim.AddModelToTask("dynamicsTask", nav)
+    nav.PMatrix, nav.walkBounds = navigation_errors(mission)
+    nav.RNGSeed = int(mission.seed if seed is None else seed)
+    sim.AddModelToTask("softwareTask", nav, 100)
 
     reference = bsk["inertial3D"].inertial3D()
     reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(reference_attitude(mission)).as_mrp()]
@@ -156,7 +179,8 @@ def fly(mission, name: str) -> Flown:
 
     state_log = sc.scStateOutMsg.recorder(period_ns)
     torque_log = control.cmdTorqueOutMsg.recorder(period_ns)
-    logs = [state_log, torque_log]
+    nav_log = nav.attOutMsg.recorder(period_ns)
+    logs = [state_log, torque_log, nav_log]
     if wheels:
         speed_log = effector.rwSpeedOutMsg.recorder(period_ns)
         logs.append(speed_log)
@@ -178,5 +202,6 @@ def fly(mission, name: str) -> Flown:
     sigma = np.asarray(state_log.sigma_BN, float)
     R = Rotation.from_mrp(sigma).as_matrix()  # body to inertial: the transpose of Basilisk's [BN]
     speeds = np.asarray(speed_log.wheelSpeeds, float)[:, :n] if wheels else np.zeros((len(t), 0))
-    return Flown(t, R, np.asarray(state_log.omega_BN_B, float), speeds,
-                 np.asarray(torque_log.torqueRequestBody, float), time.perf_counter() - start)
+    R_hat = Rotation.from_mrp(np.asarray(nav_log.sigma_BN, float)).as_matrix()
+    return Flown(t, R, np.asarray(state_log.omega_BN_B, float), speeds, np.asarray(torque_log.torqueRequestBody, float),
+                 R_hat, np.asarray(nav_log.omega_BN_B, float), time.perf_counter() - start)

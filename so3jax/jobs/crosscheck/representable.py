@@ -8,6 +8,7 @@ import numpy as np
 
 CONTROLLERS = ("mrp_feedback",)  # so3jax's law -> Basilisk's module: mrpFeedback
 ACTUATORS = ("ideal", "wheels")  # extForceTorque; reactionWheelStateEffector with rwMotorTorque
+NAVIGATION = ("nav_attitude", "nav_rate")  # simpleNav's error walks (so3jax.components.navigation)
 
 
 def _refuse(feature: str, remedy: str):
@@ -45,17 +46,30 @@ def check(mission) -> None:
         _refuse(f"environment torques ({names})", "leave [environment] out")
     if m.momentum["kind"] != "none":
         _refuse(f"momentum management (momentum.kind = \"{m.momentum['kind']}\")", "momentum.kind = \"none\"")
-    if m.sensors:
-        names = ", ".join(m.sensors)
-        _refuse(f"sensors ({names})", "its simpleNav's noise is its own draw: feed back the true state "
-                f"({', '.join(f'sensors.{n}=false' for n in m.sensors)}, estimator.kind = \"truth\")")
-    if m.estimator["kind"] != "truth":
-        _refuse(f"estimator.kind = \"{m.estimator['kind']}\"", "estimator.kind = \"truth\" (simpleNav without noise)")
+    _navigation(m)
     kind = m.actuator["kind"]
     if kind not in ACTUATORS:
         _refuse(f"actuator.kind = \"{kind}\"", "actuator.kind = \"ideal\" (extForceTorque) or \"wheels\"")
     if kind == "wheels":
         _wheels(m.actuator["wheels"], m.options)
+
+
+def navigation_errors(mission) -> bool:
+    """Whether simpleNav draws errors (the mission flies nav_attitude or nav_rate)."""
+    return any(name in mission.sensors for name in NAVIGATION)
+
+
+def _navigation(m) -> None:
+    """simpleNav: the true state (estimator truth, no sensors), or its error walks (the
+    nav_attitude and nav_rate sensors read by estimator raw)."""
+    others = [name for name in m.sensors if name not in NAVIGATION]
+    remedy = ("simpleNav gives the true state (estimator.kind = \"truth\", no sensors) or its error walks "
+              "(sensors nav_attitude and nav_rate, estimator.kind = \"raw\")")
+    if others:
+        _refuse(f"sensors ({', '.join(others)})", remedy)
+    kind = m.estimator["kind"]
+    if kind not in ("truth", "raw") or (kind == "truth") != (not m.sensors):
+        _refuse(f"estimator.kind = \"{kind}\"" + (" with sensors" if kind == "truth" else ""), remedy)
 
 
 def _inertia(m) -> None:
@@ -74,7 +88,8 @@ def _inertia(m) -> None:
     for t in np.asarray(values["times"], float):
         steps = t / m.dt
         if not _whole_ns(t) or abs(steps - round(steps)) > 1e-9 * max(1.0, steps):
-            _refuse(f"an inertia step at {t:g} s", f"its hub changes inertia between steps: a multiple of dt = {m.dt:g} s")
+            _refuse(f"an inertia step at {t:g} s",
+                    f"its hub changes inertia between steps: a multiple of dt = {m.dt:g} s")
 
 
 def _wheels(values: dict, options: dict) -> None:

@@ -227,8 +227,7 @@ def save(path, t, gyro, R, valid=None, wheel_speed=None, wheel_axes=None, spin_i
 
 def recorded(mission) -> bool:
     """Whether a flight of the mission has telemetry: the sampled wiring, a gyro and a star tracker."""
-    sensors = mission.loop().sensors
-    return mission.period is not None and sensors.rate is not None and sensors.attitude is not None
+    return mission.period is not None and "gyro" in mission.sensors and "star_tracker" in mission.sensors
 
 
 def from_run(mission, history, seed) -> dict:
