@@ -83,3 +83,44 @@ def test_so3jax_and_basilisk_agree_at_round_off(sets, cli_env, capsys):
     assert report["max_torque_command"] > 0.01  # a manoeuvre, not a rest
     assert {"crosscheck.json", "differences.npz"} <= {p.name for p in out.iterdir()}
     assert sets != ["T=100.0"] or (out / "crosscheck.png").stat().st_size > 0
+
+
+NAVIGATION = ["T=10.0", 'estimator.kind="raw"', "sensors.nav_attitude={sigma=1e-5, bound=3e-5}",
+              "sensors.nav_rate={sigma=1e-6}"]
+
+
+def test_with_navigation_errors_the_two_agree_as_distributions(cli_env, capsys):
+    """simpleNav's walks and so3jax's (each side its own draws): 8 runs each, every
+    quantity's means equal by Welch's t (p > 1e-3); the files of one run."""
+    pytest.importorskip("Basilisk")
+    out = cli_env / "out"
+    code = cli.main(["crosscheck", "basilisk", CROSSCHECK, "--out", str(out), "--json", "--runs", "8", "--no-figures",
+                     *(x for s in NAVIGATION for x in ("--set", s))])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert report["config"]["runs"] == 8 and report["units"]["rate_knowledge"] == "rad/s"
+    result = report["mrp_feedback"]
+    assert result["agree"] and result["runs"] == 8, result
+    knowledge = result["quantities"]["attitude_knowledge"]
+    assert 1e-4 < knowledge["so3jax_mean"] < 2e-4  # an MRP walk bounded at 3e-5 per axis: about 4 x 3e-5 x sqrt(3)
+    assert sorted(p.name for p in out.iterdir()) == ["crosscheck.json", "manifest.json", "runs.npz"]
+
+
+def test_a_walk_that_differs_is_told_apart(monkeypatch):
+    """Basilisk's attitude walk bounded at twice the mission's: its knowledge error's mean
+    differs by far more than the runs' spread (p < 1e-3), so the comparison can fail."""
+    pytest.importorskip("Basilisk")
+    from so3jax.jobs.crosscheck import statistics
+    from so3jax.missions import mission as missions
+
+    mission = missions.load(CROSSCHECK, NAVIGATION)
+    honest = basilisk.navigation_errors
+
+    def looser(m):
+        P, bounds = honest(m)
+        return P, [2.0 * b for b in bounds]
+
+    monkeypatch.setattr(basilisk, "navigation_errors", looser)
+    reports, _ = statistics.crosscheck(mission, 8)
+    assert not reports["mrp_feedback"]["agree"]
+    assert reports["mrp_feedback"]["quantities"]["attitude_knowledge"]["p"] < 1e-3
