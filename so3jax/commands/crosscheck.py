@@ -60,34 +60,25 @@ def _crosscheck_into(args, mission) -> int:
           f"{mission.dt:g} s, control period {mission.period:g} s{runs} ...", file=sys.stderr, flush=True)
     config = {**mission.describe(), "precision": args.precision, "mission_file": str(args.mission),
               "simulator": args.simulator}
-    if noisy:
-        return _distributions_into(args, mission, config)
-    reports, differences, _ = crosscheck.crosscheck(mission, args.precision)
-    out = {**reports, "units": crosscheck.UNITS, "config": config}
+    if noisy:  # each side's runs compared as distributions (so3jax.jobs.crosscheck.statistics)
+        reports, runs = statistics.crosscheck(mission, args.runs, args.precision)
+        out = {**reports, "units": statistics.UNITS, "config": {**config, "runs": args.runs}}
+        arrays = ("runs.npz", {f"{name}/{side}/{q}": np.array([r[q] for r in getattr(flown, side)])
+                               for name, flown in runs.items() for side in ("so3jax", "basilisk")
+                               for q, _ in statistics.QUANTITIES})
+        table, draw = statistics.format_table(reports), lambda: statistics.write_figures(args.out, mission, runs)
+    else:  # tick by tick
+        reports, differences, _ = crosscheck.crosscheck(mission, args.precision)
+        out = {**reports, "units": crosscheck.UNITS, "config": config}
+        arrays = ("differences.npz", {f"{name}/{field}": value for name, d in differences.items()
+                                      for field, value in d._asdict().items()})
+        table, draw = crosscheck.format_table(reports), lambda: crosscheck.write_figures(args.out, mission, differences)
     write_json(args.out / "crosscheck.json", out)
-    save_npz(args.out / "differences.npz", **{f"{name}/{field}": value for name, d in differences.items()
-                                              for field, value in d._asdict().items()})
-    figures = [] if args.no_figures else crosscheck.write_figures(args.out, mission, differences)
+    save_npz(args.out / arrays[0], **arrays[1])
+    figures = [] if args.no_figures else draw()
     if args.json:
         print(dumps(out))
     else:
-        print(crosscheck.format_table(reports))
-        print(f"\nresults in {args.out}/ (crosscheck.json, differences.npz, {len(figures)} figure)")
-    return 0
-
-
-def _distributions_into(args, mission, config) -> int:
-    """Navigation errors: each side's runs compared as distributions (:mod:`so3jax.jobs.crosscheck.statistics`)."""
-    reports, runs = statistics.crosscheck(mission, args.runs, args.precision)
-    out = {**reports, "units": statistics.UNITS, "config": {**config, "runs": args.runs}}
-    write_json(args.out / "crosscheck.json", out)
-    save_npz(args.out / "runs.npz", **{f"{name}/{side}/{q}": np.array([r[q] for r in getattr(flown, side)])
-                                       for name, flown in runs.items() for side in ("so3jax", "basilisk")
-                                       for q, _ in statistics.QUANTITIES})
-    figures = [] if args.no_figures else statistics.write_figures(args.out, mission, runs)
-    if args.json:
-        print(dumps(out))
-    else:
-        print(statistics.format_table(reports))
-        print(f"\nresults in {args.out}/ (crosscheck.json, runs.npz, {len(figures)} figure)")
+        print(table)
+        print(f"\nresults in {args.out}/ (crosscheck.json, {arrays[0]}, {len(figures)} figure)")
     return 0
