@@ -2,7 +2,8 @@
 Basilisk can represent (:mod:`.representable`) flown by so3jax's loop and by Basilisk's own
 modules (:mod:`.basilisk`), compared at every recorded control tick: the attitude
 |log(R^T R_B)| [rad], the body rate [rad/s], the wheels' speeds [rad/s] and mrpFeedback's
-torque command [N m], with each side's wall time."""
+torque command [N m], with each side's wall time. A mission with navigation errors is
+compared as distributions over runs instead (:mod:`.statistics`)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
 """A mission flown by Basilisk's own modules: the spacecraft hub (its inertia set between
-runs at each inertia step), reactionWheelStateEffector
-with rwMotorTorque (or extForceTorque for an ideal actuator), simpleNav without noise,
-inertial3D, attTrackingError and mrpFeedback. The dynamics task steps at the mission's dt
-and runs before the flight-software task, which ticks at the control period: a tick reads
-the state at its time and its command is held over the period, as in so3jax's sampled loop.
-Basilisk is imported here only (the ``basilisk`` extra)."""
+runs at each inertia step), reactionWheelStateEffector with rwMotorTorque (or
+extForceTorque for an ideal actuator), simpleNav (without noise, or with the mission's
+navigation errors), inertial3D, attTrackingError and mrpFeedback. The dynamics task steps at
+the mission's dt and runs before the flight-software task, which ticks at the control
+period: a tick reads the state at its time and its command is held over the period, as in
+so3jax's sampled loop. Basilisk is imported here only (the ``basilisk`` extra)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
-"""What Basilisk's modules can fly exactly: a one-line ValueError naming the first mission
-feature ``so3jax crosscheck basilisk`` cannot represent, before anything is built or
-compiled (docs/commands/crosscheck.md lists them)."""
+"""What Basilisk's modules fly as so3jax does (exactly, or with navigation errors of the
+same model): a one-line ValueError naming the first mission feature ``so3jax crosscheck
+basilisk`` cannot represent, before anything is built or compiled
+(docs/commands/crosscheck.md lists them)."""
 
 from __future__ import annotations
 
