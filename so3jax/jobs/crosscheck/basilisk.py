@@ -1,7 +1,8 @@
 """A mission flown by Basilisk's own modules: the spacecraft hub (its inertia set between
 runs at each inertia step), reactionWheelStateEffector with rwMotorTorque (or
 extForceTorque for an ideal actuator), simpleNav (without noise, or with the mission's
-navigation errors), inertial3D, attTrackingError and mrpFeedback. The dynamics task steps at
+navigation errors), inertial3D (or, for the orbit frame, hillPoint on the hub's own orbit
+under a point-mass Earth), attTrackingError and mrpFeedback. The dynamics task steps at
 the mission's dt and runs before the flight-software task, which ticks at the control
 period: a tick reads the state at its time and its command is held over the period, as in
 so3jax's sampled loop. Basilisk is imported here only (the ``basilisk`` extra)."""
@@ -14,14 +15,22 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from so3jax.dynamics.orbit import MU_EARTH
+
 INSTALL = 'pip install -e ".[basilisk]"'
+
+
+# so3jax's orbit frame L (x along the velocity, y = -h^, z to nadir -r^: docs/model.md §4) in
+# hillPoint's frame H (r^, h^ x r^, h^): v_L = LVLH_FROM_HILL v_H, the DCM [LH].
+LVLH_FROM_HILL = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
 
 
 class Flown(NamedTuple):
     """Basilisk's run at each control tick t [s] (M,): R (M, 3, 3) body to inertial,
     Omega (M, 3) [rad/s], wheel_speed (M, N) [rad/s] relative to the body, torque (M, 3)
     mrpFeedback's command [N m], simpleNav's estimate R_hat (M, 3, 3) and Omega_hat (M, 3)
-    [rad/s]; wall [s]: building and flying."""
+    [rad/s], the reference it tracked R_d (M, 3, 3) desired body to inertial (inertial3D's, or
+    hillPoint's frame turned by attTrackingError's sigma_R0R); wall [s]: building and flying."""
 
     t: np.ndarray
     R: np.ndarray
@@ -30,6 +39,7 @@ class Flown(NamedTuple):
     torque: np.ndarray
     R_hat: np.ndarray
     Omega_hat: np.ndarray
+    R_d: np.ndarray
     wall: float
 
 
@@ -37,16 +47,17 @@ def require():
     """Basilisk's modules, or a one-line ValueError saying how to install them."""
     try:
         from Basilisk.architecture import bskLogging, messaging
-        from Basilisk.fswAlgorithms import attTrackingError, inertial3D, mrpFeedback, rwMotorTorque
+        from Basilisk.fswAlgorithms import attTrackingError, hillPoint, inertial3D, mrpFeedback, rwMotorTorque
         from Basilisk.simulation import extForceTorque, reactionWheelStateEffector, simpleNav, spacecraft
-        from Basilisk.utilities import SimulationBaseClass, macros, simIncludeRW
+        from Basilisk.utilities import SimulationBaseClass, macros, simIncludeGravBody, simIncludeRW
     except ImportError:
         raise ValueError(f"Basilisk is not installed: {INSTALL}") from None
     return dict(bskLogging=bskLogging, messaging=messaging, attTrackingError=attTrackingError, inertial3D=inertial3D,
-                mrpFeedback=mrpFeedback, rwMotorTorque=rwMotorTorque, extForceTorque=extForceTorque,
+                hillPoint=hillPoint, mrpFeedback=mrpFeedback, rwMotorTorque=rwMotorTorque,
+                extForceTorque=extForceTorque,
                 reactionWheelStateEffector=reactionWheelStateEffector, simpleNav=simpleNav,
                 spacecraft=spacecraft, SimulationBaseClass=SimulationBaseClass, macros=macros,
-                simIncludeRW=simIncludeRW)
+                simIncludeRW=simIncludeRW, simIncludeGravBody=simIncludeGravBody)
 
 
 def reference_attitude(mission) -> np.ndarray:
@@ -54,6 +65,24 @@ def reference_attitude(mission) -> np.ndarray:
     if mission.reference["kind"] == "inertial":
         return np.asarray(mission.reference["inertial"]["attitude"], float)
     return np.zeros(3)
+
+
+def orbit_state(mission) -> tuple[np.ndarray, np.ndarray]:
+    """The hub's position r0 [m] and velocity v0 [m/s] at t = 0 in so3jax's inertial frame N,
+    the orbit frame at t = 0 (docs/model.md §4): r_N(0) = a [0, 0, -1], v_N(0) = n a [1, 0, 0],
+    a = (MU_EARTH / n^2)^(1/3), so that hillPoint's frame at t = 0 is L(0) = I turned by
+    LVLH_FROM_HILL, and follows L(t) on Basilisk's propagated circle."""
+    n = float(mission.n)
+    a = (MU_EARTH / (n * n)) ** (1.0 / 3.0)  # CircularOrbit.radius()
+    return np.array([0.0, 0.0, -a]), np.array([n * a, 0.0, 0.0])
+
+
+def hill_offset_mrp(mission) -> list:
+    """attTrackingError's sigma_R0R for reference.lvlh: R0 = hillPoint's H, R = the desired
+    body frame D. R_d(t) = L(t) exp(hat(offset)) gives [HD] = LVLH_FROM_HILL^T exp(hat(offset)),
+    and Basilisk's sigma of a DCM [HD] is SciPy's MRP of its transpose [DH]."""
+    offset = Rotation.from_rotvec(np.asarray(mission.reference["lvlh"]["offset"], float)).as_matrix()
+    return [float(x) for x in Rotation.from_matrix(offset.T @ LVLH_FROM_HILL).as_mrp()]
 
 
 def inertias(mission) -> tuple[np.ndarray, list]:
@@ -103,7 +132,15 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     values = mission.actuator.get("wheels", {})
     sc = bsk["spacecraft"].Spacecraft()
     sc.ModelTag = "spacecraft"
-    sc.hub.mHub = 1.0  # [kg]: translation is not flown (no gravity, no force)
+    sc.hub.mHub = 1.0  # [kg]: translation flown only on an orbit (the centre of mass at B: it does not turn the body)
+    lvlh = mission.reference["kind"] == "lvlh"
+    if lvlh:  # the orbit frame: the hub on so3jax's circle, under a point-mass Earth at N's origin
+        r0, v0 = orbit_state(mission)
+        sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = _column(r0), _column(v0)
+        gravity = bsk["simIncludeGravBody"].gravBodyFactory()
+        earth = gravity.createCustomGravObject("earth", mu=float(MU_EARTH))  # so3jax's mu, not createEarth()'s
+        earth.isCentralBody = True
+        gravity.addBodiesTo(sc)
     sc.hub.sigma_BNInit = _column(Rotation.from_rotvec(mission.initial["attitude"]).as_mrp())
     sc.hub.omega_BN_BInit = _column(mission.initial["rate"])
     sim.AddModelToTask("dynamicsTask", sc)
@@ -142,9 +179,16 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     nav.RNGSeed = int(mission.seed if seed is None else seed)
     sim.AddModelToTask("softwareTask", nav, 100)
 
-    reference = bsk["inertial3D"].inertial3D()
-    reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(reference_attitude(mission)).as_mrp()]
     error = bsk["attTrackingError"].attTrackingError()
+    if lvlh:
+        reference = bsk["hillPoint"].hillPoint()
+        reference.transNavInMsg.subscribeTo(nav.transOutMsg)
+        earth_msg = messaging.EphemerisMsg().write(messaging.EphemerisMsgPayload())  # at rest at the origin
+        reference.celBodyInMsg.subscribeTo(earth_msg)
+        error.sigma_R0R = hill_offset_mrp(mission)
+    else:
+        reference = bsk["inertial3D"].inertial3D()
+        reference.sigma_R0N = [float(x) for x in Rotation.from_rotvec(reference_attitude(mission)).as_mrp()]
     error.attNavInMsg.subscribeTo(nav.attOutMsg)
     error.attRefInMsg.subscribeTo(reference.attRefOutMsg)
 
@@ -180,7 +224,8 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     state_log = sc.scStateOutMsg.recorder(period_ns)
     torque_log = control.cmdTorqueOutMsg.recorder(period_ns)
     nav_log = nav.attOutMsg.recorder(period_ns)
-    logs = [state_log, torque_log, nav_log]
+    reference_log = reference.attRefOutMsg.recorder(period_ns)
+    logs = [state_log, torque_log, nav_log, reference_log]
     if wheels:
         speed_log = effector.rwSpeedOutMsg.recorder(period_ns)
         logs.append(speed_log)
@@ -203,5 +248,8 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     R = Rotation.from_mrp(sigma).as_matrix()  # body to inertial: the transpose of Basilisk's [BN]
     speeds = np.asarray(speed_log.wheelSpeeds, float)[:, :n] if wheels else np.zeros((len(t), 0))
     R_hat = Rotation.from_mrp(np.asarray(nav_log.sigma_BN, float)).as_matrix()
+    R_d = Rotation.from_mrp(np.asarray(reference_log.sigma_RN, float)).as_matrix()  # R0 (the module's frame) to N
+    if lvlh:  # D = H turned by sigma_R0R: [N D] = [N H][H D]
+        R_d = R_d @ Rotation.from_mrp(error.sigma_R0R).as_matrix().T
     return Flown(t, R, np.asarray(state_log.omega_BN_B, float), speeds, np.asarray(torque_log.torqueRequestBody, float),
-                 R_hat, np.asarray(nav_log.omega_BN_B, float), time.perf_counter() - start)
+                 R_hat, np.asarray(nav_log.omega_BN_B, float), R_d, time.perf_counter() - start)

@@ -37,9 +37,13 @@ def check(mission) -> None:
         if not _whole_ns(seconds):
             _refuse(f"{what} = {seconds:g} s", "its clock counts whole nanoseconds")
     _inertia(m)
-    if m.reference["kind"] != "inertial" and not (m.reference["kind"] == "paper" and m.n == 0):
-        _refuse(f"reference.kind = \"{m.reference['kind']}\"", "an inertial attitude (reference.kind = \"inertial\", "
-                "its inertial3D module; or the paper's at orbit.n = 0)")
+    kind = m.reference["kind"]
+    if kind == "lvlh" and not m.n > 0:
+        _refuse("reference.kind = \"lvlh\" at orbit.n = 0", "an orbit: orbit.n > 0 (hillPoint needs a radius)")
+    if kind not in ("inertial", "lvlh") and not (kind == "paper" and m.n == 0):
+        _refuse(f"reference.kind = \"{kind}\"", "an inertial attitude (reference.kind = \"inertial\", "
+                "its inertial3D module), the orbit frame (reference.kind = \"lvlh\", its hillPoint module "
+                "on a propagated orbit) or the paper's at orbit.n = 0")
     if m.disturbance["amplitude"] != 0 or m.disturbance["noise_std"] != 0:
         _refuse("the disturbance torque", "disturbance.amplitude = 0 and disturbance.noise_std = 0")
     if m.environment:

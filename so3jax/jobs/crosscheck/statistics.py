@@ -64,8 +64,7 @@ def _basilisk_runs(mission, name: str, runs: int) -> list[dict]:
     out = []
     for seed in range(mission.seed, mission.seed + runs):
         flown = basilisk.fly(mission, name, seed)
-        R_d = np.broadcast_to(Rotation.from_rotvec(basilisk.reference_attitude(mission)).as_matrix(), flown.R.shape)
-        out.append(per_run(flown.R, flown.Omega, flown.R_hat, flown.Omega_hat, R_d))
+        out.append(per_run(flown.R, flown.Omega, flown.R_hat, flown.Omega_hat, flown.R_d))  # the reference it tracked
     return out
 
 
