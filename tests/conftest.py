@@ -10,6 +10,7 @@ the same program (``so3jax paper`` with two seeds, say) compile it once.
 """
 
 import atexit
+import gc
 import importlib
 import os
 import shutil
@@ -28,6 +29,18 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cache
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
+
+
+@pytest.fixture(scope="module", autouse=True)
+def release_compiled_programs():
+    """After each test file, JAX's in-memory caches are cleared. Each compiled program maps
+    its code into the process, and a test worker that kept every program of its share of
+    the suite would pass the kernel's limit on memory maps (vm.max_map_count, 65 530 by
+    default), where LLVM aborts the process. A program another file compiles again comes
+    from the persistent cache."""
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 @pytest.fixture
