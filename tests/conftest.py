@@ -31,16 +31,29 @@ os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cach
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
 
+MAPS_BEFORE_RELEASE = 30_000  # the kernel's default vm.max_map_count: 65 530
+
+
+def _memory_maps() -> int:
+    """The memory maps of this process (0 where /proc does not tell)."""
+    try:
+        with open("/proc/self/maps") as maps:
+            return sum(1 for _ in maps)
+    except OSError:
+        return 0
+
+
 @pytest.fixture(scope="module", autouse=True)
 def release_compiled_programs():
-    """After each test file, JAX's in-memory caches are cleared. Each compiled program maps
-    its code into the process, and a test worker that kept every program of its share of
-    the suite would pass the kernel's limit on memory maps (vm.max_map_count, 65 530 by
-    default), where LLVM aborts the process. A program another file compiles again comes
-    from the persistent cache."""
+    """After a test file, JAX's in-memory caches are cleared once this process holds more
+    than MAPS_BEFORE_RELEASE memory maps. Each compiled program maps its code, and a test
+    worker that kept every program of its share of the suite would pass the kernel's limit
+    (vm.max_map_count), where LLVM aborts the process. A program compiled again after a
+    release comes from the persistent cache."""
     yield
-    jax.clear_caches()
-    gc.collect()
+    if _memory_maps() > MAPS_BEFORE_RELEASE:
+        jax.clear_caches()
+        gc.collect()
 
 
 @pytest.fixture
