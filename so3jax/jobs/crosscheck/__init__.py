@@ -10,10 +10,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from so3jax.jobs import fly as flights
-from so3jax.jobs.crosscheck import basilisk, representable
+from so3jax.jobs.crosscheck import basilisk, representable, statistics
 
 QUANTITIES = (("attitude", "rad"), ("rate", "rad/s"), ("wheel_speed", "rad/s"), ("torque", "N m"))
 # crosscheck.json's units (so3jax.results.units)
@@ -53,8 +52,7 @@ def compare(mission, history, flown: basilisk.Flown) -> Differences:
     if ticks.max() >= len(flown.t) or np.max(np.abs(flown.t[ticks] - t)) > 1e-9:
         raise RuntimeError("so3jax's records and Basilisk's ticks do not line up")
     R_b = flown.R[ticks]
-    angle = np.linalg.norm(Rotation.from_matrix(np.einsum("mji,mjk->mik", np.asarray(history.R), R_b)).as_rotvec(),
-                           axis=1)
+    angle = statistics.angle(np.asarray(history.R), R_b)
     rate = np.max(np.abs(np.asarray(history.Omega) - flown.Omega[ticks]), axis=1)
     if flown.wheel_speed.shape[1]:
         speed = np.max(np.abs(np.asarray(history.actuator) - flown.wheel_speed[ticks]), axis=1)

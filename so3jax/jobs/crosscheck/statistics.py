@@ -30,7 +30,7 @@ ALPHA = 1e-3  # a p-value below it: the means differ
 UNITS = {q: unit for q, unit in QUANTITIES} | {"wall_time_s": "s"}
 
 
-def _angle(A, B) -> np.ndarray:
+def angle(A, B) -> np.ndarray:
     """|log(A^T B)| (M,) [rad] of rotations A, B (M, 3, 3)."""
     return np.linalg.norm(Rotation.from_matrix(np.einsum("mji,mjk->mik", A, B)).as_rotvec(), axis=1)
 
@@ -41,9 +41,9 @@ def _rms(x) -> float:
 
 def per_run(R, Omega, R_hat, Omega_hat, R_d) -> dict:
     """{quantity: RMS over the ticks} of one run's records (M, ...)."""
-    return {"attitude_knowledge": _rms(_angle(R_hat, R)),
+    return {"attitude_knowledge": _rms(angle(R_hat, R)),
             "rate_knowledge": _rms(np.linalg.norm(Omega_hat - Omega, axis=1)),
-            "pointing": _rms(_angle(R_d, R))}
+            "pointing": _rms(angle(R_d, R))}
 
 
 def _so3jax_runs(mission, name: str, runs: int, dtype: str) -> list[dict]:
