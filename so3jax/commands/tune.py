@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from so3jax.commands.common import add_precision_argument, output_folder, registered
+from so3jax.jobs.tune import design_report
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import load_config
 from so3jax.jobs.tune.optimizers import NonFiniteGradientError
@@ -31,6 +32,10 @@ def run(args) -> int:
     except NonFiniteGradientError as err:
         print(f"so3jax tune: {err}", file=sys.stderr)
         return 1
+    if "verdict" in report:  # a design campaign: its report, and the held-out verdict
+        print(design_report.markdown(report))
+        print(f"results in {out}/")
+        return 0 if report["verdict"] == "met" else 1
     if distributed.writer():
         print(markdown_table([report]))
         print(f"results in {out}/")

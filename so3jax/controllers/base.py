@@ -19,7 +19,9 @@ the compiled program. Its methods are pure functions of their arguments:
   ``state + period * state_dot``, docs/model.md §8.1), or a method
   ``update(gains, state, feedback, desired, t, period) -> state``, the state's discrete
   update at a control tick of the sampled wiring (t: the tick's time [s], period:
-  Delta_c [s]), as flight software computes it.
+  Delta_c [s]), as flight software computes it;
+* ``gain_axes`` (class attribute, default 0): the leading axes every gain carries before
+  the law's own (1 for a schedule's gains, :mod:`so3jax.controllers.scheduled`).
 
 :func:`from_functions` wraps plain functions (``init``, ``torque``, ...) as a controller.
 """
@@ -58,6 +60,7 @@ class Controller(abc.ABC):
 
     gains_type: ClassVar[type | None] = None  # the NamedTuple of gains the law reads (checked by the rollout)
     update: ClassVar[Callable | None] = None  # update(gains, state, feedback, desired, t, period) -> state; None: Euler
+    gain_axes: ClassVar[int] = 0  # leading axes of every gain before the law's own (a schedule's)
 
     @abc.abstractmethod
     def init(self, gains) -> Any:

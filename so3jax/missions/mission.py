@@ -7,8 +7,9 @@ a :class:`~so3jax.sim.loop.Loop` and controllers.
 The loop's components are read through their registrations (:mod:`so3jax.components.registry`,
 :mod:`so3jax.controllers.registry`): ``[sensors.NAME]`` (a table, or false to leave a
 sensor out), ``[estimator] kind`` with ``[estimator.NAME]``, ``[actuator] kind`` with
-``[actuator.NAME]``, ``[controller.NAME]`` (options) and ``[gains.NAME]`` (a table, or
-the path of a best_gains.json written by ``so3jax tune``). Without a file, the flight
+``[actuator.NAME]``, ``[controller.NAME]`` (options), ``[gains.NAME]`` (a table, or
+the path of a best_gains.json written by ``so3jax tune``) and ``[schedule]`` (a controller's
+gains per phase or over time, :mod:`so3jax.missions.schedule`). Without a file, the flight
 mission of docs/model.md §8.5 (``missions/flight.toml`` spells it out).
 """
 
@@ -26,12 +27,14 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
+from so3jax.controllers.scheduled import Scheduled
 from so3jax.core import checks
 from so3jax.dynamics.inertia import check_inertia
 from so3jax.dynamics.paper import PAPER_J0, PHASE_NAMES
 from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
 from so3jax.missions import build, keys
 from so3jax.missions import config as cfg
+from so3jax.missions import schedule as schedules
 from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
 from so3jax.sim import memory, pointing
@@ -61,7 +64,7 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
 _TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 _TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference", "controller",
-                         "gains")
+                         "gains", "schedule")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
 DEFAULT_INERTIA = {"kind": "paper"}
 ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
@@ -76,6 +79,9 @@ class Mission:
 
     sensors: {name: values} of the sensors flown; estimator, actuator: {"kind": name,
     name: values}; options: {controller: factory keywords}; gains: {controller: gains}.
+    schedule: {controller: {"by": "phase"} or {"by": "time", "at": breakpoints [s]}} of the
+    scheduled laws (:mod:`so3jax.missions.schedule`), whose gains have a leading axis of
+    one entry per phase or breakpoint.
     constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile
     (where ``inertia`` is of kind ``paper``; another kind: :mod:`so3jax.components.inertias`).
     initial: {"attitude": rotation vector of R(0) [rad], "rate": Omega(0) [rad/s]}.
@@ -109,6 +115,7 @@ class Mission:
     orbit: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_ORBIT))  # the angles of [orbit] [deg]
     environment: dict = dataclasses.field(default_factory=dict)  # {torque model: values} of [environment]
     momentum: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_MOMENTUM))  # {"kind": name, name: values}
+    schedule: dict = dataclasses.field(default_factory=dict)  # {controller: {"by": ..., ["at": (s, ...)]}}
 
     @property
     def phase_names(self) -> tuple:
@@ -128,9 +135,14 @@ class Mission:
 
     def controller(self, name: str):
         """(Controller, gains) of a registered controller with the mission's options
-        ([controller.NAME]); gains None where the mission does not fly it. Equal options
-        give equal controllers (a static jit argument)."""
-        return registry.get(name).factory(**self.options.get(name, {})), self.gains.get(name)
+        ([controller.NAME]); gains None where the mission does not fly it. A scheduled law
+        is :class:`~so3jax.controllers.scheduled.Scheduled` over its knots, its gains with
+        their leading axis. Equal options give equal controllers (a static jit argument)."""
+        law = registry.get(name).factory(**self.options.get(name, {}))
+        if name in self.schedule:
+            entry = self.schedule[name]
+            law = Scheduled(law, entry["by"], schedules.knots(entry, self.phases))
+        return law, self.gains.get(name)
 
     def __eq__(self, other) -> bool:
         return isinstance(other, Mission) and self.fingerprint == other.fingerprint
@@ -163,7 +175,7 @@ class Mission:
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
             del d["phases"]
         for name, default in (("inertia", DEFAULT_INERTIA), ("orbit", DEFAULT_ORBIT), ("environment", {}),
-                              ("momentum", DEFAULT_MOMENTUM)):
+                              ("momentum", DEFAULT_MOMENTUM), ("schedule", {})):
             if to_builtin(getattr(self, name)) == to_builtin(default):
                 del d[name]
         return to_builtin(d)
@@ -299,6 +311,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     reference = _chosen(full, "reference", "reference", base)
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
+    schedule = schedules.parse(full.get("schedule", {}), controllers, phases if "phases" in d else None)
 
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
@@ -306,20 +319,22 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     gains = {}
     for name in registry.names():  # every table or file given is checked, also of a controller not flown
         given = gains_table.get(name, {})
+        scheduled = {"schedule": schedule[name], "phases": phases} if name in schedule else {}
         if isinstance(given, str):
             try:
-                g = gains_file(given, name)
+                g = gains_file(given, name, **scheduled)
             except ValueError as err:
                 raise ValueError(f"gains.{name}: {err}") from None
         else:
-            g = _gains(name, given, f"gains.{name}")
+            g = _gains(name, given, f"gains.{name}", **scheduled)
         if name in controllers:
             gains[name] = g
 
     mission = Mission(T, dt, seed, controllers, record_every, period_steps, J0, J1, J2, J1_scale, constant, tau_J, n,
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
-                      phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum)
+                      phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
+                      schedule=schedule)
     for name in controllers:
         try:
             mission.controller(name)
@@ -375,9 +390,13 @@ def _pointing(table: dict) -> dict:
     return {"window": float(window), "levels": tuple(float(x) for x in levels)}
 
 
-def _gains(name: str, table, where: str) -> tuple:
+def _gains(name: str, table, where: str, schedule: dict | None = None, phases: dict | None = None) -> tuple:
     """The gains of controller ``name``: its defaults with the entries of ``table``, checked
-    against their shapes and by the registration; one-line ValueError naming ``where``."""
+    against their shapes and by the registration; one-line ValueError naming ``where``.
+    schedule: the law's [schedule] entry (with the mission's phases): each gain one value
+    per phase or breakpoint (:func:`so3jax.missions.schedule.scheduled_gains`)."""
+    if schedule is not None:
+        return schedules.scheduled_gains(name, table, schedule, phases, where)
     spec = registry.get(name)
     g = checks.gains(table, spec.defaults, spec.gain_shapes(), where)
     try:
@@ -387,9 +406,10 @@ def _gains(name: str, table, where: str) -> tuple:
     return g
 
 
-def gains_file(path, controller: str) -> tuple:
+def gains_file(path, controller: str, schedule: dict | None = None, phases: dict | None = None) -> tuple:
     """The gains of a best_gains.json (``so3jax tune``'s, :mod:`so3jax.jobs.tune.storage`)
-    tuned for ``controller``: every gain given, checked as a ``[gains.NAME]`` table is. A
+    tuned for ``controller``: every gain given, checked as a ``[gains.NAME]`` table is
+    (scheduled by ``schedule`` over ``phases``: lists of one value per phase or breakpoint). A
     one-line ValueError naming the file for a missing, unreadable or malformed file, or one
     tuned for another law; a warning where the run that wrote it did not finish."""
     path = Path(path)
@@ -413,7 +433,7 @@ def gains_file(path, controller: str) -> tuple:
     if runfolder.incomplete(path.parent):
         warnings.warn(f"gains file {path} is from a so3jax run that did not finish (its manifest says incomplete)")
     try:
-        return _gains(controller, saved["gains"], "gains")
+        return _gains(controller, saved["gains"], "gains", schedule, phases)
     except ValueError as err:
         raise ValueError(f"gains file {path}: {err}") from None
 

@@ -156,7 +156,7 @@ def check_inputs(
     ):
         raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
     check_scenario(scenario, batch_last=batch_last)
-    check_gains(gains, batch_axes=gains_batch_axes)
+    check_gains(gains, batch_axes=gains_batch_axes + controller.gain_axes)
     matrices = scenario.inertia.matrices() if hasattr(scenario.inertia, "matrices") else {}
     if batch_last:
         matrices = {k: jnp.moveaxis(J, -1, 0) if jnp.ndim(J) > 2 else J for k, J in matrices.items()}

@@ -115,7 +115,7 @@ def _judge(lin: margins.Linearization) -> dict:
     return out
 
 
-def _kinds(states, n_samples: int, t: float) -> tuple:
+def shared_kinds(states, n_samples: int, t: float) -> tuple:
     """:func:`so3jax.sim.margins.state_kinds` shared by the samples' states (leading axis S)
     with finite values (a diverged sample's margins are NaN whatever its coordinates);
     ValueError where two of them differ (a leaf a rotation in one and not in another)."""
@@ -164,7 +164,7 @@ def sample_margins(inputs, gains, *, controller, mission: Mission, times) -> dic
     rows = [[None] * len(times) for _ in range(n_samples)]
     for at, k in enumerate(order):
         here = jax.tree.map(lambda x: x[:, at], states)
-        kinds = _kinds(here, n_samples, times[k])
+        kinds = shared_kinds(here, n_samples, times[k])
         A, B, C, at_limit = map(np.asarray, linearize(inputs, gains, here, jnp.asarray(ticks[k], jnp.int32),
                                                       controller=controller, mission=mission, kinds=kinds))
         for i in range(n_samples):

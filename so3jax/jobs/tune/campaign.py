@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from so3jax.jobs.tune import constraints
+from so3jax.jobs.tune import constraints, design
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer, validate
 from so3jax.jobs.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
 from so3jax.jobs.tune.gains import gain_columns, resolve_gains, to_gains, to_params, with_estimator
@@ -59,6 +59,10 @@ def tune(config: TuneConfig, out, *, resume: bool = False, progress: bool = True
     with runfolder.claim(out, "tune", describe(config), resume=resume, lock=distributed.writer()) as run:
         if jax.process_count() > 1:
             run.start()  # the folder every process must see (distributed.check_shared)
+        if config.goals:
+            if jax.process_count() > 1:
+                raise ValueError("a design campaign ([[tune.goals]]) runs in one process")
+            return design.run(config, run.out, resume, progress)
         return _tune(config, run.out, resume, progress and distributed.writer())
 
 

@@ -15,8 +15,11 @@ import jax.numpy as jnp
 import optax
 
 from so3jax.components import registry as components
+from so3jax.controllers import registry
+from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
 from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
+from so3jax.jobs.tune.goals import parse_goals
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
@@ -95,6 +98,17 @@ class Constraints:
 
 
 @dataclasses.dataclass(frozen=True)
+class LagrangianConfig:
+    """A design campaign's method (docs/model.md §16.6): the augmented Lagrangian on the hard
+    goals' log g, and the smooth maximum of the soft goals' log g."""
+
+    penalty: float = 1.0  # rho_0 > 0, the initial penalty on log g of the hard goals
+    growth: float = 4.0  # rho *= growth (>= 1) where the hard goals' violation did not fall by a quarter
+    update_every: int = 5  # iterations between updates of the multipliers and the penalty
+    temperature: float = 0.05  # tau > 0 of the soft goals' smooth maximum, in log g
+
+
+@dataclasses.dataclass(frozen=True)
 class TuneConfig:
     """A tuning campaign: the ``[tune]`` table's fields and the mission it tunes (its
     scenario, loop, controller options and gains; None: the paper's mission)."""
@@ -117,6 +131,12 @@ class TuneConfig:
     dispersions: dict | None = None
     estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
     constraints: Constraints | None = None  # [tune.constraints]: penalties on the sampled loop's margins; None: none
+    # a design campaign (jobs.tune.design): [[tune.goals]], the tables of jobs.tune.goals; () : the cost above
+    goals: tuple = ()
+    starts: int = 1  # initial gains run together: the given ones, then draws log-uniform within the bounds
+    bounds: dict = dataclasses.field(default_factory=dict)  # {gain: [low, high]}; default a decade either side
+    fixed: tuple = ()  # gains held at their initial values
+    lagrangian: LagrangianConfig = LagrangianConfig()
     mission: Any = None  # so3jax.missions.mission.Mission
 
     def __post_init__(self):
@@ -133,6 +153,7 @@ _SECTIONS = {
     "optimizer": OptimizerConfig,
     "es": ESConfig,
     "constraints": Constraints,
+    "lagrangian": LagrangianConfig,
 }
 _CONSTRAINTS = {"disk_margin": DiskMarginConstraint}  # the entries of [tune.constraints]
 
@@ -158,7 +179,7 @@ def _build(cls, table: dict, prefix: str, **extra):
             value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
         elif key in _CONSTRAINTS and cls is Constraints:
             value = _build(_CONSTRAINTS[key], value, f"{prefix}{key}.")
-        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "at"):
+        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "at", "goals", "fixed"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
             raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, "
@@ -271,6 +292,7 @@ def validate(config: TuneConfig) -> None:
     _check_dispersions(config)
     _check_estimator(config)
     _check_constraints(config)
+    _check_design(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
     if held_out:
         raise ValueError(f"config key {_key('validation.seeds')!r} must be held out of {_key('train.seeds')}; "
@@ -400,6 +422,58 @@ def _check_constraints(config: TuneConfig) -> None:
                              f"periods ({period:g} s)")
 
 
+DESIGN_KEYS = ("goals", "starts", "bounds", "fixed", "lagrangian")  # a design campaign's [tune] keys
+
+
+def _check_design(config: TuneConfig) -> None:
+    """A design campaign: goals over dispersed missions (jobs.tune.goals), flown by the
+    gradient method, without the cost's table, constraints or a tuned estimator; starts >= 1,
+    bounds 0 < low < high on the law's gains (0 <= low for a nonnegative one), fixed gains named."""
+    if not config.goals:
+        given = [k for k in DESIGN_KEYS if getattr(config, k) != getattr(TuneConfig, k, None)
+                 and k not in ("goals", "bounds", "fixed")] + [k for k in ("bounds", "fixed") if getattr(config, k)]
+        if given:
+            raise ValueError(f"config key {_key(given[0])!r} belongs to a design campaign: it needs [[{TUNE}.goals]]")
+        return
+    parse_goals(list(config.goals), config.mission)
+    for refused, why in ((config.dispersions is None, f"a [{TUNE}.dispersions] table (the goals hold over a batch "
+                          "of dispersed missions)"),):
+        if refused:
+            raise ValueError(f"config key {_key('goals')!r} needs {why}")
+    for given, key in ((config.method != "gradient", "method"), (config.constraints is not None, "constraints"),
+                       (bool(config.estimator), "estimator"), (config.cost != CostConfig(), "cost"),
+                       (config.objective != "mean", "objective")):
+        if given:
+            raise ValueError(f"config key {_key(key)!r} cannot be combined with [[{TUNE}.goals]]: a design campaign "
+                             "minimizes its soft goals under its hard ones (margins and budgets are goals)")
+    _positive("starts", config.starts, integer=True)
+    lagrangian = config.lagrangian
+    for key in ("penalty", "temperature"):
+        _positive(f"lagrangian.{key}", getattr(lagrangian, key))
+    checks.number(lagrangian.growth, f"config key {_key('lagrangian.growth')!r}", low=1.0, high=1e6)
+    _positive("lagrangian.update_every", lagrangian.update_every, integer=True)
+    fields = registry.get(config.controller).gains_type._fields
+    if not isinstance(config.bounds, dict):
+        raise ValueError(f"config key {_key('bounds')!r} must be a table {{gain = [low, high]}}, "  # noqa: TRY004
+                         f"got {checks.short(config.bounds)}")
+    for name, pair in config.bounds.items():
+        where = _key(f"bounds.{name}")
+        if name not in fields:
+            raise ValueError(f"config key {where!r}: the {config.controller} controller has no gain {name!r} "
+                             f"({', '.join(fields)})")
+        nonnegative = isinstance(gain_domain(registry.get(config.controller).gains_type, name), Nonnegative)
+        if (not isinstance(pair, list) or len(pair) != 2 or not all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and checks.finite(x) for x in pair)):
+            raise ValueError(f"config key {where!r} must be [low, high], got {checks.short(pair)}")
+        low, high = pair
+        if not (low >= 0 if nonnegative else low > 0) or not low < high:
+            floor = "0 <= low" if nonnegative else "0 < low"
+            raise ValueError(f"config key {where!r} must have {floor} < high, got [{low:g}, {high:g}]")
+    checks.names(list(config.fixed), f"config key {_key('fixed')!r}", fields) if config.fixed else None
+    if set(config.fixed) >= set(fields):
+        raise ValueError(f"config key {_key('fixed')!r} holds every gain: nothing is left to tune")
+
+
 def tunable_estimator(mission) -> tuple:
     """The parameters of the mission's estimator that can be tuned: positive real numbers."""
     kind = mission.estimator["kind"]
@@ -445,6 +519,9 @@ def tune_table(config: TuneConfig) -> dict:
         del table["estimator"]
     if config.constraints is None:
         del table["constraints"]
+    if not config.goals:
+        for key in DESIGN_KEYS:
+            del table[key]
     return table
 
 

@@ -1,0 +1,154 @@
+"""The goals' normalized values g and their Jacobians dg/dp over a batch of dispersed
+missions, for N sets of tuned parameters at once (the starts: a vmap), docs/model.md §16.6.
+
+The parameters are flat vectors p (P,) (:func:`jax.flatten_util.ravel_pytree` of the
+log-gains, :func:`so3jax.jobs.tune.gains.to_params`). Requirement and budget goals are
+traced through the batch's rollouts (:func:`so3jax.missions.dispersed.sample_metrics`,
+the attitude errors recorded on the mission's ``record_every`` grid, the one ``fly`` and
+``sweep`` check requirements on) and differentiated in forward mode, one JVP per parameter.
+Margin goals linearize each sample's loop at each time about its noise-free flight at the
+current gains (:mod:`so3jax.jobs.sweep.margins`), the state held fixed, and differentiate
+the grid's disk margin (:func:`so3jax.sim.margins.disk_alpha`); a point whose closed loop
+is unstable has g = :data:`UNSTABLE` and the derivative of the goal's worst stable point.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.jobs.sweep import margins as sweep_margins
+from so3jax.jobs.tune.gains import to_gains
+from so3jax.jobs.tune.goals import budget_value, normalized
+from so3jax.missions import dispersed
+from so3jax.sim import margins, pointing, requirement_values
+from so3jax.sim.rollout import block_steps
+
+OMEGAS = 256  # a margin goal's frequency grid: log-spaced over 6 decades up to the Nyquist frequency
+UNSTABLE = 100.0  # g of a margin point whose closed loop is unstable
+
+
+class GoalValues:
+    """g (N, G) and dg/dp (N, G, P) of the goals at N parameter vectors over a batch.
+
+    ``unravel``: flat parameters (P,) -> the log-gains tree; ``controller``: the
+    Controller flown; ``mission``: the campaign's (its record grid and phases)."""
+
+    def __init__(self, goals, mission, controller, unravel):
+        self.goals, self.mission, self.controller, self.unravel = goals, mission, controller, unravel
+        self.traced = [i for i, g in enumerate(goals) if g.kind != "margin"]
+        self.margins = [i for i, g in enumerate(goals) if g.kind == "margin"]
+        scenario = mission.scenario()
+        self.block = block_steps(scenario.n_steps, mission.record_every, mission.period_steps)
+        self.bounds = pointing.phase_bounds_of(scenario)
+        self.plans = None  # on the first batch: the record grid's length is the rollout's
+        self._jacobian = jax.jit(jax.vmap(jax.jacfwd(self._traced, has_aux=True), in_axes=(0, None)))
+        self._value = jax.jit(jax.vmap(self._traced, in_axes=(0, None)))
+        self._alphas = jax.jit(jax.jacfwd(self._margin_alphas, has_aux=True), static_argnames=("kinds",))
+        period = float(mission.period) if mission.period_steps is not None else 1.0
+        self.period = period
+        self.omegas = margins.default_omegas(period, OMEGAS)
+
+    # --- requirement and budget goals: traced ---------------------------------------------
+
+    def _results(self, p, inputs) -> dict:
+        return dispersed.sample_metrics(inputs, to_gains(self.unravel(p)), controller=self.controller,
+                                        mission=self.mission, record_every=self.mission.record_every, pointing=True)
+
+    def _plan(self, p, inputs) -> None:
+        """The requirements' plans on the record grid t_m = m b dt of the batch's rollouts."""
+        if self.plans is not None:
+            return
+        shape = jax.eval_shape(self._results, p, inputs)["pointing_performance"].shape
+        self.t = np.arange(shape[-2]) * (self.block * self.mission.dt)
+        self.plans = {i: requirement_values.plan(self.goals[i].requirement, self.t, self.bounds)
+                      for i in self.traced if self.goals[i].kind == "requirement"}
+
+    def _traced(self, p, inputs):
+        """(g of the traced goals (T,), (g, their values in their units (T,)))."""
+        results = self._results(p, inputs)
+        values = []
+        for i in self.traced:
+            goal = self.goals[i]
+            if goal.kind == "requirement":
+                e = results["pointing_performance" if goal.requirement.signal == "performance"
+                            else "pointing_knowledge"]
+                values.append(requirement_values.value(self.plans[i], e))
+            else:
+                values.append(budget_value(goal, results))
+        values = jnp.stack(values) if values else jnp.zeros((0,), p.dtype)
+        g = jnp.stack([normalized(self.goals[i], v) for i, v in zip(self.traced, values)]) if self.traced else values
+        return g, (g, values)
+
+    # --- margin goals: linearized about each sample's noise-free flight -------------------------
+
+    def _margin_alphas(self, p, inputs, states, j, kinds):
+        A, B, C, _ = sweep_margins.linearize(inputs, to_gains(self.unravel(p)), states, j,
+                                             controller=self.controller, mission=self.mission, kinds=kinds)
+        omegas = jnp.asarray(self.omegas, A.dtype)
+        alpha = jax.vmap(lambda a, b, c: margins.disk_alpha(a, b, c, self.period, omegas)[0])(A, B, C)
+        return alpha, (alpha, A, B, C)
+
+    def _margin_points(self, p, inputs, times):
+        """(alpha (S, K), d alpha / dp (S, K, P), stable (S, K)) at one parameter vector."""
+        scenario, loop = self.mission.scenario(), self.mission.loop()
+        ticks = np.array([margins.tick_index(scenario, loop, t) for t in times], np.int32)
+        order = np.argsort(ticks, kind="stable")
+        gains = to_gains(self.unravel(p))
+        states = sweep_margins.fly(inputs, gains, jnp.asarray(ticks[order]), controller=self.controller,
+                                   mission=self.mission)
+        S = len(np.asarray(inputs[0].J0))
+        K = len(times)
+        alpha, jac, stable = np.zeros((S, K)), np.zeros((S, K, p.shape[0])), np.zeros((S, K), bool)
+        for at, k in enumerate(order):
+            here = jax.tree.map(lambda x: x[:, at], states)
+            kinds = sweep_margins.shared_kinds(jax.tree.map(np.asarray, here), S, times[k])
+            d_alpha, (a, A, B, C) = self._alphas(p, inputs, here, jnp.asarray(ticks[k], jnp.int32), kinds=kinds)
+            A, B, C = (np.asarray(x, np.float64) for x in (A, B, C))
+            for i in range(S):
+                lin = margins.Linearization(A[i], B[i], C[i], self.period)
+                finite = all(np.isfinite(x).all() for x in (A[i], B[i], C[i]))
+                stable[i, k] = finite and margins.closed_loop_modes(lin).stable
+            alpha[:, k], jac[:, k] = np.asarray(a), np.asarray(d_alpha)
+        return alpha, jac, stable
+
+    def _margin_goal(self, goal, alpha, jac, stable):
+        """(g, dg/dp (P,), the worst margin [dB] or None where a point is unstable) of one
+        margin goal from its points: the worst point's alpha_req / alpha."""
+        g_points = np.where(stable, goal.alpha_required / np.where(stable, alpha, 1.0), np.inf)
+        finite = np.where(stable, g_points, -np.inf)
+        worst_stable = np.unravel_index(np.argmax(finite), finite.shape) if stable.any() else None
+        grad = np.zeros(jac.shape[-1])
+        if worst_stable is not None:
+            a = alpha[worst_stable]
+            grad = -goal.alpha_required / a**2 * jac[worst_stable]
+        if not stable.all():
+            return UNSTABLE, grad, None
+        return float(g_points[worst_stable]), grad, margins.db_of_alpha(float(alpha[worst_stable]))
+
+    # --- all goals -----------------------------------------------------------------------------
+
+    def __call__(self, P, inputs, jacobian: bool = True):
+        """(g (N, G), dg/dp (N, G, P) or None, values (N, G) in the goals' units) at the N
+        parameter vectors P (N, P) over the batch ``inputs`` (sample_metrics' inputs)."""
+        N, G = P.shape[0], len(self.goals)
+        g, values = np.zeros((N, G)), np.full((N, G), np.nan)
+        jac = np.zeros((N, G, P.shape[1])) if jacobian else None
+        if self.traced:
+            self._plan(P[0], inputs)
+            if jacobian:
+                d_g, (g_t, v_t) = self._jacobian(P, inputs)
+                jac[:, self.traced] = np.asarray(d_g)
+            else:
+                _, (g_t, v_t) = self._value(P, inputs)
+            g[:, self.traced], values[:, self.traced] = np.asarray(g_t), np.asarray(v_t)
+        for i in self.margins:
+            goal = self.goals[i]
+            for n in range(N):
+                alpha, d_alpha, stable = self._margin_points(P[n], inputs, goal.at)
+                g[n, i], grad, db = self._margin_goal(goal, alpha, d_alpha, stable)
+                values[n, i] = np.nan if db is None else db
+                if jacobian:
+                    jac[n, i] = grad
+        return g, jac, values

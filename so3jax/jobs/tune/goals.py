@@ -1,0 +1,217 @@
+"""A design campaign's goals (``[[tune.goals]]``, docs/model.md §16.6): the mission's pointing
+requirements, floors on the sampled loop's disk margin and budgets on the flight's metrics,
+each normalized to g = value / limit (a floor: limit / value) over a batch of dispersed
+missions, hard (g < 1 required) or soft (the largest minimized).
+
+Each goal is a table of ``[[tune.goals]]`` with ``hard = true`` or ``false`` and one of
+
+* ``requirement = "NAME"`` (or a 0-based index): a ``[[requirements]]`` entry of the mission,
+  or the keys of one inline (``index``, ``axis``, ``level``, ``limit``, ``window``, ``phase``,
+  ``interpretation``, ...): its value over the batch in its interpretation (the sweep's
+  reading, :func:`so3jax.sim.pointing.statistic` with a diverged sample as +inf) [arcsec];
+* ``margin = "disk"`` with ``min_db`` > 0 and ``at`` (times [s], whole control periods, or
+  ``"phase ends"``: the last tick of each phase): the multi-loop disk margin (19.4) on the
+  256-point grid of each sample at each time, g = alpha_req / alpha, its worst point;
+* ``budget = METRIC`` with ``limit`` > 0 and ``statistic`` (``"mean"`` or ``"max"`` over
+  the batch): ``effort`` [N^2 m^2 s], ``rmse`` [rad/s], or a flight metric
+  (:data:`BUDGETS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.core import checks
+from so3jax.sim import pointing
+from so3jax.sim.margins import alpha_of_db
+
+KINDS = ("requirement", "margin", "budget")
+MARGINS = ("disk",)
+BUDGETS = {"effort": "N^2 m^2 s", "rmse": "rad/s", "command_effort": "N^2 m^2 s", "actuator_effort": "N^2 m^2 s",
+           "time_at_torque_limit": "s", "time_at_speed_limit": "s", "max_wheel_speed_ratio": "-"}
+STATISTICS = ("mean", "max")
+PHASE_ENDS = "phase ends"
+MAX_DB = 60.0  # the highest disk-margin floor: alpha_req = 1.998, at the edge of what alpha can reach (< 2)
+_COMMON = ("hard", "name")
+
+
+@dataclasses.dataclass(frozen=True)
+class Goal:
+    """One goal: g = value / limit (a margin floor: alpha_req / alpha), hard or soft."""
+
+    kind: str  # "requirement", "margin" or "budget"
+    hard: bool
+    name: str
+    requirement: pointing.Requirement | None = None
+    min_db: float | None = None  # margin floor [dB]
+    at: tuple = ()  # margin times [s]
+    metric: str | None = None  # budget
+    limit: float | None = None  # budget's limit (its metric's unit); a requirement's is its own [arcsec]
+    statistic: str = "mean"  # budget: over the batch
+
+    @property
+    def alpha_required(self) -> float:
+        return alpha_of_db(self.min_db)
+
+    @property
+    def unit(self) -> str:
+        return {"requirement": "arcsec", "margin": "dB"}.get(self.kind) or BUDGETS[self.metric]
+
+    @property
+    def bound(self) -> float:
+        """The value's limit in its unit (a margin's floor [dB])."""
+        return {"requirement": lambda: self.requirement.limit, "margin": lambda: self.min_db}.get(
+            self.kind, lambda: self.limit)()
+
+    def describe(self) -> str:
+        if self.kind == "requirement":
+            return self.requirement.describe()
+        if self.kind == "margin":
+            return f"disk margin >= {self.min_db:g} dB at t = {', '.join(f'{t:g}' for t in self.at)} s"
+        return f"{self.statistic} {self.metric} <= {self.limit:g} {self.unit}"
+
+
+def _number(value, where: str, low: float = 0.0, high: float = math.inf) -> float:
+    """A finite number in (low, high]."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool) or not math.isfinite(value) or not (
+            low < value <= high):
+        raise ValueError(f"{where}: must be a number in ({low:g}, {high:g}], got {checks.short(value)}")
+    return float(value)
+
+
+def phase_ends(mission) -> tuple:
+    """The last tick [s] of each phase the horizon reaches: t_end - Delta_c."""
+    bounds = pointing.phase_bounds_of(mission.scenario())
+    return tuple(round(b - mission.period, 12) for a, b in bounds if b > a)
+
+
+def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
+    bounds = pointing.phase_bounds_of(mission.scenario())
+    reference = item.get("requirement")
+    inline = {k: v for k, v in item.items() if k not in _COMMON + ("requirement",)}
+    if reference is None:
+        return pointing.parse_requirement(inline, where, mission.phase_names, bounds)
+    if inline:
+        raise ValueError(f"{where}: names the mission's requirement {reference!r} and gives keys of its own "
+                         f"({', '.join(inline)}): one or the other")
+    names = [r.name for r in mission.requirements]
+    if isinstance(reference, str):
+        if reference not in names:
+            known = ", ".join(repr(n) for n in names if n) or "none named"
+            raise ValueError(f"{where}.requirement: the mission has no requirement {reference!r} ({known})")
+        return mission.requirements[names.index(reference)]
+    if isinstance(reference, bool) or not isinstance(reference, int) or not 0 <= reference < len(names):
+        raise ValueError(f"{where}.requirement: a requirement's name or index 0..{len(names) - 1}, "
+                         f"got {checks.short(reference)}")
+    return mission.requirements[reference]
+
+
+def _margin(item: dict, where: str, mission) -> dict:
+    if item["margin"] not in MARGINS:
+        raise ValueError(f"{where}.margin: one of {', '.join(MARGINS)}, got {checks.short(item['margin'])}")
+    checks.table({"": item}, "", _COMMON + ("margin", "min_db", "at"), where)
+    if "min_db" not in item:
+        raise ValueError(f"{where}.min_db: missing (the floor on the disk margin [dB], > 0)")
+    if mission.period_steps is None:
+        raise ValueError(f"{where}: a margin needs a sampled loop (control.mode = \"sampled\")")
+    min_db = _number(item["min_db"], f"{where}.min_db", 0.0, MAX_DB)
+    at = item.get("at", PHASE_ENDS)
+    if at == PHASE_ENDS:
+        at = phase_ends(mission)
+    elif not isinstance(at, list) or not at:
+        raise ValueError(f"{where}.at: a list of times [s] or \"{PHASE_ENDS}\", got {checks.short(at)}")
+    times = []
+    for t in at:
+        if isinstance(t, bool) or not isinstance(t, numbers.Real) or not math.isfinite(t) or not 0 <= t < mission.T:
+            raise ValueError(f"{where}.at: t = {checks.short(t)} s is outside the horizon [0, {mission.T:g}) s")
+        if abs(t - round(t / mission.period) * mission.period) > 1e-9 * max(mission.period, abs(t)):
+            raise ValueError(f"{where}.at: t = {t:g} s is not a whole number of control periods "
+                             f"({mission.period:g} s)")
+        if t < mission.period:
+            raise ValueError(f"{where}.at: t = {t:g} s is before the second tick ({mission.period:g} s): the loop's "
+                             "rate feedback is not yet formed there")
+        times.append(float(t))
+    return {"min_db": min_db, "at": tuple(times)}
+
+
+def _budget(item: dict, where: str) -> dict:
+    checks.table({"": item}, "", _COMMON + ("budget", "limit", "statistic"), where)
+    metric = checks.choice(item["budget"], f"{where}.budget", tuple(BUDGETS))
+    if "limit" not in item:
+        raise ValueError(f"{where}.limit: missing (the budget [{BUDGETS[metric]}], > 0)")
+    statistic = checks.choice(item.get("statistic", "mean"), f"{where}.statistic", STATISTICS)
+    return {"metric": metric, "limit": _number(item["limit"], f"{where}.limit", 0.0, 1e300), "statistic": statistic}
+
+
+def parse_goal(item, where: str, mission) -> Goal:
+    """One ``[[tune.goals]]`` entry (module docstring); a one-line ValueError naming its key."""
+    if not isinstance(item, dict):
+        raise ValueError(f"{where}: must be a table, got {checks.short(item)}")  # noqa: TRY004
+    kinds = [k for k in ("requirement", "margin", "budget") if k in item]
+    if "index" in item and not kinds:
+        kinds = ["requirement"]
+    if len(kinds) != 1:
+        raise ValueError(f"{where}: give exactly one of requirement (or an inline requirement's index, axis, "
+                         f"level, limit), margin, budget; got {', '.join(kinds) or 'none'}")
+    if "hard" not in item:
+        raise ValueError(f"{where}.hard: missing (true: a hard goal, g < 1 required; false: a soft goal, minimized)")
+    hard = checks.boolean(item["hard"], f"{where}.hard")
+    name = item.get("name")
+    if name is not None and not isinstance(name, str):
+        raise ValueError(f"{where}.name: must be a string, got {checks.short(name)}")
+    kind = kinds[0]
+    if kind == "requirement":
+        requirement = _requirement(item, where, mission)
+        if requirement.limit <= 0:
+            raise ValueError(f"{where}: the requirement's limit is 0 arcsec: a goal normalizes by it (> 0)")
+        if requirement.signal == "knowledge" and mission.estimator["kind"] == "truth":
+            raise ValueError(f"{where}: {requirement.index} reads the knowledge error, and the mission's estimator "
+                             "is 'truth' (no estimate to be wrong)")
+        label = name or requirement.name or requirement.describe()
+        return Goal("requirement", hard, label, requirement=requirement)
+    if kind == "margin":
+        fields = _margin(item, where, mission)
+        return Goal("margin", hard, name or f"disk margin >= {fields['min_db']:g} dB", **fields)
+    fields = _budget(item, where)
+    return Goal("budget", hard, name or f"{fields['statistic']} {fields['metric']}", **fields)
+
+
+def parse_goals(items, mission) -> tuple[Goal, ...]:
+    """The goals of ``[[tune.goals]]``; at least one, names distinct."""
+    where = "tune.goals"
+    if not isinstance(items, (list, tuple)) or not items:
+        raise ValueError(f"{where}: must be a non-empty list of tables ([[tune.goals]]), got {checks.short(items)}")
+    goals = tuple(parse_goal(item, f"{where}[{i}]", mission) for i, item in enumerate(items))
+    names = [g.name for g in goals]
+    for i, n in enumerate(names):
+        if n in names[:i]:
+            raise ValueError(f"{where}[{i}].name: {n!r} names another goal too: give each a distinct name")
+    return goals
+
+
+# --- values ---------------------------------------------------------------------------------
+
+
+def budget_value(goal: Goal, results: dict):
+    """A budget's statistic over the batch of ``results`` (sample_metrics' dict), traced."""
+    x = results[goal.metric]
+    x = jnp.where(jnp.isnan(x), jnp.inf, x)  # a diverged sample is the worst
+    return jnp.mean(x) if goal.statistic == "mean" else jnp.max(x)
+
+
+def normalized(goal: Goal, value):
+    """g of a goal's value: value / limit; a margin's (its alpha): alpha_req / alpha."""
+    if goal.kind == "margin":
+        return goal.alpha_required / value
+    return value / goal.bound
+
+
+def soft_and_hard(goals) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks (G,) of the soft and the hard goals."""
+    hard = np.array([g.hard for g in goals])
+    return ~hard, hard
