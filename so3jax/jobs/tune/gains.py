@@ -12,6 +12,7 @@ import numpy as np
 from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
+from so3jax.missions import schedule as schedules
 from so3jax.missions.mission import gains_file
 
 # One instance per controller with its default options, so that jit caches hit across runs.
@@ -29,9 +30,11 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     """Gains from "mission" (the mission's [gains.NAME]), "paper" (the registered defaults),
     a table {name: value}, or a best_gains.json path; checked by the registration. Each
     gain a number or a diagonal (no matrix); ``diagonal_gamma``: every gain that may be a
-    diagonal broadcast to one."""
+    diagonal broadcast to one. A law the mission schedules (``[schedule]``) gets its gains
+    per phase or breakpoint (a leading axis), each given as a list or one number for all."""
     registered = registry.get(controller)
     cls = registered.gains_type
+    schedule = mission.schedule.get(controller) if mission is not None else None
     if spec == "mission":
         if mission is None or controller not in mission.gains:
             flown = ", ".join(mission.controllers) if mission is not None else "none"
@@ -41,7 +44,8 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     elif spec == "paper":
         table = registered.defaults._asdict()
     elif isinstance(spec, str):
-        table = {k: np.asarray(v).tolist() for k, v in gains_file(spec, controller)._asdict().items()}
+        table = {k: np.asarray(v).tolist() for k, v in gains_file(spec, controller, schedule, mission.phases
+                                                                  if schedule else None)._asdict().items()}
     elif isinstance(spec, dict):
         table = spec
     else:
@@ -52,6 +56,13 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     missing = [name for name in cls._fields if name not in table]
     if missing:
         raise ValueError(f"missing gain {missing[0]!r} for the {controller} controller")
+    if schedule is not None:
+        gains = schedules.scheduled_gains(controller, table, schedule, mission.phases, "gains")
+        if diagonal_gamma:
+            n = len(schedules.knots(schedule, mission.phases))
+            gains = gains._replace(**{f: np.broadcast_to(np.reshape(getattr(gains, f), (n,) + (1,) * len(s)), (n, *s))
+                                      for f, s in diagonals(controller).items()})
+        return cls(**{name: jnp.asarray(value, dtype) for name, value in gains._asdict().items()})
     shapes = {name: tuple(s for s in allowed if len(s) < 2) for name, allowed in registered.gain_shapes().items()}
     table = checks.gains(table, registered.defaults, shapes, "gains")._asdict()
     gains = cls(**{name: jnp.asarray(table[name], dtype) for name in cls._fields})
@@ -135,12 +146,13 @@ def tables(tuned) -> dict:
 
 
 def gain_columns(gains) -> dict:
-    """Flat {column: value}: Gamma_0 .. Gamma_8 for a diagonal Gamma."""
+    """Flat {column: value}: Gamma_0 .. Gamma_8 for a diagonal Gamma; k_R_0 .. k_R_2 for a
+    gain scheduled over three phases (Gamma_0_0 .. Gamma_2_8 for a scheduled diagonal)."""
     columns = {}
     for name, value in gains._asdict().items():
         value = np.asarray(value)
         if value.ndim == 0:
             columns[name] = float(value)
         else:
-            columns.update({f"{name}_{i}": float(v) for i, v in enumerate(value)})
+            columns.update({"_".join([name, *map(str, i)]): float(value[i]) for i in np.ndindex(value.shape)})
     return columns

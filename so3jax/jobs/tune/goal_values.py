@@ -87,7 +87,8 @@ class GoalValues:
         A, B, C, _ = sweep_margins.linearize(inputs, to_gains(self.unravel(p)), states, j,
                                              controller=self.controller, mission=self.mission, kinds=kinds)
         omegas = jnp.asarray(self.omegas, A.dtype)
-        alpha = jax.vmap(lambda a, b, c: margins.disk_alpha(a, b, c, self.period, omegas)[0])(A, B, C)
+        # one sample after another: XLA:CPU hangs on the forward derivative of a vmapped batch of eigvalsh
+        alpha = jax.lax.map(lambda abc: margins.disk_alpha(*abc, self.period, omegas)[0], (A, B, C))
         return alpha, (alpha, A, B, C)
 
     def _margin_points(self, p, inputs, times):
