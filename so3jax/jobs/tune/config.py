@@ -225,8 +225,9 @@ def _check_kwargs(fn, options, where: str) -> None:
             raise ValueError(f"config key '{where}.{key}' must be a number, got {checks.short(value)}")
 
 
-def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
-    """apply_if_finite(chain(clip_by_global_norm, optax.<name>(schedule, **options)))."""
+def make_optimizer(config: OptimizerConfig, clip: bool = True) -> optax.GradientTransformation:
+    """apply_if_finite(chain(clip_by_global_norm, optax.<name>(schedule, **options)));
+    ``clip`` False: optax.<name>(schedule, **options) alone (a caller that clips its own)."""
     _positive("optimizer.learning_rate", config.learning_rate)
     _positive("optimizer.clip_norm", config.clip_norm)
     name_key = _key("optimizer.name")
@@ -252,7 +253,7 @@ def make_optimizer(config: OptimizerConfig) -> optax.GradientTransformation:
     except TypeError as err:
         raise ValueError(f"config key {_key('optimizer.options')!r}: {err}") from err
     # Large enough never to give up: the loop stops at the first non-finite gradient.
-    tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30)
+    tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30) if clip else inner
     try:  # an optimizer that needs more than (grad, value), e.g. lbfgs's value_fn
         probe = jnp.zeros(2)
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats

@@ -29,12 +29,11 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 from jax.flatten_util import ravel_pytree
 
 from so3jax.jobs.tune import design_report
 from so3jax.jobs.tune import goals as goal_specs
-from so3jax.jobs.tune.config import TuneConfig, describe
+from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer
 from so3jax.jobs.tune.gains import gain_columns, resolve_gains, tables, to_gains, to_params
 from so3jax.jobs.tune.goal_values import GoalValues
 from so3jax.jobs.tune.problem import MAX_DRAWS, Sampler
@@ -190,7 +189,7 @@ def run(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     train, train_index = draw_inputs(sampler, config.train.seeds[0], config.train.samples, dtype)
     values = GoalValues(goals, config.mission, controller, parameters.unravel)
     lagrangian_config = config.lagrangian
-    tx = optax.adam(config.optimizer.learning_rate)
+    tx = make_optimizer(config.optimizer, clip=False)  # each start's gradient clipped on its own
 
     description = io.to_builtin(describe(config))
     fingerprint = runfolder.fingerprint({**description, "tune": {**description["tune"], "iterations": 0}})

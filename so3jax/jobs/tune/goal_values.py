@@ -91,14 +91,16 @@ class GoalValues:
         alpha = jax.lax.map(lambda abc: margins.disk_alpha(*abc, self.period, omegas)[0], (A, B, C))
         return alpha, (alpha, A, B, C)
 
-    def _margin_points(self, p, inputs, times):
-        """(alpha (S, K), d alpha / dp (S, K, P), stable (S, K)) at one parameter vector."""
+    def _margin_points(self, p, inputs, times, states=None):
+        """(alpha (S, K), d alpha / dp (S, K, P), stable (S, K), the points' states) at one
+        parameter vector: each sample's loop linearized at each time about its noise-free
+        flight (``states``: that flight's states, by default flown at p)."""
         scenario, loop = self.mission.scenario(), self.mission.loop()
         ticks = np.array([margins.tick_index(scenario, loop, t) for t in times], np.int32)
         order = np.argsort(ticks, kind="stable")
-        gains = to_gains(self.unravel(p))
-        states = sweep_margins.fly(inputs, gains, jnp.asarray(ticks[order]), controller=self.controller,
-                                   mission=self.mission)
+        if states is None:
+            states = sweep_margins.fly(inputs, to_gains(self.unravel(p)), jnp.asarray(ticks[order]),
+                                       controller=self.controller, mission=self.mission)
         S = len(np.asarray(inputs[0].J0))
         K = len(times)
         alpha, jac, stable = np.zeros((S, K)), np.zeros((S, K, p.shape[0])), np.zeros((S, K), bool)
@@ -112,7 +114,7 @@ class GoalValues:
                 finite = all(np.isfinite(x).all() for x in (A[i], B[i], C[i]))
                 stable[i, k] = finite and margins.closed_loop_modes(lin).stable
             alpha[:, k], jac[:, k] = np.asarray(a), np.asarray(d_alpha)
-        return alpha, jac, stable
+        return alpha, jac, stable, states
 
     def _margin_goal(self, goal, alpha, jac, stable):
         """(g, dg/dp (P,), the worst margin [dB] or None where a point is unstable) of one
@@ -147,7 +149,7 @@ class GoalValues:
         for i in self.margins:
             goal = self.goals[i]
             for n in range(N):
-                alpha, d_alpha, stable = self._margin_points(P[n], inputs, goal.at)
+                alpha, d_alpha, stable, _ = self._margin_points(P[n], inputs, goal.at)
                 g[n, i], grad, db = self._margin_goal(goal, alpha, d_alpha, stable)
                 values[n, i] = np.nan if db is None else db
                 if jacobian:

@@ -117,9 +117,9 @@ def _margin(item: dict, where: str, mission) -> dict:
     checks.table({"": item}, "", _COMMON + ("margin", "min_db", "at"), where)
     if "min_db" not in item:
         raise ValueError(f"{where}.min_db: missing (the floor on the disk margin [dB], > 0)")
+    min_db = _number(item["min_db"], f"{where}.min_db", 0.0, MAX_DB)
     if mission.period_steps is None:
         raise ValueError(f"{where}: a margin needs a sampled loop (control.mode = \"sampled\")")
-    min_db = _number(item["min_db"], f"{where}.min_db", 0.0, MAX_DB)
     at = item.get("at", PHASE_ENDS)
     if at == PHASE_ENDS:
         at = phase_ends(mission)

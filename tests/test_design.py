@@ -1,0 +1,190 @@
+"""Design campaigns ([[tune.goals]], docs/model.md §16.6): a known optimum found, an
+infeasible pair of goals reported as such, every goal's derivative against central
+differences, and bad input refused in one line before anything compiles."""
+
+import json
+import math
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from so3jax.jobs.tune import design
+from so3jax.jobs.tune.campaign import tune
+from so3jax.jobs.tune.config import load_config, parse_config
+from so3jax.jobs.tune.gains import resolve_gains
+from so3jax.jobs.tune.goal_values import GoalValues
+from so3jax.jobs.tune.goals import parse_goals
+from so3jax.jobs.tune.problem import Sampler
+from so3jax.missions import dispersed
+from so3jax.missions.mission import gains_file
+
+A, LIMIT = 0.01, 3600.0  # disturbance amplitude per axis [N m]; the hold's APE limit [arcsec]
+
+
+def hold_campaign(goals, iterations=30):
+    """A unit-inertia body held inertially by the PD (k_Omega fixed at 2) under the
+    disturbance A sin(f t) [1, 1, 1], f = pi / 400 rad/s, peaking at the end of the hold
+    phase [150, 200) s: there the error is quasi-static, k_R sin(theta) = sqrt(3) A sin(f t),
+    so the hold's APE at 0.95 (its samples' top 5 %, within 0.02 % of the peak) is at most
+    LIMIT exactly where k_R >= sqrt(3) A / sin(LIMIT). The initial error of 0.3 rad costs an
+    effort that grows with k_R: the least effort that meets the APE is that k_R."""
+    return {"T": 200.0, "dt": 0.05, "seed": 0, "controllers": ["pd"], "record_every": 10,
+            "control": {"mode": "continuous"}, "sensors": {"gyro": False, "star_tracker": False},
+            "estimator": {"kind": "truth"}, "actuator": {"kind": "ideal"}, "momentum": {"kind": "none"},
+            "inertia": {"J": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]},
+            "reference": {"kind": "inertial"}, "phases": {"names": ["settle", "hold"], "start": [0.0, 150.0]},
+            "disturbance": {"amplitude": A, "frequency": math.pi / 400.0, "noise_std": 0.0},
+            "initial": {"attitude": [0.3, 0.0, 0.0], "rate": [0.0, 0.0, 0.0]},
+            "gains": {"pd": {"k_R": 0.5, "k_Omega": 2.0}},
+            "tune": {"controller": "pd", "iterations": iterations, "fixed": ["k_Omega"],
+                     "train": {"seeds": [0], "samples": 1}, "validation": {"seeds": [1], "samples": 1},
+                     "dispersions": {},
+                     "optimizer": {"learning_rate": 0.1, "schedule": "cosine_decay_schedule",
+                                   "schedule_options": {"decay_steps": iterations, "alpha": 0.01}},
+                     "goals": goals}}
+
+
+HOLD = {"index": "APE", "axis": "angle", "level": 0.95, "limit": LIMIT, "phase": "hold", "name": "hold pointing"}
+
+
+def test_the_least_effort_that_meets_a_pointing_limit_is_the_closed_form_gain(tmp_path):
+    config = parse_config(hold_campaign([{**HOLD, "hard": True}, {"budget": "effort", "limit": 1.0, "hard": False}]))
+    report = tune(config, tmp_path / "run", progress=False)
+    expected = math.sqrt(3.0) * A / math.sin(math.radians(LIMIT / 3600.0))
+    assert report["gains"]["best"]["k_R"] == pytest.approx(expected, rel=0.01)
+    assert report["gains"]["best"]["k_Omega"] == 2.0  # fixed
+    assert report["verdict"] == "met" and report["met_on_training"]
+    pointing, effort = report["goals"]
+    assert pointing["training"]["initial"] > 1.9 and 0.98 <= pointing["training"]["best"] <= 1.0
+    assert effort["training"]["best"] > effort["training"]["initial"]  # what meeting the limit costs
+    assert report["binding"] == ["hold pointing", "mean effort"]
+    saved = json.loads((tmp_path / "run" / "design.json").read_text())
+    assert saved["verdict"] == "met" and (tmp_path / "run" / "design.md").exists()
+    assert float(gains_file(tmp_path / "run" / "best_gains.json", "pd").k_R) == report["gains"]["best"]["k_R"]
+
+
+def test_goals_that_no_gain_meets_together_are_reported_as_such(tmp_path):
+    # the effort of holding against the disturbance alone, 3 A^2 int sin^2(f t) dt ~ 0.03, exceeds 0.01
+    config = parse_config(hold_campaign([{**HOLD, "hard": True},
+                                         {"budget": "effort", "limit": 0.01, "hard": True}], iterations=12))
+    report = tune(config, tmp_path / "run", progress=False)
+    assert report["verdict"] == "not met" and not report["met_on_training"]
+    assert "mean effort" in report["unmet_hard"]
+    assert ["hold pointing", "mean effort"] in report["conflicts"]
+    assert "does not hold" in (tmp_path / "run" / "design.md").read_text()
+
+
+# --- each goal's derivative ------------------------------------------------------------------
+
+
+FLIGHT_GOALS = [
+    {"index": "RPE", "axis": "angle", "level": 0.9, "limit": 300.0, "window": 2.0, "interpretation": "ensemble",
+     "hard": True},
+    {"index": "APE", "axis": "x", "level": 0.5, "limit": 3600.0, "interpretation": "temporal", "hard": True},
+    {"index": "AKE", "axis": "each", "level": 0.5, "limit": 5.0, "interpretation": "mixed", "hard": True},
+    {"budget": "command_effort", "limit": 1.0, "hard": False},
+    {"margin": "disk", "min_db": 6.0, "at": [10.0], "hard": True},
+]
+
+
+@pytest.fixture(scope="module")
+def flight_goals():
+    config = load_config("missions/flight.toml", [("T", 20.0), ("tune.controller", "pd"),
+                                                   ("tune.train", {"seeds": [0], "samples": 2}),
+                                                   ("tune.validation", {"seeds": [1], "samples": 2}),
+                                                   ("tune.dispersions", {"initial.attitude": {"max_angle_deg": 20.0},
+                                                                         "seed": "random"}),
+                                                   ("tune.goals", FLIGHT_GOALS)])
+    goals = parse_goals(list(config.goals), config.mission)
+    initial = resolve_gains("pd", "mission", jnp.float64, mission=config.mission)
+    parameters = design.Parameters(config, initial)
+    parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+    inputs, _ = design.draw_inputs(Sampler(parsed, leaves, config.mission), 0, 2, jnp.float64)
+    values = GoalValues(goals, config.mission, config.mission.controller("pd")[0], parameters.unravel)
+    P = np.stack([parameters.p0, parameters.p0 + np.array([0.3, -0.2])])  # two starts at once
+    return values, inputs, P
+
+
+def test_every_goal_derivative_matches_central_differences(flight_goals):
+    values, inputs, P = flight_goals
+    g, jac, _ = values(P, inputs)
+    assert np.all(np.isfinite(g)) and np.all(np.isfinite(jac)) and np.all(g > 0)
+    h = 1e-5
+    traced = values.traced
+    for k in range(P.shape[1]):
+        step = np.zeros_like(P)
+        step[:, k] = h
+        up, _, _ = values(P + step, inputs, jacobian=False)
+        down, _, _ = values(P - step, inputs, jacobian=False)
+        fd = (up - down) / (2 * h)
+        assert np.all(jac[:, traced, k] != 0.0)
+        np.testing.assert_allclose(jac[:, traced, k], fd[:, traced], rtol=1e-5, atol=1e-7)
+    # the margin's derivative holds the linearization's point fixed (docs/model.md §16.6)
+    margin = values.goals[-1]
+    for n in range(len(P)):
+        alpha, d_alpha, stable, states = values._margin_points(P[n], inputs, margin.at)
+        assert stable.all()
+        for k in range(P.shape[1]):
+            step = np.zeros(P.shape[1])
+            step[k] = h
+            up = values._margin_points(P[n] + step, inputs, margin.at, states)[0]
+            down = values._margin_points(P[n] - step, inputs, margin.at, states)[0]
+            np.testing.assert_allclose(d_alpha[..., k], (up - down) / (2 * h), rtol=1e-5, atol=1e-9)
+
+
+# --- bad input ---------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"goals": [{**HOLD, "phase": "cruise", "hard": True}]}, "unknown phase 'cruise'"),
+    ({"goals": [{**HOLD, "index": "XPE", "hard": True}]}, "unknown index 'XPE'"),
+    ({"goals": [{"requirement": "nadir pointing", "hard": True}]}, "has no requirement 'nadir pointing'"),
+    ({"goals": [{**HOLD, "level": 1.0, "hard": True}]}, "tune.goals[0].level"),
+    ({"goals": [{**HOLD}]}, "tune.goals[0].hard: missing"),
+    ({"goals": [{"margin": "disk", "min_db": 0.0, "hard": True}]}, "tune.goals[0].min_db"),
+    ({"goals": [{"budget": "effort", "limit": 1.0, "statistic": "median", "hard": False}]}, "statistic"),
+    ({"bounds": {"k_R": [1.0, 0.5]}}, "tune.bounds.k_R"),
+    ({"bounds": {"k_X": [0.1, 1.0]}}, "no gain 'k_X'"),
+    ({"starts": 0}, "tune.starts"),
+    ({"fixed": ["k_R", "k_Omega"]}, "nothing is left to tune"),
+    ({"dispersions": None}, "needs a [tune.dispersions] table"),
+])
+def test_bad_design_input_is_a_one_line_error(change, message):
+    campaign = hold_campaign([{**HOLD, "hard": True}])
+    campaign["tune"].update(change)
+    if campaign["tune"].get("dispersions", 0) is None:
+        del campaign["tune"]["dispersions"], campaign["tune"]["train"]["samples"]
+        del campaign["tune"]["validation"]["samples"]
+    with pytest.raises(ValueError, match=None) as err:
+        parse_config(campaign)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_a_margin_goal_needs_a_sampled_loop():
+    campaign = hold_campaign([{"margin": "disk", "min_db": 6.0, "hard": True}])
+    with pytest.raises(ValueError, match="needs a sampled loop"):
+        parse_config(campaign)
+
+
+def test_a_schedule_on_a_law_the_mission_does_not_fly_is_refused():
+    campaign = hold_campaign([{**HOLD, "hard": True}])
+    campaign["schedule"] = {"adaptive": {"by": "phase"}}
+    with pytest.raises(ValueError, match="schedule.adaptive"):
+        parse_config(campaign)
+
+
+def test_the_command_refuses_bad_goals_before_compiling(in_process, capsys):
+    from so3jax import commands as cli
+
+    (in_process / "c.toml").write_text('mission = "x.toml"\n')
+    campaign = in_process / "design.toml"
+    campaign.write_text('T = 20.0\n[tune]\ncontroller = "pd"\nstarts = 2\n[tune.train]\nseeds = [0]\nsamples = 2\n'
+                        '[tune.validation]\nseeds = [1]\nsamples = 2\n[tune.dispersions]\nseed = "random"\n'
+                        '[[tune.goals]]\nindex = "APE"\naxis = "angle"\nlevel = 0.95\nlimit = 10.0\n'
+                        'phase = "deployment"\nhard = true\n[[tune.goals]]\nmargin = "disk"\nmin_db = -1.0\n'
+                        'hard = true\n')
+    assert cli.main(["tune", str(campaign), "--out", "o"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("so3jax tune: error: ") and "tune.goals[1].min_db" in err and "\n" not in err
+    assert not (in_process / "o").exists()
