@@ -214,8 +214,7 @@ def test_bad_schedules_are_one_line_errors_naming_the_key(overrides, message):
     assert "\n" not in str(err.value)
 
 
-def test_a_phase_schedule_needs_the_missions_phases():
-    with pytest.raises(ValueError, match=r"schedule\.pd\.by = \"phase\" needs the mission's \[phases\]"):
-        missions.load(None, ["schedule.pd={by='phase'}"])
+def test_a_phase_schedule_switches_at_the_missions_phases():
+    assert missions.load(None, ["schedule.pd={by='phase'}"]).controller("pd")[0].knots == (0.0, 500.0, 2600.0)
     with pytest.raises(ValueError, match=r"schedule\.open_loop: the open_loop law has no gains"):
         own("controllers=['open_loop']", "schedule.open_loop={by='phase'}")

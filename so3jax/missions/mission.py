@@ -311,7 +311,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     reference = _chosen(full, "reference", "reference", base)
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
-    schedule = schedules.parse(full.get("schedule", {}), controllers, phases)
+    schedule = schedules.parse(full.get("schedule", {}), controllers)
 
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}

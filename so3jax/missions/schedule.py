@@ -13,16 +13,16 @@ from so3jax.controllers.scheduled import BY, check_scheduled_gains, checked_knot
 from so3jax.core import checks
 
 
-def parse(table, controllers: tuple, phases: dict | None) -> dict:
+def parse(table, controllers: tuple) -> dict:
     """{controller: {"by": "phase"} or {"by": "time", "at": breakpoints [s]}} of the
-    ``[schedule]`` table; phases: the mission's [phases] (names, start [s]), None where the
-    mission names none. One-line ValueError naming the key on bad input."""
+    ``[schedule]`` table (a phase schedule switches at the mission's [phases] start times).
+    One-line ValueError naming the key on bad input."""
     if not isinstance(table, dict):
         raise ValueError(f"[schedule] must be a table, got {checks.short(table)}")  # noqa: TRY004 (bad input)
-    return {name: _entry(name, entry, controllers, phases) for name, entry in table.items()}
+    return {name: _entry(name, entry, controllers) for name, entry in table.items()}
 
 
-def _entry(name: str, entry, controllers: tuple, phases: dict | None) -> dict:
+def _entry(name: str, entry, controllers: tuple) -> dict:
     where = f"schedule.{name}"
     if name not in controllers:
         raise ValueError(f"{where}: the mission flies no {name!r} controller (controllers: {', '.join(controllers)})")
@@ -37,8 +37,6 @@ def _entry(name: str, entry, controllers: tuple, phases: dict | None) -> dict:
     if "at" in entry:
         raise ValueError(f"{where}.at: a schedule by \"phase\" switches at the phases' start times "
                          "(phases.start); breakpoints need by = \"time\"")
-    if phases is None:
-        raise ValueError(f"{where}.by = \"phase\" needs the mission's [phases] (names, start [s])")
     return {"by": by}
 
 

@@ -133,7 +133,7 @@ def window_of(t, bounds, window: float) -> np.ndarray:
     return np.where(in_period(t, bounds) & (j < whole_windows(bounds, window)), j, -1)
 
 
-def _check_window(bounds, window, separation=None):
+def check_window(bounds, window, separation=None):
     need = window + (separation or 0.0)
     if whole_windows(bounds, need) < 1:
         what = f"window {window:g} s" + ("" if separation is None else f" + separation {separation:g} s")
@@ -150,7 +150,7 @@ def absolute(t, e, bounds) -> np.ndarray:
 
 def _windows(t, e, bounds, window):
     """(window means (..., J, 3), the window of each kept sample (n,), the kept samples (..., n, 3))."""
-    _check_window(bounds, window)
+    check_window(bounds, window)
     j = window_of(t, bounds, window)
     keep = j >= 0
     j, kept = j[keep], np.asarray(e, np.float64)[..., keep, :]
@@ -176,12 +176,12 @@ def relative(t, e, bounds, window: float) -> np.ndarray:
 
 def drift(t, e, bounds, window: float, separation: float) -> np.ndarray:
     """PDE / KDE: m_{j+s} - m_j, s = separation / window, (..., J - s, 3)."""
-    _check_window(bounds, window, separation)
-    means, s = mean(t, e, bounds, window), _windows_in(separation, window)
+    check_window(bounds, window, separation)
+    means, s = mean(t, e, bounds, window), windows_in(separation, window)
     return means[..., s:, :] - means[..., :-s, :]
 
 
-def _windows_in(separation, window) -> int:
+def windows_in(separation, window) -> int:
     """separation / window [s / s], which must be a whole number >= 1."""
     s = round(separation / window)
     if s < 1 or abs(separation - s * window) > 1e-9 * separation:
@@ -359,7 +359,7 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
             raise ValueError(f"{where}.separation: missing (the separation Dt_s [s] of {index})")
         separation = _positive(item, "separation", where)
         try:
-            _windows_in(separation, window)
+            windows_in(separation, window)
         except ValueError as error:
             raise ValueError(f"{where}.separation: {error}") from None
     elif item.get("separation") is not None:
@@ -375,7 +375,7 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
                               phase_name)
     if phase_bounds is not None and window is not None:
         try:
-            _check_window(period(phase, phase_bounds), window, separation)
+            check_window(period(phase, phase_bounds), window, separation)
         except ValueError as error:
             raise ValueError(f"{where}.window: {error}") from None
     return requirement

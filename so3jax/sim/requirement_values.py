@@ -93,9 +93,9 @@ def plan(requirement: pointing.Requirement, t, phase_bounds, runs: int | None = 
     if kind == "D":
         if r.separation is None:
             raise ValueError(f"{r.index} needs a separation [s]")
-        shift = pointing._windows_in(r.separation, r.window)
-        pointing._check_window(bounds, r.window, r.separation)
-    pointing._check_window(bounds, r.window)
+        shift = pointing.windows_in(r.separation, r.window)
+        pointing.check_window(bounds, r.window, r.separation)
+    pointing.check_window(bounds, r.window)
     j = pointing.window_of(t, bounds, r.window)
     keep = j >= 0
     n_windows = pointing.whole_windows(bounds, r.window)

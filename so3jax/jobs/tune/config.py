@@ -131,8 +131,7 @@ class TuneConfig:
     dispersions: dict | None = None
     estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
     constraints: Constraints | None = None  # [tune.constraints]: penalties on the sampled loop's margins; None: none
-    # a design campaign (jobs.tune.design): [[tune.goals]], the tables of jobs.tune.goals; () : the cost above
-    goals: tuple = ()
+    goals: tuple = ()  # [[tune.goals]]: a design campaign's goals (docs/model.md §16.6); none: the cost above
     starts: int = 1  # initial gains run together: the given ones, then draws log-uniform within the bounds
     bounds: dict = dataclasses.field(default_factory=dict)  # {gain: [low, high]}; default a decade either side
     fixed: tuple = ()  # gains held at their initial values
@@ -253,7 +252,8 @@ def make_optimizer(config: OptimizerConfig, clip: bool = True) -> optax.Gradient
     except TypeError as err:
         raise ValueError(f"config key {_key('optimizer.options')!r}: {err}") from err
     # Large enough never to give up: the loop stops at the first non-finite gradient.
-    tx = optax.apply_if_finite(optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30) if clip else inner
+    tx = inner if not clip else optax.apply_if_finite(
+        optax.chain(optax.clip_by_global_norm(config.clip_norm), inner), 2**30)
     try:  # an optimizer that needs more than (grad, value), e.g. lbfgs's value_fn
         probe = jnp.zeros(2)
         with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats

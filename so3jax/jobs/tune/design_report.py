@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from so3jax.jobs.tune.validation import _fmt
+from so3jax.jobs.tune.validation import gain_text
 from so3jax.results import io
 
 UNITS = {"limit": "the goal's unit", "initial": "-", "best": "-", "initial_value": "the goal's unit",
@@ -27,9 +27,10 @@ def _value(x, unit: str) -> str:
 def markdown(report: dict) -> str:
     """design.md: the verdict, then per goal g = value / limit before and after, training and held out."""
     training, held = report["training"], report["held_out"]
+    holds = "holds" if report["verdict"] == "met" else "does not hold"
     lines = [f"# Design campaign: {report['controller']}", "",
              f"Verdict on the held-out batch ({held['samples']} dispersed missions, sampling seed "
-             f"{held['sampling_seed']}): **every hard goal {'holds' if report['verdict'] == 'met' else 'does not hold'}**"
+             f"{held['sampling_seed']}): **every hard goal {holds}**"
              + ("" if report["verdict"] == "met" else f" (unmet: {', '.join(report['unmet_hard'])})") + ".", "",
              f"Training: {training['samples']} dispersed missions (sampling seed {training['sampling_seed']}), "
              f"{training['iterations']} iterations x {training['starts']} start(s); best design: start "
@@ -51,8 +52,8 @@ def markdown(report: dict) -> str:
                   + "; ".join(" and ".join(pair) for pair in report["conflicts"]) + "."]
     gains = report["gains"]
     lines += ["", "| gains | " + " | ".join(gains["initial"]) + " |", "|---|" + "---:|" * len(gains["initial"]),
-              "| initial | " + " | ".join(_fmt(v) for v in gains["initial"].values()) + " |",
-              "| best | " + " | ".join(_fmt(gains["best"][k]) for k in gains["initial"]) + " |", "",
+              "| initial | " + " | ".join(gain_text(v) for v in gains["initial"].values()) + " |",
+              "| best | " + " | ".join(gain_text(gains["best"][k]) for k in gains["initial"]) + " |", "",
               "Starts: " + "; ".join(f"{s['start']}: best at iteration {s['iteration']}, "
                                      f"{'feasible' if s['feasible'] else 'infeasible'}, score {s['score']:.4g}"
                                      for s in report["starts"]) + ".", "",

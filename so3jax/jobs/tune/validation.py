@@ -125,7 +125,8 @@ def markdown_table(reports: list[dict]) -> str:
         if "budget" in report:
             entries.insert(0, (f"budget ({report['budget']['controller']})", report["budget"]))
         for label, entry in entries:
-            gains = ", ".join(f"{k}={_fmt(v)}" for k, v in {**entry["gains"], **entry.get("estimator", {})}.items())
+            shown = {**entry["gains"], **entry.get("estimator", {})}
+            gains = ", ".join(f"{k}={gain_text(v)}" for k, v in shown.items())
             controller = report["budget"]["controller"] if label.startswith("budget") else report["controller"]
             lines.append(
                 f"| {name} ({label}) | {controller} | {gains} | {_mean_cell(entry, 'mean_rmse', '.4e')} "
@@ -144,7 +145,8 @@ def _mean_cell(entry: dict, key: str, fmt: str) -> str:
     return format(value, fmt) + (f" ({count} of {total} diverged)" if count else "")
 
 
-def _fmt(value) -> str:
+def gain_text(value) -> str:
+    """A gain for a table: 4 digits; a list (a diagonal, a schedule) 3 digits per entry."""
     if isinstance(value, list):
-        return "[" + ", ".join(f"{v:.3g}" for v in value) + "]"
+        return "[" + ", ".join(f"{v:.3g}" for v in np.ravel(value)) + "]"
     return f"{value:.4g}"
