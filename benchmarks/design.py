@@ -1,8 +1,8 @@
 """A design campaign's wall time and where it goes, beside the same batch's value alone.
 
 The campaign is ``so3jax tune`` on a design file (default ``tuning/design_pd.toml``, with
-``--set`` overrides: the issue's size is 32 dispersed flight missions x 4000 s x 30
-iterations with 2 hard goals), run in this process from an empty compilation cache. From
+``--set`` overrides), run in this process from an empty compilation cache, or (``--run``)
+a finished run folder of that file, whose history is read instead. From
 its history: the first iteration (compilation of the goals' forward-mode derivatives and
 one evaluation), the steady iterations (their mean and the whole), the held-out check.
 Beside it, in the same process and on the same training batch, the goals' values alone
@@ -10,7 +10,7 @@ Beside it, in the same process and on the same training batch, the goals' values
 ``--calls`` calls after the campaign: the ratio is what one iteration's derivatives cost
 over one evaluation.
 
-    python -m benchmarks.design [--config tuning/design_pd.toml] [--set KEY=VALUE ...] [--calls 3]
+    python -m benchmarks.design [--config tuning/design_pd.toml] [--set KEY=VALUE ...] [--run FOLDER] [--calls 3]
 
 Progress goes to stderr; the last line of stdout is one JSON object.
 """
@@ -40,6 +40,7 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--config", default="tuning/design_pd.toml")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
+    parser.add_argument("--run", help="a finished run folder of the campaign: its history, not a new run")
     parser.add_argument("--calls", type=int, default=3)
     args = parser.parse_args(argv)
 
@@ -62,11 +63,16 @@ def main(argv=None) -> dict:
     from so3jax.missions import dispersed
 
     config = load_config(args.config, [cfg.parse_override(text) for text in args.set])
-    out = Path(tempfile.mkdtemp(prefix="so3jax-design-bench-")) / "run"
-    log(f"design campaign {args.config} {' '.join(args.set)} -> {out}")
-    start = time.perf_counter()
-    report = tune(config, out, progress=True)
-    total = time.perf_counter() - start
+    if args.run:
+        out = Path(args.run)
+        report = json.loads((out / "design.json").read_text())
+        total = report["wall_s"]["design"] + report["wall_s"]["held_out"]
+    else:
+        out = Path(tempfile.mkdtemp(prefix="so3jax-design-bench-")) / "run"
+        log(f"design campaign {args.config} {' '.join(args.set)} -> {out}")
+        start = time.perf_counter()
+        report = tune(config, out, progress=True)
+        total = time.perf_counter() - start
     with open(out / "history.csv") as f:
         rows = list(csv.DictReader(f))
     walls = sorted({float(r["wall_s"]) for r in rows})
@@ -89,7 +95,9 @@ def main(argv=None) -> dict:
         value_s.append(time.perf_counter() - t)
     result = {
         "benchmark": "design",
-        "command": "python -m benchmarks.design --config " + args.config + "".join(f" --set '{s}'" for s in args.set),
+        "command": "python -m benchmarks.design --config " + args.config + "".join(f" --set '{s}'" for s in args.set)
+        + (f" --run {args.run}" if args.run else ""),
+        "campaign_run": "read from its history" if args.run else "run here, compilation cache empty",
         "machine": {"platform": platform.platform(), "cpus": len(os.sched_getaffinity(0)),
                     "python": platform.python_version(), "jax": jax.__version__,
                     "device": str(jax.devices()[0].platform), "load_average_at_end": list(os.getloadavg())},

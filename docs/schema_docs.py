@@ -72,14 +72,14 @@ def _number(x) -> str:
     return repr(x)
 
 
-def _interval(low=-math.inf, high=math.inf, integer=False) -> str:
-    """'≥ 0', '[0, 1]', 'integer ≥ 1', ... ('' for an unbounded real)."""
+def _interval(low=-math.inf, high=math.inf, integer=False, low_excluded=False) -> str:
+    """'≥ 0', '> 0', '[0, 1]', 'integer ≥ 1', ... ('' for an unbounded real)."""
     kind = "integer " if integer else ""
     has_low, has_high = low is not None and low > -math.inf, high is not None and high < math.inf
     if has_low and has_high:
-        return f"{kind}in [{_number(low)}, {_number(high)}]"
+        return f"{kind}in {'(' if low_excluded else '['}{_number(low)}, {_number(high)}]"
     if has_low:
-        return f"{kind}≥ {_number(low)}"
+        return f"{kind}{'>' if low_excluded else '≥'} {_number(low)}"
     if has_high:
         return f"{kind}≤ {_number(high)}"
     return "integer" if integer else ""
@@ -273,7 +273,7 @@ def _param_domain(p) -> str:
     if p.choices:
         return "one of " + ", ".join(f"`{c}`" for c in p.choices)
     shapes = " or ".join("number" if s == () else "array " + _shape(s) for s in p.shapes)
-    interval = _interval(p.low, p.high, p.integer)
+    interval = _interval(p.low, p.high, p.integer, p.low_excluded)
     return f"{shapes}, {interval}" if interval else shapes
 
 

@@ -403,3 +403,14 @@ def test_bad_event_dispersions_are_one_line_errors(table, message):
                         missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": matrix_targets}}))
     with pytest.raises(ValueError, match="not 'events'"):
         dispersed.parse({"inertia": {"events": {"times": 1.0}}}, missions.from_dict({"T": 10.0}))
+
+
+@pytest.mark.parametrize("name", ["spin_inertia", "max_torque", "max_speed"])
+def test_a_limit_divided_by_is_refused_at_zero_when_dispersed(name):
+    """A wheel parameter the loop divides by (or its check refuses at 0): its domain excludes 0,
+    so a dispersion that can draw 0 is refused before anything is drawn, as fly refuses it."""
+    flight = mission.load(None, ["actuator.wheels.initial_speed=0.0"])
+    with pytest.raises(ValueError, match=f"dispersions.actuator.wheels.{name}"):
+        dispersed.parse({"actuator": {"wheels": {name: 0.0}}}, flight)
+    with pytest.raises(ValueError, match=f"actuator.wheels.{name} .* must be > 0"):
+        mission.load(None, [f"actuator.wheels.{name}=0.0"])

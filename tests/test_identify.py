@@ -456,11 +456,11 @@ def test_bad_telemetry_file_is_a_one_line_error(case, tmp_path):
 
 
 def test_missing_file_and_not_an_npz_are_one_line_errors(tmp_path):
-    with pytest.raises(ValueError, match="no such telemetry file") as err:
+    with pytest.raises(ValueError, match="no such file; expected a telemetry .npz file") as err:
         telemetry.load(tmp_path / "absent.npz")
     assert "absent.npz" in one_line(err)
     text = tmp_path / "notes.npz"
     text.write_text("t, gyro, attitude\n0.0, 0.01, 1.0\n0.1, 0.01, 1.0\n")
-    with pytest.raises(ValueError, match="not a telemetry .npz file") as err:
+    with pytest.raises(ValueError, match="expected a telemetry .npz file") as err:
         telemetry.load(text)
     assert "notes.npz" in one_line(err)

@@ -215,7 +215,7 @@ def test_files_that_are_not_telemetry_are_one_line_errors(case, driven, tmp_path
         telemetry.load(path)
     message = one_line(err)
     assert message.startswith(f"{path}: "), message
-    assert ("missing t, gyro, attitude" if case == "empty npz" else "not a telemetry .npz file") in message
+    assert ("missing t, gyro, attitude" if case == "empty npz" else "expected a telemetry .npz file") in message
 
 
 # --- options the record cannot hold ---------------------------------------------------------

@@ -1,6 +1,7 @@
 """Mission files (docs/model.md §8.5): the shipped missions, and one clear error per bad entry."""
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -289,3 +290,37 @@ def test_a_mission_file_means_in_a_job_what_fly_flies(tmp_path):
     assert flown.fingerprint == alone.fingerprint and flown.period_steps == 10 and flown.T == 100.0
     paper, _ = missions.load_job({"T": 100.0}, tmp_path, ("sweep",), missions.PAPER)  # no file: the job's base
     assert paper.period_steps is None
+
+
+OWN = ['phases.names=["a"]', "phases.start=[0.0]"]
+BODY = "[[900.0, 0.0, 0.0], [0.0, 800.0, 0.0], [0.0, 0.0, 600.0]]"
+
+
+@pytest.mark.parametrize(("overrides", "table", "kind"), [
+    (["momentum.magnetorquers.gain=2e-3"], "momentum", "magnetorquers"),
+    (["actuator.saturated.max_torque=0.1"], "actuator", "saturated"),
+    (["estimator.raw={}"], "estimator", "raw"),
+    ([*OWN, f"inertia.J={BODY}", "reference.slews={attitudes=[[0.1, 0.0, 0.0]], times=[5.0]}"], "reference", "slews"),
+    ([*OWN, "reference.kind='inertial'",
+      f"inertia.events={{initial={BODY}, times=[5.0], targets=[1.2], time_constants=[0.0]}}"], "inertia", "events"),
+])
+def test_a_kind_s_table_given_alone_chooses_that_kind(overrides, table, kind):
+    """A component table without ``kind`` (``[momentum.magnetorquers]`` alone) flies that kind,
+    not the base mission's with the table ignored."""
+    m = missions.load(None, overrides)
+    assert getattr(m, table)["kind"] == kind
+
+
+@pytest.mark.parametrize(("overrides", "message"), [
+    (["momentum.thrusters.start=60.0", "momentum.magnetorquers.gain=2e-3"],
+     r"\[momentum.thrusters\] and \[momentum.magnetorquers\] given without momentum.kind"),
+    ([*OWN, "inertia.J0.nominal=" + BODY, f"inertia.events={{initial={BODY}, times=[5.0], targets=[1.2]}}"],
+     r"\[inertia.events\] and the paper profile's J0 given without inertia.kind"),
+])
+def test_tables_of_two_kinds_without_kind_are_a_one_line_error(in_process, capsys, overrides, message):
+    from so3jax import commands as cli
+
+    assert cli.main(["fly", "--T", "10", "--out", "o", *[x for s in overrides for x in ("--set", s)]]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("so3jax fly: error: ") and "\n" not in err and re.search(message, err), err
+    assert not (in_process / "o").exists()

@@ -169,3 +169,70 @@ def test_bad_reference_and_phase_tables_are_one_line_errors(overrides, message):
     assert "\n" not in str(error.value)
     with pytest.raises(ValueError, match="paper's phases"):  # its inertia profile and reference switch there
         missions.load(None, ["T=100", *OWN_PHASES])
+
+
+
+TABLE_FILES = {  # kind: (CSV columns, .npz arrays) of a three-row table holding still
+    "reference": (("t", "qw", "qx", "qy", "qz"), {"q": np.tile([1.0, 0.0, 0.0, 0.0], (3, 1))}),
+    "inertia": (("t", "Jxx", "Jyy", "Jzz", "Jxy", "Jxz", "Jyz"),
+                {"J": np.tile(np.diag([900.0, 800.0, 600.0]), (3, 1, 1))}),
+}
+
+
+def _table_files(folder, kind: str) -> dict:
+    """{case: path} of table files of ``kind`` that are not one (the good .npz's bytes cut or
+    overwritten, a text file named .npz, a .npy named .npz, a CSV cut mid-line, one not UTF-8,
+    one naming its second column twice), and a spreadsheet's CSV with a UTF-8 byte-order mark."""
+    (columns, arrays), times = TABLE_FILES[kind], np.array([0.0, 5.0, 10.0])
+    np.savez(folder / "good.npz", t=times, **arrays)
+    good = (folder / "good.npz").read_bytes()
+    values = {"qw": 1.0, "Jxx": 900.0, "Jyy": 800.0, "Jzz": 600.0}
+    line = lambda t, names: ",".join(str(t if name == "t" else values.get(name, 0.0)) for name in names) + "\n"
+    rows = ",".join(columns) + "\n" + "".join(line(t, columns) for t in times)
+    twice = columns + columns[1:2]
+    repeated = ",".join(twice) + "\n" + "".join(line(t, twice) for t in times)
+    files = {"truncated npz": ("cut.npz", good[: len(good) // 2]), "text npz": ("text.npz", rows.encode()),
+             "corrupt npz": ("bad.npz", good[:200] + b"\0" * 60 + good[260:]),
+             "truncated csv": ("cut.csv", rows[:-7].encode()), "binary csv": ("bin.csv", good),
+             "duplicate columns": ("dup.csv", repeated.encode()),
+             "byte-order mark": ("bom.csv", rows.encode("utf-8-sig"))}
+    for name, data in files.values():
+        (folder / name).write_bytes(data)
+    np.save(folder / "array.npy", times)
+    (folder / "array.npy").rename(folder / "npy.npz")
+    return {case: folder / name for case, (name, _) in files.items()} | {"npy npz": folder / "npy.npz"}
+
+
+def _table_mission(kind: str, path) -> list:
+    """--set overrides of a mission reading its reference or inertia table from ``path``."""
+    if kind == "inertia":
+        return [*OWN_PHASES, "reference.kind='inertial'", "inertia.kind='table'", f"inertia.table.file='{path}'"]
+    return [*OWN_PHASES, CONSTANT, "reference.kind='table'", f"reference.table.file='{path}'"]
+
+
+@pytest.mark.parametrize(("case", "message"), [
+    ("truncated npz", "truncated or corrupt"), ("corrupt npz", "truncated or corrupt"),
+    ("text npz", "not a .npz (zip) archive"), ("npy npz", "a single .npy array"),
+    ("truncated csv", "line 4 holds"), ("binary csv", "not a CSV text file"),
+    ("duplicate columns", "names the column '{}' 2 times")])
+@pytest.mark.parametrize("kind", ["reference", "inertia"])
+def test_a_bad_table_file_is_a_one_line_error_before_compiling(in_process, capsys, case, message, kind):
+    from so3jax import commands as cli
+
+    path = _table_files(in_process, kind)[case]
+    sets = [x for s in _table_mission(kind, path) for x in ("--set", s)]
+    assert cli.main(["fly", "--T", "10", "--out", "o", *sets]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"so3jax fly: error: {kind}.table: {path}: ") and "\n" not in err, err
+    assert message.format(TABLE_FILES[kind][0][1]) in err, err
+    assert not (in_process / "o").exists()
+
+
+@pytest.mark.parametrize("kind", ["reference", "inertia"])
+def test_a_table_file_with_a_byte_order_mark_reads(tmp_path, kind):
+    """A CSV a spreadsheet saved as 'UTF-8 with BOM' reads as the same table without it."""
+    path = _table_files(tmp_path, kind)["byte-order mark"]
+    plain = tmp_path / "plain.csv"
+    plain.write_text(path.read_text(encoding="utf-8-sig"))
+    marked, unmarked = (missions.load(None, ["T=10", *_table_mission(kind, p)]).describe() for p in (path, plain))
+    assert str(marked).replace(str(path), "") == str(unmarked).replace(str(plain), "")

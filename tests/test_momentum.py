@@ -158,3 +158,25 @@ def test_momentum_management_s_bad_settings_are_one_line_errors_before_compiling
     refused by the mission's checks (nothing traced)."""
     with pytest.raises(ValueError, match=message):
         missions.load(None, ["momentum.kind='thrusters'", *overrides])
+
+
+def test_a_failed_magnetorquer_coil_gives_no_dipole_and_the_others_theirs():
+    """max_dipole 0 on one coil (the domain allows it): that coil's dipole is 0, the others'
+    the cross-product law's scaled to their limits, finite with finite derivatives, also
+    where the law asks for no dipole at all (h_w at its target)."""
+    from so3jax.components.momentum import Magnetorquers
+
+    B = np.array([2e-5, -1e-5, 3e-5])  # [T], body frame
+
+    class Field:
+        def magnetic_field_body(self, t, R):
+            return jax.numpy.asarray(B)
+
+    coils = Magnetorquers(np.float64(1e-3), np.array([1.0, 1.0, 0.0]), np.zeros(3), np.float64(0.0))
+    dipole = lambda h: coils.command((), h, Field(), 0.0, np.eye(3), jax.random.key(0), 0)[1]
+    for h in (np.zeros(3), np.array([5.0, -3.0, 2.0])):
+        m, gradient = np.asarray(dipole(h)), np.asarray(jax.jacfwd(dipole)(h))
+        assert np.all(np.isfinite(m)) and np.all(np.isfinite(gradient)) and m[2] == 0.0
+    law = 1e-3 * np.cross(B, -h) / (B @ B)
+    law[2] = 0.0
+    np.testing.assert_allclose(m, law / np.abs(law).max(), rtol=1e-12)  # the larger coil at its limit

@@ -195,3 +195,40 @@ def test_the_summary_s_worst_cases_name_their_samples():
     nothing = sweep_margins.summarize({k: v[1:2, :1] for k, v in _values().items()}, (1.0,), ("capture",))
     assert nothing["times"][0]["worst"]["disk_db"] == {"value": None, "sample": None, "axis": None}
     assert nothing["times"][0]["disk_db_quantiles"]["p50"] is None
+
+
+SCENARIO_LEAVES = {"T": 8.0, "controllers": ["pd"], "control": {"period": 0.1},
+                   "sensors": {"gyro": False, "star_tracker": False}, "estimator": {"kind": "truth"},
+                   "actuator": {"kind": "ideal"}, "momentum": {"kind": "none"},  # the smallest sampled loop
+                   "phases": {"names": ["mission"], "start": [0.0]},
+                   "inertia": {"kind": "events", "events": {"initial": [[900.0, 0.0, 0.0], [0.0, 800.0, 0.0],
+                                                                        [0.0, 0.0, 600.0]],
+                                                            "times": [2.0], "targets": [1.5], "time_constants": [0.0]}},
+                   "reference": {"kind": "slews", "slews": {"attitudes": [[0.02, 0.0, 0.0]], "times": [1.0],
+                                                            "max_rate": 0.05, "max_acceleration": 0.05}}}
+
+
+def test_dispersed_reference_and_inertia_leaves_give_each_sample_its_margins():
+    """Slew times and inertia-event times and targets dispersed (reference- and inertia-kind
+    leaves): each sample's margins are those of the mission written with its values."""
+    from so3jax.missions import mission as missions
+
+    m = missions.from_dict(SCENARIO_LEAVES)
+    offset = {"dist": "uniform", "low": -0.5, "high": 0.5, "relative": "offset"}  # [s]
+    table = {"reference": {"slews": {"times": offset}},
+             "inertia": {"events": {"times": offset, "targets": {"dist": "uniform", "low": 1.2, "high": 1.8}}}}
+    samples = dispersed.draw(*dispersed.parse(table, m), 0, 2, 20, mission=m)
+    assert samples.valid.all()
+    inputs = dispersed.inputs(samples, np.float64)
+    controller, gains = m.controller("pd")
+    values = sweep_margins.sample_margins(inputs, gains, controller=controller, mission=m, times=(4.0,))
+    assert values["stable"].all() and values["disk_db"][0, 0] != values["disk_db"][1, 0]
+    leaves = samples.leaves
+    own = {"reference": {"kind": "slews", "slews": dict(SCENARIO_LEAVES["reference"]["slews"],
+                                                        times=leaves["reference.slews.times"][0].tolist())},
+           "inertia": {"kind": "events", "events": dict(SCENARIO_LEAVES["inertia"]["events"],
+                                                        times=leaves["inertia.events.times"][0].tolist(),
+                                                        targets=leaves["inertia.events.targets"][0].tolist())}}
+    _, classical, disk = jobs_margins.at(missions.from_dict({**SCENARIO_LEAVES, **own}), "pd", 4.0)
+    np.testing.assert_allclose(values["spectral_radius"][0, 0], classical.spectral_radius, rtol=1e-12)
+    np.testing.assert_allclose(values["disk_db"][0, 0], disk.multiloop.gain_margin_upper_db, rtol=1e-9)

@@ -83,3 +83,21 @@ def test_every_margin_written_has_its_unit():
     written = {f.name for cls in (margins.AxisMargins, margins.Disk, margins.LoopMargins, margins.DiskMargins)
                for f in dataclasses.fields(cls)} | {"t"}
     assert written - set(margins.UNITS) == {"axis", "stable", "at_limit", "axes", "multiloop"}  # labels, flags
+
+
+def test_fly_s_table_says_no_whole_window_where_a_phase_is_shorter_than_the_window():
+    """A windowed index (MPE, RPE) of a phase shorter than the window has no value: the table
+    says so and names the window, beside a run that did not diverge (metrics.json: null)."""
+    import numpy as np
+
+    from so3jax.sim import pointing
+
+    t = np.arange(0.0, 20.0, 0.5)
+    e = np.full((len(t), 3), 1e-5)
+    report = pointing.report(t, e, None, [(0.0, 20.0)], window=60.0, levels=(0.95,), phase_names=["capture"],
+                             indices=("APE", "MPE", "RPE"))
+    text = fly.format_table(missions.load(), {"pd": {**REPORT, "pointing": report}})
+    for index in ("MPE", "RPE"):
+        assert _row(text, f"{index} 0.95 capture").endswith("no whole window (window 60 s)")
+    assert float(_row(text, "APE 0.95 capture").split()[-1]) == pytest.approx(math.sqrt(3) * 1e-5 * ARCSEC, rel=1e-3)
+    assert "diverged" not in text.replace(_row(text, "diverged"), "")

@@ -220,7 +220,8 @@ components.register(components.ComponentSpec(
         Param("theta0", [0.0, 0.0, 0.0], "rad", shapes=((3,),), doc="initial error: R_hat(0) = R0 exp(hat(theta0))"),
         Param("arw", None, "rad/sqrt(s)", low=0.0, doc="assumed gyro sigma_v (default: the gyro's)"),
         Param("rrw", None, "rad/s^(3/2)", low=0.0, doc="assumed gyro sigma_u (default: the gyro's)"),
-        Param("sigma_st", None, "rad", low=0.0, doc="assumed star-tracker sigma (default: the star tracker's)"),
+        Param("sigma_st", None, "rad", low=0.0, low_excluded=True,
+              doc="assumed star-tracker sigma (default: the star tracker's)"),
         Param("gyro", None, choices=GYRO_OUTPUTS,
               doc="what the gyro delivers: its angle increment over a period, or its rate at the tick "
                   "(default: the gyro's output; a rate sensor that does not say: rate)"),

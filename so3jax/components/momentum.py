@@ -7,7 +7,8 @@ moves the wheels' momentum h_w (h_rel, body frame [N m s]) toward a target.
   lasts, the pair of every axis with |h_w,i| > stop / sqrt(3) fires against h_w,i, each
   firing lasting at least ``min_on_time`` (whole control periods);
 * ``magnetorquers``: three orthogonal coils, dipole m = k (B_m x (h_target - h_w)) / |B_m|^2
-  from a magnetometer's reading B_m, scaled down as a whole to the per-axis limits; the
+  from a magnetometer's reading B_m, scaled down as a whole to the per-axis limits (a coil
+  of limit 0, a failed one, gives none); the
   body feels m x B (the cross-product law: torque -k (Δh - (B^·Δh) B^), Δh = h_w - h_target).
 
 The attitude law sees their torques as disturbances, which the wheels absorb; the thrusters'
@@ -85,8 +86,8 @@ class Thrusters(MomentumManager):
 
 @pytree_dataclass
 class Magnetorquers(MomentumManager):
-    """Cross-product unloading: gain [1/s], max_dipole (3,) [A m^2], target (3,) [N m s],
-    magnetometer_noise [T] (1-sigma per axis, white)."""
+    """Cross-product unloading: gain [1/s], max_dipole (3,) [A m^2] (0: a failed coil, its
+    dipole 0), target (3,) [N m s], magnetometer_noise [T] (1-sigma per axis, white)."""
 
     reads_field = True
 
@@ -106,7 +107,9 @@ class Magnetorquers(MomentumManager):
         squared = so3.sum_leading(B_m * B_m)
         m = self.gain * so3.cross(B_m, error) / jnp.where(squared > 0, squared, 1.0)
         limit = so3.batch_like(jnp.asarray(self.max_dipole, h_rel.dtype), 1, h_rel)
-        ratio = jnp.max(jnp.abs(m) / limit, axis=0)
+        working = limit > 0  # a coil of limit 0 (a failed one) gives none
+        m = jnp.where(working, m, 0.0)
+        ratio = jnp.max(jnp.abs(m) / jnp.where(working, limit, 1.0), axis=0)
         return (), m / jnp.maximum(ratio, 1.0)
 
     def body_torque(self, held, environment, t, R):
@@ -156,7 +159,8 @@ components.register(components.ComponentSpec(
     kind="momentum", name="magnetorquers", component=Magnetorquers,
     params=(
         Param("gain", 1e-3, "1/s", low=0.0, doc="k of m = k (B_m x (target - h_w)) / |B_m|^2"),
-        Param("max_dipole", 50.0, "A m^2", shapes=((), (3,)), low=0.0, doc="dipole limit per coil"),
+        Param("max_dipole", 50.0, "A m^2", shapes=((), (3,)), low=0.0,
+              doc="dipole limit per coil (0: a failed coil, giving none)"),
         Param("target", [0.0, 0.0, 0.0], "N m s", shapes=((3,),), doc="the wheels' momentum aimed at, body frame"),
         Param("magnetometer_noise", 1e-7, "T", low=0.0, doc="the magnetometer's 1-sigma white noise per axis"),
     ),

@@ -19,8 +19,9 @@ class Param:
     default: a number, list, bool or string; None: absent unless given (the builder then
     derives it, e.g. the MEKF's noise levels from the sensors). shapes: the array shapes
     it may take (None in a shape: any length, e.g. one value per wheel); () for a number.
-    low/high: the closed domain of every element; integer: whole numbers; choices: a
-    string among these; boolean: True or False; text: any string (e.g. a file's path).
+    low/high: the closed domain of every element (low_excluded: (low, high], a value that is
+    divided by, e.g. a limit); integer: whole numbers; choices: a string among these;
+    boolean: True or False; text: any string (e.g. a file's path).
     """
 
     name: str
@@ -34,6 +35,7 @@ class Param:
     boolean: bool = False
     text: bool = False
     doc: str = ""
+    low_excluded: bool = False
 
     def parse(self, value, where: str):
         """The value checked against the declaration: a Python number, bool or string, or a
@@ -49,11 +51,14 @@ class Param:
             return checks.choice(value, label, self.choices)
         shape = next((shape for shape in self.shapes if len(shape) == _depth(value)), self.shapes[-1])
         if shape == ():
-            return checks.number(value, label, low=self.low, high=self.high, integer=self.integer)
-        arr = checks.array(value, label, shape, low=self.low)
-        if np.any(arr > self.high):
-            raise ValueError(f"{label} must be <= {self.high}, got {checks.short(arr.tolist())}")
-        return arr
+            out = checks.number(value, label, low=self.low, high=self.high, integer=self.integer)
+        else:
+            out = checks.array(value, label, shape, low=self.low)
+            if np.any(out > self.high):
+                raise ValueError(f"{label} must be <= {self.high}, got {checks.short(out.tolist())}")
+        if self.low_excluded and np.any(np.asarray(out) <= self.low):
+            raise ValueError(f"{label} must be > {self.low}, got {checks.short(np.asarray(out).tolist())}")
+        return out
 
 
 def _depth(value) -> int:

@@ -86,8 +86,9 @@ def pointing_report(mission, history) -> dict:
 
 
 def _cell(x, fmt):
-    """None here is a diverged run's metric (phases never reached are left out)."""
-    return "diverged" if x is None else cell(x, fmt)
+    """None here is a diverged run's metric (phases never reached are left out); a string
+    says why there is no value."""
+    return "diverged" if x is None else x if isinstance(x, str) else cell(x, fmt)
 
 
 def format_table(mission, reports: dict) -> str:
@@ -131,9 +132,17 @@ def format_table(mission, reports: dict) -> str:
 
 
 def _pointing(report, phase, index, level):
-    """The angle of ``index`` at ``level`` in ``phase`` [arcsec] (None: diverged, or nothing to report)."""
-    row = next(r for r in report["pointing"]["phases"][phase]["rows"] if r["index"] == index and r["level"] == level)
-    return None if row["angle"] is None or report["diverged"] else row["angle"]
+    """The angle of ``index`` at ``level`` in ``phase`` [arcsec]; None where the run diverged;
+    why not where the phase holds no whole window (a windowed index) or no sample."""
+    entry = report["pointing"]["phases"][phase]
+    row = next(r for r in entry["rows"] if r["index"] == index and r["level"] == level)
+    if report["diverged"]:
+        return None
+    if row["angle"] is None:
+        window = row["window"]
+        short = window is not None and pointing.whole_windows((entry["t_start"], entry["t_end"]), window) < 1
+        return f"no whole window (window {window:g} s)" if short else "no sample"
+    return row["angle"]
 
 
 def format_requirements(reports: dict) -> str:

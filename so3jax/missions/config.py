@@ -39,7 +39,7 @@ def read_toml(path) -> dict:
     if path.suffix != ".toml":
         raise ValueError(f"config file {path} must be a .toml file")
     try:
-        return tomllib.loads(path.read_text())
+        return tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"config file {path} does not exist") from None
     except (IsADirectoryError, PermissionError) as err:

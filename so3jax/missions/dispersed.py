@@ -66,6 +66,7 @@ STRUCTURED = {
 }
 _INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products", "second_moments")
 _LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
+_SCENARIO_TABLES = ("reference", "inertia")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
 MAGNITUDE_LIMITS = {"actuator.wheels.initial_speed": "actuator.wheels.max_speed"}
@@ -252,7 +253,7 @@ def _leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     if spec.integer or spec.boolean or spec.choices or current is None:
         raise ValueError(f"{where}: only real-valued parameters are dispersed ({param} is "
                          f"{'not set in the mission' if current is None else 'not a real number'})")
-    return _checked_leaf(".".join(path), value, where, current, spec.low, spec.high, strict=False)
+    return _checked_leaf(".".join(path), value, where, current, spec.low, spec.high, strict=spec.low_excluded)
 
 
 def _checked_leaf(key: str, value, where: str, current, low: float, high: float, strict: bool) -> Leaf:
@@ -324,6 +325,13 @@ def scenario_values(mission: Mission, values: dict) -> Mission:
             param = "scales" if jnp.ndim(value) == 1 else "matrices"
         chosen[kind][param] = value
     return dataclasses.replace(mission, **tables)
+
+
+def split(values: dict) -> tuple[dict, dict]:
+    """({reference and inertia leaf: value}, {component leaf: value}) of a sample's dispersed
+    values: the first for :func:`scenario_values`, the second for :func:`loop`."""
+    own = {k: v for k, v in values.items() if k.split(".")[0] in _SCENARIO_TABLES}
+    return own, {k: v for k, v in values.items() if k not in own}
 
 
 def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
@@ -454,8 +462,7 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     params, leaves = inputs
     m, dtype = mission, params.J0.dtype
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
-    own = {k: v for k, v in leaves.items() if k.split(".")[0] in ("reference", "inertia")}
-    leaves = {k: v for k, v in leaves.items() if k not in own}
+    own, leaves = split(leaves)
     scenarios = jax.vmap(lambda p, v: build.scenario(scenario_values(m, v), p))(params, own)  # own: its own
     dispersed_tables = {k.split(".")[0] for k in own}
     shared_parts = [name for name, shared_part in (

@@ -254,11 +254,30 @@ def _sensors(given: dict, default: dict) -> dict:
     return out
 
 
-def _chosen(d: dict, kind: str, table: str, base: dict) -> dict:
+def _given_kind(given, table: str, kinds: tuple, paper_keys: tuple = ()) -> str | None:
+    """``[table] kind`` as the user's tables give it: ``kind`` itself, else the one kind whose
+    ``[table.NAME]`` is given (None: neither); a one-line ValueError naming ``{table}.kind``
+    where tables of two kinds are given without it. paper_keys: the paper profile's keys
+    given in [inertia] (its kind ``paper``'s)."""
+    given = given if isinstance(given, dict) else {}
+    if "kind" in given:
+        return given["kind"]
+    named = [name for name in kinds if isinstance(given.get(name), dict)] + (["paper"] if paper_keys else [])
+    if len(named) > 1:
+        settings = [f"the paper profile's {', '.join(paper_keys)}" if name == "paper" else f"[{table}.{name}]"
+                    for name in named]
+        raise ValueError(f"{' and '.join(settings)} given without {table}.kind: set {table}.kind to the one flown")
+    return named[0] if named else None
+
+
+def _chosen(d: dict, kind: str, table: str, base: dict, given=None) -> dict:
     """{"kind": name, name: values} of ``[table] kind`` and its ``[table.NAME]`` subtable
-    (every other registered name's subtable is checked too, so a typo is never ignored)."""
+    (every other registered name's subtable is checked too, so a typo is never ignored);
+    without ``kind`` in the user's table ``given``, the kind whose subtable alone it gives
+    (:func:`_given_kind`), else the merged tables' ``d``."""
     t = checks.table(d, table, ("kind",) + components.names(kind))
-    name = checks.choice(t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
+    inferred = _given_kind(given, table, components.names(kind))
+    name = checks.choice(inferred or t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
     out = {"kind": name}
     for other in components.names(kind):
         if other in t or other == name:
@@ -302,13 +321,14 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     initial = _initial(d.get("initial", {}), full["initial"])
 
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
-    estimator = _chosen(full, "estimator", "estimator", base)
-    actuator = _chosen(full, "actuator", "actuator", base)
-    if "kind" not in d.get("momentum", {}) and actuator["kind"] != base["actuator"]["kind"]:
+    estimator = _chosen(full, "estimator", "estimator", base, d.get("estimator"))
+    actuator = _chosen(full, "actuator", "actuator", base, d.get("actuator"))
+    momentum_kind = _given_kind(d.get("momentum"), "momentum", components.names("momentum"))
+    if momentum_kind is None and actuator["kind"] != base["actuator"]["kind"]:
         full["momentum"] = {"kind": "none"}  # the base's momentum management comes with the base's actuator
-    momentum = _chosen(full, "momentum", "momentum", base)
+    momentum = _chosen(full, "momentum", "momentum", base, d.get("momentum"))
     environment = _components("environment", "environment", d.get("environment", {}), {})  # none by default
-    reference = _chosen(full, "reference", "reference", base)
+    reference = _chosen(full, "reference", "reference", base, d.get("reference"))
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
     schedule = schedules.parse(full.get("schedule", {}), controllers)
@@ -414,7 +434,7 @@ def gains_file(path, controller: str, schedule: dict | None = None, phases: dict
     tuned for another law; a warning where the run that wrote it did not finish."""
     path = Path(path)
     try:
-        saved = json.loads(path.read_text())
+        saved = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ValueError(f"gains file {path} does not exist") from None
     except OSError as err:
@@ -477,14 +497,15 @@ def _inertia_kind(given) -> dict:
     keys J0, J1, J2 (or J) by :func:`_inertias`, which another kind excludes."""
     given = given if isinstance(given, dict) else {}
     kinds = components.names("inertia")
-    name = checks.choice(given.get("kind", "paper"), "inertia.kind", kinds)
+    paper = tuple(sorted(set(given) & set(keys.allowed("inertia"))))
+    kind = _given_kind(given, "inertia", tuple(k for k in kinds if k != "paper"), paper)
+    name = checks.choice(kind or "paper", "inertia.kind", kinds)
     out = {"kind": name}
     for other in kinds:
         if other != "paper" and (other in given or other == name):
             values = components.get("inertia", other).parse(given.get(other, {}), f"inertia.{other}")
             if other == name:
                 out[name] = values
-    paper = sorted(set(given) & set(keys.allowed("inertia")))
     if name != "paper" and paper:
         raise ValueError(f"[inertia] kind = {name!r} excludes the paper profile's key(s) {', '.join(paper)}: "
                          f"give its inertias in [inertia.{name}]")

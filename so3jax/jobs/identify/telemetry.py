@@ -29,8 +29,6 @@ else from a mission's ``[actuator.wheels]``. Both identification methods model e
 
 from __future__ import annotations
 
-import zipfile
-import zlib
 from pathlib import Path
 from typing import NamedTuple
 
@@ -39,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components.sensors import GYRO_OUTPUTS
+from so3jax.core import tables
 from so3jax.results.io import save_npz
 
 REQUIRED = ("t", "gyro", "attitude")
@@ -118,18 +117,7 @@ def load(path, wheels: tuple | None = None) -> Telemetry:
     """Read and check a telemetry file; every problem a one-line ValueError naming the file.
     wheels: (axes (3, n), spin_inertia (n,)) from a mission, used where the file has none."""
     path = Path(path)
-    try:
-        with open(path, "rb") as file:  # ours to close, whatever np.load makes of it
-            f = np.load(file, allow_pickle=False)
-            if isinstance(f, np.lib.npyio.NpzFile):
-                data = {k: f[k] for k in f.files}
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such telemetry file") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # not an archive, truncated, corrupt
-        raise ValueError(f"{path}: not a telemetry .npz file ({e or type(e).__name__})") from None
-    if not isinstance(f, np.lib.npyio.NpzFile):
-        raise ValueError(f"{path}: a single .npy array, not a telemetry .npz file (named arrays: "
-                         f"{', '.join(REQUIRED)}, ...)")
+    data = tables.read_npz(path, f"a telemetry .npz file (named arrays {', '.join(REQUIRED)}, ...)")
     return check(data, str(path), wheels)
 
 

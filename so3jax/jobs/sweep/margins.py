@@ -1,6 +1,7 @@
 """Stability margins of each dispersed sample's sampled loop (docs/model.md §19), per time.
 
-Each sample's loop (its scenario :func:`so3jax.missions.build.scenario`, its components
+Each sample's loop (its scenario :func:`so3jax.missions.build.scenario` with its reference and
+inertia values :func:`so3jax.missions.dispersed.scenario_values`, its components
 :func:`so3jax.missions.dispersed.loop`) is flown noise-free and disturbance-free from its
 initial state to each time asked, as :func:`so3jax.sim.margins.nominal_state` flies one
 mission, the samples together (:func:`fly`, a vmap: one program per chunk size and number
@@ -51,8 +52,11 @@ def _cast(tree, dtype):
 
 
 def _sample(mission: Mission, p, values, dtype):
-    """(scenario, noise-free loop) of one sample: its RolloutParams p and component values."""
-    return build.scenario(mission, p), margins.noise_free(dispersed.loop(mission, values, dtype))
+    """(scenario, noise-free loop) of one sample: its RolloutParams p and dispersed values
+    (reference, inertia and component leaves)."""
+    own, components = dispersed.split(values)
+    scenario = build.scenario(dispersed.scenario_values(mission, own), p)
+    return scenario, margins.noise_free(dispersed.loop(mission, components, dtype))
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission"))

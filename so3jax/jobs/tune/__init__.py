@@ -30,7 +30,14 @@ result; a resume under another mission, [tune] table or precision is refused),
 ``best_gains.json``, ``history.csv``, ``history.png`` and ``validation.json`` (initial
 and tuned gains on held-out seeds).
 
-Modules: config (TuneConfig, parsing, checks, the campaign's description), constraints
+A campaign with ``[[tune.goals]]`` is a design campaign (docs/model.md §16.6): the mission's
+requirements, disk-margin floors and budgets, each hard or soft and normalized to g =
+value / limit over a fixed batch of dispersed missions, minimized from several starts at
+once by an augmented Lagrangian, then checked on a held-out batch (design.md, design.json).
+
+Modules: config (TuneConfig, parsing, checks, the campaign's description), goals (a design
+campaign's goals), goal_values (their values and derivatives over a batch, for several
+starts), design (the design campaign's loop and verdict), design_report (its files), constraints
 (the disk-margin penalty and its gradient), gains (the
 mission's controllers, gains and log-gains), cost (docs/model.md §6 cost and gradient over a
 device mesh), optimizers (optax step, ES), problem (the mission's scenario and loop,
@@ -80,6 +87,8 @@ from so3jax.jobs.tune.gains import (
     to_gains,
     to_params,
 )
+from so3jax.jobs.tune.goal_values import GoalValues
+from so3jax.jobs.tune.goals import Goal, parse_goals
 from so3jax.jobs.tune.optimizers import ESState, GradientState, NonFiniteGradientError, es_candidates, es_select
 from so3jax.jobs.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate
 from so3jax.jobs.tune.storage import (
@@ -105,12 +114,15 @@ __all__ = [
     "ESState",
     "Evaluation",
     "GAIN_TYPES",
+    "Goal",
+    "GoalValues",
     "GradientState",
     "METHODS",
     "OBJECTIVES",
     "MIN_SHARD",
     "NonFiniteGradientError",
     "OptimizerConfig",
+    "parse_goals",
     "PAPER_GAINS",
     "Problem",
     "ScenarioSet",

@@ -156,10 +156,10 @@ def score(g, soft, hard) -> tuple:
 
 
 def conflicts(g, jac, goals, hard) -> list:
-    """Pairs of goals that cannot be improved together at a design: among the hard goals
-    over 1 and the goals at or above 0.95 of their limit, those whose gradients dg/dp point
-    against each other (cosine < -0.5)."""
-    active = [i for i in range(len(goals)) if (hard[i] and g[i] > FEASIBLE) or g[i] >= 0.95]
+    """Pairs of hard goals that cannot be improved together at a design: among those over or
+    within 5 % of their limit, the pairs whose gradients dg/dp point against each other
+    (cosine < -0.5)."""
+    active = [i for i in range(len(goals)) if hard[i] and g[i] >= 0.95]
     out = []
     for a in active:
         for b in active:

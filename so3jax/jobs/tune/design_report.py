@@ -27,10 +27,10 @@ def _value(x, unit: str) -> str:
 def markdown(report: dict) -> str:
     """design.md: the verdict, then per goal g = value / limit before and after, training and held out."""
     training, held = report["training"], report["held_out"]
-    holds = "holds" if report["verdict"] == "met" else "does not hold"
+    holds = "every hard goal holds" if report["verdict"] == "met" else "not every hard goal holds"
     lines = [f"# Design campaign: {report['controller']}", "",
              f"Verdict on the held-out batch ({held['samples']} dispersed missions, sampling seed "
-             f"{held['sampling_seed']}): **every hard goal {holds}**"
+             f"{held['sampling_seed']}): **{holds}**"
              + ("" if report["verdict"] == "met" else f" (unmet: {', '.join(report['unmet_hard'])})") + ".", "",
              f"Training: {training['samples']} dispersed missions (sampling seed {training['sampling_seed']}), "
              f"{training['iterations']} iterations x {training['starts']} start(s); best design: start "
