@@ -177,3 +177,30 @@ def test_an_empty_output_folder_is_refused(argv, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "argument --out: must name a folder" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def _single_valued(command: str):
+    """The options of ``so3jax COMMAND`` that take one value (not --set's KEY=VALUE list)."""
+    from so3jax.commands.common import _Given
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    return [(a.option_strings[0], a.choices[0] if a.choices else "2") for a in sub._actions
+            if a.option_strings and isinstance(a, _Given) and a.nargs is None]
+
+
+@pytest.mark.parametrize("command", [c.__name__.rsplit(".", 1)[-1] for c in cli.COMMANDS])
+def test_an_option_given_twice_is_refused_or_accumulates(command, in_process, capsys):
+    """Every command: a single-valued option given twice is a one-line error (not the last
+    kept silently); a list option's values accumulate (``margins --at 1.0 --at 5.0``)."""
+    options = _single_valued(command)
+    assert options
+    for option, value in options:
+        with pytest.raises(SystemExit) as exit_:
+            cli.build_parser().parse_args([command, option, value, option, value])
+        err = capsys.readouterr().err.strip()
+        assert exit_.value.code == 2 and err.startswith(f"so3jax {command}: error: {option} is given twice"), err
+        assert "\n" not in err
+    if command == "margins":
+        assert cli.build_parser().parse_args(["margins", "--at", "1.0", "--at", "5.0", "10.0"]).at == [1.0, 5.0, 10.0]
+    assert not any(in_process.iterdir())

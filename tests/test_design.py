@@ -13,11 +13,12 @@ from so3jax.jobs.tune import design
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import load_config, parse_config
 from so3jax.jobs.tune.gains import resolve_gains
-from so3jax.jobs.tune.goal_values import GoalValues
+from so3jax.jobs.tune.goal_values import UNSTABLE, GoalValues
 from so3jax.jobs.tune.goals import parse_goals
 from so3jax.jobs.tune.problem import Sampler
 from so3jax.missions import dispersed
 from so3jax.missions.mission import gains_file
+from so3jax.sim import margins
 
 A, LIMIT = 0.01, 3600.0  # disturbance amplitude per axis [N m]; the hold's APE limit [arcsec]
 
@@ -120,17 +121,34 @@ def test_every_goal_derivative_matches_central_differences(flight_goals):
         fd = (up - down) / (2 * h)
         assert np.all(jac[:, traced, k] != 0.0)
         np.testing.assert_allclose(jac[:, traced, k], fd[:, traced], rtol=1e-5, atol=1e-7)
-    # the margin's derivative holds the linearization's point fixed (docs/model.md §16.6)
+    # a margin's derivative holds the linearization's point fixed (docs/model.md §16.6)
     margin = values.goals[-1]
-    for n in range(len(P)):
-        alpha, d_alpha, stable, states = values._margin_points(P[n], inputs, margin.at)
-        assert stable.all()
+    _, _, _, _, states = values._margin_points(P[0], inputs, margin.at)
+    for p in P:
+        _, _, g_points, d_points, _ = values._margin_points(p, inputs, margin.at, states)
+        assert np.all(g_points < UNSTABLE)
         for k in range(P.shape[1]):
             step = np.zeros(P.shape[1])
             step[k] = h
-            up = values._margin_points(P[n] + step, inputs, margin.at, states)[0]
-            down = values._margin_points(P[n] - step, inputs, margin.at, states)[0]
-            np.testing.assert_allclose(d_alpha[..., k], (up - down) / (2 * h), rtol=1e-5, atol=1e-9)
+            up = values._margin_points(p + step, inputs, margin.at, states)[2]
+            down = values._margin_points(p - step, inputs, margin.at, states)[2]
+            np.testing.assert_allclose(d_points[..., k], (up - down) / (2 * h), rtol=1e-5, atol=1e-9)
+
+
+def test_an_unstable_points_derivative_is_its_spectral_radius(flight_goals):
+    """g = UNSTABLE rho at an unstable point: d rho / dp from the closed loop's eigenvectors
+    against central differences of the spectral radius of A(p) + BC, A(p) = A0 + p A1."""
+    values = flight_goals[0]
+    rng = np.random.default_rng(3)
+    A0, A1, B, C = rng.normal(size=(6, 6)), rng.normal(size=(6, 6)), rng.normal(size=(6, 3)), rng.normal(size=(3, 6))
+
+    def rho(p):
+        return margins.closed_loop_modes(margins.Linearization(A0 + p * A1, B, C, 0.1)).spectral_radius
+
+    assert rho(0.0) > 1.0  # unstable
+    value, derivative = values._unstable_point(margins.Linearization(A0, B, C, 0.1), A1[..., None])
+    assert value == rho(0.0)
+    assert derivative[0] == pytest.approx((rho(1e-6) - rho(-1e-6)) / 2e-6, rel=1e-6)
 
 
 # --- bad input ---------------------------------------------------------------------------------

@@ -414,3 +414,41 @@ def test_a_limit_divided_by_is_refused_at_zero_when_dispersed(name):
         dispersed.parse({"actuator": {"wheels": {name: 0.0}}}, flight)
     with pytest.raises(ValueError, match=f"actuator.wheels.{name} .* must be > 0"):
         mission.load(None, [f"actuator.wheels.{name}=0.0"])
+
+
+def test_each_rejected_sample_is_counted_for_its_reason():
+    """Slews that overlap and event times that do not increase reject their samples, each
+    counted for that reason (the first it fails, in REJECTED's order), none for a value
+    outside its domain; a sample counted for overlapping slews is one the mission file's
+    checks refuse."""
+    from so3jax.missions import mission as missions
+
+    m = missions.from_dict(EVENTS)
+    samples = dispersed.draw(*dispersed.parse(EVENT_DISPERSIONS, m), 0, 16, 20, mission=m)
+    reasons = dispersed.rejections(samples)
+    overlap, order = dispersed.REJECTED["overlap"], dispersed.REJECTED["order"]
+    assert reasons[overlap] > 0 and set(reasons) <= {overlap, order}
+    assert sum(reasons.values()) == np.sum(~samples.valid) and np.all((samples.reason == "") == samples.valid)
+    events = samples.leaves["inertia.events.times"]
+    assert reasons.get(order, 0) == np.sum((samples.reason != overlap) & (np.diff(events, axis=1)[:, 0] <= 0))
+    i = int(np.flatnonzero(samples.reason == overlap)[0])
+    slews = dict(EVENTS["reference"]["slews"], times=samples.leaves["reference.slews.times"][i].tolist(),
+                 attitudes=samples.leaves["reference.slews.attitudes"][i].tolist())
+    with pytest.raises(ValueError, match="ends at .* after slew 1 starts"):
+        missions.from_dict({**EVENTS, "reference": {"kind": "slews", "slews": slews}})
+
+
+def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli_env, capsys):
+    """Every slew too slow to end before the next starts: exit code 2, one line counting the
+    samples per reason, no output folder (after the memory estimate's trace, before the
+    samples' programs compile)."""
+    from so3jax import commands as cli
+
+    slow = 'dispersions.reference.slews.max_rate={dist="uniform", low=1e-4, high=2e-4}'
+    argv = ["sweep", str(Path(__file__).parents[1] / "sweeps" / "imaging.toml"), "--samples", "8", "--chunk", "8",
+            "--T", "20", "--controllers", "pd", "--set", slow, "--out", "o"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("so3jax sweep: error: [dispersions]: every one of the 8 samples is rejected (8 for "
+                   f"{dispersed.REJECTED['overlap']}): narrow the dispersions")
+    assert not (cli_env / "o").exists()

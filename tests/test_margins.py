@@ -350,6 +350,7 @@ def test_the_figures_bode_and_nichols(flight):
 @pytest.mark.parametrize("extra, message", [
     (["--at", "0.55"], "t = 0.55 s is not a whole number of control periods (0.1 s)"),
     (["--at", "2.0"], "--at 2 s is outside the horizon [0, 1) s"),
+    (["--at", "0.0"], "--at 0 s is before t = 0.1 s (tick 1), the first tick at which the loop is formed"),
     (["--set", "control.mode='continuous'", "--set", "sensors.gyro=false", "--set", "sensors.star_tracker=false",
       "--set", "estimator.kind='truth'"], "margins need a sampled loop"),
 ])
@@ -360,6 +361,16 @@ def test_bad_times_and_loops_are_one_line_errors_before_compiling(in_process, ca
     err = capsys.readouterr().err.strip()
     assert err.startswith("so3jax margins: error: ") and message in err and "\n" not in err
     assert not (in_process / "o").exists()
+
+
+def test_a_loop_without_an_integrating_sensor_is_formed_at_tick_0():
+    """A gyro sampling the rate reads at tick 0 (a rate-integrating one first at tick 1): its
+    loop's margins at t = 0 are asked like any other time's."""
+    from so3jax.missions import mission as missions
+
+    sampled = missions.load(None, ["T=1", "sensors.gyro.output='rate'"])
+    assert mg.first_formed_tick(sampled.loop()) == 0 and margins_job.check_times(sampled, [0.0]) == (0.0,)
+    assert mg.first_formed_tick(missions.load(None, ["T=1"]).loop()) == 1
 
 
 # --- the disk margin as a tuning constraint -----------------------------------------------

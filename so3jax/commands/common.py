@@ -11,8 +11,33 @@ from so3jax.components import registry as components
 from so3jax.controllers import registry
 
 
+class _Given(argparse._StoreAction):
+    """An option's value (argparse's default action, in every so3jax parser and its groups):
+    given again, a list option's values accumulate (``--at 1.0 --at 5.0``: both), any other
+    is a one-line error, never the last value kept silently."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = getattr(parser, "given", set())
+        if self.dest in given and option_string is not None:
+            if self.nargs not in ("+", "*"):
+                parser.error(f"{option_string} is given twice: give it once")
+            values = list(getattr(namespace, self.dest)) + list(values)
+        given.add(self.dest)
+        setattr(namespace, self.dest, values)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the usage."""
+    """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the
+    usage; an option given twice accumulates or is refused (:class:`_Given`)."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("action", None, _Given)
+        self.register("action", "store", _Given)
+
+    def parse_known_args(self, args=None, namespace=None):
+        self.given = set()  # the options given in this parse
+        return super().parse_known_args(args, namespace)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

@@ -24,8 +24,8 @@ def register(subparsers) -> None:
     p.add_argument("mission", nargs="?", type=Path,
                    help="mission file (TOML) with a sampled loop; default: the flight mission (missions/flight.toml)")
     p.add_argument("--at", type=float, nargs="+", metavar="T",
-                   help="times [s] to linearize at, each a whole number of control periods "
-                   "(default: the last tick of each phase)")
+                   help="times [s] to linearize at, each a whole number of control periods (repeatable: the "
+                   "times accumulate; default: the last tick of each phase)")
     p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")
     p.add_argument("--controllers", help="comma-separated controllers (default: the mission's)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

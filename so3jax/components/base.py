@@ -58,7 +58,11 @@ def _no_limit(held):
 class Sensor(abc.ABC):
     """A sensor, sampled at the control ticks (docs/model.md §8.2). A rate sensor's
     reading is omega_m (3, *b) [rad/s]; an attitude sensor's is (R_m (3, 3, *b), whether
-    tick j has a sample). Noise keys: :func:`so3jax.components.sensors.sensor_noise`."""
+    tick j has a sample). Noise keys: :func:`so3jax.components.sensors.sensor_noise`.
+    first_reading: the first tick with a reading (one that measures over a period, a
+    rate-integrating gyro: 1, its reading at tick 0 is 0)."""
+
+    first_reading: ClassVar[int] = 0
 
     @abc.abstractmethod
     def init(self, batch_shape, dtype):

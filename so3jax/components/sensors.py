@@ -89,6 +89,8 @@ class IntegratingGyro(Sensor):
     + sqrt(arw^2 / Delta_c + rrw^2 Delta_c / 12) eta_1,j;  b_{j+1} = b_j + rrw sqrt(Delta_c) eta_2,j.
     At tick 0 no period has elapsed: omega_m,0 = 0. State: (b_{j-1}, b_j, R_{j-1})."""
 
+    first_reading = 1
+
     arw: jax.Array  # sigma_v, angle random walk [rad/sqrt(s)]
     rrw: jax.Array  # sigma_u, rate random walk [rad/s^(3/2)]
     bias0: jax.Array  # (3,) b_0 [rad/s]

@@ -29,15 +29,20 @@ def default_times(mission) -> tuple:
 
 def check_times(mission, times=None) -> tuple:
     """The times [s] asked (None: :func:`default_times`), each a tick within the horizon, of a
-    sampled loop (one-line ValueError otherwise)."""
+    sampled loop, at or after its first fully formed tick (:func:`so3jax.sim.margins.first_formed_tick`);
+    one-line ValueError otherwise."""
     if mission.period_steps is None:
         raise ValueError("margins need a sampled loop: this mission's control is continuous (control.mode)")
     times = default_times(mission) if times is None else times
     scenario, loop = mission.scenario(), mission.loop()
+    formed = margins.first_formed_tick(loop)
     for t in times:
         if not (0 <= t < mission.T):
             raise ValueError(f"--at {t:g} s is outside the horizon [0, {mission.T:g}) s")
-        margins.tick_index(scenario, loop, t)
+        if margins.tick_index(scenario, loop, t) < formed:
+            raise ValueError(f"--at {t:g} s is before t = {formed * mission.period:g} s (tick {formed}), the first "
+                             "tick at which the loop is formed: a sensor measuring over a period (the rate-integrating "
+                             "gyro) has no reading before it, so the loop lacks that feedback there")
     return tuple(float(t) for t in times)
 
 

@@ -85,6 +85,15 @@ SCENARIO_LEAVES = {
     ("inertia", "linear"): {"start": INERTIA, "end": INERTIA, "times": (0.0, False)},
     ("inertia", "table"): {"inertias": INERTIA, "times": (-math.inf, False)},
 }
+# Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
+REJECTED = {
+    "draws": "no positive definite inertia and positive tau_J within sweep.max_draws draws",
+    "domain": "a dispersed value outside its parameter's domain",
+    "bound": "a dispersed value beyond its limit (|actuator.wheels.initial_speed| > max_speed)",
+    "overlap": "slews that overlap (reference.slews: a slew ends after the next starts)",
+    "order": "times that do not increase (reference or inertia table, inertia events)",
+    "inertia_table": "an inertia of the inertia kind (events, linear, table) not positive definite",
+}
 # A distribution's ``relative`` key: "offset", the mission's value plus the draw; "scale", times it.
 RELATIVE = ("offset", "scale")
 INERTIA_VARIATES = 11  # per inertia matrix drawn (disp.InertiaDispersion.apply)
@@ -334,25 +343,28 @@ def split(values: dict) -> tuple[dict, dict]:
     return own, {k: v for k, v in values.items() if k not in own}
 
 
-def _scenario_valid(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
-    """(N,) whether each sample's reference and inertia pass their kind's checks (a mission
-    file's): slews that do not overlap, event times that increase (the other dispersible
-    parameters' domains are their leaves')."""
-    valid = np.ones(n_samples, bool)
+def _scenario_checks(mission: Mission, values: dict, n_samples: int) -> dict:
+    """{reason: (N,) whether each sample passes} of the checks a mission file's reference and
+    inertia pass (:data:`REJECTED`): slews that do not overlap, times that increase,
+    inertias positive definite (the other dispersible parameters' domains are their leaves')."""
+    passed = {}
     if any(k.startswith("reference.slews.") for k in values):
         given = mission.reference["slews"]
         drawn = {name: values.get(f"reference.slews.{name}", np.asarray(given[name], np.float64))
                  for name in ("start", "attitudes", "times", "max_rate", "max_acceleration")}
         times = np.broadcast_to(drawn["times"], (n_samples, len(given["times"])))
-        valid &= ~profiles.overlapping(disp.rotation_matrix(drawn["start"]), disp.rotation_matrix(drawn["attitudes"]),
-                                       times, drawn["max_rate"], drawn["max_acceleration"])
+        passed[REJECTED["overlap"]] = ~profiles.overlapping(
+            disp.rotation_matrix(drawn["start"]), disp.rotation_matrix(drawn["attitudes"]), times, drawn["max_rate"],
+            drawn["max_acceleration"])
+    order = np.ones(n_samples, bool)
     for key in ("inertia.events.times", "inertia.linear.times", "inertia.table.times", "reference.table.times"):
         if key in values:
-            valid &= np.all(np.diff(values[key], axis=1) > 0, axis=1)
+            order &= np.all(np.diff(values[key], axis=1) > 0, axis=1)
+    definite = np.ones(n_samples, bool)
     for key, x in values.items():
         if key.startswith("inertia.") and np.shape(x)[-2:] == (3, 3):
-            valid &= np.all(disp.is_positive_definite(x), axis=tuple(range(1, np.ndim(x) - 2)))
-    return valid
+            definite &= np.all(disp.is_positive_definite(x), axis=tuple(range(1, np.ndim(x) - 2)))
+    return {**passed, REJECTED["order"]: order, REJECTED["inertia_table"]: definite}
 
 
 # --- drawing ---------------------------------------------------------------------------------
@@ -367,8 +379,16 @@ def _leaf_words(seed, indices, salt, n_words: int):
 
 def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tuple[dict, np.ndarray]:
     """({key: values (N, *shape)}, valid (N,)): each leaf's values for samples first ..
-    first + N - 1, in float64, and whether every value lies in its parameter's domain."""
-    values, valid = {}, np.ones(n_samples, bool)
+    first + N - 1, in float64, and whether every value lies in its parameter's domain and
+    within its bound."""
+    values, passed = _drawn_leaves(leaves, seed, n_samples, first)
+    return values, np.logical_and.reduce(list(passed.values()))
+
+
+def _drawn_leaves(leaves: tuple, seed: int, n_samples: int, first: int) -> tuple[dict, dict]:
+    """(:func:`draw_leaves`' values, {reason: (N,) whether each sample passes}: every value in
+    its parameter's domain, every bound kept (:data:`REJECTED`))."""
+    values, domain, bound = {}, np.ones(n_samples, bool), np.ones(n_samples, bool)
     for leaf in leaves:
         size = int(np.prod(leaf.shape))
         n_words = 2 * INERTIA_VARIATES * (size // 9) if leaf.inertia is not None else 2 * max(size, 1)
@@ -386,11 +406,11 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
             nominal = np.reshape(leaf.nominal, leaf.shape)
             x = nominal + x if leaf.relative == "offset" else nominal * x
         values[leaf.key] = x
-        valid &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
+        domain &= np.all((x >= leaf.low) & (x <= leaf.high), axis=tuple(range(1, x.ndim)))
     for leaf in leaves:
         if leaf.bound is not None:
-            valid &= within_bound(leaf.bound, values, n_samples)
-    return values, valid
+            bound &= within_bound(leaf.bound, values, n_samples)
+    return values, {REJECTED["domain"]: domain, REJECTED["bound"]: bound}
 
 
 def within_bound(bound: tuple, values: dict, n_samples: int) -> np.ndarray:
@@ -408,14 +428,27 @@ def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int
     values (``leaves``); valid: a positive definite inertia within max_draws, every value in
     its domain and, with dispersed reference or inertia parameters, the sample's reference
     and inertia passing their kind's checks (``mission``: the mission the leaves disperse);
-    outside: the samples rejected for a component or scenario value alone."""
+    outside: the samples rejected for a component or scenario value alone; reason: why each
+    sample is rejected, the first of :data:`REJECTED` in order it fails ("" where valid)."""
     samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
-    values, in_domain = draw_leaves(leaves, seed, n_samples, first)
-    if any(leaf.key.split(".")[0] in ("reference", "inertia") for leaf in leaves):
+    values, passed = _drawn_leaves(leaves, seed, n_samples, first)
+    if any(leaf.key.split(".")[0] in _SCENARIO_TABLES for leaf in leaves):
         if mission is None:
             raise TypeError("draw: dispersed reference or inertia parameters need the mission (mission=)")
-        in_domain &= _scenario_valid(mission, values, n_samples)
-    return samples._replace(valid=samples.valid & in_domain, leaves=values, outside=samples.valid & ~in_domain)
+        passed.update(_scenario_checks(mission, values, n_samples))
+    reason = np.where(samples.valid, "", REJECTED["draws"]).astype(object)
+    for why, ok in passed.items():
+        reason[(reason == "") & ~ok] = why
+    in_domain = np.logical_and.reduce([np.ones(n_samples, bool), *passed.values()])
+    return samples._replace(valid=samples.valid & in_domain, leaves=values, outside=samples.valid & ~in_domain,
+                            reason=reason)
+
+
+def rejections(samples: disp.Samples) -> dict:
+    """{reason: samples rejected for it} of the rejected samples (:func:`draw`'s ``reason``;
+    without one, their draws), in :data:`REJECTED`'s order."""
+    reason = samples.reason if samples.reason is not None else np.where(samples.valid, "", REJECTED["draws"])
+    return {why: int(np.sum(reason == why)) for why in REJECTED.values() if np.any(reason == why)}
 
 
 def inputs(samples: disp.Samples, dtype) -> tuple:

@@ -339,6 +339,7 @@ class Samples(NamedTuple):
     attitude_error: np.ndarray  # (N, 3) rotation vector of R0 (R_d(0) = I), rad
     leaves: dict = {}  # dispersed component parameters {key: (N, *shape)} (so3jax.missions.dispersed)
     outside: np.ndarray | None = None  # bool: rejected for a component value outside its domain or limit
+    reason: np.ndarray | None = None  # str: why each sample is rejected, "" where valid (so3jax.missions.dispersed)
 
 
 # --- sampling ---------------------------------------------------------------------------

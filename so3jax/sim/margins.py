@@ -123,6 +123,13 @@ def _check_sampled(loop: Loop) -> None:
         raise ValueError("margins need a sampled loop (a control period: control.mode = 'sampled')")
 
 
+def first_formed_tick(loop: Loop) -> int:
+    """The first tick at which every sensor of the loop has a reading (a rate-integrating gyro's
+    first angle increment: tick 1); before it the feedback lacks a measurement (tick 0 of such
+    a gyro: no rate feedback, the loop a bare double integrator)."""
+    return max((s.first_reading for s in (loop.sensors.rate, loop.sensors.attitude) if s is not None), default=0)
+
+
 def tick_index(scenario: Scenario, loop: Loop, t: float) -> int:
     """j = t / Delta_c, the tick at time t [s]; ValueError unless t >= 0 is a whole number of periods."""
     _check_sampled(loop)

@@ -132,6 +132,10 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
                              mission=config.mission)
     inputs = dispersed.inputs(samples, dtype)
     valid = np.flatnonzero(samples.valid)
+    if not len(valid):
+        reasons = "; ".join(f"{n} for {why}" for why, n in dispersed.rejections(samples).items())
+        raise ValueError(f"[dispersions]: every one of the {config.samples} samples is rejected ({reasons}): "
+                         "narrow the dispersions")
     n_steps = steps_for_horizon(config.T, config.dt)
     fingerprint = _prepare_out(out, config, resume)
     processes = jax.process_count()

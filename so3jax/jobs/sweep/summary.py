@@ -13,8 +13,8 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.jobs.sweep import margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
+from so3jax.missions import dispersed, keys
 from so3jax.missions import dispersions as disp
-from so3jax.missions import keys
 from so3jax.results import units
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics, cell, finite_values, reported
@@ -186,6 +186,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             "rejected": int((~samples.valid).sum()),
             "rejected_indices": np.flatnonzero(~samples.valid).tolist(),
             "rejected_component": int(0 if samples.outside is None else samples.outside.sum()),
+            "rejected_for": dispersed.rejections(samples),
             "redraws": int((samples.draws[samples.valid] - 1).sum()),
             "nonphysical_inertia": int((samples.valid & ~cols["physical"]).sum()),
         },
@@ -252,13 +253,11 @@ def format_summary(summary: dict) -> str:
     """Markdown tables of the summary."""
     lines = []
     s = summary["samples"]
-    component = s.get("rejected_component", 0)
+    reasons = "; ".join(f"{n} for {why}" for why, n in s.get("rejected_for", {}).items())
     lines.append(
-        f"{s['requested']} samples: {s['simulated']} simulated, {s['rejected']} rejected "
-        f"({s['rejected'] - component} without a positive definite inertia and a positive tau_J after "
-        f"{summary['config']['sweep']['max_draws']} draws, {component} with a component value outside its domain "
-        f"or limit), {s['redraws']} redraws, {s['nonphysical_inertia']} with a non-physical inertia "
-        "(triangle inequality)"
+        f"{s['requested']} samples: {s['simulated']} simulated, {s['rejected']} rejected"
+        f"{f' ({reasons})' if reasons else ''}, {s['redraws']} redraws, {s['nonphysical_inertia']} with a "
+        "non-physical inertia (triangle inequality)"
     )
     for metric, label in (("rmse", "RMSE [rad/s]"), ("effort", "effort [N^2 m^2 s]")):
         lines += ["", f"| {label} | phase | " + " | ".join(STAT_NAMES) + " | samples |",

@@ -9,7 +9,8 @@ the attitude errors recorded on the mission's ``record_every`` grid, the one ``f
 Margin goals linearize each sample's loop at each time about its noise-free flight at the
 current gains (:mod:`so3jax.jobs.sweep.margins`), the state held fixed, and differentiate
 the grid's disk margin (:func:`so3jax.sim.margins.disk_alpha`); a point whose closed loop
-is unstable has g = :data:`UNSTABLE` and the derivative of the goal's worst stable point.
+is unstable has g = :data:`UNSTABLE` rho, rho the spectral radius of the modes the loop
+moves, and its derivative (an eigenvalue's, from the closed loop's).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy import linalg
 
 from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.tune.gains import to_gains
@@ -26,7 +28,7 @@ from so3jax.sim import margins, pointing, requirement_values
 from so3jax.sim.rollout import block_steps
 
 OMEGAS = 256  # a margin goal's frequency grid: log-spaced over 6 decades up to the Nyquist frequency
-UNSTABLE = 100.0  # g of a margin point whose closed loop is unstable
+UNSTABLE = 100.0  # g of a margin point whose closed loop is unstable, times its spectral radius
 
 
 class GoalValues:
@@ -84,51 +86,65 @@ class GoalValues:
     # --- margin goals: linearized about each sample's noise-free flight -------------------------
 
     def _margin_alphas(self, p, inputs, states, j, kinds):
+        """((alpha (S,), the closed loop A + BC (S, n, n)), (alpha, A, B, C)) of each sample's loop at tick j."""
         A, B, C, _ = sweep_margins.linearize(inputs, to_gains(self.unravel(p)), states, j,
                                              controller=self.controller, mission=self.mission, kinds=kinds)
         omegas = jnp.asarray(self.omegas, A.dtype)
         # one sample after another: XLA:CPU hangs on the forward derivative of a vmapped batch of eigvalsh
         alpha = jax.lax.map(lambda abc: margins.disk_alpha(*abc, self.period, omegas)[0], (A, B, C))
-        return alpha, (alpha, A, B, C)
+        return (alpha, A + B @ C), (alpha, A, B, C)
+
+    def _unstable_point(self, lin, d_closed):
+        """(rho, d rho / dp (P,)) of an unstable point: the spectral radius of the modes the loop
+        moves, d|z| = Re(conj(z) u^H dM v / (u^H v)) / |z| for its mode z (u, v: left and right
+        eigenvectors of M = A + BC), d_closed: dM/dp (n, n, P)."""
+        modes = margins.closed_loop_modes(lin)
+        z, left, right = linalg.eig(lin.A + lin.B @ lin.C, left=True, right=True)
+        k = int(np.argmax(np.where(modes.moved, np.abs(z), -np.inf)))
+        u, v = left[:, k], right[:, k]
+        dz = np.einsum("i,ijp,j->p", u.conj(), d_closed, v) / (u.conj() @ v)
+        return float(np.abs(z[k])), np.real(np.conj(z[k]) * dz) / np.abs(z[k])
 
     def _margin_points(self, p, inputs, times, states=None):
-        """(alpha (S, K), d alpha / dp (S, K, P), stable (S, K), the points' states) at one
-        parameter vector: each sample's loop linearized at each time about its noise-free
-        flight (``states``: that flight's states, by default flown at p)."""
+        """(alpha (S, K), d alpha / dp (S, K, P), g (S, K), dg/dp (S, K, P), the points' states)
+        at one parameter vector: each sample's loop linearized at each time about its
+        noise-free flight (``states``: that flight's states, by default flown at p). g is
+        alpha_req / alpha where the closed loop is stable, else UNSTABLE rho (rho > 1 its
+        spectral radius, whose derivative leads back to a stable loop); alpha_req = 1 here."""
         scenario, loop = self.mission.scenario(), self.mission.loop()
         ticks = np.array([margins.tick_index(scenario, loop, t) for t in times], np.int32)
         order = np.argsort(ticks, kind="stable")
         if states is None:
             states = sweep_margins.fly(inputs, to_gains(self.unravel(p)), jnp.asarray(ticks[order]),
                                        controller=self.controller, mission=self.mission)
-        S = len(np.asarray(inputs[0].J0))
-        K = len(times)
-        alpha, jac, stable = np.zeros((S, K)), np.zeros((S, K, p.shape[0])), np.zeros((S, K), bool)
+        S, K, n_p = len(np.asarray(inputs[0].J0)), len(times), p.shape[0]
+        alpha, d_alpha = np.zeros((S, K)), np.zeros((S, K, n_p))
+        g, d_g = np.full((S, K), np.inf), np.zeros((S, K, n_p))
         for at, k in enumerate(order):
             here = jax.tree.map(lambda x: x[:, at], states)
             kinds = sweep_margins.shared_kinds(jax.tree.map(np.asarray, here), S, times[k])
-            d_alpha, (a, A, B, C) = self._alphas(p, inputs, here, jnp.asarray(ticks[k], jnp.int32), kinds=kinds)
-            A, B, C = (np.asarray(x, np.float64) for x in (A, B, C))
+            (da, d_closed), (a, A, B, C) = self._alphas(p, inputs, here, jnp.asarray(ticks[k], jnp.int32),
+                                                        kinds=kinds)
+            A, B, C, a, da, d_closed = (np.asarray(x, np.float64) for x in (A, B, C, a, da, d_closed))
+            alpha[:, k], d_alpha[:, k] = a, da
             for i in range(S):
+                if not all(np.isfinite(x).all() for x in (A[i], B[i], C[i], d_closed[i])):
+                    continue  # a flight gone non-finite: g infinite
                 lin = margins.Linearization(A[i], B[i], C[i], self.period)
-                finite = all(np.isfinite(x).all() for x in (A[i], B[i], C[i]))
-                stable[i, k] = finite and margins.closed_loop_modes(lin).stable
-            alpha[:, k], jac[:, k] = np.asarray(a), np.asarray(d_alpha)
-        return alpha, jac, stable, states
+                if margins.closed_loop_modes(lin).stable:
+                    g[i, k], d_g[i, k] = 1.0 / a[i], -da[i] / a[i] ** 2
+                else:
+                    rho, d_rho = self._unstable_point(lin, d_closed[i])
+                    g[i, k], d_g[i, k] = UNSTABLE * rho, UNSTABLE * d_rho
+        return alpha, d_alpha, g, d_g, states
 
-    def _margin_goal(self, goal, alpha, jac, stable):
-        """(g, dg/dp (P,), the worst margin [dB] or None where a point is unstable) of one
-        margin goal from its points: the worst point's alpha_req / alpha."""
-        g_points = np.where(stable, goal.alpha_required / np.where(stable, alpha, 1.0), np.inf)
-        finite = np.where(stable, g_points, -np.inf)
-        worst_stable = np.unravel_index(np.argmax(finite), finite.shape) if stable.any() else None
-        grad = np.zeros(jac.shape[-1])
-        if worst_stable is not None:
-            a = alpha[worst_stable]
-            grad = -goal.alpha_required / a**2 * jac[worst_stable]
-        if not stable.all():
-            return UNSTABLE, grad, None
-        return float(g_points[worst_stable]), grad, margins.db_of_alpha(float(alpha[worst_stable]))
+    def _margin_goal(self, goal, alpha, g, d_g):
+        """(g, dg/dp (P,), the worst margin [dB], None where a point is unstable) of one margin
+        goal from its points (g of alpha_req = 1): the worst point's."""
+        worst = np.unravel_index(np.argmax(g), g.shape)
+        stable = g < UNSTABLE
+        db = margins.db_of_alpha(float(alpha[worst])) if stable.all() else None
+        return goal.alpha_required * float(g[worst]), goal.alpha_required * d_g[worst], db
 
     # --- all goals -----------------------------------------------------------------------------
 
@@ -149,8 +165,8 @@ class GoalValues:
         for i in self.margins:
             goal = self.goals[i]
             for n in range(N):
-                alpha, d_alpha, stable, _ = self._margin_points(P[n], inputs, goal.at)
-                g[n, i], grad, db = self._margin_goal(goal, alpha, d_alpha, stable)
+                alpha, _, g_points, d_points, _ = self._margin_points(P[n], inputs, goal.at)
+                g[n, i], grad, db = self._margin_goal(goal, alpha, g_points, d_points)
                 values[n, i] = np.nan if db is None else db
                 if jacobian:
                     jac[n, i] = grad
