@@ -67,13 +67,19 @@ def test_the_least_effort_that_meets_a_pointing_limit_is_the_closed_form_gain(tm
 
 def test_goals_that_no_gain_meets_together_are_reported_as_such(tmp_path):
     # the effort of holding against the disturbance alone, 3 A^2 int sin^2(f t) dt ~ 0.03, exceeds 0.01
-    config = parse_config(hold_campaign([{**HOLD, "hard": True},
-                                         {"budget": "effort", "limit": 0.01, "hard": True}], iterations=12))
+    goals = [{**HOLD, "hard": True}, {"budget": "effort", "limit": 0.01, "hard": True}]
+    config = parse_config(hold_campaign(goals, iterations=12))
     report = tune(config, tmp_path / "run", progress=False)
     assert report["verdict"] == "not met" and not report["met_on_training"]
     assert "mean effort" in report["unmet_hard"]
     assert ["hold pointing", "mean effort"] in report["conflicts"]
     assert "not every hard goal holds" in (tmp_path / "run" / "design.md").read_text()
+    # interrupted after 5 iterations and resumed: the same design as the uninterrupted run
+    interrupted = hold_campaign(goals, iterations=12)
+    interrupted["tune"]["iterations"] = 5
+    tune(parse_config(interrupted), tmp_path / "again", progress=False)
+    resumed = tune(config, tmp_path / "again", resume=True, progress=False)
+    assert resumed["gains"] == report["gains"] and resumed["goals"] == report["goals"]
 
 
 # --- each goal's derivative ------------------------------------------------------------------

@@ -254,11 +254,11 @@ def _sensors(given: dict, default: dict) -> dict:
     return out
 
 
-def _given_kind(given, table: str, kinds: tuple, paper_keys: tuple = ()) -> str | None:
+def _given_kind(given, table: str, kinds: tuple, base: str, paper_keys: tuple = ()) -> str | None:
     """``[table] kind`` as the user's tables give it: ``kind`` itself, else the one kind whose
-    ``[table.NAME]`` is given (None: neither); a one-line ValueError naming ``{table}.kind``
-    where tables of two kinds are given without it. paper_keys: the paper profile's keys
-    given in [inertia] (its kind ``paper``'s)."""
+    ``[table.NAME]`` is given, if not the base mission's kind ``base`` (None: neither); a
+    one-line ValueError naming ``{table}.kind`` where tables of two kinds are given without
+    it. paper_keys: the paper profile's keys given in [inertia] (its kind ``paper``'s)."""
     given = given if isinstance(given, dict) else {}
     if "kind" in given:
         return given["kind"]
@@ -267,7 +267,7 @@ def _given_kind(given, table: str, kinds: tuple, paper_keys: tuple = ()) -> str 
         settings = [f"the paper profile's {', '.join(paper_keys)}" if name == "paper" else f"[{table}.{name}]"
                     for name in named]
         raise ValueError(f"{' and '.join(settings)} given without {table}.kind: set {table}.kind to the one flown")
-    return named[0] if named else None
+    return named[0] if named and named[0] != base else None
 
 
 def _chosen(d: dict, kind: str, table: str, base: dict, given=None) -> dict:
@@ -276,7 +276,7 @@ def _chosen(d: dict, kind: str, table: str, base: dict, given=None) -> dict:
     without ``kind`` in the user's table ``given``, the kind whose subtable alone it gives
     (:func:`_given_kind`), else the merged tables' ``d``."""
     t = checks.table(d, table, ("kind",) + components.names(kind))
-    inferred = _given_kind(given, table, components.names(kind))
+    inferred = _given_kind(given, table, components.names(kind), base[table]["kind"])
     name = checks.choice(inferred or t.get("kind", base[table]["kind"]), f"{table}.kind", components.names(kind))
     out = {"kind": name}
     for other in components.names(kind):
@@ -323,7 +323,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     sensors = _sensors(d.get("sensors", {}), base["sensors"])
     estimator = _chosen(full, "estimator", "estimator", base, d.get("estimator"))
     actuator = _chosen(full, "actuator", "actuator", base, d.get("actuator"))
-    momentum_kind = _given_kind(d.get("momentum"), "momentum", components.names("momentum"))
+    momentum_kind = _given_kind(d.get("momentum"), "momentum", components.names("momentum"), base["momentum"]["kind"])
     if momentum_kind is None and actuator["kind"] != base["actuator"]["kind"]:
         full["momentum"] = {"kind": "none"}  # the base's momentum management comes with the base's actuator
     momentum = _chosen(full, "momentum", "momentum", base, d.get("momentum"))
@@ -498,7 +498,7 @@ def _inertia_kind(given) -> dict:
     given = given if isinstance(given, dict) else {}
     kinds = components.names("inertia")
     paper = tuple(sorted(set(given) & set(keys.allowed("inertia"))))
-    kind = _given_kind(given, "inertia", tuple(k for k in kinds if k != "paper"), paper)
+    kind = _given_kind(given, "inertia", tuple(k for k in kinds if k != "paper"), "paper", paper)
     name = checks.choice(kind or "paper", "inertia.kind", kinds)
     out = {"kind": name}
     for other in kinds:

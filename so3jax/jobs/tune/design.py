@@ -247,7 +247,8 @@ def _iterate(config, goals, soft, hard, values, parameters, tx, train, state, op
         if state["best"][n] is None or s < tuple(state["best"][n]["score"]):
             state["best"][n] = {"score": list(s), "iteration": it, "start": n, "p": P[n].tolist(),
                                 "g": g[n].tolist(), "values": units[n].tolist(), "jacobian": jac[n].tolist()}
-    updates, opt_state = tx.update(jnp.asarray(grad), opt_state)
+    with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
+        updates, opt_state = tx.update(jnp.asarray(grad), opt_state)
     step = np.asarray(updates) * state["step"][:, None]
     stepped = parameters.clip(P + step)
     new = np.where(finite[:, None], stepped, state["previous"])
