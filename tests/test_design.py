@@ -122,8 +122,8 @@ def test_every_goal_derivative_matches_central_differences(flight_goals):
     for k in range(P.shape[1]):
         step = np.zeros_like(P)
         step[:, k] = h
-        up, _, _ = values(P + step, inputs, jacobian=False)
-        down, _, _ = values(P - step, inputs, jacobian=False)
+        up, _, _ = values(P + step, inputs)  # the same compiled program as the derivative's
+        down, _, _ = values(P - step, inputs)
         fd = (up - down) / (2 * h)
         assert np.all(jac[:, traced, k] != 0.0)
         np.testing.assert_allclose(jac[:, traced, k], fd[:, traced], rtol=1e-5, atol=1e-7)
@@ -233,3 +233,13 @@ def test_a_scheduled_law_is_designed_with_one_set_of_gains_per_phase():
     np.testing.assert_allclose(starts[0], [0.5, 0.6, 2.0, 2.0])
     paper = resolve_gains("pd", "paper", jnp.float64, mission=config.mission)
     np.testing.assert_array_equal(paper.k_R, [0.5714, 0.5714])
+
+
+def test_a_margin_before_the_loop_is_formed_is_refused():
+    """At tick 0 the rate-integrating gyro has no reading: the loop lacks its rate feedback."""
+    for key, value in (("tune.constraints.disk_margin", {"min_db": 6.0, "at": [0.0]}),):
+        with pytest.raises(ValueError, match="before t = 0.1 s, the first tick at which the loop is formed"):
+            load_config("tuning/pd_flight_margin.toml", [(key, value)])
+    with pytest.raises(ValueError, match=r"tune.goals\[0\].at: t = 0 s is before t = 0.1 s"):
+        load_config("tuning/design_pd.toml", [("tune.goals", [{"margin": "disk", "min_db": 6.0, "at": [0.0],
+                                                                "hard": True}])])

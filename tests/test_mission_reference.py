@@ -236,3 +236,7 @@ def test_a_table_file_with_a_byte_order_mark_reads(tmp_path, kind):
     plain.write_text(path.read_text(encoding="utf-8-sig"))
     marked, unmarked = (missions.load(None, ["T=10", *_table_mission(kind, p)]).describe() for p in (path, plain))
     assert str(marked).replace(str(path), "") == str(unmarked).replace(str(plain), "")
+    mission_file = tmp_path / "m.toml"  # the mission file itself, saved with a byte-order mark
+    mission_file.write_text("T = 10.0\n" + "\n".join(_table_mission(kind, path.name)).replace("'", '"'),
+                            encoding="utf-8-sig")
+    assert str(missions.load(mission_file).describe()).replace(str(path), "") == str(marked).replace(str(path), "")

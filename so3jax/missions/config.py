@@ -34,12 +34,13 @@ def set_dotted(table: dict, dotted: str, value) -> None:
 
 
 def read_toml(path) -> dict:
-    """A TOML file's tables; ValueError (not a traceback) for a missing or unreadable file."""
+    """A TOML file's tables (UTF-8, a byte-order mark allowed); ValueError (not a traceback)
+    for a missing or unreadable file."""
     path = Path(path)
     if path.suffix != ".toml":
         raise ValueError(f"config file {path} must be a .toml file")
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise ValueError(f"config file {path} does not exist") from None
     except (IsADirectoryError, PermissionError) as err:

@@ -434,7 +434,7 @@ def gains_file(path, controller: str, schedule: dict | None = None, phases: dict
     tuned for another law; a warning where the run that wrote it did not finish."""
     path = Path(path)
     try:
-        saved = json.loads(path.read_text(encoding="utf-8"))
+        saved = json.loads(path.read_text(encoding="utf-8-sig"))
     except FileNotFoundError:
         raise ValueError(f"gains file {path} does not exist") from None
     except OSError as err:

@@ -19,7 +19,7 @@ from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
 from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
-from so3jax.jobs.tune.goals import parse_goals
+from so3jax.jobs.tune.goals import formed_before, parse_goals
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
@@ -421,6 +421,7 @@ def _check_constraints(config: TuneConfig) -> None:
         if abs(t - round(t / period) * period) > 1e-9 * max(period, abs(t)):
             raise ValueError(f"config key {_key(where + '.at')!r}: t = {t:g} s is not a whole number of control "
                              f"periods ({period:g} s)")
+        formed_before(mission, t, f"config key {_key(where + '.at')!r}")
 
 
 DESIGN_KEYS = ("goals", "starts", "bounds", "fixed", "lagrangian")  # a design campaign's [tune] keys

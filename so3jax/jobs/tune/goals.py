@@ -28,7 +28,7 @@ import numpy as np
 
 from so3jax.core import checks
 from so3jax.sim import pointing
-from so3jax.sim.margins import alpha_of_db
+from so3jax.sim.margins import alpha_of_db, first_formed_tick
 
 KINDS = ("requirement", "margin", "budget")
 MARGINS = ("disk",)
@@ -132,11 +132,18 @@ def _margin(item: dict, where: str, mission) -> dict:
         if abs(t - round(t / mission.period) * mission.period) > 1e-9 * max(mission.period, abs(t)):
             raise ValueError(f"{where}.at: t = {t:g} s is not a whole number of control periods "
                              f"({mission.period:g} s)")
-        if t < mission.period:
-            raise ValueError(f"{where}.at: t = {t:g} s is before the second tick ({mission.period:g} s): the loop's "
-                             "rate feedback is not yet formed there")
+        formed_before(mission, t, f"{where}.at")
         times.append(float(t))
     return {"min_db": min_db, "at": tuple(times)}
+
+
+def formed_before(mission, t: float, where: str) -> None:
+    """A one-line ValueError where t [s] is before the first tick at which the mission's
+    sampled loop is formed (:func:`so3jax.sim.margins.first_formed_tick`)."""
+    formed = first_formed_tick(mission.loop())
+    if t < formed * mission.period - 1e-9 * mission.period:
+        raise ValueError(f"{where}: t = {t:g} s is before t = {formed * mission.period:g} s, the first tick at which "
+                         "the loop is formed (the rate-integrating gyro has no reading before it)")
 
 
 def _budget(item: dict, where: str) -> dict:
