@@ -243,3 +243,28 @@ def test_a_margin_before_the_loop_is_formed_is_refused():
     with pytest.raises(ValueError, match=r"tune.goals\[0\].at: t = 0 s is before t = 0.1 s"):
         load_config("tuning/design_pd.toml", [("tune.goals", [{"margin": "disk", "min_db": 6.0, "at": [0.0],
                                                                 "hard": True}])])
+
+
+DESIGNS = ("design_pd", "design_pd_scheduled", "design_adaptive", "design_mrp_feedback")
+
+
+@pytest.mark.parametrize("name", DESIGNS)
+def test_shipped_design_campaigns_parse_and_their_records_are_theirs(name):
+    """The sign-off mission's four requirements and a 6 dB disk margin, hard, and the effort,
+    soft, over 32 dispersed flight missions, held out on 256; the recorded run's checkpoint
+    belongs to the file (--resume continues it) and its report to the law."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    config = load_config(root / "tuning" / f"{name}.toml")
+    goals = parse_goals(list(config.goals), config.mission)
+    assert [g.kind for g in goals] == ["requirement"] * 4 + ["margin", "budget"]
+    assert [g.hard for g in goals] == [True] * 5 + [False] and goals[4].min_db == 6.0
+    assert (config.train.samples, config.validation.samples) == (32, 256)
+    assert ("schedule" in name) == bool(config.mission.schedule)
+    record = root / "tuning" / name
+    report = json.loads((record / "design.json").read_text())
+    assert report["controller"] == config.controller and report["held_out"]["samples"] >= 250
+    assert [g["name"] for g in report["goals"]] == [g.name for g in goals]
+    with np.load(record / design.CHECKPOINT) as data:
+        assert str(data["fingerprint"]) == design.campaign_fingerprint(config)

@@ -87,7 +87,9 @@ def test_bad_dispersions_are_one_line_errors(flight, table, message):
 
 def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
     """sweeps/default.toml's dispersions on its mission (missions/paper.toml on a rigid body's J0)
-    draw the samples that sweeps/default/samples.csv records, within 1e-12 relative."""
+    draw the samples that sweeps/default/samples.csv records, within 1e-12 of each column's
+    largest magnitude (a small product of inertia is the difference of large terms: its own
+    relative round-off differs between CPUs' vector units)."""
     from so3jax.jobs import sweep
 
     config = sweep.load_config(ROOT / "sweeps" / "default.toml")
@@ -107,7 +109,7 @@ def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
         got[f"Omega0_{name}"], got[f"attitude_error_{name}"] = p.Omega0[:, axis], s.attitude_error[:, axis]
     for key, values in got.items():
         recorded = np.array([float(r[key]) for r in rows])
-        np.testing.assert_allclose(values, recorded, rtol=1e-12, atol=1e-300, err_msg=key)
+        np.testing.assert_allclose(values, recorded, rtol=1e-12, atol=1e-12 * np.max(np.abs(recorded)), err_msg=key)
 
 
 FLIGHT_SWEEP = {

@@ -191,8 +191,7 @@ def run(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     lagrangian_config = config.lagrangian
     tx = make_optimizer(config.optimizer, clip=False)  # each start's gradient clipped on its own
 
-    description = io.to_builtin(describe(config))
-    fingerprint = runfolder.fingerprint({**description, "tune": {**description["tune"], "iterations": 0}})
+    fingerprint = campaign_fingerprint(config)
     checkpoint = out / CHECKPOINT
     if checkpoint.exists() and not resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that run, or choose another --out")
@@ -222,6 +221,13 @@ def run(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     report = _report(config, goals, soft, hard, values, parameters, state, train_index, sampler, dtype)
     design_report.write(out, config, report, state["rows"])
     return report
+
+
+def campaign_fingerprint(config: TuneConfig) -> str:
+    """What a checkpoint belongs to: the campaign's description but its iteration count (a
+    resumed run may be extended)."""
+    description = io.to_builtin(describe(config))
+    return runfolder.fingerprint({**description, "tune": {**description["tune"], "iterations": 0}})
 
 
 def _iterate(config, goals, soft, hard, values, parameters, tx, train, state, opt_state, start):
