@@ -394,6 +394,7 @@ def _report(config, goals, soft, hard, values, parameters, state, train_index, s
     binding = _binding(g_best, soft, hard, goals)
     return io.to_builtin({
         "controller": config.controller,
+        "schedule": config.mission.schedule.get(config.controller),  # None: one set of gains
         "verdict": "met" if meets else "not met",
         "met_on_training": feasible_training,
         "goals": rows,

@@ -28,7 +28,9 @@ def markdown(report: dict) -> str:
     """design.md: the verdict, then per goal g = value / limit before and after, training and held out."""
     training, held = report["training"], report["held_out"]
     holds = "every hard goal holds" if report["verdict"] == "met" else "not every hard goal holds"
-    lines = [f"# Design campaign: {report['controller']}", "",
+    schedule = report.get("schedule")
+    scheduled = "" if not schedule else f", gains per {'phase' if schedule['by'] == 'phase' else 'breakpoint'}"
+    lines = [f"# Design campaign: {report['controller']}{scheduled}", "",
              f"Verdict on the held-out batch ({held['samples']} dispersed missions, sampling seed "
              f"{held['sampling_seed']}): **{holds}**"
              + ("" if report["verdict"] == "met" else f" (unmet: {', '.join(report['unmet_hard'])})") + ".", "",
