@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.tune import design_report
 from so3jax.jobs.tune import goals as goal_specs
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer
@@ -40,6 +41,7 @@ from so3jax.jobs.tune.problem import MAX_DRAWS, Sampler
 from so3jax.jobs.tune.storage import write_history
 from so3jax.missions import dispersed
 from so3jax.results import io, runfolder
+from so3jax.sim import pointing
 
 CHECKPOINT = "checkpoint.npz"
 DECADE = 10.0  # default bounds: a gain within a decade either side of its initial value
@@ -330,11 +332,8 @@ def held_out(config, goals, values: GoalValues, parameters: Parameters, sampler,
     """{label: goal values (G,) in their units and g (G,)} of each gains' design on the held-out
     batch (validation: ``validation.samples`` dispersed missions of sampling seed
     ``validation.seeds[0]``), read as ``sweep`` reads them: the requirements by
-    :func:`so3jax.sim.pointing.check` with a diverged sample as +inf, each margin the worst
+    :func:`so3jax.sim.pointing.evaluate` with a diverged sample as +inf, each margin the worst
     sample's at its times (unstable anywhere: infinite g)."""
-    from so3jax.jobs.sweep import margins as sweep_margins
-    from so3jax.sim import pointing
-
     inputs, index = draw_inputs(sampler, config.validation.seeds[0], config.validation.samples, dtype)
     controller = values.controller
     out = {"samples": int(len(index)), "drawn": config.validation.samples}
@@ -352,8 +351,8 @@ def held_out(config, goals, values: GoalValues, parameters: Parameters, sampler,
             if goal.kind == "requirement":
                 e = results["pointing_performance" if goal.requirement.signal == "performance"
                             else "pointing_knowledge"]
-                checked = pointing.check((goal.requirement,), t, e, e, values.bounds, diverged_worst=True)[0]
-                value[i] = math.inf if checked["value"] is None else checked["value"]
+                checked = pointing.evaluate(goal.requirement, t, e, values.bounds, diverged_worst=True)
+                value[i] = math.inf if checked.value is None else checked.value
                 g[i] = value[i] / goal.bound
             elif goal.kind == "budget":
                 x = np.where(np.isnan(results[goal.metric]), np.inf, results[goal.metric])

@@ -41,7 +41,8 @@ class GoalValues:
         self.goals, self.mission, self.controller, self.unravel = goals, mission, controller, unravel
         self.traced = [i for i, g in enumerate(goals) if g.kind != "margin"]
         self.margins = [i for i, g in enumerate(goals) if g.kind == "margin"]
-        scenario = mission.scenario()
+        scenario = self.scenario = mission.scenario()
+        self.loop = mission.loop()  # the margin points' ticks
         self.block = block_steps(scenario.n_steps, mission.record_every, mission.period_steps)
         self.bounds = pointing.phase_bounds_of(scenario)
         self.plans = None  # on the first batch: the record grid's length is the rollout's
@@ -111,8 +112,7 @@ class GoalValues:
         noise-free flight (``states``: that flight's states, by default flown at p). g is
         alpha_req / alpha where the closed loop is stable, else UNSTABLE rho (rho > 1 its
         spectral radius, whose derivative leads back to a stable loop); alpha_req = 1 here."""
-        scenario, loop = self.mission.scenario(), self.mission.loop()
-        ticks = np.array([margins.tick_index(scenario, loop, t) for t in times], np.int32)
+        ticks = np.array([margins.tick_index(self.scenario, self.loop, t) for t in times], np.int32)
         order = np.argsort(ticks, kind="stable")
         if states is None:
             states = sweep_margins.fly(inputs, to_gains(self.unravel(p)), jnp.asarray(ticks[order]),
