@@ -12,7 +12,7 @@ import pytest
 from so3jax.jobs.tune import design
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import load_config, parse_config
-from so3jax.jobs.tune.gains import resolve_gains
+from so3jax.jobs.tune.gains import resolve_gains, to_gains
 from so3jax.jobs.tune.goal_values import UNSTABLE, GoalValues
 from so3jax.jobs.tune.goals import parse_goals
 from so3jax.jobs.tune.problem import Sampler
@@ -92,6 +92,8 @@ FLIGHT_GOALS = [
     {"index": "AKE", "axis": "each", "level": 0.5, "limit": 5.0, "interpretation": "mixed", "hard": True},
     {"budget": "command_effort", "limit": 1.0, "hard": False},
     {"margin": "disk", "min_db": 6.0, "at": [10.0], "hard": True},
+    {"margin": "gain", "min_db": 6.0, "at": [10.0], "hard": True},
+    {"margin": "phase", "min_deg": 30.0, "axis": "y", "at": [10.0], "hard": False},
 ]
 
 
@@ -129,16 +131,31 @@ def test_every_goal_derivative_matches_central_differences(flight_goals):
         np.testing.assert_allclose(jac[:, traced, k], fd[:, traced], rtol=1e-5, atol=1e-7)
     # a margin's derivative holds the linearization's point fixed (docs/model.md §16.6)
     margin = values.goals[-1]
-    _, _, _, _, states = values._margin_points(P[0], inputs, margin.at)
+    *_, states = values._margin_points(P[0], inputs, margin.at)
     for p in P:
-        _, _, g_points, d_points, _ = values._margin_points(p, inputs, margin.at, states)
+        _, g_points, d_points, _ = values._margin_points(p, inputs, margin.at, states)
         assert np.all(g_points < UNSTABLE)
         for k in range(P.shape[1]):
             step = np.zeros(P.shape[1])
             step[k] = h
-            up = values._margin_points(p + step, inputs, margin.at, states)[2]
-            down = values._margin_points(p - step, inputs, margin.at, states)[2]
+            up = values._margin_points(p + step, inputs, margin.at, states)[1]
+            down = values._margin_points(p - step, inputs, margin.at, states)[1]
             np.testing.assert_allclose(d_points[..., k], (up - down) / (2 * h), rtol=1e-5, atol=1e-9)
+
+
+def test_margin_goals_read_the_disk_margins_the_margins_command_refines(flight_goals):
+    """Each margin goal's value on its 256-point grid against the refined disk margins of
+    sample_margins (2000 points and bounded Brent): at least as large (the grid can only miss
+    the peak of |S - I/2|) and within 1 %; a phase floor reads 2 atan(alpha / 2)."""
+    values, inputs, P = flight_goals
+    _, _, read = values(P[:1], inputs, jacobian=False)
+    gains = to_gains(values.unravel(jnp.asarray(P[0])))
+    refined = design._disks(inputs, gains, values.controller, values.mission, (10.0,))
+    for i in values.margins:
+        goal = values.goals[i]
+        worst = float(np.min(refined[..., list(goal.columns)]))
+        exact = math.degrees(2 * math.atan(worst / 2)) if goal.margin == "phase" else margins.db_of_alpha(worst)
+        assert exact <= read[0, i] * (1 + 1e-9) and read[0, i] == pytest.approx(exact, rel=0.01)
 
 
 def test_an_unstable_points_derivative_is_its_spectral_radius(flight_goals):
@@ -167,6 +184,12 @@ def test_an_unstable_points_derivative_is_its_spectral_radius(flight_goals):
     ({"goals": [{**HOLD, "level": 1.0, "hard": True}]}, "tune.goals[0].level"),
     ({"goals": [{**HOLD}]}, "tune.goals[0].hard: missing"),
     ({"goals": [{"margin": "disk", "min_db": 0.0, "hard": True}]}, "tune.goals[0].min_db"),
+    ({"goals": [{"margin": "phase", "min_deg": 95.0, "hard": True}]}, "tune.goals[0].min_deg"),
+    ({"goals": [{"margin": "phase", "min_db": 6.0, "hard": True}]}, "[tune.goals[0]]: min_db; allowed"),
+    ({"goals": [{"margin": "phase", "hard": True}]}, "tune.goals[0].min_deg: missing"),
+    ({"goals": [{"margin": "gain", "min_db": 6.0, "axis": "w", "hard": True}]}, "tune.goals[0].axis"),
+    ({"goals": [{"margin": "disk", "min_db": 6.0, "axis": "x", "hard": True}]}, "axis"),
+    ({"goals": [{"margin": "delay", "min_db": 6.0, "hard": True}]}, "tune.goals[0].margin"),
     ({"goals": [{"budget": "effort", "limit": 1.0, "statistic": "median", "hard": False}]}, "statistic"),
     ({"bounds": {"k_R": [1.0, 0.5]}}, "tune.bounds.k_R"),
     ({"bounds": {"k_X": [0.1, 1.0]}}, "no gain 'k_X'"),

@@ -199,6 +199,11 @@ def test_scheduled_gains_round_trip_through_a_gains_file(tmp_path):
     (("schedule.pd={by='time', at=[]}",), r"schedule\.pd\.at \[s\] must be a non-empty list"),
     (("schedule.pd={by='phase', at=[0.0]}",), r"schedule\.pd\.at: a schedule by \"phase\""),
     (("schedule.pd={by='phase', every=2}",), r"unknown key\(s\) in \[schedule\.pd\]: every"),
+    (("schedule.pd={by='inertia'}",), r"schedule\.pd\.at: a schedule by \"inertia\" needs its breakpoints \[kg m\^2\]"),
+    (("schedule.pd={by='inertia', at=[0.0, 500.0]}",), r"schedule\.pd\.at: breakpoints of an inertia"),
+    (("schedule.pd={by='inertia', at=[600.0, 500.0]}",), r"schedule\.pd\.at \[kg m\^2\] must be finite and increasing"),
+    (("schedule.pd={by='inertia', at=[500.0], of='Jxy'}",), r"schedule\.pd\.of must be one of mean, Jxx"),
+    (("schedule.pd={by='time', at=[0.0], of='Jxx'}",), r"schedule\.pd\.of: names the moment of a schedule by"),
     (("schedule.pd='phase'",), r"schedule\.pd must be a table"),
     (("schedule.pd={by='phase'}", "gains.pd.k_R=[1.0, 2.0]"), r"gains\.pd\.k_R: one value per phase \(3: capture"),
     (("schedule.pd={by='time', at=[0.0, 1.0]}", "gains.pd.k_R=[1.0, 2.0, 3.0]"),
@@ -212,6 +217,38 @@ def test_bad_schedules_are_one_line_errors_naming_the_key(overrides, message):
     with pytest.raises(ValueError, match=message) as err:
         own(*overrides)
     assert "\n" not in str(err.value)
+
+
+# --- by inertia: the declared inertia's moment --------------------------------------------------
+
+
+def test_an_inertia_schedule_interpolates_over_the_declared_inertias_closed_form():
+    """The flight mission declares the paper's profile: J0 until 500 s, then J1 - (J1 - J0)
+    exp(-(t - 500) / tau_J) until 2600 s, then J2 (docs/model.md §4); the schedule's variable is
+    that J(t)'s moment and the gains numpy.interp's of it; equal gains give the law's bit for bit."""
+    m = missions.load(None, ["schedule.pd={by='inertia', at=[700.0, 1000.0, 1240.0]}", "gains.pd.k_R=[1.0, 2.0, 4.0]",
+                             "schedule.adaptive={by='inertia', at=[400.0, 900.0], of='Jzz'}"])
+    controller, gains = m.controller("pd")
+    J0, J1, J2 = (np.asarray(J, float) for J in (m.J0, m.J1, m.J2))
+    times = np.array([0.0, 499.9, 500.0, 650.0, 1200.0, 2599.9, 2600.0, 3999.9])
+    blend = np.exp(-np.clip(times - 500.0, 0.0, None) / m.tau_J)[:, None, None]
+    J = np.where(times[:, None, None] < 500.0, J0, J1 - (J1 - J0) * blend)
+    J = np.where(times[:, None, None] >= 2600.0, J2, J)
+    mean = np.trace(J, axis1=1, axis2=2) / 3.0
+    x = jax.vmap(controller.variable)(jnp.asarray(times))
+    np.testing.assert_allclose(x, mean, rtol=1e-13)
+    Jzz = jax.vmap(m.controller("adaptive")[0].variable)(jnp.asarray(times))
+    np.testing.assert_allclose(Jzz, J[:, 2, 2], rtol=1e-13)
+    k_R = jax.vmap(controller.at, in_axes=(None, 0))(jax.tree.map(jnp.asarray, gains), jnp.asarray(times)).k_R
+    np.testing.assert_allclose(k_R, np.interp(mean, [700.0, 1000.0, 1240.0], [1.0, 2.0, 4.0]), rtol=1e-13)
+    assert len(set(np.round(np.asarray(k_R), 9))) > 2  # the profile crosses the breakpoints
+    assert controller == m.controller("pd")[0] and hash(controller) == hash(m.controller("pd")[0])
+    feedback, desired = _feedback_desired()
+    same = schedule_gains(PDGains(jnp.asarray(1.5), jnp.asarray(20.0)), 3)
+    for t in times:
+        t = jnp.asarray(t)
+        assert np.array_equal(controller.torque(same, (), feedback, desired, t)[0],
+                              geometric_pd().torque(gains_slice(same, 0), (), feedback, desired, t)[0])
 
 
 def test_a_phase_schedule_switches_at_the_missions_phases():

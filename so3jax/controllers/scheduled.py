@@ -1,5 +1,6 @@
 """Gain schedules (docs/model.md §10.5): any law's gains, one set per phase of the mission or
-interpolated linearly over time between breakpoints.
+interpolated linearly between breakpoints of a scheduling variable: the time, or a moment of
+the inertia the mission declares at that time.
 
 :class:`Scheduled` wraps a law: its gains are the law's gains NamedTuple with a leading axis
 of one entry per knot (k_R (n,), a diagonal Gamma (n, 9)), and at time t it hands the law
@@ -8,7 +9,10 @@ the gains of that time:
 * ``by="phase"``: knots t_0 < ... < t_{n-1} are the phases' start times [s]; the gains of
   phase i = #{j : t_j <= t} - 1 (0 before t_0), selected by indexing;
 * ``by="time"``: knots are breakpoint times [s]; each gain interpolated linearly in t between
-  them and held at the first (last) value before (after) them, as ``jnp.interp``.
+  them and held at the first (last) value before (after) them, as ``jnp.interp``;
+* ``by="inertia"``: the same over x = ``variable(t)`` [kg m^2], knots breakpoints of x
+  (``variable``: a hashable callable, e.g. the declared inertia's mean principal moment,
+  :class:`so3jax.missions.schedule.DeclaredInertia`).
 
 Equal gains in every phase give the unscheduled law's values bit for bit in both modes.
 """
@@ -25,17 +29,19 @@ import numpy as np
 from so3jax.controllers import registry
 from so3jax.controllers.base import Controller
 
-BY = ("phase", "time")
+BY = ("phase", "time", "inertia")
 
 
 @dataclasses.dataclass(frozen=True)
 class Scheduled(Controller):
-    """``inner``'s gains scheduled ``by`` "phase" or "time" over ``knots`` (phase start times or
-    breakpoints [s], increasing): module docstring. Hashable and equal by value."""
+    """``inner``'s gains scheduled ``by`` "phase", "time" or "inertia" over ``knots`` (phase
+    start times or breakpoints [s], or breakpoints of ``variable(t)``, increasing): module
+    docstring. Hashable and equal by value."""
 
     inner: Controller
     by: str
     knots: tuple
+    variable: object = None  # by "inertia": t [s] -> the scheduling variable (hashable, equal by value)
 
     gain_axes = 1  # the schedule's axis, before each gain's own
 
@@ -43,8 +49,10 @@ class Scheduled(Controller):
         if not isinstance(self.inner, Controller):
             raise TypeError(f"Scheduled wraps a so3jax Controller, got {type(self.inner).__name__}")
         if self.by not in BY:
-            raise ValueError(f"a schedule is by \"phase\" or \"time\", got {self.by!r}")
-        object.__setattr__(self, "knots", checked_knots(self.knots, "knots"))
+            raise ValueError(f"a schedule is by {', '.join(BY)}, got {self.by!r}")
+        if (self.by == "inertia") != (self.variable is not None):
+            raise ValueError("a schedule by \"inertia\", and only it, needs its variable")
+        object.__setattr__(self, "knots", checked_knots(self.knots, "knots", "kg m^2" if self.variable else "s"))
 
     @property
     def gains_type(self):
@@ -58,13 +66,14 @@ class Scheduled(Controller):
     def at(self, gains, t):
         """The inner law's gains at time t [s] (a scalar): each field without its leading axis."""
         t = jnp.asarray(t)
-        knots = jnp.asarray(self.knots, jnp.result_type(t, float))
-        count = jnp.sum(knots <= t)
+        x = t if self.variable is None else self.variable(t)
+        knots = jnp.asarray(self.knots, jnp.result_type(x, float))
+        count = jnp.sum(knots <= x)
         if self.by == "phase" or len(self.knots) == 1:
             i = jnp.maximum(count - 1, 0)
             return jax.tree.map(lambda g: jnp.asarray(g)[i], gains)
         i = jnp.clip(count - 1, 0, len(self.knots) - 2)
-        w = jnp.clip((t - knots[i]) / (knots[i + 1] - knots[i]), 0.0, 1.0)
+        w = jnp.clip((x - knots[i]) / (knots[i + 1] - knots[i]), 0.0, 1.0)
 
         def interpolated(g):
             g = jnp.asarray(g)
@@ -83,8 +92,8 @@ class Scheduled(Controller):
         return self.inner.update(self.at(gains, t), state, feedback, desired, t, period)
 
 
-def checked_knots(knots, where: str) -> tuple:
-    """knots [s] as a tuple of floats: at least one, finite, strictly increasing; a one-line
+def checked_knots(knots, where: str, unit: str = "s") -> tuple:
+    """knots [unit] as a tuple of floats: at least one, finite, strictly increasing; a one-line
     ValueError naming ``where`` otherwise."""
     try:
         values = tuple(float(k) for k in np.asarray(knots, dtype=float).reshape(-1))
@@ -92,9 +101,9 @@ def checked_knots(knots, where: str) -> tuple:
     except (TypeError, ValueError):
         values, flat = (), False
     if not flat or not values:
-        raise ValueError(f"{where} [s] must be a non-empty list of times, got {knots!r}")
+        raise ValueError(f"{where} [{unit}] must be a non-empty list of numbers, got {knots!r}")
     if not all(math.isfinite(k) for k in values) or any(b <= a for a, b in zip(values[:-1], values[1:])):
-        raise ValueError(f"{where} [s] must be finite and increasing, got {list(values)}")
+        raise ValueError(f"{where} [{unit}] must be finite and increasing, got {list(values)}")
     return values
 
 

@@ -79,7 +79,8 @@ class Mission:
 
     sensors: {name: values} of the sensors flown; estimator, actuator: {"kind": name,
     name: values}; options: {controller: factory keywords}; gains: {controller: gains}.
-    schedule: {controller: {"by": "phase"} or {"by": "time", "at": breakpoints [s]}} of the
+    schedule: {controller: {"by": "phase"}, {"by": "time", "at": breakpoints [s]} or {"by": "inertia",
+    "at": breakpoints [kg m^2], "of": moment}} of the
     scheduled laws (:mod:`so3jax.missions.schedule`), whose gains have a leading axis of
     one entry per phase or breakpoint.
     constant_inertia: J(t) = J0 throughout (``[inertia] J``), else the paper's profile
@@ -115,7 +116,7 @@ class Mission:
     orbit: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_ORBIT))  # the angles of [orbit] [deg]
     environment: dict = dataclasses.field(default_factory=dict)  # {torque model: values} of [environment]
     momentum: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_MOMENTUM))  # {"kind": name, name: values}
-    schedule: dict = dataclasses.field(default_factory=dict)  # {controller: {"by": ..., ["at": (s, ...)]}}
+    schedule: dict = dataclasses.field(default_factory=dict)  # {controller: {"by": ..., ["at": (...), "of": ...]}}
 
     @property
     def phase_names(self) -> tuple:
@@ -141,7 +142,7 @@ class Mission:
         law = registry.get(name).factory(**self.options.get(name, {}))
         if name in self.schedule:
             entry = self.schedule[name]
-            law = Scheduled(law, entry["by"], schedules.knots(entry, self.phases))
+            law = Scheduled(law, entry["by"], schedules.knots(entry, self.phases), schedules.variable(entry, self))
         return law, self.gains.get(name)
 
     def __eq__(self, other) -> bool:

@@ -43,7 +43,7 @@ from so3jax.sim.loop import initial_state, tick
 
 AXES = 3  # the broken loop's inputs: body torque (3,) [N m]
 SCALARS = ("stable", "at_limit", "spectral_radius", "disk_alpha", "disk_db", "disk_phase_deg")
-PER_AXIS = ("gain_margin_lower_db", "gain_margin_upper_db", "phase_margin_deg", "delay_margin_s")
+PER_AXIS = ("gain_margin_lower_db", "gain_margin_upper_db", "phase_margin_deg", "delay_margin_s", "disk_axis_alpha")
 QUANTILES = (0.01, 0.05, 0.5)  # of the disk margin [dB] over the stable samples (summarize)
 
 
@@ -112,10 +112,12 @@ def _judge(lin: margins.Linearization) -> dict:
     out["stable"], out["spectral_radius"] = classical.stable, classical.spectral_radius
     if not classical.stable:
         return out
-    disk = margins.disk_margin(lin).multiloop
+    disks = margins.disk_margin(lin)
+    disk = disks.multiloop
     out.update(disk_alpha=disk.alpha, disk_db=disk.gain_margin_upper_db, disk_phase_deg=disk.phase_margin_deg)
-    for name in PER_AXIS:
+    for name in PER_AXIS[:-1]:
         out[name] = np.array([getattr(axis, name) for axis in classical.axes])
+    out["disk_axis_alpha"] = np.array([axis.alpha for axis in disks.axes])
     return out
 
 
@@ -154,7 +156,8 @@ def sample_margins(inputs, gains, *, controller, mission: Mission, times) -> dic
 
     - ``gain_margin_lower_db`` (< 0; -inf: no lower crossover), ``gain_margin_upper_db``
       (> 0; inf: none) [dB], ``phase_margin_deg`` [deg] and ``delay_margin_s`` [s] (inf: no
-      gain crossover).
+      gain crossover);
+    - ``disk_axis_alpha`` [-]: the axis's balanced disk margin (its gain and phase guarantees).
 
     Every margin is NaN where the closed loop is unstable (or its flight not finite)."""
     params, _ = inputs

@@ -346,7 +346,7 @@ def held_out(config, goals, values: GoalValues, parameters: Parameters, sampler,
             parts.append({k: np.asarray(v)[:n] for k, v in r.items()})
         results = {k: np.concatenate([p_[k] for p_ in parts]) for k in parts[0]}
         t = np.arange(results["pointing_performance"].shape[1]) * (values.block * config.mission.dt)
-        value, g = np.zeros(len(goals)), np.zeros(len(goals))
+        value, g, disks = np.zeros(len(goals)), np.zeros(len(goals)), {}
         for i, goal in enumerate(goals):
             if goal.kind == "requirement":
                 e = results["pointing_performance" if goal.requirement.signal == "performance"
@@ -359,15 +359,21 @@ def held_out(config, goals, values: GoalValues, parameters: Parameters, sampler,
                 value[i] = float(np.mean(x) if goal.statistic == "mean" else np.max(x))
                 g[i] = value[i] / goal.bound
             else:
-                m = sweep_margins.sample_margins(inputs, gains, controller=controller, mission=config.mission,
-                                                 times=goal.at)
-                if not m["stable"].all():
-                    value[i], g[i] = math.nan, math.inf
-                else:
-                    worst = float(np.min(m["disk_alpha"]))
-                    value[i], g[i] = float(np.min(m["disk_db"])), goal.alpha_required / worst
+                if goal.at not in disks:
+                    disks[goal.at] = _disks(inputs, gains, controller, config.mission, goal.at)
+                alpha = disks[goal.at]
+                worst = float(np.min(alpha[..., list(goal.columns)]))  # NaN where a point is unstable
+                value[i] = math.nan if math.isnan(worst) else goal.margin_value(worst)
+                g[i] = math.inf if math.isnan(worst) else goal.alpha_required / worst
         out[label] = {"values": value.tolist(), "g": g.tolist()}
     return out
+
+
+def _disks(inputs, gains, controller, mission, times) -> np.ndarray:
+    """Each sample's disk margins (all axes at once, x, y, z) at each time (S, K, 4), refined
+    (:func:`so3jax.jobs.sweep.margins.sample_margins`); NaN where the closed loop is unstable."""
+    m = sweep_margins.sample_margins(inputs, gains, controller=controller, mission=mission, times=times)
+    return np.concatenate([m["disk_alpha"][..., None], m["disk_axis_alpha"]], axis=-1)
 
 
 def _report(config, goals, soft, hard, values, parameters, state, train_index, sampler, dtype) -> dict:

@@ -29,7 +29,8 @@ def markdown(report: dict) -> str:
     training, held = report["training"], report["held_out"]
     holds = "every hard goal holds" if report["verdict"] == "met" else "not every hard goal holds"
     schedule = report.get("schedule")
-    scheduled = "" if not schedule else f", gains per {'phase' if schedule['by'] == 'phase' else 'breakpoint'}"
+    per = {"phase": "phase", "time": "breakpoint in time", "inertia": "breakpoint of the declared inertia"}
+    scheduled = "" if not schedule else f", gains per {per[schedule['by']]}"
     lines = [f"# Design campaign: {report['controller']}{scheduled}", "",
              f"Verdict on the held-out batch ({held['samples']} dispersed missions, sampling seed "
              f"{held['sampling_seed']}): **{holds}**"

@@ -8,8 +8,8 @@ the attitude errors recorded on the mission's ``record_every`` grid, the one ``f
 ``sweep`` check requirements on) and differentiated in forward mode, one JVP per parameter.
 Margin goals linearize each sample's loop at each time about its noise-free flight at the
 current gains (:mod:`so3jax.jobs.sweep.margins`), the state held fixed, and differentiate
-the grid's disk margin (:func:`so3jax.sim.margins.disk_alpha`); a point whose closed loop
-is unstable has g = :data:`UNSTABLE` rho, rho the spectral radius of the modes the loop
+the grid's disk margins, all axes at once and of each axis (:func:`so3jax.sim.margins.disk_alpha`);
+a point whose closed loop is unstable has g = :data:`UNSTABLE` rho, rho the spectral radius of the modes the loop
 moves, and its derivative (an eigenvalue's, from the closed loop's).
 """
 
@@ -87,12 +87,18 @@ class GoalValues:
     # --- margin goals: linearized about each sample's noise-free flight -------------------------
 
     def _margin_alphas(self, p, inputs, states, j, kinds):
-        """((alpha (S,), the closed loop A + BC (S, n, n)), (alpha, A, B, C)) of each sample's loop at tick j."""
+        """((alpha (S, 4), the closed loop A + BC (S, n, n)), (alpha, A, B, C)) of each sample's
+        loop at tick j: its disk margins all axes at once and of each axis (x, y, z)."""
         A, B, C, _ = sweep_margins.linearize(inputs, to_gains(self.unravel(p)), states, j,
                                              controller=self.controller, mission=self.mission, kinds=kinds)
         omegas = jnp.asarray(self.omegas, A.dtype)
+
+        def alphas(abc):
+            multi, axes = margins.disk_alpha(*abc, self.period, omegas)
+            return jnp.concatenate([multi[None], axes])
+
         # one sample after another: XLA:CPU hangs on the forward derivative of a vmapped batch of eigvalsh
-        alpha = jax.lax.map(lambda abc: margins.disk_alpha(*abc, self.period, omegas)[0], (A, B, C))
+        alpha = jax.lax.map(alphas, (A, B, C))
         return (alpha, A + B @ C), (alpha, A, B, C)
 
     def _unstable_point(self, lin, d_closed):
@@ -107,44 +113,47 @@ class GoalValues:
         return float(np.abs(z[k])), np.real(np.conj(z[k]) * dz) / np.abs(z[k])
 
     def _margin_points(self, p, inputs, times, states=None):
-        """(alpha (S, K), d alpha / dp (S, K, P), g (S, K), dg/dp (S, K, P), the points' states)
-        at one parameter vector: each sample's loop linearized at each time about its
-        noise-free flight (``states``: that flight's states, by default flown at p). g is
-        alpha_req / alpha where the closed loop is stable, else UNSTABLE rho (rho > 1 its
-        spectral radius, whose derivative leads back to a stable loop); alpha_req = 1 here."""
+        """(alpha (S, K, 4), g (S, K, 4), dg/dp (S, K, 4, P), the points' states) at one parameter
+        vector: each sample's disk margins (all axes at once, x, y, z) at each time, its loop
+        linearized about its noise-free flight (``states``: that flight's states, by default
+        flown at p). g is 1 / alpha where the closed loop is stable, else UNSTABLE rho (rho > 1
+        its spectral radius, whose derivative leads back to a stable loop)."""
         ticks = np.array([margins.tick_index(self.scenario, self.loop, t) for t in times], np.int32)
         order = np.argsort(ticks, kind="stable")
         if states is None:
             states = sweep_margins.fly(inputs, to_gains(self.unravel(p)), jnp.asarray(ticks[order]),
                                        controller=self.controller, mission=self.mission)
         S, K, n_p = len(np.asarray(inputs[0].J0)), len(times), p.shape[0]
-        alpha, d_alpha = np.zeros((S, K)), np.zeros((S, K, n_p))
-        g, d_g = np.full((S, K), np.inf), np.zeros((S, K, n_p))
+        alpha = np.zeros((S, K, 4))
+        g, d_g = np.full((S, K, 4), np.inf), np.zeros((S, K, 4, n_p))
         for at, k in enumerate(order):
             here = jax.tree.map(lambda x: x[:, at], states)
             kinds = sweep_margins.shared_kinds(jax.tree.map(np.asarray, here), S, times[k])
             (da, d_closed), (a, A, B, C) = self._alphas(p, inputs, here, jnp.asarray(ticks[k], jnp.int32),
                                                         kinds=kinds)
             A, B, C, a, da, d_closed = (np.asarray(x, np.float64) for x in (A, B, C, a, da, d_closed))
-            alpha[:, k], d_alpha[:, k] = a, da
+            alpha[:, k] = a
             for i in range(S):
                 if not all(np.isfinite(x).all() for x in (A[i], B[i], C[i], d_closed[i])):
                     continue  # a flight gone non-finite: g infinite
                 lin = margins.Linearization(A[i], B[i], C[i], self.period)
                 if margins.closed_loop_modes(lin).stable:
-                    g[i, k], d_g[i, k] = 1.0 / a[i], -da[i] / a[i] ** 2
+                    g[i, k], d_g[i, k] = 1.0 / a[i], -da[i] / a[i, :, None] ** 2
                 else:
                     rho, d_rho = self._unstable_point(lin, d_closed[i])
                     g[i, k], d_g[i, k] = UNSTABLE * rho, UNSTABLE * d_rho
-        return alpha, d_alpha, g, d_g, states
+        return alpha, g, d_g, states
 
-    def _margin_goal(self, goal, alpha, g, d_g):
-        """(g, dg/dp (P,), the worst margin [dB], None where a point is unstable) of one margin
-        goal from its points (g of alpha_req = 1): the worst point's."""
+    @staticmethod
+    def _margin_goal(goal, alpha, g, d_g):
+        """(g, dg/dp (P,), the worst margin in the goal's unit, None where a point is unstable)
+        of one margin goal from its points (:meth:`_margin_points`): the worst point's of the
+        goal's disk margins."""
+        cols = list(goal.columns)
+        g, d_g, alpha = g[:, :, cols], d_g[:, :, cols], alpha[:, :, cols]
         worst = np.unravel_index(np.argmax(g), g.shape)
-        stable = g < UNSTABLE
-        db = margins.db_of_alpha(float(alpha[worst])) if stable.all() else None
-        return goal.alpha_required * float(g[worst]), goal.alpha_required * d_g[worst], db
+        value = goal.margin_value(float(alpha[worst])) if (g < UNSTABLE).all() else None
+        return goal.alpha_required * float(g[worst]), goal.alpha_required * d_g[worst], value
 
     # --- all goals -----------------------------------------------------------------------------
 
@@ -162,12 +171,14 @@ class GoalValues:
             else:
                 _, (g_t, v_t) = self._value(P, inputs)
             g[:, self.traced], values[:, self.traced] = np.asarray(g_t), np.asarray(v_t)
-        for i in self.margins:
-            goal = self.goals[i]
-            for n in range(N):
-                alpha, _, g_points, d_points, _ = self._margin_points(P[n], inputs, goal.at)
-                g[n, i], grad, db = self._margin_goal(goal, alpha, g_points, d_points)
-                values[n, i] = np.nan if db is None else db
+        for n in range(N):
+            points = {}  # the margin points of each distinct set of times, shared by their goals
+            for i in self.margins:
+                goal = self.goals[i]
+                if goal.at not in points:
+                    points[goal.at] = self._margin_points(P[n], inputs, goal.at)[:3]
+                g[n, i], grad, value = self._margin_goal(goal, *points[goal.at])
+                values[n, i] = np.nan if value is None else value
                 if jacobian:
                     jac[n, i] = grad
         return g, jac, values

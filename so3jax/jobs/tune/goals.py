@@ -9,9 +9,14 @@ Each goal is a table of ``[[tune.goals]]`` with ``hard = true`` or ``false`` and
   or the keys of one inline (``index``, ``axis``, ``level``, ``limit``, ``window``, ``phase``,
   ``interpretation``, ...): its value over the batch in its interpretation (the sweep's
   reading, :func:`so3jax.sim.pointing.statistic` with a diverged sample as +inf) [arcsec];
-* ``margin = "disk"`` with ``min_db`` > 0 and ``at`` (times [s], whole control periods, or
-  ``"phase ends"``: the last tick of each phase): the multi-loop disk margin (19.4) on the
-  256-point grid of each sample at each time, g = alpha_req / alpha, its worst point;
+* a margin floor at ``at`` (times [s], whole control periods, or ``"phase ends"``: the last
+  tick of each phase), on the 256-point grid of each sample at each time, g = alpha_req /
+  alpha at its worst point: ``margin = "disk"`` with ``min_db`` > 0, the multi-loop disk
+  margin (19.4), all axes varied at once; ``margin = "gain"`` with ``min_db`` or ``margin =
+  "phase"`` with ``min_deg`` in (0, 180), each ``axis``'s loop (``"x"``, ``"y"``, ``"z"``,
+  default ``"each"``: the worst of the three) with the others closed, by its disk margin
+  (alpha_req = :func:`~so3jax.sim.margins.alpha_of_db` or 2 tan(min_deg / 2)): a gain and a
+  phase margin it guarantees, each a lower bound on the classical one (§19.4);
 * ``budget = METRIC`` with ``limit`` > 0 and ``statistic`` (``"mean"`` or ``"max"`` over
   the batch): ``effort`` [N^2 m^2 s], ``rmse`` [rad/s], or a flight metric
   (:data:`BUDGETS`).
@@ -28,15 +33,17 @@ import numpy as np
 
 from so3jax.core import checks
 from so3jax.sim import pointing
-from so3jax.sim.margins import alpha_of_db, first_formed_tick
+from so3jax.sim.margins import alpha_of_db, db_of_alpha, first_formed_tick
 
 KINDS = ("requirement", "margin", "budget")
-MARGINS = ("disk",)
+MARGINS = ("disk", "gain", "phase")
+AXES = ("x", "y", "z", "each")
 BUDGETS = {"effort": "N^2 m^2 s", "rmse": "rad/s", "command_effort": "N^2 m^2 s", "actuator_effort": "N^2 m^2 s",
            "time_at_torque_limit": "s", "time_at_speed_limit": "s", "max_wheel_speed_ratio": "-"}
 STATISTICS = ("mean", "max")
 PHASE_ENDS = "phase ends"
-MAX_DB = 60.0  # the highest disk-margin floor: alpha_req = 1.998, at the edge of what alpha can reach (< 2)
+MAX_DB = 60.0  # the highest disk or gain margin floor: alpha_req = 1.998, at the edge of what alpha can reach (< 2)
+MAX_DEG = 89.9  # the highest phase margin floor: alpha_req = 1.997
 _COMMON = ("hard", "name")
 
 
@@ -48,31 +55,52 @@ class Goal:
     hard: bool
     name: str
     requirement: pointing.Requirement | None = None
-    min_db: float | None = None  # margin floor [dB]
+    min_db: float | None = None  # a disk or gain margin's floor [dB]
+    min_deg: float | None = None  # a phase margin's floor [deg]
+    axis: str = "each"  # a gain or phase margin's loop: "x", "y", "z" or the worst ("each")
     at: tuple = ()  # margin times [s]
     metric: str | None = None  # budget
     limit: float | None = None  # budget's limit (its metric's unit); a requirement's is its own [arcsec]
     statistic: str = "mean"  # budget: over the batch
 
+    margin: str | None = None  # "disk", "gain" or "phase"
+
     @property
     def alpha_required(self) -> float:
-        return alpha_of_db(self.min_db)
+        """The disk margin alpha the floor needs: alpha_of_db(min_db), 2 tan(min_deg / 2)."""
+        return alpha_of_db(self.min_db) if self.min_deg is None else 2.0 * math.tan(math.radians(self.min_deg) / 2.0)
+
+    @property
+    def columns(self) -> tuple:
+        """A margin goal's disk margins among (all axes at once, x, y, z)."""
+        if self.margin == "disk":
+            return (0,)
+        return (1, 2, 3) if self.axis == "each" else (1 + "xyz".index(self.axis),)
+
+    def margin_value(self, alpha: float) -> float:
+        """What a disk margin alpha guarantees in the floor's unit: +-dB, or +-deg."""
+        return math.degrees(2.0 * math.atan(alpha / 2.0)) if self.margin == "phase" else db_of_alpha(alpha)
 
     @property
     def unit(self) -> str:
-        return {"requirement": "arcsec", "margin": "dB"}.get(self.kind) or BUDGETS[self.metric]
+        if self.kind == "margin":
+            return "deg" if self.margin == "phase" else "dB"
+        return "arcsec" if self.kind == "requirement" else BUDGETS[self.metric]
 
     @property
     def bound(self) -> float:
-        """The value's limit in its unit (a margin's floor [dB])."""
-        return {"requirement": lambda: self.requirement.limit, "margin": lambda: self.min_db}.get(
-            self.kind, lambda: self.limit)()
+        """The value's limit in its unit (a margin's floor [dB] or [deg])."""
+        if self.kind == "margin":
+            return self.min_deg if self.margin == "phase" else self.min_db
+        return self.requirement.limit if self.kind == "requirement" else self.limit
 
     def describe(self) -> str:
         if self.kind == "requirement":
             return self.requirement.describe()
         if self.kind == "margin":
-            return f"disk margin >= {self.min_db:g} dB at t = {', '.join(f'{t:g}' for t in self.at)} s"
+            what = "disk margin, all axes" if self.margin == "disk" else (
+                f"{self.margin} margin of {'each axis' if self.axis == 'each' else 'axis ' + self.axis}")
+            return f"{what} >= {self.bound:g} {self.unit} at t = {', '.join(f'{t:g}' for t in self.at)} s"
         return f"{self.statistic} {self.metric} <= {self.limit:g} {self.unit}"
 
 
@@ -112,12 +140,17 @@ def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
 
 
 def _margin(item: dict, where: str, mission) -> dict:
-    if item["margin"] not in MARGINS:
-        raise ValueError(f"{where}.margin: one of {', '.join(MARGINS)}, got {checks.short(item['margin'])}")
-    checks.table({"": item}, "", _COMMON + ("margin", "min_db", "at"), where)
-    if "min_db" not in item:
-        raise ValueError(f"{where}.min_db: missing (the floor on the disk margin [dB], > 0)")
-    min_db = _number(item["min_db"], f"{where}.min_db", 0.0, MAX_DB)
+    margin = checks.choice(item["margin"], f"{where}.margin", MARGINS)
+    floor = "min_deg" if margin == "phase" else "min_db"
+    checks.table({"": item}, "", _COMMON + ("margin", floor, "at") + (("axis",) if margin != "disk" else ()), where)
+    if floor not in item:
+        raise ValueError(f"{where}.{floor}: missing (the floor on the {margin} margin "
+                         f"[{'deg' if margin == 'phase' else 'dB'}], > 0)")
+    fields = {"margin": margin, "axis": checks.choice(item.get("axis", "each"), f"{where}.axis", AXES)}
+    if margin == "phase":
+        fields["min_deg"] = _number(item[floor], f"{where}.min_deg", 0.0, MAX_DEG)
+    else:
+        fields["min_db"] = _number(item[floor], f"{where}.min_db", 0.0, MAX_DB)
     if mission.period_steps is None:
         raise ValueError(f"{where}: a margin needs a sampled loop (control.mode = \"sampled\")")
     at = item.get("at", PHASE_ENDS)
@@ -134,7 +167,7 @@ def _margin(item: dict, where: str, mission) -> dict:
                              f"({mission.period:g} s)")
         formed_before(mission, t, f"{where}.at")
         times.append(float(t))
-    return {"min_db": min_db, "at": tuple(times)}
+    return {**fields, "at": tuple(times)}
 
 
 def formed_before(mission, t: float, where: str) -> None:
@@ -182,8 +215,9 @@ def parse_goal(item, where: str, mission) -> Goal:
         label = name or requirement.name or requirement.describe()
         return Goal("requirement", hard, label, requirement=requirement)
     if kind == "margin":
-        fields = _margin(item, where, mission)
-        return Goal("margin", hard, name or f"disk margin >= {fields['min_db']:g} dB", **fields)
+        goal = Goal("margin", hard, "", **_margin(item, where, mission))
+        label = f"{goal.margin} margin" + ("" if goal.margin == "disk" or goal.axis == "each" else f" {goal.axis}")
+        return dataclasses.replace(goal, name=name or f"{label} >= {goal.bound:g} {goal.unit}")
     fields = _budget(item, where)
     return Goal("budget", hard, name or f"{fields['statistic']} {fields['metric']}", **fields)
 
