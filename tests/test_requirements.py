@@ -56,6 +56,45 @@ def test_a_bad_requirement_is_one_line_before_compiling(in_process, capsys):
     assert not (in_process / "o").exists()
 
 
+RECORDED = ("the recording interval, 0.1 s (record_every = 10 steps of dt = 0.01 s): "
+            "a window must hold a recorded sample")
+
+
+@pytest.mark.parametrize(("setting", "refused"), [
+    (f'requirements = [{MET}, {{index = "RPE", axis = "angle", level = 0.5, limit = 1e7, window = 0.05}}]',
+     "requirements[1].window: 0.05 s"),
+    ('requirements = [{index = "MKE", axis = "x", level = 0.5, limit = 1e7, window = 0.09}]',
+     "requirements[0].window: 0.09 s"),
+    ('requirements = [{index = "PDE", axis = "x", level = 0.5, limit = 1e7, window = 0.05, separation = 0.1}]',
+     "requirements[0].window: 0.05 s"),
+    ("pointing.window = 0.05", "pointing.window: 0.05 s"),
+])
+def test_a_window_shorter_than_the_recording_interval_is_refused_before_compiling(in_process, capsys, setting,
+                                                                                   refused):
+    """A window shorter than the time between recorded samples would hold no sample somewhere:
+    refused with the mission's other checks, naming the key, its value and the interval."""
+    assert cli.main([*FLY, "--out", "o", "--set", setting]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"so3jax fly: error: {refused} is shorter than {RECORDED}"
+    assert not (in_process / "o").exists()
+
+
+def test_the_recording_interval_is_record_every_on_whole_control_periods():
+    """record_every rounds up to whole control periods (the flight mission's: 10 steps) and
+    down to the horizon; a window of exactly one interval is accepted."""
+    from so3jax.missions import mission
+
+    window = '[{index = "RPE", axis = "angle", level = 0.5, limit = 1e7, window = 0.1}]'
+    m = mission.load(None, ["T=1.0", "record_every=1", f"requirements={window}", "pointing.window=0.1"])
+    assert m.recording == (0.1, "record_every = 1 step of dt = 0.01 s, rounded up to whole control periods of 10 steps")
+    assert m.requirements[0].window == 0.1
+    assert mission.load(None, ["T=1.0", "record_every=1000", "pointing.window=1.0"]).recording == (
+        1.0, "record_every = 1000 steps of dt = 0.01 s, at most the horizon T = 1 s")
+    short = window.replace("0.1", "0.5")
+    with pytest.raises(ValueError, match=r"^requirements\[0\]\.window: 0\.5 s is shorter than the recording interval"):
+        mission.load(None, ["T=1.0", "record_every=1000", "pointing.window=1.0", f"requirements={short}"])
+
+
 def test_the_shipped_sign_off_mission_names_its_requirements_and_phases():
     """missions/signoff.toml (docs/signoff.md): the flight mission with four requirements,
     each line naming the requirement and its phase by name."""

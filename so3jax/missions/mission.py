@@ -39,6 +39,7 @@ from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
 from so3jax.sim import memory, pointing
 from so3jax.sim.loop import Loop, check_loop, check_wiring
+from so3jax.sim.rollout import block_steps
 
 # docs/model.md §8.5: the paper's mission flown with sensors, an MEKF, four wheels in a pyramid and
 # thrusters dumping their momentum, on a rigid body's J0 (keys.BODY_J0).
@@ -125,6 +126,19 @@ class Mission:
     @property
     def period(self) -> float | None:
         return None if self.period_steps is None else self.period_steps * self.dt
+
+    @property
+    def recording(self) -> tuple[float, str]:
+        """(the interval between recorded samples [s], what sets it): ``record_every`` steps,
+        rounded up to whole control periods, at most the horizon (:func:`so3jax.sim.rollout.block_steps`)."""
+        n_steps = steps_for_horizon(self.T, self.dt)
+        steps = block_steps(n_steps, self.record_every, self.period_steps)
+        how = f"record_every = {self.record_every} step{'s' * (self.record_every != 1)} of dt = {self.dt:g} s"
+        if steps != min(self.record_every, n_steps):
+            how += f", rounded up to whole control periods of {self.period_steps} steps"
+        elif steps < self.record_every:
+            how += f", at most the horizon T = {self.T:g} s"
+        return steps * self.dt, how
 
     def scenario(self, dtype=None) -> Scenario:
         """The mission's scenario (:func:`so3jax.missions.build.scenario`)."""
@@ -356,6 +370,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
                       phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
                       schedule=schedule)
+    pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
     for name in controllers:
         try:
             mission.controller(name)
@@ -370,7 +385,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
         inertias = {f"inertia.{inertia['kind']}.{name}": J for name, J in scenario.inertia.matrices().items()}
     check_loop(_build_loop(mission, np.asarray), inertias)
     bounds = pointing.phase_bounds_of(scenario)
-    requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds)
+    requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds,
+                                               mission.recording)
     return dataclasses.replace(mission, requirements=requirements)
 
 

@@ -324,7 +324,17 @@ def _positive(item, key, where):
     return float(value)
 
 
-def parse_requirement(item, where: str = "requirement", phase_names=None, phase_bounds=None) -> Requirement:
+def check_recorded(window: float, where: str, recording=None) -> None:
+    """ValueError naming ``where`` unless a window of ``window`` [s] holds a recorded sample
+    wherever it starts: at least the recording interval. recording: (the interval [s], what
+    sets it), or None where it is not known."""
+    if recording is not None and window < recording[0] * (1 - 1e-9):
+        raise ValueError(f"{where}: {window:g} s is shorter than the recording interval, {recording[0]:g} s "
+                         f"({recording[1]}): a window must hold a recorded sample")
+
+
+def parse_requirement(item, where: str = "requirement", phase_names=None, phase_bounds=None,
+                      recording=None) -> Requirement:
     """One requirement from a dict (see :func:`parse_requirements`)."""
     if not isinstance(item, dict):
         raise ValueError(f"{where}: must be a table of keys, got {type(item).__name__}")
@@ -352,6 +362,7 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
         if item.get("window") is None:
             raise ValueError(f"{where}.window: missing (the window Dt [s] of {index})")
         window = _positive(item, "window", where)
+        check_recorded(window, f"{where}.window", recording)
     elif item.get("window") is not None:
         raise ValueError(f"{where}.window: {index} takes no window (only {', '.join(WINDOWED)})")
     if index in DRIFT:
@@ -381,14 +392,16 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
     return requirement
 
 
-def parse_requirements(items, phase_names=None, phase_bounds=None) -> tuple[Requirement, ...]:
+def parse_requirements(items, phase_names=None, phase_bounds=None, recording=None) -> tuple[Requirement, ...]:
     """Requirements from a list of dicts {index, axis, level, limit [arcsec], window [s],
     separation [s], phase, interpretation, name}; a one-line ValueError naming the entry and
     key for any bad one. phase: an index, a name of ``phase_names``, or None (whole run);
-    ``phase_bounds`` (t_start, t_end) per phase, where known, also checks the windows fit."""
+    ``phase_bounds`` (t_start, t_end) per phase, where known, also checks the windows fit;
+    ``recording`` (the recording interval [s], what sets it), where known, that each window
+    holds a sample (:func:`check_recorded`)."""
     if not isinstance(items, (list, tuple)):
         raise ValueError(f"requirements: must be a list of tables, got {type(items).__name__}")
-    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds)
+    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording)
                  for i, item in enumerate(items))
 
 

@@ -123,7 +123,7 @@ def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
     reference = item.get("requirement")
     inline = {k: v for k, v in item.items() if k not in _COMMON + ("requirement",)}
     if reference is None:
-        return pointing.parse_requirement(inline, where, mission.phase_names, bounds)
+        return pointing.parse_requirement(inline, where, mission.phase_names, bounds, mission.recording)
     if inline:
         raise ValueError(f"{where}: names the mission's requirement {reference!r} and gives keys of its own "
                          f"({', '.join(inline)}): one or the other")
