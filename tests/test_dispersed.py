@@ -440,6 +440,30 @@ def test_each_rejected_sample_is_counted_for_its_reason():
         missions.from_dict({**EVENTS, "reference": {"kind": "slews", "slews": slews}})
 
 
+def test_an_orbit_below_the_least_altitude_rejects_its_sample_for_that_reason(flight):
+    """A normal's tail above MAX_MEAN_MOTION (orbits below 100 km): those samples rejected, each
+    counted for its orbit; a distribution that draws only such orbits is refused before drawing."""
+    from so3jax.dynamics.orbit import MAX_MEAN_MOTION
+
+    dispersions, leaves = dispersed.parse({"orbit": {"n": {"dist": "normal", "mean": 1.15e-3, "std": 5e-5}}}, flight)
+    samples = dispersed.draw(dispersions, leaves, 0, 400, 20, mission=flight)
+    low = samples.params.n > MAX_MEAN_MOTION
+    assert 0 < low.sum() < 100  # P(z > 1.22) = 0.11
+    np.testing.assert_array_equal(samples.valid, ~low)
+    assert dispersed.rejections(samples) == {dispersed.REJECTED["orbit"]: int(low.sum())}
+    with pytest.raises(ValueError, match=r"^dispersions.orbit.n \(the upper end of .*\) = 0.002 rad/s is a circular "
+                                         r"orbit of radius 4636 km, altitude -1742 km: below the least altitude"):
+        dispersed.parse({"orbit": {"n": {"dist": "uniform", "low": 1e-3, "high": 2e-3}}}, flight)
+    leo = mission.load(ROOT / "missions" / "leo.toml", ["T=1.0"])  # flies on its orbit: n > 0
+    with pytest.raises(ValueError, match=r"dispersions.orbit.n \(environment.gravity_gradient.* fly on the orbit\) "
+                                         "must be > 0"):
+        dispersed.parse({"orbit": {"n": 0.0}}, leo)
+    samples = dispersed.draw(*dispersed.parse({"orbit": {"n": {"dist": "normal", "mean": 2e-5, "std": 2e-5}}}, leo),
+                             0, 64, 20, mission=leo)
+    np.testing.assert_array_equal(samples.valid, samples.params.n > 0)
+    assert 0 < dispersed.rejections(samples)[dispersed.REJECTED["orbit"]] < 64
+
+
 def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli_env, capsys):
     """Every slew too slow to end before the next starts: exit code 2, one line counting the
     samples per reason, no output folder (after the memory estimate's trace, before the

@@ -11,6 +11,7 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +20,7 @@ import pytest
 from scipy.linalg import expm
 
 from so3jax.dynamics import environment as env
-from so3jax.dynamics.orbit import EARTH_RADIUS, MU_EARTH, orbital_rate
+from so3jax.dynamics.orbit import EARTH_RADIUS, MAX_MEAN_MOTION, MIN_ALTITUDE, MU_EARTH, orbital_rate
 
 N_500 = orbital_rate(500e3)
 ORBITS = [  # (n, inclination, raan, argument_of_latitude, earth_angle)
@@ -124,6 +125,47 @@ def test_circular_orbit_builder():
     with pytest.raises(ValueError, match="positive"):
         env.circular_orbit(-1e-3)
     assert float(env.circular_orbit(orbital_rate(500e3)).altitude()) == pytest.approx(500e3, abs=1e-6)
+
+
+def test_an_orbit_below_the_least_altitude_is_refused():
+    """The least altitude: MIN_ALTITUDE (100 km) above the equatorial radius, n <= MAX_MEAN_MOTION."""
+    assert MAX_MEAN_MOTION == pytest.approx(orbital_rate(MIN_ALTITUDE)) and MIN_ALTITUDE == 100e3
+    assert float(env.circular_orbit(MAX_MEAN_MOTION).altitude()) == pytest.approx(100e3, abs=1e-3)
+    with pytest.raises(ValueError, match=r"^the mean motion n = 0.002 rad/s is a circular orbit of radius 4636 km, "
+                                         r"altitude -1742 km: below the least altitude, 100 km above"):
+        env.circular_orbit(0.002)
+    with pytest.raises(ValueError, match="below the least altitude"):
+        env.circular_orbit(np.array([N_500, 0.002]))
+
+
+@pytest.mark.parametrize("overrides,message", [
+    (["orbit.n=0.002"], "orbit.n = 0.002 rad/s is a circular orbit of radius 4636 km, altitude -1742 km: below the "
+                        "least altitude, 100 km above the Earth's equatorial radius 6378.137 km "
+                        "(orbit.n <= 0.00121086 rad/s)"),
+    (["orbit.n=0.0", "environment.gravity_gradient={}"],
+     "orbit.n = 0 rad/s is no orbit, but environment.gravity_gradient fly on one: give orbit.n > 0 "
+     "(at most 0.00121086 rad/s, an orbit 100 km high)"),
+    (["orbit.n=0.0", 'momentum.kind="magnetorquers"'], "orbit.n = 0 rad/s is no orbit, but momentum.kind = "
+                                                       "'magnetorquers' fly on one"),
+])
+def test_a_mission_s_orbit_below_the_least_altitude_or_missing_is_refused_when_parsed(overrides, message):
+    from so3jax.missions import mission
+
+    with pytest.raises(ValueError) as err:
+        mission.load(None, ["T=1.0", *overrides])
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+    mission.load(None, ["T=1.0", f"orbit.n={MAX_MEAN_MOTION!r}", "environment.gravity_gradient={}"])
+    mission.load(None, ["T=1.0", "orbit.n=0.0"])  # no orbital motion, nothing on the orbit
+
+
+def test_fly_refuses_an_orbit_below_the_surface_with_exit_2(in_process, capsys):
+    from so3jax import commands as cli
+
+    leo = str(Path(__file__).parents[1] / "missions" / "leo.toml")
+    assert cli.main(["fly", leo, "--set", "orbit.n=0.002", "--T", "20"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("so3jax fly: error: orbit.n = 0.002 rad/s is a circular orbit of radius 4636 km")
+    assert err.count("\n") == 1 and "Traceback" not in err
 
 
 # --- the gravity gradient ---------------------------------------------------------------------

@@ -39,7 +39,7 @@ import numpy as np
 
 from so3jax.core import so3
 from so3jax.core.pytree import pytree_dataclass
-from so3jax.dynamics.orbit import EARTH_RADIUS, MU_EARTH
+from so3jax.dynamics.orbit import EARTH_RADIUS, MU_EARTH, check_mean_motion
 
 OMEGA_EARTH = 7.2921159e-5  # rad/s, the Earth's sidereal rotation rate
 SIDEREAL_YEAR = 365.25636 * 86400.0  # s: the sun's period in a non-precessing inertial frame
@@ -150,7 +150,8 @@ class CircularOrbit:
 def circular_orbit(n, inclination=0.0, raan=0.0, argument_of_latitude=0.0, earth_angle=0.0, dtype=None):
     """A :class:`CircularOrbit` of mean motion n [rad/s] (:func:`so3jax.dynamics.orbit.orbital_rate`)
     and angles [rad], its fields arrays of ``dtype`` (default: n's floating dtype). One-line
-    ValueError where a concrete n is not positive."""
+    ValueError where a concrete n is not positive or is an orbit's below MIN_ALTITUDE
+    (:func:`so3jax.dynamics.orbit.check_mean_motion`)."""
     dtype = _float_dtype(n) if dtype is None else jnp.dtype(dtype)
     try:
         concrete = np.asarray(n, np.float64)
@@ -158,6 +159,8 @@ def circular_orbit(n, inclination=0.0, raan=0.0, argument_of_latitude=0.0, earth
         concrete = None
     if concrete is not None and not np.all(concrete > 0.0):
         raise ValueError(f"the mean motion n must be positive, not {n}")
+    if concrete is not None:
+        check_mean_motion(float(np.max(concrete)), "the mean motion n")
     as_array = lambda x: jnp.asarray(x, dtype=dtype)
     return CircularOrbit(as_array(n), as_array(inclination), as_array(raan), as_array(argument_of_latitude),
                          as_array(earth_angle))

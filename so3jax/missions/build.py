@@ -13,7 +13,9 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.components.inertias import InertiaContext
 from so3jax.components.references import ReferenceContext, rotation
+from so3jax.core import checks
 from so3jax.dynamics.environment import circular_orbit
+from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
 from so3jax.dynamics.space import Environment
@@ -52,9 +54,17 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         changes["reference"] = reference(m, s, values["n"])
     if m.inertia["kind"] != "paper":
         changes["inertia"] = inertia(m, s)
-    if m.environment or components.get("momentum", m.momentum["kind"]).component.reads_field:
+    if orbit_users(m):
         changes["environment"] = environment(m, values["n"], s.R0.dtype)
     return dataclasses.replace(s, **changes) if changes else s
+
+
+def orbit_users(mission) -> tuple[str, ...]:
+    """What of the mission flies on its orbit (and so needs orbit.n > 0): the torques of
+    ``[environment]`` and a momentum manager that reads the geomagnetic field, as keys."""
+    kind = mission.momentum["kind"]
+    return (*(f"environment.{name}" for name in mission.environment),
+            *((f"momentum.kind = {kind!r}",) if components.get("momentum", kind).component.reads_field else ()))
 
 
 def environment(mission, n, dtype):
@@ -62,6 +72,10 @@ def environment(mission, n, dtype):
     n [rad/s]: a sample's in a sweep) and the torque models of ``[environment]``
     (:mod:`so3jax.components.environment`), in ``dtype``."""
     as_array = lambda x: jnp.asarray(x, dtype)
+    concrete = checks.concrete(n, "orbit.n")  # None in a sweep (traced): its samples' are checked when drawn
+    if concrete is not None and np.any(concrete == 0.0):
+        raise ValueError(f"orbit.n = 0 rad/s is no orbit, but {', '.join(orbit_users(mission))} fly on one: give "
+                         f"orbit.n > 0 (at most {MAX_MEAN_MOTION:.6g} rad/s, an orbit {MIN_ALTITUDE / 1e3:g} km high)")
     angles = {name: as_array(np.deg2rad(value)) for name, value in mission.orbit.items()}
     orbit = circular_orbit(as_array(n), **angles)
     context = components.BuildContext(as_array, {})

@@ -50,6 +50,7 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.core import checks, so3
 from so3jax.dynamics import attitude_profiles as profiles
+from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE
 from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
@@ -88,6 +89,8 @@ SCENARIO_LEAVES = {
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {
     "draws": "no positive definite inertia and positive tau_J within sweep.max_draws draws",
+    "orbit": f"an orbit below the least altitude ({MIN_ALTITUDE / 1e3:g} km: orbit.n above "
+             f"{MAX_MEAN_MOTION:.6g} rad/s) or no orbit (orbit.n < 0, or 0 where the mission flies on its orbit)",
     "domain": "a dispersed value outside its parameter's domain",
     "bound": "a dispersed value beyond its limit (|actuator.wheels.initial_speed| > max_speed)",
     "overlap": "slews that overlap (reference.slews: a slew ends after the next starts)",
@@ -186,7 +189,11 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
         fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
     dispersions = disp.Dispersions(**fields)
+    disp.check_orbit(dispersions.n, "dispersions.orbit.n")
     disp.check(dispersions, warn=False)
+    users = build.orbit_users(mission)
+    if users:  # no orbit (n = 0) is refused, n > 0 drawn: the mission flies on its orbit
+        disp.check_domain(dispersions.n, f"dispersions.orbit.n ({', '.join(users)} fly on the orbit)", 0.0, strict=True)
     return dispersions, _bounded(tuple(leaves), mission)
 
 
@@ -425,13 +432,16 @@ def within_bound(bound: tuple, values: dict, n_samples: int) -> np.ndarray:
 def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int, max_draws: int,
          first: int = 0, mission: Mission | None = None) -> disp.Samples:
     """Samples first .. first + n_samples - 1 with their dispersed component and scenario
-    values (``leaves``); valid: a positive definite inertia within max_draws, every value in
+    values (``leaves``); valid: a positive definite inertia within max_draws, an orbit at
+    least MIN_ALTITUDE high (:func:`~so3jax.missions.dispersions.in_orbit_domain`), every value in
     its domain and, with dispersed reference or inertia parameters, the sample's reference
     and inertia passing their kind's checks (``mission``: the mission the leaves disperse);
     outside: the samples rejected for a component or scenario value alone; reason: why each
     sample is rejected, the first of :data:`REJECTED` in order it fails ("" where valid)."""
     samples = disp.draw_samples(dispersions, seed, n_samples, max_draws, first)
     values, passed = _drawn_leaves(leaves, seed, n_samples, first)
+    strict = mission is not None and bool(build.orbit_users(mission))
+    passed = {REJECTED["orbit"]: disp.in_orbit_domain(samples.params.n, strict), **passed}
     if any(leaf.key.split(".")[0] in _SCENARIO_TABLES for leaf in leaves):
         if mission is None:
             raise TypeError("draw: dispersed reference or inertia parameters need the mission (mission=)")

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.dynamics.inertia import check_inertia
-from so3jax.dynamics.orbit import orbital_rate
+from so3jax.dynamics.orbit import MAX_MEAN_MOTION, check_mean_motion, orbital_rate
 from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
 
 BLOCK = 512  # samples per call of the (compiled) word generator
@@ -162,7 +162,37 @@ def least(dist: Distribution) -> float:
             LogNormal: lambda d: d.median}[type(dist)](dist)
 
 
-# The domain of each dispersed quantity (Dispersions field: config name, low, strict).
+def greatest(dist: Distribution) -> float:
+    """The greatest value :func:`check_domain`'s rule counts ``dist`` to draw: a fixed value,
+    a uniform's high end, a normal's mean, a lognormal's median (a tail above is rejected,
+    sample by sample, where a check needs it)."""
+    return {Fixed: lambda d: d.value, Uniform: lambda d: d.high, Normal: lambda d: d.mean,
+            LogNormal: lambda d: d.median}[type(dist)](dist)
+
+
+_BOUND_NAME = {Uniform: "the upper end", Normal: "the mean", LogNormal: "the median"}
+
+
+def check_orbit(dist: Distribution, where: str = "orbit.n") -> Distribution:
+    """ValueError unless ``dist`` draws the mean motions [rad/s] of orbits at least
+    MIN_ALTITUDE above the Earth's equatorial radius (:mod:`so3jax.dynamics.orbit`) by
+    :func:`check_domain`'s rule: a fixed value, or a uniform's whole range, at most
+    MAX_MEAN_MOTION; a normal's mean, or a lognormal's median (their tails above are
+    rejected, sample by sample: :func:`in_orbit_domain`)."""
+    label = where if isinstance(dist, Fixed) else f"{where} ({_BOUND_NAME[type(dist)]} of {describe(dist)})"
+    check_mean_motion(greatest(dist), label)
+    return dist
+
+
+def in_orbit_domain(n, strict: bool = False) -> np.ndarray:
+    """Whether each mean motion n [rad/s] is an orbit's at least MIN_ALTITUDE high: 0 <= n
+    <= MAX_MEAN_MOTION (0 < n where ``strict``: a mission that flies on its orbit)."""
+    n = np.asarray(n, np.float64)
+    return ((n > 0.0) if strict else (n >= 0.0)) & (n <= MAX_MEAN_MOTION)
+
+
+# The domain of each dispersed quantity (Dispersions field: config name, low, strict); the
+# orbital rate's upper end: :func:`check_orbit`.
 DOMAINS = {
     "tau_J": ("deployment.tau_J [s]", 0.0, True),
     "n": ("orbit.n [rad/s]", 0.0, False),
@@ -178,6 +208,7 @@ def check(d: Dispersions, *, warn: bool = True) -> None:
     inequality, if ``warn``), before anything is drawn or compiled."""
     for name, (where, low, strict) in DOMAINS.items():
         check_domain(getattr(d, name), where, low, strict)
+    check_orbit(d.n)
     for J in ("J0", "J1", "J2"):
         check_inertia_dispersion(getattr(d, J), f"inertia.{J}", warn=warn)
     if not 0.0 <= d.initial_angle_deg <= 180.0:

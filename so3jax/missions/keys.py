@@ -15,6 +15,7 @@ import dataclasses
 from so3jax.controllers import registry
 from so3jax.core import checks
 from so3jax.core.params import Param
+from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE, check_mean_motion
 from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J2, PHASE_NAMES
 
 CONTROL_MODES = ("sampled", "continuous")
@@ -49,6 +50,20 @@ class Names(Param):
         return "distinct names"
 
 
+@dataclasses.dataclass(frozen=True)
+class MeanMotion(Param):
+    """The mean motion of a circular orbit: 0 (no orbital motion) or that of an orbit at
+    least MIN_ALTITUDE above the Earth's equatorial radius (so3jax.dynamics.orbit)."""
+
+    def parse(self, value, where: str):
+        n = checks.number(value, f"{where} [{self.unit}]", low=self.low)
+        return check_mean_motion(n, where)
+
+    def domain(self) -> str:
+        return (f"number, in [0, {MAX_MEAN_MOTION:.6g}]: an orbit at least {MIN_ALTITUDE / 1e3:g} km above the "
+                "Earth's equatorial radius")
+
+
 def matrix(J) -> list:
     """A 3x3 matrix as TOML data (a list of rows)."""
     return [list(row) for row in J]
@@ -73,8 +88,10 @@ KEYS = (
     Param("inertia.J1.nominal", None, "kg m^2", shapes=((3, 3),), doc="deployed inertia J1 (instead of a scale of J0)"),
     Param("inertia.J2.nominal", matrix(PAPER_J2), "kg m^2", shapes=((3, 3),), doc="inertia once docked"),
     Param("deployment.tau_J", 300.0, "s", doc="deployment time constant (positive)"),
-    Param("orbit.n", 0.0011067834463349404, "rad/s", low=0.0,
-          doc="orbital rate (the default: orbital_rate(), a 500 km circular orbit); the radius follows from it"),
+    MeanMotion("orbit.n", 0.0011067834463349404, "rad/s", low=0.0, high=MAX_MEAN_MOTION,
+               doc="orbital rate (the default: orbital_rate(), a 500 km circular orbit); the radius follows from it; "
+                   "0: no orbital motion (refused with an [environment] or a momentum manager that reads the "
+                   "geomagnetic field)"),
     Param("orbit.inclination", 0.0, "deg", low=0.0, high=180.0, doc="the orbit's inclination"),
     Param("orbit.raan", 0.0, "deg", doc="right ascension of the ascending node"),
     Param("orbit.argument_of_latitude", 0.0, "deg", doc="the argument of latitude at t = 0"),
