@@ -483,6 +483,21 @@ def test_a_constraint_parses_with_its_defaults_and_stays_out_of_campaigns_withou
     assert plain.constraints is None and "constraints" not in tune.tune_table(plain)
 
 
+def test_the_disk_margin_floor_reaches_the_design_goals_bound_and_the_command_refuses_beyond(in_process, capsys):
+    """min_db up to goals.MAX_DB (alpha_req < 2); beyond, whatever 10^(min_db/20) gives, exit 2 on one line."""
+    from so3jax import commands as cli
+    from so3jax.jobs.tune.goals import MAX_DB
+
+    assert _campaign(constraint={"min_db": MAX_DB}).constraints.disk_margin.min_db == MAX_DB
+    campaign = str(Path(__file__).parents[1] / "tuning" / "pd_flight_margin.toml")
+    argv = ["tune", campaign, "--set", "tune.constraints.disk_margin={min_db=1e6, at=[10.0]}", "--out", "o"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("so3jax tune: error: config key 'tune.constraints.disk_margin.min_db' must be a positive "
+                          "finite number at most 60 dB")
+    assert err.count("\n") == 1 and "Traceback" not in err and not (in_process / "o").exists()
+
+
 @pytest.mark.parametrize(("mission", "constraint", "tune_keys", "message"), [
     ({"control": {"mode": "continuous"}, "sensors": {"gyro": False, "star_tracker": False},
       "estimator": {"kind": "truth"}}, None, {}, "'tune.constraints.disk_margin' needs a sampled loop"),
@@ -493,6 +508,9 @@ def test_a_constraint_parses_with_its_defaults_and_stays_out_of_campaigns_withou
     (None, {"at": 0.5}, {}, "'tune.constraints.disk_margin.at' must be a non-empty list of times"),
     (None, {"min_db": 0.0}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number"),
     (None, {"min_db": -6.0}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number"),
+    (None, {"min_db": 1e6}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number at most "
+                                "60 dB (alpha = 1.996: the disk margin alpha stays below 2), got 1000000.0"),
+    (None, {"min_db": 60.01}, {}, "'tune.constraints.disk_margin.min_db' must be a positive finite number at most 60"),
     (None, {"weight": -1.0}, {}, "'tune.constraints.disk_margin.weight' must be a finite number in [0.0, inf]"),
     (None, {"floor": 6.0}, {}, "unknown config key 'tune.constraints.disk_margin.floor'"),
     (None, None, {"constraints": {"disk_margin": {"min_db": 6.0}, "phase_margin": {}}},

@@ -108,10 +108,28 @@ def parse_distribution(value, where: str) -> Distribution:
     return _checked(kind(**{k: float(v) for k, v in params.items()}), where)
 
 
+# The largest |z| a standard normal variate takes: Box-Muller from u >= 2^-33 (:func:`_variates`).
+Z_MAX = math.sqrt(-2.0 * math.log(0.5 / 2.0**32))
+
+
+def _spread(dist: Distribution) -> float:
+    """The largest magnitude the arithmetic of ``dist``'s draws reaches: a uniform's width, a
+    normal's mean +- Z_MAX std, a lognormal's median exp(Z_MAX sigma) (inf beyond a float)."""
+    try:
+        return {Fixed: lambda d: abs(d.value), Uniform: lambda d: d.high - d.low,
+                Normal: lambda d: abs(d.mean) + Z_MAX * d.std,
+                LogNormal: lambda d: d.median * math.exp(Z_MAX * d.sigma)}[type(dist)](dist)
+    except OverflowError:
+        return math.inf
+
+
 def _checked(dist: Distribution, where: str) -> Distribution:
     values = dataclasses.astuple(dist)
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"{where}: parameters must be finite, got {dist}")
+    if not math.isfinite(_spread(dist)):
+        tails = f" (normal variates reach {Z_MAX:.3g})" if isinstance(dist, (Normal, LogNormal)) else ""
+        raise ValueError(f"{where}: {describe(dist)} draws values beyond what a float holds{tails}: narrow it")
     if isinstance(dist, Uniform) and dist.low > dist.high:
         raise ValueError(f"{where}: uniform needs low <= high, got {dist}")
     if (isinstance(dist, Normal) and dist.std < 0

@@ -19,13 +19,14 @@ from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
 from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
-from so3jax.jobs.tune.goals import formed_before, parse_goals
+from so3jax.jobs.tune.goals import MAX_DB, formed_before, parse_goals
 from so3jax.missions import config as cfg
 from so3jax.missions import dispersed
 from so3jax.missions import dispersions as disp
 from so3jax.missions import mission as missions
 from so3jax.sim import memory
 from so3jax.sim.gradients import MODES
+from so3jax.sim.margins import alpha_of_db
 
 TUNE = "tune"  # the campaign's own table; every other entry of the file is the mission's
 COST_MODES = ("weighted", "equal_effort")
@@ -85,7 +86,7 @@ class DiskMarginConstraint:
     """The sampled loop's multi-loop disk margin (docs/model.md §19.3) held at or above
     min_db at each time ``at`` of each training scenario by a penalty on the cost."""
 
-    min_db: float  # the floor on the disk margin's gain interval +-min_db [dB], > 0 (6 dB: alpha = 0.665)
+    min_db: float  # the floor on the disk margin's gain interval +-min_db [dB], in (0, 60] (6 dB: alpha = 0.665)
     at: tuple | None = None  # times [s], whole control periods within [0, T); None: the horizon's last tick
     weight: float = 100.0  # w >= 0: the cost adds w mean(max(0, alpha_req - alpha)^2) / alpha_req^2
 
@@ -190,11 +191,15 @@ def _build(cls, table: dict, prefix: str, **extra):
     return cls(**values, **extra)
 
 
-def _positive(name, value, integer=False):
+def _positive(name, value, integer=False, high=None, why=""):
+    """value > 0, finite (an integer if ``integer``), at most ``high`` where given (``why``:
+    what bounds it, for the message)."""
     ok = isinstance(value, int) if integer else isinstance(value, (int, float))
-    if isinstance(value, bool) or not ok or not checks.finite(value) or value <= 0:
+    if (isinstance(value, bool) or not ok or not checks.finite(value) or value <= 0
+            or high is not None and value > high):
         kind = "a positive integer" if integer else "a positive finite number"
-        raise ValueError(f"config key {_key(name)!r} must be {kind}, got {checks.short(value)}")
+        bound = "" if high is None else f" at most {high:g}{why}"
+        raise ValueError(f"config key {_key(name)!r} must be {kind}{bound}, got {checks.short(value)}")
 
 
 def _choice(name, value, choices):
@@ -406,7 +411,8 @@ def _check_constraints(config: TuneConfig) -> None:
     if mission.period_steps is None:
         raise ValueError(f"config key {_key(where)!r} needs a sampled loop (control.mode = \"sampled\"): "
                          "the mission's control is continuous")
-    _positive(f"{where}.min_db", margin.min_db)
+    _positive(f"{where}.min_db", margin.min_db, high=MAX_DB,
+              why=f" dB (alpha = {alpha_of_db(MAX_DB):.4g}: the disk margin alpha stays below 2)")
     checks.number(margin.weight, f"config key {_key(where + '.weight')!r}", low=0.0)
     at = margin.at
     if at is not None and (not isinstance(at, tuple) or not at or not all(
