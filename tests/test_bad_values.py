@@ -373,3 +373,39 @@ def test_cli_bad_values_are_one_line(argv, message, cli_env, capsys):
     assert code == 2, err
     assert "Traceback" not in err
     assert len(lines) == 1 and lines[0].startswith(f"so3jax {argv[0]}: error: ") and message in lines[0], err
+
+
+@pytest.mark.parametrize(("text", "value"), [
+    ("pd", "pd"), ("raw", "raw"), ("pd,adaptive", "pd,adaptive"), ("random", "random"),
+    ("results/tune/best_gains.json", "results/tune/best_gains.json"),
+    ("../missions/flight.toml", "../missions/flight.toml"), ("[1.0, 2.0]", [1.0, 2.0]),
+    ("{dist = 'uniform', low = 0.0, high = 1.0}", {"dist": "uniform", "low": 0.0, "high": 1.0}),
+    ("'inertial'", "inertial"), ('"a b"', "a b"), ("1e-3", 1e-3), ("true", True),
+])
+def test_set_reads_a_toml_value_or_a_bare_word(text, value):
+    """--set VALUE is TOML; a bare word (a name, a path, a list of names) that is not is a string."""
+    assert cfg.parse_override(f"key={text}") == ("key", value)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["sweep", str(ROOT / "sweeps" / "flight.toml"), "--set", "sweep.dispersions=[{bad"],
+     "--set sweep.dispersions: '[{bad' is not a TOML value: expected '=' after a key in a key/value pair at its end"),
+    (["fly", "--set", 'requirements=[{index="APE", limit=}]'],
+     "--set requirements: '[{index=\"APE\", limit=}]' is not a TOML value: invalid value at its character 22"),
+    (["fly", "--set", 'requirements=[\n{index="APE", axis="x", level=0.9, limit=1.0},\n{index="APE", limit=}]'],
+     "is not a TOML value: invalid value at its line 3, column 21"),
+    (["fly", "--set", "reference.kind='inertial"], "--set reference.kind: \"'inertial\" is not a TOML value: "),
+    (["fly", "--set", "initial.rate=[0.0, 0.0"], "--set initial.rate: '[0.0, 0.0' is not a TOML value: unclosed array"),
+    (["tune", _tune_copy, "--set", "tune.bounds={k_R=[0.1, 1.0]"],
+     "--set tune.bounds: '{k_R=[0.1, 1.0]' is not a TOML value: "),
+    (["fly", "--set", "requirements=x{index=APE}"], "--set requirements: 'x{index=APE}' is not a TOML value: "),
+], ids=lambda x: x if isinstance(x, str) else None)
+def test_a_toml_syntax_error_in_set_is_one_line_naming_key_value_and_error(argv, message, in_process, capsys):
+    """Text that can only be meant as TOML (an array, an inline table, a quoted string, key =
+    value in braces) and does not parse is refused as such, not read as a string."""
+    argv = [a(in_process) if callable(a) else a for a in argv]
+    assert cli.main([*argv, "--out", "out"]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith(f"so3jax {argv[0]}: error: "), err
+    assert message in err and "Traceback" not in err, err
+    assert not (in_process / "out").exists()

@@ -85,6 +85,40 @@ def test_bad_dispersions_are_one_line_errors(flight, table, message):
     assert "\n" not in str(err.value)
 
 
+UNIFORM = {"dist": "uniform", "low": 0.0, "high": 1.0}
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ({"foo": {"bar": UNIFORM}},
+     "dispersions.foo.bar cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, orbit.n, the "
+     "parameters of the reference and inertia kinds (the mission's, reference.kind = 'paper' and inertia.kind = "
+     "'paper', have none), "),
+    ({"reference": {"paper": {"x": UNIFORM}}},
+     "dispersions.reference.paper.x cannot be dispersed: reference.kind = 'paper' has no dispersible parameter"),
+])
+def test_a_key_that_cannot_be_dispersed_is_named_with_the_keys_that_can(flight, table, message):
+    """The message names the user's keys (the mission's reference and inertia kinds' own),
+    never the module's tables."""
+    with pytest.raises(ValueError) as err:
+        dispersed.parse(table, flight)
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+    assert "SCENARIO_LEAVES" not in str(err.value)
+
+
+def test_a_scenario_key_that_cannot_be_dispersed_lists_the_mission_s_own():
+    slews = mission.from_dict(EVENTS)
+    for table, known in [({"reference": {"slews": UNIFORM}}, "the parameters of the mission's reference and inertia "
+                          "kinds (reference.slews.start, reference.slews.attitudes, reference.slews.times, "
+                          "reference.slews.max_rate, reference.slews.max_acceleration, inertia.events.initial, "
+                          "inertia.events.times, inertia.events.time_constants, inertia.events.targets), "),
+                         ({"inertia": {"events": {"bogus": UNIFORM}}}, "dispersions.inertia.events.bogus cannot be "
+                          "dispersed: dispersible are inertia.events.initial, inertia.events.times, "
+                          "inertia.events.time_constants, inertia.events.targets")]:
+        with pytest.raises(ValueError) as err:
+            dispersed.parse(table, slews)
+        assert known in str(err.value) and "SCENARIO_LEAVES" not in str(err.value)
+
+
 def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
     """sweeps/default.toml's dispersions on its mission (missions/paper.toml on a rigid body's J0)
     draw the samples that sweeps/default/samples.csv records, within 1e-12 of each column's

@@ -182,9 +182,9 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             leaves.append(_scenario_leaf(path, value, where, mission))
         else:
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
-                             "orbit.n, the parameters of the reference and inertia kinds of SCENARIO_LEAVES, "
-                             "disturbance.amplitude/frequency/noise_std, initial.attitude/rate, seed, and the numeric "
-                             "parameters of the mission's sensors, estimator, actuator and momentum management")
+                             f"orbit.n, {_scenario_parameters(mission)}, disturbance.amplitude/frequency/noise_std, "
+                             "initial.attitude/rate, seed, and the numeric parameters of the mission's sensors, "
+                             "estimator, actuator and momentum management")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
         fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
@@ -297,6 +297,22 @@ def _checked_leaf(key: str, value, where: str, current, low: float, high: float,
                 nominal=_flat(nominal) if relative else ())
 
 
+def _scenario_keys(mission: Mission, table: str | None = None) -> list[str]:
+    """The dispersible parameters of the mission's reference and inertia kinds (``table``'s
+    alone where given), as a dispersions table names them: "reference.slews.times", ..."""
+    return [f"{t}.{kind}.{param}" for (t, kind), params in SCENARIO_LEAVES.items()
+            if (table is None or t == table) and getattr(mission, t)["kind"] == kind for param in params]
+
+
+def _scenario_parameters(mission: Mission) -> str:
+    """The dispersible parameters of the mission's reference and inertia kinds, in words."""
+    keys = _scenario_keys(mission)
+    if keys:
+        return f"the parameters of the mission's reference and inertia kinds ({', '.join(keys)})"
+    kinds = " and ".join(f"{table}.kind = {getattr(mission, table)['kind']!r}" for table in _SCENARIO_TABLES)
+    return f"the parameters of the reference and inertia kinds (the mission's, {kinds}, have none)"
+
+
 def _scenario_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     """A parameter of the mission's reference or inertia kind (:data:`SCENARIO_LEAVES`); an
     inertia event's targets when every one is a scale of the inertia at its event."""
@@ -306,8 +322,10 @@ def _scenario_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
         raise ValueError(f"{where}: the mission's {table} is of kind {flown!r}, not {kind!r}")
     params = SCENARIO_LEAVES.get((table, kind))
     if params is None or param not in params:
-        raise ValueError(f"{where}: dispersible {table} parameters are "
-                         + "; ".join(f"{k}: {', '.join(v)}" for (t, k), v in SCENARIO_LEAVES.items() if t == table))
+        keys = _scenario_keys(mission, table)
+        raise ValueError(f"{where} cannot be dispersed: "
+                         + (f"dispersible are {', '.join(keys)}" if keys else
+                            f"{table}.kind = {kind!r} has no dispersible parameter"))
     values = getattr(mission, table)[kind]
     current, domain = values[param], params[param]
     if (kind, param) == ("events", "targets"):

@@ -312,7 +312,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
         raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")
     for t in _TABLES:
         if t in d and not isinstance(d[t], dict):
-            raise ValueError(f"[{t}] must be a table")
+            raise ValueError(f"[{t}] must be a table, got {checks.short(d[t])}")
     full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
 
     T = keys.parse("T", full["T"])  # a number here; positive and a multiple of dt below

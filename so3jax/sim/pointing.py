@@ -53,7 +53,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from so3jax.core import so3
+from so3jax.core import checks, so3
 
 ARCSEC = 180.0 / math.pi * 3600.0  # arcsec per rad
 INDICES = ("APE", "MPE", "RPE", "PDE", "AKE", "MKE", "RKE", "KDE")
@@ -337,7 +337,7 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
                       recording=None) -> Requirement:
     """One requirement from a dict (see :func:`parse_requirements`)."""
     if not isinstance(item, dict):
-        raise ValueError(f"{where}: must be a table of keys, got {type(item).__name__}")
+        raise ValueError(f"{where}: must be a table of keys, got {checks.short(item)}")
     for key in item:
         if key not in KEYS:
             raise ValueError(f"{where}: unknown key {key!r} (one of {', '.join(KEYS)})")
@@ -400,7 +400,7 @@ def parse_requirements(items, phase_names=None, phase_bounds=None, recording=Non
     ``recording`` (the recording interval [s], what sets it), where known, that each window
     holds a sample (:func:`check_recorded`)."""
     if not isinstance(items, (list, tuple)):
-        raise ValueError(f"requirements: must be a list of tables, got {type(items).__name__}")
+        raise ValueError(f"requirements: must be a list of tables, got {checks.short(items)}")
     return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording)
                  for i, item in enumerate(items))
 
