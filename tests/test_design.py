@@ -183,6 +183,9 @@ def test_an_unstable_points_derivative_is_its_spectral_radius(flight_goals):
     ({"goals": [{"requirement": "nadir pointing", "hard": True}]}, "has no requirement 'nadir pointing'"),
     ({"goals": [{**HOLD, "level": 1.0, "hard": True}]}, "tune.goals[0].level"),
     ({"goals": [{**HOLD}]}, "tune.goals[0].hard: missing"),
+    ({"goals": [{**HOLD, "index": "AKE", "hard": True}]},  # the campaign's estimator reads the truth
+     "tune.goals[0].index: AKE reads the knowledge error, and the mission's estimator (estimator.kind = 'truth') "
+     "reads the true state"),
     ({"goals": [{**HOLD, "index": "RPE", "window": 0.1, "hard": True}]},  # records every 10 steps of 0.05 s
      "tune.goals[0].window: 0.1 s is shorter than the recording interval, 0.5 s"),
     ({"goals": [{"margin": "disk", "min_db": 0.0, "hard": True}]}, "tune.goals[0].min_db"),

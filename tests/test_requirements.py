@@ -95,6 +95,41 @@ def test_the_recording_interval_is_record_every_on_whole_control_periods():
         mission.load(None, ["T=1.0", "record_every=1000", "pointing.window=1.0", f"requirements={short}"])
 
 
+TRUTH = ("--set", "estimator.kind='truth'", "--set", "sensors.gyro=false", "--set", "sensors.star_tracker=false")
+NO_ESTIMATE = ("reads the knowledge error, and the mission's estimator (estimator.kind = 'truth') reads the true "
+               "state (an estimator that estimates: raw, mekf): there is no estimate to be wrong, so it would pass at "
+               "0 arcsec")
+
+
+@pytest.mark.parametrize(("requirement", "refused"), [
+    ('{name = "knowledge", index = "AKE", axis = "x", level = 0.5, limit = 1.0}', "AKE ('knowledge')"),
+    ('{index = "MKE", axis = "x", level = 0.5, limit = 1.0, window = 0.5}', "MKE"),
+    ('{index = "RKE", axis = "angle", level = 0.5, limit = 1.0, window = 0.5}', "RKE"),
+    ('{index = "KDE", axis = "x", level = 0.5, limit = 1.0, window = 0.2, separation = 0.2}', "KDE"),
+])
+def test_a_knowledge_requirement_without_an_estimate_is_refused_before_compiling(in_process, capsys, requirement,
+                                                                                  refused):
+    """An estimator that reads the true state has no estimate to be wrong (e_K = 0): a
+    knowledge requirement would pass at 0 arcsec whatever it asks. Refused as the mission is
+    read, naming the requirement; the performance ones are flown."""
+    assert cli.main([*FLY, *TRUTH, "--out", "o", "--set", f"requirements = [{HOLD}, {requirement}]"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"so3jax fly: error: requirements[1].index: {refused} {NO_ESTIMATE}"
+    assert not (in_process / "o").exists()
+
+
+def test_the_paper_mission_takes_no_knowledge_requirement():
+    """The paper's continuous wiring reads the truth: a knowledge requirement is refused there too."""
+    from pathlib import Path
+
+    from so3jax.missions import mission
+
+    paper = Path(__file__).parents[1] / "missions" / "paper.toml"
+    assert mission.load(paper).no_estimate is not None and mission.load(None).no_estimate is None
+    with pytest.raises(ValueError, match=r"^requirements\[0\]\.index: AKE reads the knowledge error"):
+        mission.load(paper, [f"requirements = [{MET}]"])
+
+
 def test_the_shipped_sign_off_mission_names_its_requirements_and_phases():
     """missions/signoff.toml (docs/signoff.md): the flight mission with four requirements,
     each line naming the requirement and its phase by name."""

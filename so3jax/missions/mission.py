@@ -140,6 +140,17 @@ class Mission:
             how += f", at most the horizon T = {self.T:g} s"
         return steps * self.dt, how
 
+    @property
+    def no_estimate(self) -> str | None:
+        """Why the mission's runs have no attitude estimate that can be wrong (its estimator
+        reads the true state: e_K = 0), None where they have one."""
+        kind = self.estimator["kind"]
+        if not components.get("estimator", kind).truth:
+            return None
+        others = [n for n in components.names("estimator") if not components.get("estimator", n).truth]
+        return (f"the mission's estimator (estimator.kind = {kind!r}) reads the true state (an estimator that "
+                f"estimates: {', '.join(others)})")
+
     def scenario(self, dtype=None) -> Scenario:
         """The mission's scenario (:func:`so3jax.missions.build.scenario`)."""
         return build.scenario(self, dtype=dtype)
@@ -386,7 +397,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     check_loop(_build_loop(mission, np.asarray), inertias)
     bounds = pointing.phase_bounds_of(scenario)
     requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds,
-                                               mission.recording)
+                                               mission.recording, mission.no_estimate)
     return dataclasses.replace(mission, requirements=requirements)
 
 

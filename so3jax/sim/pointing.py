@@ -333,8 +333,18 @@ def check_recorded(window: float, where: str, recording=None) -> None:
                          f"({recording[1]}): a window must hold a recorded sample")
 
 
+def check_signal(requirement: Requirement, where: str, no_estimate=None) -> None:
+    """ValueError naming ``where`` for a knowledge requirement (AKE, MKE, RKE, KDE) on runs with
+    no estimate that can be wrong (e_K = 0: it would pass at 0 arcsec); no_estimate: why they
+    have none (e.g. the estimator reads the true state), None where they have one."""
+    if requirement.signal == "knowledge" and no_estimate is not None:
+        label = "" if requirement.name is None else f" ({requirement.name!r})"
+        raise ValueError(f"{where}.index: {requirement.index}{label} reads the knowledge error, and {no_estimate}: "
+                         "there is no estimate to be wrong, so it would pass at 0 arcsec")
+
+
 def parse_requirement(item, where: str = "requirement", phase_names=None, phase_bounds=None,
-                      recording=None) -> Requirement:
+                      recording=None, no_estimate=None) -> Requirement:
     """One requirement from a dict (see :func:`parse_requirements`)."""
     if not isinstance(item, dict):
         raise ValueError(f"{where}: must be a table of keys, got {checks.short(item)}")
@@ -384,6 +394,7 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
     phase_name = None if phase is None or phase_names is None or phase >= len(phase_names) else phase_names[phase]
     requirement = Requirement(index, axis, float(level), float(limit), window, separation, phase, interpretation, name,
                               phase_name)
+    check_signal(requirement, where, no_estimate)
     if phase_bounds is not None and window is not None:
         try:
             check_window(period(phase, phase_bounds), window, separation)
@@ -392,16 +403,18 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
     return requirement
 
 
-def parse_requirements(items, phase_names=None, phase_bounds=None, recording=None) -> tuple[Requirement, ...]:
+def parse_requirements(items, phase_names=None, phase_bounds=None, recording=None,
+                       no_estimate=None) -> tuple[Requirement, ...]:
     """Requirements from a list of dicts {index, axis, level, limit [arcsec], window [s],
     separation [s], phase, interpretation, name}; a one-line ValueError naming the entry and
     key for any bad one. phase: an index, a name of ``phase_names``, or None (whole run);
     ``phase_bounds`` (t_start, t_end) per phase, where known, also checks the windows fit;
     ``recording`` (the recording interval [s], what sets it), where known, that each window
-    holds a sample (:func:`check_recorded`)."""
+    holds a sample (:func:`check_recorded`); ``no_estimate``, why the runs have no estimate
+    that can be wrong where they have none, refuses the knowledge requirements (:func:`check_signal`)."""
     if not isinstance(items, (list, tuple)):
         raise ValueError(f"requirements: must be a list of tables, got {checks.short(items)}")
-    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording)
+    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording, no_estimate)
                  for i, item in enumerate(items))
 
 

@@ -209,9 +209,7 @@ def parse_goal(item, where: str, mission) -> Goal:
         requirement = _requirement(item, where, mission)
         if requirement.limit <= 0:
             raise ValueError(f"{where}: the requirement's limit is 0 arcsec: a goal normalizes by it (> 0)")
-        if requirement.signal == "knowledge" and mission.estimator["kind"] == "truth":
-            raise ValueError(f"{where}: {requirement.index} reads the knowledge error, and the mission's estimator "
-                             "is 'truth' (no estimate to be wrong)")
+        pointing.check_signal(requirement, where, mission.no_estimate)
         label = name or requirement.name or requirement.describe()
         return Goal("requirement", hard, label, requirement=requirement)
     if kind == "margin":
