@@ -57,6 +57,9 @@ from so3jax.sim.metrics import cell
 from so3jax.viz import compare as plots
 
 JOBS = ("tune", "sweep", "dispersions", "compare")
+COMPARE_KEYS = ("reference", "bootstrap", "seed", "candidates")  # the keys of [compare]
+CANDIDATE_KEYS = ("controller", "gains", "tune", "against")  # the keys of a [compare.candidates.NAME] table
+SWEEP_DISPERSIONS = "sweep"  # tune.dispersions = "sweep": the comparison's own [dispersions]
 TAILS = 95.0  # percentile of the tails compared [%]
 # bytes per resampled value at the peak of `paired`: the indices, a resampled column and
 # the copy np.percentile sorts (8 each), and a margin for the arrays of one value per resample
@@ -119,7 +122,7 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     if "controller" in jobs["tune"]:
         raise ValueError("tune.controller: a comparison tunes each of the mission's controllers; "
                          "list them in controllers")
-    options = checks.table(jobs, "compare", ("reference", "bootstrap", "seed", "candidates"))
+    options = checks.table(jobs, "compare", COMPARE_KEYS)
     mission, _ = missions.load_job(table, base_dir, (), missions.PAPER)
     given = options.get("candidates")
     if given is None:
@@ -136,7 +139,7 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     if len(entries) < 2:
         raise ValueError(f"{where}: a comparison needs at least two laws, got {list(entries)}")
     shared = jobs["tune"]
-    if shared.get("dispersions") == "sweep":  # train on the distribution the sweep judges (other sampling seeds)
+    if shared.get("dispersions") == SWEEP_DISPERSIONS:  # train on the distribution the sweep judges (other seeds)
         shared = {**shared, "dispersions": jobs.get("dispersions", DEFAULT["dispersions"])}
     candidates = {name: _candidate(name, entry, table, shared, mission, base_dir) for name, entry in entries.items()}
     laws = tuple(candidates)
@@ -149,7 +152,7 @@ def parse(table: dict, base_dir=Path(".")) -> CompareConfig:
     sweep_table = {**table, **{k: jobs[k] for k in ("sweep", "dispersions") if k in jobs}}
     judged = config_from_dict(sweep_table, base_dir)  # the sweep's errors before any tuning
     check_bootstrap(bootstrap, judged.samples)
-    if jobs["tune"].get("dispersions") == "sweep":
+    if jobs["tune"].get("dispersions") == SWEEP_DISPERSIONS:
         for name, c in candidates.items():
             for part in ("train", "validation"):
                 if getattr(c.campaign, part).seeds[0] == judged.seed:
@@ -169,7 +172,7 @@ def check_bootstrap(resamples: int, samples: int) -> None:
 def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_dir) -> Candidate:
     """A candidate of ``[compare.candidates]`` (or a mission's law, ``entry`` empty)."""
     where = f"compare.candidates.{name}"
-    entry = checks.table({"t": entry}, "t", ("controller", "gains", "tune", "against"), where)
+    entry = checks.table({"t": entry}, "t", CANDIDATE_KEYS, where)
     controller = checks.choice(entry.get("controller", name), f"{where}.controller", registry.names(tunable=True))
     if "gains" in entry and "tune" in entry:
         raise ValueError(f"{where}: fixed gains are not tuned; give gains or tune, not both")

@@ -19,6 +19,7 @@ from so3jax.controllers.scheduled import BY, check_scheduled_gains, checked_knot
 from so3jax.core import checks
 from so3jax.dynamics.plant import stage_inertia
 
+ENTRY_KEYS = ("by", "at", "of")  # the keys of a [schedule] entry
 MOMENTS = ("mean", "Jxx", "Jyy", "Jzz")  # an inertia schedule's variable: tr(J) / 3 or a diagonal entry [kg m^2]
 
 
@@ -67,7 +68,7 @@ def _entry(name: str, entry, controllers: tuple) -> dict:
         raise ValueError(f"{where}: the mission flies no {name!r} controller (controllers: {', '.join(controllers)})")
     if not registry.get(name).tunable:
         raise ValueError(f"{where}: the {name} law has no gains to schedule")
-    entry = checks.table({name: entry}, name, ("by", "at", "of"), "schedule.")
+    entry = checks.table({name: entry}, name, ENTRY_KEYS, "schedule.")
     by = checks.choice(entry.get("by"), f"{where}.by", BY)
     if "of" in entry and by != "inertia":
         raise ValueError(f"{where}.of: names the moment of a schedule by \"inertia\"; this one is by {by!r}")

@@ -45,6 +45,9 @@ PHASE_ENDS = "phase ends"
 MAX_DB = 60.0  # the highest disk or gain margin floor: alpha_req = 1.998, at the edge of what alpha can reach (< 2)
 MAX_DEG = 89.9  # the highest phase margin floor: alpha_req = 1.997
 _COMMON = ("hard", "name")
+# the keys of a margin goal beside margin (the floor first), by margin; of a budget goal beside budget
+MARGIN_KEYS = {"disk": ("min_db", "at"), "gain": ("min_db", "at", "axis"), "phase": ("min_deg", "at", "axis")}
+BUDGET_KEYS = ("limit", "statistic")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,8 +144,8 @@ def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
 
 def _margin(item: dict, where: str, mission) -> dict:
     margin = checks.choice(item["margin"], f"{where}.margin", MARGINS)
-    floor = "min_deg" if margin == "phase" else "min_db"
-    checks.table({"": item}, "", _COMMON + ("margin", floor, "at") + (("axis",) if margin != "disk" else ()), where)
+    floor = MARGIN_KEYS[margin][0]
+    checks.table({"": item}, "", _COMMON + ("margin",) + MARGIN_KEYS[margin], where)
     if floor not in item:
         raise ValueError(f"{where}.{floor}: missing (the floor on the {margin} margin "
                          f"[{'deg' if margin == 'phase' else 'dB'}], > 0)")
@@ -180,7 +183,7 @@ def formed_before(mission, t: float, where: str) -> None:
 
 
 def _budget(item: dict, where: str) -> dict:
-    checks.table({"": item}, "", _COMMON + ("budget", "limit", "statistic"), where)
+    checks.table({"": item}, "", _COMMON + ("budget",) + BUDGET_KEYS, where)
     metric = checks.choice(item["budget"], f"{where}.budget", tuple(BUDGETS))
     if "limit" not in item:
         raise ValueError(f"{where}.limit: missing (the budget [{BUDGETS[metric]}], > 0)")
