@@ -1,7 +1,7 @@
-"""Command line: so3jax paper | fly | tune | sweep | compare | identify | margins | crosscheck.
+"""Command line: so3jax paper | fly | tune | sweep | compare | identify | margins | crosscheck | schema.
 
 Each command lives in its own module (paper, fly, tune, sweep, compare, identify, margins,
-crosscheck), which exposes ``register(subparsers)``, whose parser sets ``func`` to the
+crosscheck, schema), which exposes ``register(subparsers)``, whose parser sets ``func`` to the
 module's ``run(args) -> int``; the options the commands share are in :mod:`so3jax.commands.common`.
 The jobs the commands run live in :mod:`so3jax.jobs`. JAX is configured here (precision,
 one host device per core) before any command runs.
@@ -17,12 +17,12 @@ import traceback
 import warnings
 from pathlib import Path
 
-from so3jax.commands import compare, crosscheck, fly, identify, margins, paper, sweep, tune
+from so3jax.commands import compare, crosscheck, fly, identify, margins, paper, schema, sweep, tune
 from so3jax.commands.common import _Parser
 from so3jax.parallel import distributed
 from so3jax.parallel import xla_flags as _xla_flags
 
-COMMANDS = (paper, fly, tune, sweep, compare, identify, margins, crosscheck)  # in the order --help lists them
+COMMANDS = (paper, fly, tune, sweep, compare, identify, margins, crosscheck, schema)  # in the order --help lists them
 
 
 DESCRIPTION = (
@@ -32,7 +32,8 @@ DESCRIPTION = (
     "tune tunes a controller's gains by gradient descent through the simulator, sweep flies a Monte Carlo "
     "sweep of dispersed missions, compare tunes several laws to one effort budget and pairs them over a "
     "sweep, identify estimates the inertia from telemetry, margins gives the sampled loop's stability margins, "
-    "crosscheck flies a mission in Basilisk too and compares the two. "
+    "crosscheck flies a mission in Basilisk too and compares the two, schema writes the JSON Schemas an editor "
+    "checks mission, sweep, campaign and comparison files with. "
     "'so3jax COMMAND --help' lists a command's "
     "options and the registered components it can choose."
 )

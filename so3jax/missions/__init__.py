@@ -1,6 +1,7 @@
 """Layer 7: mission files: the one TOML parser (:mod:`~so3jax.missions.config`), the keys and
 their domains (:mod:`~so3jax.missions.keys`), the validated :class:`~so3jax.missions.mission.Mission`,
 the one mission → scenario builder (:mod:`~so3jax.missions.build`), gain schedules and
-dispersions (drawn, then applied to a batch of missions).
+dispersions (drawn, then applied to a batch of missions), and the JSON Schema of a mission
+file generated from the keys (:mod:`~so3jax.missions.schema`).
 
 May import core … parallel (docs/architecture.md, "Layers")."""
