@@ -160,6 +160,63 @@ def test_momentum_management_s_bad_settings_are_one_line_errors_before_compiling
         missions.load(None, ["momentum.kind='thrusters'", *overrides])
 
 
+@pytest.mark.parametrize("overrides, message", [
+    (["momentum.thrusters.torque=0.0"], "momentum.thrusters.torque = 0.0 N m: no pair gives a torque and the "
+                                        "thrusters never act; give a positive torque (or momentum.kind = 'none')"),
+    (["momentum.thrusters.start=250.0"], "momentum.thrusters.start = 250.0 N m s is never exceeded: the wheels store "
+                                         "at most 232.061 N m s (|G_s J_s Omega_w| with every wheel at its "
+                                         "actuator.wheels.max_speed); set start below it"),
+    (["actuator.wheels.max_speed=100.0"], "momentum.thrusters.start = 50.0 N m s is never exceeded: the wheels store "
+                                          "at most 36.9524 N m s"),
+    (["momentum.kind='magnetorquers'", "momentum.magnetorquers.gain=0.0"],
+     "momentum.magnetorquers.gain = 0 1/s: the magnetorquers never act"),
+    (["momentum.kind='magnetorquers'", "momentum.magnetorquers.max_dipole=[0.0, 0.0, 0.0]"],
+     "momentum.magnetorquers.max_dipole = [0.0, 0.0, 0.0] A m^2: every coil is failed (limit 0)"),
+    (["momentum.kind='magnetorquers'", "momentum.magnetorquers.target=[0.0, 240.0, 0.0]"],
+     "momentum.magnetorquers.target = [0.0, 240.0, 0.0] N m s (|target| = 240) is out of reach: the wheels store "
+     "at most 232.061 N m s"),
+])
+def test_a_momentum_manager_that_can_never_act_is_refused_when_parsed(overrides, message):
+    """No torque, a start threshold the wheels' momentum never exceeds (their capacity: the
+    largest |G_s J_s Omega_w| at their speed limits), no gain, every coil failed, a target out
+    of reach: one-line errors naming the key, when the mission is read."""
+    with pytest.raises(ValueError) as err:
+        missions.load(None, ["T=1.0", *overrides])
+    assert str(err.value).startswith(message) and "\n" not in str(err.value)
+
+
+def test_the_wheels_capacity_is_the_largest_momentum_at_their_speed_limits():
+    """The flight mission's pyramid: a corner of the speed box, below sum J_s Omega_max, above
+    any momentum a random speed inside the box gives; a start just below it is accepted."""
+    wheels = missions.load(None, ["T=1.0"]).loop(np.float64).actuator
+    G, reach = np.asarray(wheels.axes), np.asarray(wheels.spin_inertia) * np.asarray(wheels.max_speed)
+    capacity = wheels.momentum_capacity()
+    speeds = np.random.default_rng(0).uniform(-1.0, 1.0, (20000, 4))
+    inside = np.linalg.norm((speeds * reach) @ G.T, axis=1)
+    assert inside.max() < capacity < reach.sum()
+    assert capacity == pytest.approx(np.max(np.linalg.norm((np.sign(speeds) * reach) @ G.T, axis=1)), rel=1e-12)
+    missions.load(None, ["T=1.0", f"momentum.thrusters.start={capacity * 0.999}"])
+
+
+def test_a_thruster_pair_of_no_torque_beside_others_warns_and_a_set_of_none_is_refused():
+    from so3jax.components.momentum import MomentumWarning, Thrusters
+
+    with pytest.warns(MomentumWarning, match=r"^momentum.thrusters.torque = \[0.2, 0.0, 0.2\] N m: the y pair gives "
+                                             r"no torque, so the wheels' momentum about body y is never dumped$"):
+        missions.load(None, ["T=1.0", "momentum.thrusters.torque=[0.2, 0.0, 0.2]"])
+    with pytest.raises(ValueError, match="no pair gives a torque"):
+        Thrusters(np.zeros(3), np.float64(50.0), np.float64(20.0)).check()
+
+
+def test_fly_refuses_thrusters_that_never_fire_with_exit_2(in_process, capsys):
+    from so3jax import commands as cli
+
+    assert cli.main(["fly", "--T", "1", "--set", "momentum.thrusters.start=250.0", "--out", "o"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("so3jax fly: error: momentum.thrusters.start = 250.0 N m s is never exceeded")
+    assert err.count("\n") == 1 and "Traceback" not in err and not (in_process / "o").exists()
+
+
 def test_a_failed_magnetorquer_coil_gives_no_dipole_and_the_others_theirs():
     """max_dipole 0 on one coil (the domain allows it): that coil's dipole is 0, the others'
     the cross-product law's scaled to their limits, finite with finite derivatives, also

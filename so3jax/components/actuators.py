@@ -25,6 +25,7 @@ from so3jax.core.pytree import pytree_dataclass, static_field
 
 _UNIT_TOLERANCE = 1e-9  # | |g_i| - 1 | allowed for a spin axis (float64; 100 eps in a coarser dtype)
 _RANK_TOLERANCE = 1e-9  # smallest singular value of G_s below this: rank < 3
+MAX_CORNER_WHEELS = 16  # Wheels.momentum_capacity: up to 2^16 corners, then the sum bound
 
 
 def _values(x):
@@ -190,6 +191,21 @@ class Wheels(Actuator):
         if G is None or J_s is None or G.ndim != 2 or J_s.shape != G.shape[1:]:
             return None
         return (G * J_s) @ G.T
+
+    def momentum_capacity(self) -> float | None:
+        """The most momentum the wheels the body carries store relative to it [N m s]: the
+        largest |G_s J_s Omega_w| over |Omega_w,i| <= Omega_max,i, at a corner of that box
+        (every wheel at its speed limit; beyond MAX_CORNER_WHEELS wheels, its bound
+        sum_i J_s,i Omega_max,i); None where a parameter is traced."""
+        G, J_s, limit = _values(self._plant_axes()), _values(self._plant_spin_inertia()), _values(self.max_speed)
+        if G is None or J_s is None or limit is None or G.ndim != 2:
+            return None
+        n = G.shape[1]
+        reach = np.abs(np.broadcast_to(J_s * limit, (n,)))
+        if n > MAX_CORNER_WHEELS:
+            return float(np.sum(reach))
+        signs = 1.0 - 2.0 * ((np.arange(2**n)[:, None] >> np.arange(n)) & 1)  # every corner (2^n, N)
+        return float(np.max(np.linalg.norm((signs * reach) @ G.T, axis=1)))
 
     def locked_wheel_inertia(self, J):
         """J_B = J - G_s J_s G_s^T [kg m^2] for J (3, 3, ...) (docs/model.md §8.4): the body without

@@ -163,6 +163,12 @@ class Actuator(abc.ABC):
         parameter is traced."""
         return None
 
+    def momentum_capacity(self) -> float | None:
+        """The most momentum |h_rel| [N m s] it can store relative to the body (a float, for
+        the host-side checks of a momentum manager's thresholds); None without stored
+        momentum or where a parameter is traced."""
+        return None
+
     def check(self) -> None:
         """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""
 
@@ -199,3 +205,8 @@ class MomentumManager(abc.ABC):
 
     def check(self) -> None:
         """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""
+
+    def check_capacity(self, capacity: float) -> None:
+        """One-line ValueErrors on settings the actuator's capacity makes moot (a threshold
+        |h_rel| never reaches: the actuator stores at most ``capacity`` [N m s],
+        :meth:`Actuator.momentum_capacity`), before compilation."""

@@ -11,6 +11,13 @@ moves the wheels' momentum h_w (h_rel, body frame [N m s]) toward a target.
   of limit 0, a failed one, gives none); the
   body feels m x B (the cross-product law: torque -k (Δh - (B^·Δh) B^), Δh = h_w - h_target).
 
+Settings under which a device can never act are refused when the mission is read (one-line
+ValueErrors naming the key): thrusters of no torque, a start threshold at or above the most
+momentum the wheels store (:meth:`~so3jax.components.actuators.Wheels.momentum_capacity`),
+magnetorquers of gain 0 or with every coil's limit 0, a target beyond the wheels' capacity.
+A thruster pair of no torque beside others is a :class:`MomentumWarning`: that axis is never
+dumped.
+
 The attitude law sees their torques as disturbances, which the wheels absorb; the thrusters'
 pulses, known to the flight software, are also taken off the wheels' command
 (``feedforward``), so that the body feels them only where the wheels cannot follow. Firing
@@ -21,6 +28,7 @@ of the pulses fired and not how a change of gains would move them.
 from __future__ import annotations
 
 import math
+import warnings
 from typing import NamedTuple
 
 import jax
@@ -35,6 +43,16 @@ from so3jax.core.params import Param
 from so3jax.core.pytree import pytree_dataclass, static_field
 
 MAGNETOMETER_STREAM = 7  # sensor noise stream of the magnetometer (docs/model.md §8.2's keys)
+
+
+class MomentumWarning(UserWarning):
+    """A momentum-management setting under which part of the device never acts (a thruster
+    pair of no torque beside others)."""
+
+
+def _capacity_text(capacity: float) -> str:
+    return (f"the wheels store at most {capacity:.6g} N m s (|G_s J_s Omega_w| with every wheel at its "
+            "actuator.wheels.max_speed)")
 
 
 class ThrusterState(NamedTuple):
@@ -82,6 +100,14 @@ class Thrusters(MomentumManager):
             (self.stop, "momentum.thrusters.stop")))
         if start is not None and stop is not None and not np.all(stop < start):
             raise ValueError(f"momentum.thrusters: stop ({stop}) must be below start ({start}) [N m s]")
+        if torque is not None:
+            _check_thruster_torque(torque)
+
+    def check_capacity(self, capacity):
+        start = checks.concrete(self.start, "momentum.thrusters.start")
+        if start is not None and np.any(start >= capacity):
+            raise ValueError(f"momentum.thrusters.start = {checks.short(start.tolist())} N m s is never exceeded: "
+                             f"{_capacity_text(capacity)}; set start below it (or momentum.kind = 'none')")
 
 
 @pytree_dataclass
@@ -121,6 +147,29 @@ class Magnetorquers(MomentumManager):
             v = checks.concrete(x, f"momentum.magnetorquers.{name}")
             if v is not None and not np.all(np.isfinite(v) & (v >= 0)):
                 raise ValueError(f"momentum.magnetorquers.{name} must be finite and >= 0, got {v.tolist()}")
+        gain = checks.concrete(self.gain, "momentum.magnetorquers.gain")
+        if gain is not None and np.any(gain == 0):
+            raise ValueError("momentum.magnetorquers.gain = 0 1/s: the magnetorquers never act (m = 0); give a "
+                             "positive gain (or momentum.kind = 'none')")
+        dipole = checks.concrete(self.max_dipole, "momentum.magnetorquers.max_dipole")
+        if dipole is not None and np.all(dipole == 0):
+            raise ValueError(f"momentum.magnetorquers.max_dipole = {checks.short(dipole.tolist())} A m^2: every coil "
+                             "is failed (limit 0) and the magnetorquers never act; give a coil a positive limit "
+                             "(or momentum.kind = 'none')")
+
+    def check_capacity(self, capacity):
+        target = checks.concrete(self.target, "momentum.magnetorquers.target")
+        if target is not None and np.linalg.norm(target) > capacity:
+            raise ValueError(f"momentum.magnetorquers.target = {checks.short(target.tolist())} N m s "
+                             f"(|target| = {np.linalg.norm(target):.6g}) is out of reach: {_capacity_text(capacity)}")
+
+
+def _check_thruster_torque(torque) -> None:
+    """ValueError where no thruster pair gives a torque (the thrusters never act)."""
+    if np.all(np.asarray(torque) == 0):
+        raise ValueError(f"momentum.thrusters.torque = {checks.short(np.asarray(torque).tolist())} N m: no pair "
+                         "gives a torque and the thrusters never act; give a positive torque (or "
+                         "momentum.kind = 'none')")
 
 
 def _thrusters(values, ctx):
@@ -134,6 +183,13 @@ def _thrusters_values(values: dict) -> dict:
     if not values["stop"] < values["start"]:
         raise ValueError(f"momentum.thrusters: stop ({values['stop']}) must be below start ({values['start']}) "
                          "[N m s]")
+    _check_thruster_torque(values["torque"])
+    torque = np.broadcast_to(values["torque"], (3,))
+    idle = [axis for axis, value in zip("xyz", torque) if value == 0]
+    if idle:
+        warnings.warn(f"momentum.thrusters.torque = {checks.short(torque.tolist())} N m: the {' and '.join(idle)} "
+                      f"pair{'s' * (len(idle) > 1)} give{'s' * (len(idle) == 1)} no torque, so the wheels' momentum "
+                      f"about body {'/'.join(idle)} is never dumped", MomentumWarning, stacklevel=2)
     return values
 
 

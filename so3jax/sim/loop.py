@@ -359,6 +359,9 @@ def check_loop(loop: Loop, inertias: dict) -> None:
                              f"(actuator.kind = 'wheels'); the {type(loop.actuator).__name__} actuator stores none "
                              "(with it: momentum.kind = 'none')")
         loop.momentum.check()
+        capacity = loop.actuator.momentum_capacity()
+        if capacity is not None:
+            loop.momentum.check_capacity(capacity)
     spin = loop.actuator.spin_inertia_values()  # NumPy, None where traced: nothing is added to a trace
     if spin is not None:
         for name, J in inertias.items():
