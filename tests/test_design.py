@@ -82,6 +82,20 @@ def test_goals_that_no_gain_meets_together_are_reported_as_such(tmp_path):
     assert resumed["gains"] == report["gains"] and resumed["goals"] == report["goals"]
 
 
+def test_a_conflict_names_a_goal_held_below_its_limit_by_its_multiplier():
+    """Pointing over its limit, a margin under its own but pushed back (its multiplier
+    positive) with the opposite gradient: the pair is the conflict; without the multiplier,
+    the margin is not active."""
+    mission = parse_config(hold_campaign([{**HOLD, "hard": True}])).mission
+    goals = parse_goals([{**HOLD, "hard": True}, {"budget": "effort", "limit": 1.0, "hard": True},
+                         {"budget": "rmse", "limit": 1.0, "hard": True}], mission)
+    hard = np.ones(3, bool)
+    g, jac = np.array([2.0, 0.8, 0.5]), np.array([[1.0, 0.0], [-1.0, 0.2], [-1.0, 0.0]])
+    assert design.conflicts(g, jac, goals, hard) == []
+    pushed = design.conflicts(g, jac, goals, hard, lam=np.array([0.3, 0.1, 0.0]))
+    assert pushed == [["hold pointing", "mean effort"]]
+
+
 # --- each goal's derivative ------------------------------------------------------------------
 
 

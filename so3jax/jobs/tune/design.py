@@ -157,15 +157,19 @@ def score(g, soft, hard) -> tuple:
     return (1, worst_hard)
 
 
-def conflicts(g, jac, goals, hard) -> list:
-    """Pairs of hard goals that cannot be improved together at a design: among those over or
-    within 5 % of their limit, the pairs whose gradients dg/dp point against each other
-    (cosine < -0.5)."""
-    active = [i for i in range(len(goals)) if hard[i] and g[i] >= 0.95]
+def conflicts(g, jac, goals, hard, lam=None) -> list:
+    """Pairs of hard goals that cannot be improved together at a design: among the active
+    ones (over or within 5 % of their limit, or with a positive multiplier lam (one per hard
+    goal): the constraint pushed back during the run), the pairs with one goal over its
+    limit whose gradients dg/dp point against each other (cosine < -0.5)."""
+    pushed = np.zeros(len(goals), bool)
+    if lam is not None:
+        pushed[np.flatnonzero(hard)] = np.asarray(lam) > 0
+    active = [i for i in range(len(goals)) if hard[i] and (g[i] >= 0.95 or pushed[i])]
     out = []
     for a in active:
         for b in active:
-            if b <= a:
+            if b <= a or max(g[a], g[b]) <= FEASIBLE:
                 continue
             na, nb = np.linalg.norm(jac[a]), np.linalg.norm(jac[b])
             if na > 0 and nb > 0 and float(jac[a] @ jac[b]) / (na * nb) < -0.5:
@@ -404,7 +408,8 @@ def _report(config, goals, soft, hard, values, parameters, state, train_index, s
         "met_on_training": feasible_training,
         "goals": rows,
         "binding": binding,
-        "conflicts": [] if feasible_training else conflicts(g_best, np.array(best["jacobian"]), goals, hard),
+        "conflicts": [] if feasible_training else conflicts(g_best, np.array(best["jacobian"]), goals, hard,
+                                                            state["lam"][best["start"]]),
         "unmet_hard": [goals[i].name for i in range(len(goals))
                        if hard[i] and checked["best"]["g"][i] > FEASIBLE],
         "gains": {"initial": tables(parameters.initial)["gains"], "best": tables(parameters.gains(best["p"]))["gains"]},

@@ -42,7 +42,7 @@ BUDGETS = {"effort": "N^2 m^2 s", "rmse": "rad/s", "command_effort": "N^2 m^2 s"
            "time_at_torque_limit": "s", "time_at_speed_limit": "s", "max_wheel_speed_ratio": "-"}
 STATISTICS = ("mean", "max")
 PHASE_ENDS = "phase ends"
-MAX_DB = 60.0  # the highest disk or gain margin floor: alpha_req = 1.998, at the edge of what alpha can reach (< 2)
+MAX_DB = 60.0  # the highest disk or gain margin floor: alpha_req = 1.996, at the edge of what alpha can reach (< 2)
 MAX_DEG = 89.9  # the highest phase margin floor: alpha_req = 1.997
 _COMMON = ("hard", "name")
 # the keys of a margin goal beside margin (the floor first), by margin; of a budget goal beside budget
