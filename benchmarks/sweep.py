@@ -130,7 +130,7 @@ def _child(spec: dict) -> list:
 
         def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse, leaves=leaves):
             for start in range(first, last, chunk):
-                if claims is not None and not sweep._take(claims, controller, start):
+                if claims is not None and not sweep.claim_chunk(claims, controller, start):
                     continue
                 part = jax.tree.map(lambda x, start=start: x[start : start + chunk], (params, leaves))
                 rmse[start] = sweep.run_chunk(part, gains, controller, key, mesh)["rmse"]

@@ -405,7 +405,7 @@ def tune_table() -> str:
     from so3jax.jobs.tune import config
 
     domains = _tune_domains()
-    rows_table = dataclass_table(config.TuneConfig, "tune.", nested={**config._SECTIONS, **config._CONSTRAINTS})
+    rows_table = dataclass_table(config.TuneConfig, "tune.", nested={**config.SECTIONS, **config.CONSTRAINTS})
     lines = rows_table.split("\n")
     for i, line in enumerate(lines[2:], start=2):
         key = line.split("`")[1].removeprefix("tune.")
@@ -488,7 +488,7 @@ def inertia_dispersion_table() -> str:
 
     doc = inspect.getdoc(dispersions.InertiaDispersion) or ""
     rows = []
-    for key in dispersed._INERTIA_KEYS:
+    for key in dispersed.INERTIA_KEYS:
         match = re.search(rf"\b{key}: (.*?)(?=; \w+: |\.\s|$)", " ".join(doc.split()))
         rows.append((f"`{key}`", _prose(match.group(1) if match else "")))
     return _table(("key", "meaning"), rows)

@@ -386,8 +386,8 @@ def test_misaligned_wheels_act_along_the_plant_s_axes_while_the_command_uses_the
     theta = np.array([[0.01, -0.02, 0.005], [0.0, 0.03, 0.0], [-0.01, 0.0, 0.02], [0.004, 0.004, -0.004]])  # rad
     error = np.array([0.05, -0.1, 0.0, 0.2])
     flight = mission.load(None, ["T=1.0"])
-    nominal = mission._build_loop(flight, jnp.asarray).actuator
-    tilted = mission._build_loop(mission.load(None, ["T=1.0", f"actuator.wheels.misalignment={theta.tolist()}",
+    nominal = mission.build_loop(flight, jnp.asarray).actuator
+    tilted = mission.build_loop(mission.load(None, ["T=1.0", f"actuator.wheels.misalignment={theta.tolist()}",
                                                      f"actuator.wheels.spin_inertia_error={error.tolist()}"]),
                                  jnp.asarray).actuator
     speed, tau_c, omega = jnp.asarray(WHEEL0), jnp.asarray([0.05, -0.02, 0.03]), jnp.asarray(OMEGA0)

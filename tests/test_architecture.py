@@ -1,5 +1,6 @@
 """The package's layers (docs/architecture.md): every import of so3jax, at module level or
-inside a function, goes to the same layer or one below, and the module graph has no circle."""
+inside a function, goes to the same layer or one below, and the module graph has no circle;
+no module reaches for another module's private (underscore) names."""
 
 import ast
 from pathlib import Path
@@ -104,3 +105,36 @@ def test_the_checks_see_an_upward_import_and_a_circle():
         assert any("so3jax.core.so3" in c and "so3jax.sim.loop" in c for c in circles())
     finally:
         GRAPH["so3jax.core.so3"].discard("so3jax.sim.loop")
+
+
+def _private_uses(module: str, source: str) -> list[str]:
+    """Another so3jax module's underscore names ``source`` uses: ``from M import _x`` and
+    ``alias._x`` where ``alias`` names a so3jax module (dunder names aside)."""
+    tree = ast.parse(source)
+    aliases, out = {}, []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "so3jax":
+            for a in node.names:
+                full = f"{node.module}.{a.name}"
+                if full in MODULES:
+                    aliases[a.asname or a.name] = full
+                elif a.name.startswith("_") and node.module != module:
+                    out.append(f"{module}: {node.module}.{a.name}")
+        elif isinstance(node, ast.Import):
+            aliases.update({a.asname: a.name for a in node.names if a.asname and a.name in MODULES})
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases
+                and node.attr.startswith("_") and not node.attr.startswith("__") and aliases[node.value.id] != module):
+            out.append(f"{module}: {aliases[node.value.id]}.{node.attr}")
+    return out
+
+
+def test_no_module_uses_another_modules_private_names():
+    found = [use for name, path in MODULES.items() for use in _private_uses(name, path.read_text())]
+    assert found == []
+
+
+def test_the_check_sees_a_private_import_and_a_private_attribute():
+    source = "from so3jax.core.so3 import _axis_terms\nfrom so3jax.core import checks\nchecks._hidden(1)\n"
+    assert _private_uses("so3jax.sim.loop", source) == ["so3jax.sim.loop: so3jax.core.so3._axis_terms",
+                                                        "so3jax.sim.loop: so3jax.core.checks._hidden"]

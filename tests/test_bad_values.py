@@ -56,7 +56,7 @@ def _annotation(path) -> str:
     """The dataclass annotation of a [tune] field (the schema of a None default)."""
     cls = tune.TuneConfig
     for key in path[1:-1]:
-        cls = tune._SECTIONS.get(key)
+        cls = tune.SECTIONS.get(key)
         if cls is None:
             return ""
     return next((str(f.type) for f in dataclasses.fields(cls) if f.name == path[-1]), "")
@@ -248,8 +248,8 @@ def _component_cases():
     component of the flight loop (gyro, star tracker, MEKF, wheels) and the saturated
     actuator, from their dataclass fields."""
     flight = mission.load()
-    loops = [mission._build_loop(flight, np.asarray),
-             mission._build_loop(mission.load(None, ['actuator.kind="saturated"']), np.asarray)]
+    loops = [mission.build_loop(flight, np.asarray),
+             mission.build_loop(mission.load(None, ['actuator.kind="saturated"']), np.asarray)]
     out = []
     for loop in loops:
         for path in (("sensors", "rate"), ("sensors", "attitude"), ("estimator",), ("actuator",)):

@@ -268,7 +268,7 @@ def _with(tables: dict, overrides: list) -> dict:
     from so3jax.missions import config as cfg
 
     d = cfg.read_toml(tables["mission"])
-    d = mission._merge(d, {k: v for k, v in tables.items() if k != "mission"})
+    d = mission.merge_tables(d, {k: v for k, v in tables.items() if k != "mission"})
     for item in overrides:
         cfg.set_dotted(d, *cfg.parse_override(item))
     return d

@@ -23,7 +23,7 @@ def write_best(folder, controller, gains):
     """best_gains.json of a one-iteration campaign at ``gains``, written by tune's own writer."""
     folder.mkdir(parents=True, exist_ok=True)
     row = {"iteration": 0, "cost": 1.0, "rmse": 1e-3, "effort": 10.0, **tune.gain_columns(gains)}
-    storage._write_best(folder, types.SimpleNamespace(controller=controller, dispersions=None), [row], gains)
+    storage.write_best_gains(folder, types.SimpleNamespace(controller=controller, dispersions=None), [row], gains)
     return folder / "best_gains.json"
 
 

@@ -45,7 +45,7 @@ def fd_gradient(controller, params, sc, b, r, mode="weighted", h=1e-4):
     flat, unravel = ravel_pytree(params)
 
     def cost(x):
-        metrics = tune._batch_metrics(sc, tune.CONTROLLERS[controller], tune.to_gains(unravel(x)), b, None)
+        metrics = tune.batch_cost_metrics(sc, tune.CONTROLLERS[controller], tune.to_gains(unravel(x)), b, None)
         return float(jnp.mean(tune.scenario_costs(metrics, r, mode)))
 
     steps = np.eye(flat.size) * h
@@ -71,7 +71,7 @@ def test_pd_gradient_matches_central_differences(pd_case, mode):
     assert np.all(np.isfinite(grad))
     assert relative_error(grad, fd) < 1e-4
     # the value returned with the gradient is the cost itself
-    metrics = tune._batch_metrics(sc, tune.CONTROLLERS["pd"], tune.to_gains(params), b, None)
+    metrics = tune.batch_cost_metrics(sc, tune.CONTROLLERS["pd"], tune.to_gains(params), b, None)
     assert float(evaluation.cost) == pytest.approx(
         float(jnp.mean(tune.scenario_costs(metrics, r, "weighted"))), rel=1e-12
     )
@@ -81,7 +81,7 @@ def test_adaptive_gradient_matches_central_differences():
     """K_r, K_w and a scalar Gamma; equal-effort cost with the penalty active."""
     params = tune.to_params(tune.resolve_gains("adaptive", "paper", jnp.float64))
     sc, b = scenario(), batch()
-    metrics = tune._batch_metrics(sc, tune.CONTROLLERS["adaptive"], tune.to_gains(params), b, None)
+    metrics = tune.batch_cost_metrics(sc, tune.CONTROLLERS["adaptive"], tune.to_gains(params), b, None)
     r = tune.CostRefs(f64(1e-3), 0.8 * metrics.effort, f64(10.0))  # budget below the effort
     _, grad = tune.cost_and_grad(params, sc, tune.CONTROLLERS["adaptive"], b, r, "equal_effort", "forward", None)
     grad = ravel_pytree(grad)[0]

@@ -200,7 +200,7 @@ def test_tuner_parameterizes_a_nonnegative_gain_by_projection():
     import optax
 
     from so3jax.jobs import tune
-    from so3jax.jobs.tune.optimizers import GradientState, _optax_step
+    from so3jax.jobs.tune.optimizers import GradientState, optax_step
 
     gains = jax.tree.map(jnp.asarray, registry.get("mrp_feedback").defaults)
     params = tune.to_params(gains)
@@ -212,6 +212,6 @@ def test_tuner_parameterizes_a_nonnegative_gain_by_projection():
     state = GradientState(params, tx.init(params))
     for sign in (1.0, -1.0):
         grad = jax.tree.map(jnp.zeros_like, params)._replace(K_i=jnp.asarray(sign))
-        new = _optax_step(tx, state, grad, jnp.asarray(0.0))
+        new = optax_step(tx, state, grad, jnp.asarray(0.0))
         assert float(new.params.K_i) == (0.0 if sign > 0 else 0.5)
         assert float(tune.to_gains(new.params).K_i) == (0.0 if sign > 0 else 0.5e-4)

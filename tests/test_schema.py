@@ -217,7 +217,7 @@ def test_a_key_added_to_the_parsers_tables_appears_in_the_schema(monkeypatch):
     monkeypatch.setattr(keys, "KEYS", (*keys.KEYS, extra))
     monkeypatch.setattr(keys, "KEY", {**keys.KEY, extra.name: extra})
     monkeypatch.setattr(pointing, "KEYS", (*pointing.KEYS, "owner"))
-    monkeypatch.setattr(sweeps, "_SWEEP_KEYS", (*sweeps._SWEEP_KEYS, "extra_draws"))
+    monkeypatch.setattr(sweeps, "SWEEP_KEYS", (*sweeps.SWEEP_KEYS, "extra_draws"))
     monkeypatch.setitem(sweeps.DEFAULT["sweep"], "extra_draws", 3)
     tracker = components.get("sensor", "star_tracker")
     sensor = dataclasses.replace(tracker, name="test_tracker",
@@ -253,11 +253,11 @@ def test_a_campaign_field_added_appears_in_the_schema(monkeypatch):
 
 
 def test_a_table_the_parser_accepts_without_a_rule_is_refused(monkeypatch):
-    monkeypatch.setattr(missions, "_TABLES", (*missions._TABLES, "telemetry"))
+    monkeypatch.setattr(missions, "MISSION_TABLES", (*missions.MISSION_TABLES, "telemetry"))
     with pytest.raises(ValueError, match="no rule for the mission key 'telemetry'"):
         mission_schema.mission()
 
 
 def test_the_value_rules_name_only_keys_the_parsers_declare():
     assert set(mission_schema.REQUIREMENT_VALUES) <= set(pointing.KEYS)
-    assert set(mission_schema.SETS) | set(mission_schema.CHOSEN) <= set(missions._TABLES)
+    assert set(mission_schema.SETS) | set(mission_schema.CHOSEN) <= set(missions.MISSION_TABLES)

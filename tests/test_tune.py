@@ -539,7 +539,7 @@ def test_es_stops_when_the_initial_gains_diverge_in_training(tmp_path):
 
 def test_best_row_is_the_lowest_finite_cost():
     rows = [{"cost": float("nan")}, {"cost": 2.0}, {"cost": 1.5}, {"cost": float("inf")}]
-    assert tune._best_row(rows) == {"cost": 1.5}
+    assert tune.best_history_row(rows) == {"cost": 1.5}
 
 
 def test_a_mission_alone_is_a_campaign_with_the_defaults():

@@ -18,7 +18,7 @@ import warnings
 from pathlib import Path
 
 from so3jax.commands import compare, crosscheck, fly, identify, margins, paper, schema, sweep, tune
-from so3jax.commands.common import _Parser
+from so3jax.commands.common import Parser
 from so3jax.parallel import distributed
 from so3jax.parallel import xla_flags as _xla_flags
 
@@ -40,7 +40,7 @@ DESCRIPTION = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="so3jax", description=DESCRIPTION)
+    parser = Parser(prog="so3jax", description=DESCRIPTION)
     subparsers = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(subparsers)

@@ -26,7 +26,7 @@ class _Given(argparse._StoreAction):
         setattr(namespace, self.dest, values)
 
 
-class _Parser(argparse.ArgumentParser):
+class Parser(argparse.ArgumentParser):
     """argparse with a one-line error (``so3jax CMD: error: ...``, exit 2); ``--help`` shows the
     usage; an option given twice accumulates or is refused (:class:`_Given`)."""
 

@@ -18,7 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.components.base import Actuator, StoredMomentum, _no_limit
+from so3jax.components.base import Actuator, StoredMomentum, no_limit
 from so3jax.core import checks, so3
 from so3jax.core.params import Param
 from so3jax.core.pytree import pytree_dataclass, static_field
@@ -90,7 +90,7 @@ class Saturated(Actuator):
     def limits(self, state, held, tau_c):
         """(any |tau_c,i| > max_torque_i, False), of the batch shape."""
         over = jnp.abs(tau_c) > self._limit(tau_c)
-        return over[0] | over[1] | over[2], _no_limit(held)
+        return over[0] | over[1] | over[2], no_limit(held)
 
     def check(self) -> None:
         """One-line ValueErrors: max_torque (3,) or a scalar, finite, non-negative."""

@@ -50,7 +50,7 @@ class StoredMomentum(NamedTuple):
     relative: jax.Array  # h_rel (3, *b) N m s: the momentum of its motion relative to the body
 
 
-def _no_limit(held):
+def no_limit(held):
     """False of the batch shape of a (3 or N, *b) array."""
     return jnp.zeros(held.shape[1:], bool)
 
@@ -146,7 +146,7 @@ class Actuator(abc.ABC):
 
     def limits(self, state, held, tau_c):
         """(at a torque limit, at a speed limit), bool of the batch shape."""
-        return _no_limit(held), _no_limit(held)
+        return no_limit(held), no_limit(held)
 
     def speed_ratio(self, state):
         """max_i |Omega_w,i| / Omega_max,i (0 without wheels)."""

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 
 from so3jax.components import registry as components
 from so3jax.components.base import Sensor
-from so3jax.components.sensors import _check, _like, sensor_noise
+from so3jax.components.sensors import check_values, like_dtype, sensor_noise
 from so3jax.core import so3
 from so3jax.core.params import Param
 from so3jax.core.pytree import pytree_dataclass
@@ -42,8 +42,8 @@ def mrp_rotation(s):
 def walk(error, sigma, bound, key, stream: int, j):
     """e_j = clip(e_{j-1} + sigma eta_{s,j}, +-bound) (3, *b); bound 0: unbounded."""
     eta = sensor_noise(key, stream, j, error.dtype)
-    stepped = error + _like(sigma, eta) * eta
-    bound = _like(bound, eta)
+    stepped = error + like_dtype(sigma, eta) * eta
+    bound = like_dtype(bound, eta)
     return jnp.where(bound > 0, jnp.clip(stepped, -bound, bound), stepped)
 
 
@@ -63,8 +63,8 @@ class NavAttitude(Sensor):
         return s, (so3.matmul(R, mrp_rotation(s)), jnp.asarray(True))
 
     def check(self) -> None:
-        _check("sensors.nav_attitude.sigma", self.sigma)
-        _check("sensors.nav_attitude.bound", self.bound)
+        check_values("sensors.nav_attitude.sigma", self.sigma)
+        check_values("sensors.nav_attitude.bound", self.bound)
 
 
 @pytree_dataclass
@@ -87,8 +87,8 @@ class NavRate(Sensor):
         return state
 
     def check(self) -> None:
-        _check("sensors.nav_rate.sigma [rad/s]", self.sigma)
-        _check("sensors.nav_rate.bound [rad/s]", self.bound)
+        check_values("sensors.nav_rate.sigma [rad/s]", self.sigma)
+        check_values("sensors.nav_rate.bound [rad/s]", self.bound)
 
 
 def _params(unit: str, what: str) -> tuple:

@@ -33,13 +33,13 @@ def sensor_noise(key, stream: int, j, dtype):
     return jnp.stack(noise_components(folded, j, dtype))
 
 
-def _like(x, like):
+def like_dtype(x, like):
     """A scalar parameter, shared (()) or per trajectory (*b), cast and shaped to broadcast
     against ``like`` (3, *b)."""
     return so3.batch_like(jnp.asarray(x).astype(like.dtype), 0, like)
 
 
-def _check(name: str, x, shape=()) -> None:
+def check_values(name: str, x, shape=()) -> None:
     v = checks.concrete(x, name)
     if v is None:
         return
@@ -68,17 +68,17 @@ class Gyro(Sensor):
         period = jnp.asarray(period, dtype)
         white = sensor_noise(key, GYRO_WHITE, j, dtype)
         walk = sensor_noise(key, GYRO_BIAS_WALK, j, dtype)
-        omega_m = Omega + bias + _like(self.arw, Omega) / jnp.sqrt(period) * white
-        return bias + _like(self.rrw, Omega) * jnp.sqrt(period) * walk, omega_m
+        omega_m = Omega + bias + like_dtype(self.arw, Omega) / jnp.sqrt(period) * white
+        return bias + like_dtype(self.rrw, Omega) * jnp.sqrt(period) * walk, omega_m
 
     def bias(self, state, Omega):
         """The true bias b_j (3, *b) [rad/s]."""
         return state
 
     def check(self) -> None:
-        _check("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
-        _check("sensors.gyro.rrw [rad/s^(3/2)]", self.rrw)
-        _check("sensors.gyro.bias0 [rad/s]", self.bias0, (3,))
+        check_values("sensors.gyro.arw [rad/sqrt(s)]", self.arw)
+        check_values("sensors.gyro.rrw [rad/s^(3/2)]", self.rrw)
+        check_values("sensors.gyro.bias0 [rad/s]", self.bias0, (3,))
 
 
 @pytree_dataclass
@@ -107,7 +107,7 @@ class IntegratingGyro(Sensor):
         period = jnp.asarray(period, dtype)
         white = sensor_noise(key, GYRO_WHITE, j, dtype)
         walk = sensor_noise(key, GYRO_BIAS_WALK, j, dtype)
-        arw, rrw = _like(self.arw, Omega), _like(self.rrw, Omega)
+        arw, rrw = like_dtype(self.arw, Omega), like_dtype(self.rrw, Omega)
         increment = so3.log(so3.rmatmul(R_prev, R), select=True)  # the true rotation vector over the period
         sigma = jnp.sqrt(arw**2 / period + rrw**2 * period / 12.0)
         omega_m = jnp.where(j == 0, jnp.zeros_like(Omega), increment / period + 0.5 * (b_prev + b) + sigma * white)
@@ -133,11 +133,11 @@ class StarTracker(Sensor):
     def measure(self, state, R, Omega, key, j, period):
         """((), (R_m (3, 3, *b), whether tick j has a sample))."""
         eta = sensor_noise(key, STAR_TRACKER, j, R.dtype)
-        error = _like(self.sigma, eta) * eta
+        error = like_dtype(self.sigma, eta) * eta
         return state, (so3.matmul(R, so3.exp(error, select=True)), (j % self.every) == 0)
 
     def check(self) -> None:
-        _check("sensors.star_tracker.sigma [rad]", self.sigma)
+        check_values("sensors.star_tracker.sigma [rad]", self.sigma)
         if isinstance(self.every, bool) or not isinstance(self.every, int) or self.every < 1:
             raise ValueError(f"sensors.star_tracker.every must be an integer >= 1, got {self.every!r}")
 

@@ -19,7 +19,7 @@ import dataclasses
 import jax
 import numpy as np
 
-from so3jax.dynamics.inertia import _concrete, _real_dtype
+from so3jax.dynamics.inertia import check_real_dtype, concrete_values
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,8 +88,8 @@ def check_gains(gains, *, batch_axes: int = 0) -> None:
     value is concrete. batch_axes: leading batch axes of every gain (a batch of gains)."""
     for path, value in jax.tree_util.tree_flatten_with_path(gains)[0]:
         name = jax.tree_util.keystr(path, simple=True, separator=".")
-        _real_dtype(value, f"gain {name}")
-        value = _concrete(value)
+        check_real_dtype(value, f"gain {name}")
+        value = concrete_values(value)
         if value is None:
             continue
         if not np.all(np.isfinite(value)):

@@ -69,7 +69,7 @@ def _select(pred, on_true, on_false):
     return jax.lax.select(pred, on_true, on_false)
 
 
-def _horner(coefficients, t):
+def horner(coefficients, t):
     p = jnp.full_like(t, coefficients[0])
     for c in coefficients[1:]:
         p = p * t + c
@@ -87,14 +87,14 @@ def _log(y):
     hfsq = 0.5 * f * f
     s = f / (2.0 + f)
     z = s * s
-    r = z * _horner(_LG, z)
+    r = z * horner(_LG, z)
     return k * _LN2_HI - ((hfsq - (s * (hfsq + r) + k * _LN2_LO)) - f)
 
 
 def _log1p(z):
     """log(1 + z) for -1 < z <= 0: XLA's rational below |z| = sqrt(2) - 1, _log above."""
     z2 = z * z
-    small = z + (z2 * -0.5 + (z * z2) * (_horner(LOG1P_P, z) / _horner(LOG1P_Q, z)))
+    small = z + (z2 * -0.5 + (z * z2) * (horner(LOG1P_P, z) / horner(LOG1P_Q, z)))
     return jax.lax.select(jnp.abs(z) < LOG1P_SMALL, small, _log(z + 1.0))
 
 

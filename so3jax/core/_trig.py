@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from so3jax.core._erfinv import _horner  # coefficients highest degree first
-from so3jax.core.so3 import _branch
+from so3jax.core._erfinv import horner  # coefficients highest degree first
+from so3jax.core.so3 import small_angle_branch
 
 _TWO_OVER_PI = 6.36619772367581382433e-01
 # pi/2 = sum of these: three parts of 33 bits and the rest
@@ -38,10 +38,10 @@ _C = (-1.13596475577881948265e-11, 2.08757232129817482790e-09, -2.75573143513906
 def _kernels(r):
     """(sin r, cos r) for |r| <= pi/4 (fdlibm's kernels, no tail term)."""
     z = r * r
-    s = r + (z * r) * _horner(_S, z)
+    s = r + (z * r) * horner(_S, z)
     hz = 0.5 * z
     w = 1.0 - hz
-    c = w + (((1.0 - w) - hz) + z * (z * _horner(_C, z)))
+    c = w + (((1.0 - w) - hz) + z * (z * horner(_C, z)))
     return s, c
 
 
@@ -63,7 +63,7 @@ def sincos(x):
         return jnp.sin(x), jnp.cos(x)
     in_range = jnp.abs(x) < _LIMIT  # else (or not finite): the library's
     reduced = lambda x: _reduced(jnp.where(in_range, x, 0.0))
-    return _branch(in_range, reduced, lambda x: (jnp.sin(x), jnp.cos(x)), x)
+    return small_angle_branch(in_range, reduced, lambda x: (jnp.sin(x), jnp.cos(x)), x)
 
 
 def sin(x):
@@ -93,7 +93,7 @@ def _atan_nonnegative(a):
                                       jnp.where(ranges[0], (2.0 * a - 1.0) / (2.0 + a), a))))  # fmt: skip
     z = x * x
     w = z * z
-    tail = x * (z * _horner(_AT_ODD, w) + w * _horner(_AT_EVEN, w))
+    tail = x * (z * horner(_AT_ODD, w) + w * horner(_AT_EVEN, w))
     hi = jnp.where(ranges[3], _ATAN_HI[3],
                    jnp.where(ranges[2], _ATAN_HI[2], jnp.where(ranges[1], _ATAN_HI[1], _ATAN_HI[0])))
     lo = jnp.where(ranges[3], _ATAN_LO[3],

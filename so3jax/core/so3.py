@@ -176,7 +176,7 @@ def trace(m):
 # --- exp, log, right Jacobian ------------------------------------------------------
 
 
-def _branch(small, series, general, x, select=False):
+def small_angle_branch(small, series, general, x, select=False):
     """series(x) where ``small``, general(x) elsewhere (general must be finite, with finite
     gradients, everywhere). On CPU, when every element is small -- the common case inside
     an RK4 step, for one trajectory or a natively batched step -- only the series is
@@ -205,20 +205,20 @@ def _exp_coefficients(theta2, sin=jnp.sin, select=False):
         sinc_half = sin(half) / half
         return sin(2.0 * half) / (2.0 * half), 0.5 * sinc_half * sinc_half
 
-    return _branch(small, _exp_series, trigonometric, theta2, select)
+    return small_angle_branch(small, _exp_series, trigonometric, theta2, select)
 
 
 def expm1(v, sin=jnp.sin, select=False):
     """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (docs/model.md (9.1)).
     sin: the sine used beyond the series (``so3jax.core._trig.sin``: vectorized in float64);
-    select: see :func:`_branch`."""
+    select: see :func:`small_angle_branch`."""
     theta2 = dot(v, v)
     a, b = _exp_coefficients(theta2, sin, select)
     return a * hat(v) + b * (outer(v, v) - theta2 * eye_like(v))
 
 
 def exp(v, select=False):
-    """Rotation matrix exp(hat(v)) of a rotation vector v [rad]. select: see :func:`_branch`."""
+    """Rotation matrix exp(hat(v)) of a rotation vector v [rad]. select: see :func:`small_angle_branch`."""
     return eye_like(v) + expm1(v, select=select)
 
 
@@ -249,7 +249,8 @@ def angle(r, atan2=jnp.arctan2):
     series for theta / sin(theta) below 10 degrees (no arctangent when all are small).
     atan2: the arctangent (``so3jax.core._trig.atan2``: vectorized in float64)."""
     s, c, s2, small = _axis_terms(r)
-    return _branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2), lambda _: _arctan_angle(s, c, atan2), r)
+    return small_angle_branch(small, lambda _: safe_norm(s) * _asin_ratio_series(s2),
+                              lambda _: _arctan_angle(s, c, atan2), r)
 
 
 def log(r, select=False):
@@ -258,7 +259,7 @@ def log(r, select=False):
     theta = atan2(|s|, c) with s = (R - R^T)^vee / 2 = sin(theta) axis and
     c = (tr R - 1) / 2; below 10 degrees, the series for theta / sin(theta) instead
     (no arctangent); near a half turn the axis comes from the symmetric part
-    R + R^T = 2c I + 2(1 - c) axis axis^T. select: see :func:`_branch`.
+    R + R^T = 2c I + 2(1 - c) axis axis^T. select: see :func:`small_angle_branch`.
     """
     s, c, s2, small = _axis_terms(r)
     near_pi = c < _NEAR_PI_COS
@@ -279,7 +280,8 @@ def log(r, select=False):
         sign = jnp.where(dot(axis, s) < 0, -1.0, 1.0)
         return (sign * _arctan_angle(s, c)) * axis
 
-    return _branch(small, series, lambda r: _branch(~near_pi, generic, half_turn, r, select), r, select)
+    return small_angle_branch(small, series, lambda r: small_angle_branch(~near_pi, generic, half_turn, r, select), r,
+                              select)
 
 
 def _first_max_indicator(v):
@@ -306,7 +308,7 @@ def jr_inv_coefficient(theta2):
         half = 0.5 * jnp.sqrt(t2)
         return (1.0 - half * jnp.cos(half) / jnp.sin(half)) / t2
 
-    return _branch(small, series, closed_form, theta2)
+    return small_angle_branch(small, series, closed_form, theta2)
 
 
 def jr_inv_apply(e, w):

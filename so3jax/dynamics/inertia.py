@@ -17,7 +17,7 @@ class InertiaWarning(UserWarning):
     accepted (docs/model.md §4 and §6: the paper's J0 is one), with this warning."""
 
 
-def _real_dtype(x, what: str) -> None:
+def check_real_dtype(x, what: str) -> None:
     """TypeError naming ``what`` unless x is a real numeric array (tracers included)."""
     try:
         dtype = x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype
@@ -28,7 +28,7 @@ def _real_dtype(x, what: str) -> None:
                         + (f" of dtype {dtype}" if dtype is not None else ""))
 
 
-def _concrete(x) -> np.ndarray | None:
+def concrete_values(x) -> np.ndarray | None:
     """x as a numpy array, or None under tracing (values unknown before compilation)."""
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(x)):
         return None
@@ -56,11 +56,11 @@ def check_inertia(name: str, J, *, warn: bool = True) -> bool:
     naming ``name``. Returns whether its principal moments satisfy the triangle inequality
     (J_i <= J_j + J_k, a rigid body); where they do not, warns (InertiaWarning) if
     ``warn``. Shapes are checked under tracing too; values only when concrete."""
-    _real_dtype(J, f"inertia {name}")
+    check_real_dtype(J, f"inertia {name}")
     shape = np.shape(J)
     if len(shape) < 2 or shape[-2:] != (3, 3):
         raise ValueError(f"inertia {name} must be a (3, 3) matrix [kg m^2], got shape {shape}")
-    J = _concrete(J)
+    J = concrete_values(J)
     if J is None:
         return True
     if not np.all(np.isfinite(J)):

@@ -12,7 +12,7 @@ import numpy as np
 
 from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.dynamics.disturbance import SinusoidPlusNoise
-from so3jax.dynamics.inertia import _concrete, check_inertia, check_inertia_profile
+from so3jax.dynamics.inertia import check_inertia, check_inertia_profile, concrete_values
 from so3jax.dynamics.orbit import orbital_rate
 from so3jax.dynamics.paper import PAPER_DEPLOY_TIME, PAPER_DOCK_TIME, PAPER_J0, PAPER_J2
 from so3jax.dynamics.plant import PaperInertia
@@ -127,12 +127,12 @@ def check_scenario(scenario: Scenario, *, batch_last: bool = False) -> None:
             raise ValueError(f"scenario.{name} must have shape {expected}, got {got}")
     check_inertia_profile(scenario, batch_last=batch_last)
     front = (lambda x: np.moveaxis(x, -1, 0)) if batch_last else (lambda x: x)
-    R0 = _concrete(scenario.R0)
+    R0 = concrete_values(scenario.R0)
     if R0 is not None:
         R0 = front(R0) if R0.ndim > 2 else R0
         if not np.allclose(np.swapaxes(R0, -1, -2) @ R0, np.eye(3), atol=1e-6):
             raise ValueError("R0 is not a rotation matrix (R0^T R0 != I)")
     for name in ("R0", "Omega0"):
-        value = _concrete(getattr(scenario, name))
+        value = concrete_values(getattr(scenario, name))
         if value is not None and not np.all(np.isfinite(value)):
             raise ValueError(f"{name} has non-finite entries")

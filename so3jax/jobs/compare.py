@@ -180,7 +180,8 @@ def _candidate(name: str, entry: dict, table: dict, shared: dict, mission, base_
     if not isinstance(changes, dict) or "controller" in changes:
         raise ValueError(f"{where}.tune must be a table of [tune] entries (the law is {where}.controller), "
                          f"got {checks.short(changes)}")
-    campaign = parse_config({**table, "tune": {**missions._merge(shared, changes), "controller": controller}}, base_dir)
+    tuned = {**missions.merge_tables(shared, changes), "controller": controller}
+    campaign = parse_config({**table, "tune": tuned}, base_dir)
     if campaign.estimator:
         raise ValueError(f"{where}: tune.estimator: a comparison sweeps the laws' gains with the mission's estimator")
     gains = None

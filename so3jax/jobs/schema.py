@@ -243,7 +243,7 @@ def goal() -> dict:
         "limit": {**schema.number(0.0, low_excluded=True), "description": "the budget, in its metric's unit"},
         "statistic": {"enum": list(design_goals.STATISTICS), "default": "mean"},
     }
-    common = {k: values.get(k, {}) for k in design_goals._COMMON}
+    common = {k: values.get(k, {}) for k in design_goals.COMMON_KEYS}
     inline = schema.requirement()
     kinds = [{**schema.table({**common, "requirement": values["requirement"]}), "required": ["hard", "requirement"]},
              {**inline, "properties": {**inline["properties"], **common},
@@ -268,7 +268,7 @@ def tune(shared: bool = False) -> dict:
     special = {"dispersions": dispersions, "goals": lambda: {"type": "array", "items": goal(), "minItems": 1},
                "bounds": _bounds, "fixed": _fixed, "estimator": _estimator, "initial_gains": _gains_given,
                "budget_gains": _gains_given}
-    nested = {**campaigns._SECTIONS, **campaigns._CONSTRAINTS}
+    nested = {**campaigns.SECTIONS, **campaigns.CONSTRAINTS}
     fields = {f.name for cls in (campaigns.TuneConfig, *nested.values()) for f in dataclasses.fields(cls)}
     if set(special) - fields:
         raise ValueError(f"the campaign schema names no field {', '.join(sorted(set(special) - fields))} of [tune]")
@@ -284,7 +284,7 @@ def sweep_table() -> dict:
     """``[sweep]``: the keys the sweep parser accepts, typed by the default sweep's values."""
     domains = checked_domains(sweeps)
     values = {}
-    for key in sweeps._SWEEP_KEYS:
+    for key in sweeps.SWEEP_KEYS:
         default = sweeps.DEFAULT["sweep"].get(key)
         field = sweeps.SweepConfig.__dataclass_fields__.get(key)
         typed = valued(default) or (annotated(field.type) if field is not None else {})

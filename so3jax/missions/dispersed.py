@@ -54,7 +54,7 @@ from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE
 from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
-from so3jax.missions.mission import Mission, _build_loop
+from so3jax.missions.mission import Mission, build_loop
 from so3jax.sim import memory
 from so3jax.sim.rollout import rollout_batch
 
@@ -65,8 +65,8 @@ STRUCTURED = {
     ("disturbance", "frequency"): "frequency",
     ("disturbance", "noise_std"): "noise_std",
 }
-_INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products", "second_moments")
-_LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
+INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products", "second_moments")
+LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
 _SCENARIO_TABLES = ("reference", "inertia")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).
@@ -176,7 +176,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             fields["initial_rate"] = _distribution(t.get("norm", 0.0), f"{where}.norm")
         elif path in STRUCTURED:
             fields[STRUCTURED[path]] = _distribution(value, where)
-        elif path[0] in _LOOP_TABLES:
+        elif path[0] in LOOP_TABLES:
             leaves.append(_leaf(path, value, where, mission))
         elif path[0] in ("reference", "inertia") and len(path) == 3:
             leaves.append(_scenario_leaf(path, value, where, mission))
@@ -241,7 +241,7 @@ def _distribution(value, where: str) -> disp.Distribution:
 
 
 def _inertia(value, where: str, default: disp.InertiaDispersion) -> disp.InertiaDispersion:
-    t = checks.table({"": value}, "", _INERTIA_KEYS, where)
+    t = checks.table({"": value}, "", INERTIA_KEYS, where)
     changes = {name: _distribution(t[name], f"{where}.{name}")
                for name in ("scale", "axis_scale", "products", "second_moments") if name in t}
     if "rotation_deg" in t:
@@ -421,10 +421,10 @@ def _drawn_leaves(leaves: tuple, seed: int, n_samples: int, first: int) -> tuple
                                        np.uint32(zlib.crc32(leaf.key.encode())), n_words))
         if leaf.inertia is not None:  # each matrix from its own 11 variates, as inertia.J0's
             nominal = np.reshape(leaf.nominal, (-1, 3, 3))
-            variates = disp._variates(words.reshape(n_samples, len(nominal), 2 * INERTIA_VARIATES))
+            variates = disp.draw_variates(words.reshape(n_samples, len(nominal), 2 * INERTIA_VARIATES))
             values[leaf.key] = leaf.inertia.apply(variates, nominal)[0].reshape((n_samples, *leaf.shape))
             continue
-        v = disp._variates(words)
+        v = disp.draw_variates(words)
         u, z = v.take(max(size, 1))
         x = leaf.dist.sample(u, z)[:, :size].reshape((n_samples, *leaf.shape))
         if leaf.relative is not None:
@@ -576,4 +576,4 @@ def loop(mission: Mission, values: dict, dtype):
         table, name, param = key.split(".")
         tables[table][name][param] = value
     changed = dataclasses.replace(mission, **tables)
-    return _build_loop(changed, lambda x: jnp.asarray(x, dtype), noise_of=mission)
+    return build_loop(changed, lambda x: jnp.asarray(x, dtype), noise_of=mission)

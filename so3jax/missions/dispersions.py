@@ -108,7 +108,7 @@ def parse_distribution(value, where: str) -> Distribution:
     return _checked(kind(**{k: float(v) for k, v in params.items()}), where)
 
 
-# The largest |z| a standard normal variate takes: Box-Muller from u >= 2^-33 (:func:`_variates`).
+# The largest |z| a standard normal variate takes: Box-Muller from u >= 2^-33 (:func:`draw_variates`).
 Z_MAX = math.sqrt(-2.0 * math.log(0.5 / 2.0**32))
 
 
@@ -407,7 +407,7 @@ class _Variates:
         return self.u[..., self.used - n : self.used], self.z[..., self.used - n : self.used]
 
 
-def _variates(words) -> _Variates:
+def draw_variates(words) -> _Variates:
     """Two uint32 words per variate -> u uniform on (0, 1) and z standard normal (Box-Muller)."""
     u, v = ((words[..., i::2].astype(np.float64) + 0.5) / 2.0**32 for i in range(2))
     return _Variates(u, np.sqrt(-2.0 * np.log(u)) * np.cos(2.0 * np.pi * v))
@@ -463,8 +463,8 @@ def _words(seed, indices, n_words: int):
 
 def _draw_block(d: Dispersions, words, max_draws: int):
     """Parameters of a block of samples from their words (B, L)."""
-    other = _variates(words[:, 1 : 1 + 2 * OTHER_VARIATES])
-    attempts = _variates(words[:, 1 + 2 * OTHER_VARIATES :].reshape(len(words), max_draws, 2 * PHYSICAL_VARIATES))
+    other = draw_variates(words[:, 1 : 1 + 2 * OTHER_VARIATES])
+    attempts = draw_variates(words[:, 1 + 2 * OTHER_VARIATES :].reshape(len(words), max_draws, 2 * PHYSICAL_VARIATES))
     J0, s0 = d.J0.apply(attempts, np.asarray(d.J0.nominal))
     J1, s1 = d.J1.apply(attempts, J0)
     J2, s2 = d.J2.apply(attempts, np.asarray(d.J2.nominal))

@@ -62,10 +62,10 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
              actuator={"kind": "ideal"}, momentum={"kind": "none"},
              inertia=dict(FLIGHT["inertia"], J0={"nominal": keys.matrix(PAPER_J0)}))
 
-_TOP = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
+TOP_KEYS = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
-_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference", "controller",
-                         "gains", "schedule")
+MISSION_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference",
+                                "controller", "gains", "schedule")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
 DEFAULT_INERTIA = {"kind": "paper"}
 ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
@@ -157,7 +157,7 @@ class Mission:
 
     def loop(self, dtype=None) -> Loop:
         dtype = jnp.result_type(float) if dtype is None else jnp.dtype(dtype)
-        return _build_loop(self, lambda x: jnp.asarray(x, dtype))
+        return build_loop(self, lambda x: jnp.asarray(x, dtype))
 
     def controller(self, name: str):
         """(Controller, gains) of a registered controller with the mission's options
@@ -226,7 +226,7 @@ def default_tree() -> dict:
     return tree
 
 
-def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
+def build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
     """The loop's components built from their registrations; an estimator assumes the
     noise levels of the sensors of ``noise_of`` (default: m's own)."""
     noise = {}
@@ -243,11 +243,11 @@ def _build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
     return Loop(Sensors(**slots), estimator, actuator, m.period_steps, momentum)
 
 
-def _merge(base: dict, over: dict) -> dict:
+def merge_tables(base: dict, over: dict) -> dict:
     """base updated by over, table by table (over's keys win)."""
     out = dict(base)
     for k, v in over.items():
-        out[k] = _merge(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
+        out[k] = merge_tables(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
     return out
 
 
@@ -318,13 +318,15 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     :data:`PAPER`); ValueError on bad input."""
     if not isinstance(d, dict):
         raise ValueError(f"a mission must be a table, got {checks.short(d)}")  # noqa: TRY004 (bad input)
-    unknown = set(d) - set(_TOP) - set(_TABLES)
+    unknown = set(d) - set(TOP_KEYS) - set(MISSION_TABLES)
     if unknown:
-        raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(_TOP + _TABLES)}")
-    for t in _TABLES:
+        raise ValueError(f"unknown mission key(s): {', '.join(sorted(unknown))}; "
+                         f"allowed: {', '.join(TOP_KEYS + MISSION_TABLES)}")
+    for t in MISSION_TABLES:
         if t in d and not isinstance(d[t], dict):
             raise ValueError(f"[{t}] must be a table, got {checks.short(d[t])}")
-    full = _merge({k: v for k, v in base.items() if k != "sensors"}, {k: v for k, v in d.items() if k != "sensors"})
+    full = merge_tables({k: v for k, v in base.items() if k != "sensors"},
+                        {k: v for k, v in d.items() if k != "sensors"})
 
     T = keys.parse("T", full["T"])  # a number here; positive and a multiple of dt below
     dt = keys.parse("dt", full["dt"])
@@ -394,7 +396,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     check_scenario(scenario)  # J(t) over every phase; the triangle inequality's warning
     if inertia["kind"] != "paper":
         inertias = {f"inertia.{inertia['kind']}.{name}": J for name, J in scenario.inertia.matrices().items()}
-    check_loop(_build_loop(mission, np.asarray), inertias)
+    check_loop(build_loop(mission, np.asarray), inertias)
     bounds = pointing.phase_bounds_of(scenario)
     requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds,
                                                mission.recording, mission.no_estimate)
@@ -606,15 +608,15 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     path = d.pop("mission", None)
     if path is not None and not isinstance(path, str):
         raise ValueError(f"mission must be the path of a mission file, got {checks.short(path)}")
-    unknown = set(d) - set(_TOP) - set(_TABLES)
+    unknown = set(d) - set(TOP_KEYS) - set(MISSION_TABLES)
     if unknown:
-        allowed = ("mission",) + job_tables + _TOP + _TABLES
+        allowed = ("mission",) + job_tables + TOP_KEYS + MISSION_TABLES
         raise ValueError(f"unknown config key(s): {', '.join(sorted(unknown))}; allowed: {', '.join(allowed)}")
     tables = {}
     if path is not None:
         tables = _gain_files_in(cfg.read_toml(Path(base_dir) / path), (Path(base_dir) / path).parent)
         base = FLIGHT
-    return from_dict(_merge(tables, _gain_files_in(d, base_dir)), base), jobs
+    return from_dict(merge_tables(tables, _gain_files_in(d, base_dir)), base), jobs
 
 
 def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:

@@ -312,7 +312,7 @@ def _mission_value(name: str) -> dict:
 def mission_properties() -> dict:
     """{key: schema} of every top-level key and table a mission accepts (the parser's own
     list: ``so3jax.missions.mission``'s keys and tables)."""
-    return {name: _mission_value(name) for name in missions._TOP + missions._TABLES}
+    return {name: _mission_value(name) for name in missions.TOP_KEYS + missions.MISSION_TABLES}
 
 
 def document(title: str, description: str, properties: dict, shared: dict | None = None) -> dict:
@@ -360,7 +360,7 @@ def _inertia_dispersion() -> dict:
     """An inertia matrix's dispersion (:class:`so3jax.missions.dispersions.InertiaDispersion`)."""
     types = {f.name: f.type for f in dataclasses.fields(disp.InertiaDispersion)}
     values = {key: distribution() if "Distribution" in str(types[key]) else {"type": "number"}
-              for key in dispersed._INERTIA_KEYS}
+              for key in dispersed.INERTIA_KEYS}
     return table(values, (disp.InertiaDispersion.__doc__ or "").strip().split("\n\n")[0])
 
 
@@ -387,7 +387,7 @@ def _dispersions() -> dict:
     readings = {"angle": {"type": "number", "description": "[deg]"}, "distribution": distribution()}
     tree.setdefault("initial", {}).update({name: table({k: readings[v] for k, v in values.items()})
                                            for name, values in INITIAL_DISPERSIONS.items()})
-    for table_name in dispersed._LOOP_TABLES:
+    for table_name in dispersed.LOOP_TABLES:
         kind = SETS.get(table_name, table_name)
         tree[table_name] = {name: _leaves(kind, name) for name in components.names(kind)}
     for (table_name, kind), leaves in dispersed.SCENARIO_LEAVES.items():

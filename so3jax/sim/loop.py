@@ -41,7 +41,7 @@ from so3jax.core.integrate import OnSO3, rk4_step
 from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.core.so3 import broadcast
 from so3jax.dynamics import plant, stepped
-from so3jax.dynamics.inertia import _concrete
+from so3jax.dynamics.inertia import concrete_values
 from so3jax.dynamics.plant import inertia_rate, stage_inertia
 from so3jax.dynamics.scenario import Scenario
 from so3jax.sim import metrics
@@ -365,7 +365,7 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     spin = loop.actuator.spin_inertia_values()  # NumPy, None where traced: nothing is added to a trace
     if spin is not None:
         for name, J in inertias.items():
-            J = _concrete(J)
+            J = concrete_values(J)
             if J is not None and np.any(np.linalg.eigvalsh(J - spin) <= 0):
                 raise ValueError(f"inertia {name} minus the wheels' spin inertia (J - G_s J_s G_s^T) "
                                  "is not positive definite")

@@ -106,7 +106,7 @@ class _BrokenAt:
         return getattr(self.actuator, name)
 
 
-def _advance(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j, w=None):
+def advance_tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, state: State, j, w=None):
     """(x_{j+1}, the tick's :class:`~so3jax.sim.loop.Tick`): tick j, its actuator fed w
     (None: the controller's command, the loop closed), then m plant steps with d = 0."""
     ticked = loop if w is None else dataclasses.replace(loop, actuator=_BrokenAt(loop.actuator, w))
@@ -144,7 +144,7 @@ def tick_index(scenario: Scenario, loop: Loop, t: float) -> int:
 def _fly(scenario, loop, controller, gains, key, n_ticks):
     """The state before tick n_ticks (traced: one program for every t)."""
     state = initial_state(scenario, controller, gains, (), loop)
-    one = lambda j, state: _advance(scenario, loop, controller, gains, key, state, j)[0]
+    one = lambda j, state: advance_tick(scenario, loop, controller, gains, key, state, j)[0]
     return jax.lax.fori_loop(jnp.zeros((), jnp.int32), n_ticks, one, state)
 
 
@@ -295,7 +295,7 @@ def _period(scenario, loop, controller, gains, key, j, state, w, tangents, kinds
     def f(floats, w):
         it = iter(floats)
         x = treedef.unflatten([x if k == "fixed" else next(it) for x, k in zip(leaves, kinds)])
-        new, out = _advance(scenario, loop, controller, gains, key, x, j, w)
+        new, out = advance_tick(scenario, loop, controller, gains, key, x, j, w)
         new_floats = [x for x, k in zip(jax.tree.leaves(new), kinds) if k != "fixed"]
         return (new_floats, out.tau_cmd), (new, out.tau_cmd, loop.actuator.limits(x.actuator, new.held, w))
 

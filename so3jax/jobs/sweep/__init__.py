@@ -46,7 +46,7 @@ from so3jax.jobs.sweep.engine import (
     simulate_batch,
 )
 from so3jax.jobs.sweep.storage import (
-    _take,  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
+    claim_chunk,  # noqa: F401 (benchmarks/sweep.py shares chunks as run_sweep does)
     load_chunks,
     write_csv,
     write_outputs,

@@ -37,7 +37,7 @@ DEFAULT = {
                     "rate": {"norm": {"dist": "uniform", "low": 0.0, "high": 0.005}}},
     },
 }
-_SWEEP_KEYS = tuple(DEFAULT["sweep"])
+SWEEP_KEYS = tuple(DEFAULT["sweep"])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -96,7 +96,7 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     if not isinstance(d, dict):
         raise ValueError(f"a sweep config must be a table, got {checks.short(d)}")  # noqa: TRY004 (bad input)
     mission, jobs = missions.load_job(d, base_dir, ("sweep", "dispersions"), missions.PAPER)
-    sweep = checks.table(jobs, "sweep", _SWEEP_KEYS)
+    sweep = checks.table(jobs, "sweep", SWEEP_KEYS)
     values = dict(DEFAULT["sweep"], **sweep)
     top = {key: checks.number(values[key], f"sweep.{key}", low=1, integer=True)
            for key in ("samples", "chunk", "max_draws")}
@@ -136,7 +136,7 @@ def _margins_at(value, mission) -> tuple:
 def config_to_dict(config: SweepConfig) -> dict:
     """The sweep's own tables ([sweep], [dispersions]) as TOML data; the mission is
     ``config.mission.describe()``. ``pointing`` and ``margins_at`` only where set."""
-    sweep = {k: getattr(config, k) for k in _SWEEP_KEYS if k not in ("pointing", "margins_at")}
+    sweep = {k: getattr(config, k) for k in SWEEP_KEYS if k not in ("pointing", "margins_at")}
     sweep.update({k: getattr(config, k) for k in ("pointing", "margins_at") if getattr(config, k)})
     return {"sweep": sweep, "dispersions": config.table}
 

@@ -19,7 +19,7 @@ from jax.sharding import Mesh
 from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
-from so3jax.jobs.sweep.storage import _chunk_path, _prepare_out, _take, load_chunks, write_outputs
+from so3jax.jobs.sweep.storage import chunk_path, claim_chunk, load_chunks, prepare_out, write_outputs
 from so3jax.jobs.sweep.summary import summarize
 from so3jax.missions import dispersed
 from so3jax.missions.dispersions import MAX_SAMPLES
@@ -137,7 +137,7 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
         raise ValueError(f"[dispersions]: every one of the {config.samples} samples is rejected ({reasons}): "
                          "narrow the dispersions")
     n_steps = steps_for_horizon(config.T, config.dt)
-    fingerprint = _prepare_out(out, config, resume)
+    fingerprint = prepare_out(out, config, resume)
     processes = jax.process_count()
     share = processes > 1 and layout == "chunks"  # processes take whole chunks, claiming each
     claims = out / "chunks" / ".claims"  # a file per chunk a process has taken
@@ -182,16 +182,16 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
     with bar:
         try:
             for i, (controller, index) in enumerate(jobs):
-                if share and not _take(claims, controller, int(index[0])):
+                if share and not claim_chunk(claims, controller, int(index[0])):
                     continue  # another process computes it
                 with distributed.collective(f"{controller} samples {index[0]}-{index[-1]}"):
                     metrics = early.pop(i).result() if i in early else compute(controller, index)
                 if distributed.writer() or share:
-                    save_npz(_chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint),
+                    save_npz(chunk_path(out, controller, int(index[0])), fingerprint=np.array(fingerprint),
                              index=index, **{k: v[: len(index)] for k, v in metrics.items()})
                 if share:  # count every process's saved chunks
                     saved = {path.name for path in (out / "chunks").glob("*.npz")}
-                    bar.n = total - sum(len(i) for c, i in jobs if _chunk_path(out, c, int(i[0])).name not in saved)
+                    bar.n = total - sum(len(i) for c, i in jobs if chunk_path(out, c, int(i[0])).name not in saved)
                 else:
                     bar.n += len(index)
                 rate = (bar.n - held) / (time.perf_counter() - start)

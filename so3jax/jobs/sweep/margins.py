@@ -72,7 +72,7 @@ def fly(inputs, gains, ticks, *, controller, mission: Mission):
     def one(p, values):
         scenario, loop = _sample(mission, p, values, dtype)
         state = initial_state(scenario, controller, gains, (), loop)
-        advance = lambda j, s: margins._advance(scenario, loop, controller, gains, key, s, j)[0]
+        advance = lambda j, s: margins.advance_tick(scenario, loop, controller, gains, key, s, j)[0]
         states, start = [], jnp.zeros((), jnp.int32)
         for k in range(ticks.shape[0]):
             state = jax.lax.fori_loop(start, ticks[k], advance, state)

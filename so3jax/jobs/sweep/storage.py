@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
-from so3jax.jobs.sweep.summary import _row, columns, format_summary, reached_phases
+from so3jax.jobs.sweep.summary import columns, format_summary, reached_phases, summary_row
 from so3jax.missions import dispersions as disp
 from so3jax.parallel import distributed
 from so3jax.results import runfolder
@@ -25,7 +25,7 @@ from so3jax.sim.metrics import Metrics
 from so3jax.viz.sweep import figures
 
 
-def _take(claims: Path, controller: str, first: int) -> bool:
+def claim_chunk(claims: Path, controller: str, first: int) -> bool:
     """Whether this process takes the chunk (controller, first): the first process to create
     its claim file in the folder ``claims`` does (O_EXCL, atomic on a shared filesystem)."""
     try:
@@ -38,7 +38,7 @@ def _take(claims: Path, controller: str, first: int) -> bool:
 _CHUNK = re.compile(r"(\w+)-(\d{9})\.npz")  # a chunk file: controller-first sample
 
 
-def _chunk_path(out: Path, controller: str, first: int) -> Path:
+def chunk_path(out: Path, controller: str, first: int) -> Path:
     return out / "chunks" / f"{controller}-{first:09d}.npz"
 
 
@@ -89,7 +89,7 @@ def _fingerprint(config: SweepConfig) -> dict:
     return d
 
 
-def _prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
+def prepare_out(out: Path, config: SweepConfig, resume: bool) -> str:
     """Check the run description in OUT/sweep.json against this sweep's; returns its fingerprint."""
     description = to_builtin(_fingerprint(config))
     description["fingerprint"] = runfolder.fingerprint(description)
@@ -130,7 +130,7 @@ def write_csv(path: Path, cols: dict) -> None:
     writer = csv.writer(buffer)
     writer.writerow(cols)
     for i in range(len(cols["index"])):
-        row = _row(cols, i)
+        row = summary_row(cols, i)
 
         def text(key, v):
             if not (isinstance(v, float) and math.isnan(v)):

@@ -165,7 +165,7 @@ def _stats(x) -> dict:
     return {"mean": x.mean(), "std": x.std(), "p50": p50, "p95": p95, "p99": p99, "max": x.max(), "samples": len(x)}
 
 
-def _row(cols: dict, i: int) -> dict:
+def summary_row(cols: dict, i: int) -> dict:
     return {k: (v[i].item() if hasattr(v[i], "item") else v[i]) for k, v in cols.items()}
 
 
@@ -202,7 +202,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             "simulated": int(simulated[c].sum()),
             "diverged": int(bad[c].sum()),
             "nonfinite": int((cols[f"{c}_nonfinite"] == 1).sum()),
-            "diverged_samples": [_row(cols, i) for i in np.flatnonzero(bad[c])],
+            "diverged_samples": [summary_row(cols, i) for i in np.flatnonzero(bad[c])],
         }
         for metric in ("rmse", "effort"):
             entry[metric] = {"mission": _stats(cols[f"{c}_{metric}"][good])}

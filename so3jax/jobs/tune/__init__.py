@@ -48,10 +48,10 @@ is drawn by :mod:`so3jax.viz.tune`.
 
 from so3jax.jobs.tune.campaign import tune
 from so3jax.jobs.tune.config import (
-    _SECTIONS,  # noqa: F401 (tests walk the config's sections)
     COST_MODES,
     METHODS,
     OBJECTIVES,
+    SECTIONS,  # noqa: F401 (tests walk the config's sections)
     TUNE,
     Constraints,
     CostConfig,
@@ -70,7 +70,7 @@ from so3jax.jobs.tune.config import (
 from so3jax.jobs.tune.cost import (
     CostRefs,
     Evaluation,
-    _batch_metrics,  # noqa: F401 (tests: the cost's metrics without the gradient)
+    batch_cost_metrics,  # noqa: F401 (tests: the cost's metrics without the gradient)
     cost_and_grad,
     cvar,
     population_costs,
@@ -93,7 +93,7 @@ from so3jax.jobs.tune.optimizers import ESState, GradientState, NonFiniteGradien
 from so3jax.jobs.tune.problem import MIN_SHARD, Problem, batch_devices, build_problem, cost_refs, evaluate
 from so3jax.jobs.tune.storage import (
     CHECKPOINT,
-    _best_row,  # noqa: F401 (tests)
+    best_history_row,  # noqa: F401 (tests)
     check_fingerprint,
     load_checkpoint,
     save_checkpoint,

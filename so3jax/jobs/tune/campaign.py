@@ -14,27 +14,27 @@ import optax
 
 from so3jax.jobs.tune import constraints, design
 from so3jax.jobs.tune.config import TuneConfig, describe, make_optimizer, validate
-from so3jax.jobs.tune.cost import CostRefs, Evaluation, _summary, cost_and_grad, population_costs
+from so3jax.jobs.tune.cost import CostRefs, Evaluation, cost_and_grad, cost_summary, population_costs
 from so3jax.jobs.tune.gains import gain_columns, resolve_gains, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.optimizers import (
     ESState,
     GradientState,
     NonFiniteGradientError,
-    _optax_step,
     es_candidates,
     es_select,
+    optax_step,
 )
 from so3jax.jobs.tune.problem import batch_at, build_problem, cost_refs, evaluate, mission_of
 from so3jax.jobs.tune.storage import (
     CHECKPOINT,
-    _best_row,
-    _description,
-    _gains_from_row,
-    _row,
-    _write_best,
+    best_history_row,
     check_fingerprint,
+    gains_from_row,
+    history_row,
     load_checkpoint,
+    run_description,
     save_checkpoint,
+    write_best_gains,
     write_history,
 )
 from so3jax.jobs.tune.validation import validate_gains
@@ -73,7 +73,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     checkpoint = out / CHECKPOINT
     if checkpoint.exists() and not resume:
         raise ValueError(f"{checkpoint} exists: pass --resume to continue that run, or choose another --out")
-    description = _description(config)
+    description = run_description(config)
     fingerprint = runfolder.fingerprint(description)
     if resume and checkpoint.exists():  # before any work: another configuration or precision is refused
         check_fingerprint(checkpoint, fingerprint, description)
@@ -116,7 +116,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
         refs = cost_refs(config, problem, initial_metrics, first_batch)
         iteration, rows = 0, []
         if config.method == "es":
-            first = _summary(initial_metrics, refs, mode, config.objective, config.alpha)
+            first = cost_summary(initial_metrics, refs, mode, config.objective, config.alpha)
             state = state._replace(cost=first.cost, rmse=first.rmse, effort=first.effort)
     rollouts = rows[-1]["rollouts"] if rows else n_train  # the initial evaluation
     refs = place(refs, problem.mesh)
@@ -150,10 +150,10 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                     penalty, penalty_grad, held = margin.evaluate(state.params, train_scales)
                     evaluation = evaluation._replace(cost=evaluation.cost + penalty)
                     grad = jax.tree.map(jnp.add, grad, penalty_grad)
-                new_state = _optax_step(tx, state, grad, evaluation.cost)
+                new_state = optax_step(tx, state, grad, evaluation.cost)
                 rollouts += n_train
                 gains = to_gains(state.params)
-                row = _row(
+                row = history_row(
                     iteration,
                     evaluation,
                     gains,
@@ -175,7 +175,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
                 # a finite cost has no diverged scenario; the parent stays the initial gains until one is finite
                 parent_diverged = 0 if math.isfinite(float(new_state.cost)) else initial_diverged
                 parent = Evaluation(new_state.cost, new_state.rmse, new_state.effort, parent_diverged)
-                row = _row(
+                row = history_row(
                     iteration,
                     parent,
                     to_gains(new_state.params),
@@ -204,7 +204,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
             if distributed.writer():  # process 0 of a multi-process run writes; every process holds the same state
                 save_checkpoint(checkpoint, fingerprint, iteration, state, refs, rows, description)
                 write_history(out, rows)
-                _write_best(out, config, rows, initial)
+                write_best_gains(out, config, rows, initial)
             bar.set_postfix(cost=f"{row['cost']:.4g}", rmse=f"{row['rmse']:.3e}", effort=f"{row['effort']:.4g}")
             bar.update(1)
     finally:
@@ -213,8 +213,8 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     if distributed.writer():
         plot_history(out, rows, list(gain_columns(initial)),
                      budget=np.asarray(refs.effort) if mode == "equal_effort" else None)
-    best_row = _best_row(rows, config.dispersions is not None)
-    best = _gains_from_row(best_row, initial)
+    best_row = best_history_row(rows, config.dispersions is not None)
+    best = gains_from_row(best_row, initial)
     report = validate_gains(config, problem, initial, best, refs)
     if margin is not None:
         report["disk_margin"] = constraints.validation_report(margin, config, initial, best)

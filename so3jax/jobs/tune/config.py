@@ -146,7 +146,7 @@ class TuneConfig:
             object.__setattr__(self, "controller", self.mission.controllers[0])
 
 
-_SECTIONS = {
+SECTIONS = {
     "train": ScenarioSet,
     "validation": ScenarioSet,
     "cost": CostConfig,
@@ -155,7 +155,7 @@ _SECTIONS = {
     "constraints": Constraints,
     "lagrangian": LagrangianConfig,
 }
-_CONSTRAINTS = {"disk_margin": DiskMarginConstraint}  # the entries of [tune.constraints]
+CONSTRAINTS = {"disk_margin": DiskMarginConstraint}  # the entries of [tune.constraints]
 
 
 def _key(name: str) -> str:
@@ -175,10 +175,10 @@ def _build(cls, table: dict, prefix: str, **extra):
             raise ValueError(f"missing config key '{prefix}{name}'")
     values = {}
     for key, value in table.items():
-        if key in _SECTIONS and cls is TuneConfig:
-            value = _build(_SECTIONS[key], value, f"{prefix}{key}.")
-        elif key in _CONSTRAINTS and cls is Constraints:
-            value = _build(_CONSTRAINTS[key], value, f"{prefix}{key}.")
+        if key in SECTIONS and cls is TuneConfig:
+            value = _build(SECTIONS[key], value, f"{prefix}{key}.")
+        elif key in CONSTRAINTS and cls is Constraints:
+            value = _build(CONSTRAINTS[key], value, f"{prefix}{key}.")
         elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "at", "goals", "fixed"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):

@@ -69,7 +69,7 @@ class Evaluation(NamedTuple):
     diverged: jax.Array  # number of diverged scenarios
 
 
-def _summary(metrics, refs, mode, objective="mean", alpha=0.9, valid=None) -> Evaluation:
+def cost_summary(metrics, refs, mode, objective="mean", alpha=0.9, valid=None) -> Evaluation:
     costs = scenario_costs(metrics, refs, mode)
     return Evaluation(
         batch_mean(costs, valid) if objective == "mean" else cvar(costs, alpha, valid),
@@ -104,7 +104,7 @@ def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, missi
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "record_every", "mesh", "mission"))
-def _batch_metrics(scenario, controller, gains, batch, record_every, mesh=None, loop=PAPER_LOOP, mission=None):
+def batch_cost_metrics(scenario, controller, gains, batch, record_every, mesh=None, loop=PAPER_LOOP, mission=None):
     return _metrics(scenario, controller, gains, batch, record_every, mesh, loop, mission)
 
 
@@ -118,7 +118,7 @@ def cost_and_grad(params, scenario, controller, batch, refs, mode, gradient, rec
 
     def cost(p):
         metrics = _metrics(scenario, controller, to_gains(p), batch, record_every, mesh, loop, mission)
-        summary = _summary(metrics, refs, mode, objective, alpha, getattr(batch, "valid", None))
+        summary = cost_summary(metrics, refs, mode, objective, alpha, getattr(batch, "valid", None))
         return summary.cost, summary
 
     (_, summary), grad = value_and_grad(cost, gradient)(params)
@@ -132,6 +132,6 @@ def population_costs(population, scenario, controller, batch, refs, mode, record
 
     def one(params):
         metrics = _metrics(scenario, controller, to_gains(params), batch, record_every, mesh, loop)
-        return _summary(metrics, refs, mode, objective, alpha)
+        return cost_summary(metrics, refs, mode, objective, alpha)
 
     return jax.vmap(one)(population)

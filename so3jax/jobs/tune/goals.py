@@ -44,7 +44,7 @@ STATISTICS = ("mean", "max")
 PHASE_ENDS = "phase ends"
 MAX_DB = 60.0  # the highest disk or gain margin floor: alpha_req = 1.996, at the edge of what alpha can reach (< 2)
 MAX_DEG = 89.9  # the highest phase margin floor: alpha_req = 1.997
-_COMMON = ("hard", "name")
+COMMON_KEYS = ("hard", "name")
 # the keys of a margin goal beside margin (the floor first), by margin; of a budget goal beside budget
 MARGIN_KEYS = {"disk": ("min_db", "at"), "gain": ("min_db", "at", "axis"), "phase": ("min_deg", "at", "axis")}
 BUDGET_KEYS = ("limit", "statistic")
@@ -124,7 +124,7 @@ def phase_ends(mission) -> tuple:
 def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
     bounds = pointing.phase_bounds_of(mission.scenario())
     reference = item.get("requirement")
-    inline = {k: v for k, v in item.items() if k not in _COMMON + ("requirement",)}
+    inline = {k: v for k, v in item.items() if k not in COMMON_KEYS + ("requirement",)}
     if reference is None:
         return pointing.parse_requirement(inline, where, mission.phase_names, bounds, mission.recording)
     if inline:
@@ -145,7 +145,7 @@ def _requirement(item: dict, where: str, mission) -> pointing.Requirement:
 def _margin(item: dict, where: str, mission) -> dict:
     margin = checks.choice(item["margin"], f"{where}.margin", MARGINS)
     floor = MARGIN_KEYS[margin][0]
-    checks.table({"": item}, "", _COMMON + ("margin",) + MARGIN_KEYS[margin], where)
+    checks.table({"": item}, "", COMMON_KEYS + ("margin",) + MARGIN_KEYS[margin], where)
     if floor not in item:
         raise ValueError(f"{where}.{floor}: missing (the floor on the {margin} margin "
                          f"[{'deg' if margin == 'phase' else 'dB'}], > 0)")
@@ -183,7 +183,7 @@ def formed_before(mission, t: float, where: str) -> None:
 
 
 def _budget(item: dict, where: str) -> dict:
-    checks.table({"": item}, "", _COMMON + ("budget",) + BUDGET_KEYS, where)
+    checks.table({"": item}, "", COMMON_KEYS + ("budget",) + BUDGET_KEYS, where)
     metric = checks.choice(item["budget"], f"{where}.budget", tuple(BUDGETS))
     if "limit" not in item:
         raise ValueError(f"{where}.limit: missing (the budget [{BUDGETS[metric]}], > 0)")

@@ -30,7 +30,7 @@ class ESState(NamedTuple):
 
 
 @functools.partial(jax.jit, static_argnames=("tx",))
-def _optax_step(tx, state: GradientState, grad, value):
+def optax_step(tx, state: GradientState, grad, value):
     with jax.numpy_dtype_promotion("standard"):  # optax mixes int32 step counts with floats
         updates, opt_state = tx.update(grad, state.opt_state, state.params, value=value)
     return GradientState(project(optax.apply_updates(state.params, updates)), opt_state)

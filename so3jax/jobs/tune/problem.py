@@ -14,7 +14,7 @@ from jax.sharding import Mesh
 
 from so3jax.dynamics.scenario import Scenario
 from so3jax.jobs.tune.config import TuneConfig
-from so3jax.jobs.tune.cost import CostRefs, _batch_metrics, batch_mean
+from so3jax.jobs.tune.cost import CostRefs, batch_cost_metrics, batch_mean
 from so3jax.jobs.tune.gains import resolve_gains
 from so3jax.missions import dispersed
 from so3jax.parallel import devices
@@ -123,7 +123,7 @@ def batch_at(config: TuneConfig, problem: Problem, iteration: int):
 def evaluate(problem: Problem, gains, batch, controller=None):
     """Per-scenario metrics of fixed gains (forward only)."""
     controller = problem.mission.controller(controller or problem.controller)[0]
-    return _batch_metrics(
+    return batch_cost_metrics(
         problem.scenario, controller, place(gains, problem.mesh), batch, problem.record_every, problem.mesh,
         problem.loop, mission=mission_of(problem),
     )

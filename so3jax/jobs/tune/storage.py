@@ -22,14 +22,14 @@ from so3jax.results import io, runfolder
 CHECKPOINT = "checkpoint.npz"
 
 
-def _description(config: TuneConfig) -> dict:
+def run_description(config: TuneConfig) -> dict:
     """What a checkpoint belongs to: the mission, the [tune] table but the iteration count
     (a resumed run may be extended) and the precision."""
     return io.to_builtin(describe(dataclasses.replace(config, iterations=0)))
 
 
 def _fingerprint(config: TuneConfig) -> str:
-    return runfolder.fingerprint(_description(config))
+    return runfolder.fingerprint(run_description(config))
 
 
 def save_checkpoint(path, fingerprint, iteration, state, refs, rows, description=None) -> None:
@@ -92,7 +92,7 @@ def write_history(out: Path, rows: list[dict]) -> None:
     io.write_text(out / "history.csv", buffer.getvalue())
 
 
-def _row(iteration, evaluation: Evaluation, gains, wall, rollouts, **extra) -> dict:
+def history_row(iteration, evaluation: Evaluation, gains, wall, rollouts, **extra) -> dict:
     return {
         "iteration": iteration,
         "cost": float(evaluation.cost),
@@ -106,7 +106,7 @@ def _row(iteration, evaluation: Evaluation, gains, wall, rollouts, **extra) -> d
     }
 
 
-def _gains_from_row(row, template):
+def gains_from_row(row, template):
     """The gains recorded in a history row, shaped like template."""
     values = {}
     for name, value in template._asdict().items():
@@ -115,7 +115,7 @@ def _gains_from_row(row, template):
     return type(template)(**{name: jnp.asarray(v, jnp.result_type(template[0])) for name, v in values.items()})
 
 
-def _best_row(rows, fresh_batches: bool = False):
+def best_history_row(rows, fresh_batches: bool = False):
     """The row of the lowest finite cost (the first row when none is finite); with a fresh
     batch every iteration (dispersions), whose costs do not compare, the last row."""
     if fresh_batches:
@@ -123,15 +123,15 @@ def _best_row(rows, fresh_batches: bool = False):
     return min(rows, key=lambda r: r["cost"] if math.isfinite(r["cost"]) else math.inf)
 
 
-def _write_best(out: Path, config: TuneConfig, rows, template) -> None:
+def write_best_gains(out: Path, config: TuneConfig, rows, template) -> None:
     """best_gains.json: the lowest training cost so far (with dispersions: the last
     iterate), and the last good gains."""
-    best, last = _best_row(rows, config.dispersions is not None), rows[-1]
+    best, last = best_history_row(rows, config.dispersions is not None), rows[-1]
     record = {
         "controller": config.controller,
-        **tables(_gains_from_row(best, template)),
+        **tables(gains_from_row(best, template)),
         "iteration": best["iteration"],
         "training": {key: best[key] for key in ("cost", "rmse", "effort")},
-        "last_good": {"iteration": last["iteration"], **tables(_gains_from_row(last, template))},
+        "last_good": {"iteration": last["iteration"], **tables(gains_from_row(last, template))},
     }
     io.write_json(out / "best_gains.json", record)

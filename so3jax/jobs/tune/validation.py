@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from so3jax.jobs.tune.config import TuneConfig
-from so3jax.jobs.tune.cost import CostRefs, _summary
+from so3jax.jobs.tune.cost import CostRefs, cost_summary
 from so3jax.jobs.tune.gains import gains_table, resolve_gains, tables
 from so3jax.jobs.tune.problem import Problem, build_problem, evaluate
 from so3jax.results import io
@@ -44,7 +44,7 @@ def _metrics_table(metrics, valid=None) -> dict:
 def _mean_cost(metrics, refs, mode, objective="mean", alpha=0.9, valid=None):
     """The objective (mean or CVaR) of the docs/model.md §6 costs over the scenarios, None when a
     scenario diverged (its cost is not a number)."""
-    cost = float(_summary(metrics, refs, mode, objective, alpha, valid).cost)
+    cost = float(cost_summary(metrics, refs, mode, objective, alpha, valid).cost)
     counted = np.asarray(metrics.diverged, bool) & (True if valid is None else np.asarray(valid, bool))
     return cost if math.isfinite(cost) and not np.any(counted) else None
 
