@@ -296,6 +296,23 @@ OWN = ['phases.names=["a"]', "phases.start=[0.0]"]
 BODY = "[[900.0, 0.0, 0.0], [0.0, 800.0, 0.0], [0.0, 0.0, 600.0]]"
 
 
+@pytest.mark.parametrize("overrides", [
+    [f"inertia.J={BODY}"],
+    ["inertia.J0.nominal=" + BODY],
+    [*OWN, "reference.kind='inertial'", "inertia.kind='events'",
+     f"inertia.events={{initial={BODY}, times=[5.0], targets=[1.2], time_constants=[0.0]}}"],
+])
+def test_overrides_mean_the_same_over_the_flight_file_and_over_the_defaults(overrides, tmp_path):
+    """One merge rule: --set over missions/flight.toml is --set over the defaults it equals,
+    also where it switches the inertia's form (a constant J, the paper's J0, another kind),
+    and a job's tables over a mission file follow it too."""
+    over_file = missions.load(ROOT / "missions" / "flight.toml", overrides)
+    assert over_file.fingerprint == missions.load(None, overrides).fingerprint
+    job = {"mission": str(ROOT / "missions" / "flight.toml"), "inertia": {"J": json.loads(BODY)}}
+    constant = missions.load_job(job, tmp_path, ("sweep",))[0]
+    assert constant.constant_inertia and constant.fingerprint == missions.load(None, [f"inertia.J={BODY}"]).fingerprint
+
+
 @pytest.mark.parametrize(("overrides", "table", "kind"), [
     (["momentum.magnetorquers.gain=2e-3"], "momentum", "magnetorquers"),
     (["actuator.saturated.max_torque=0.1"], "actuator", "saturated"),

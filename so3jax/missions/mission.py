@@ -251,6 +251,29 @@ def merge_tables(base: dict, over: dict) -> dict:
     return out
 
 
+def _inertia_form(table) -> str | None:
+    """Which form an ``[inertia]`` table gives: "constant" (J), "paper" (J0, J1, J2 or
+    kind = "paper"), "kind" (another kind, by kind or its one subtable); None: none."""
+    if not isinstance(table, dict):
+        return None
+    if "J" in table:
+        return "constant"
+    if table.get("kind", "paper") != "paper" or any(isinstance(table.get(k), dict) for k in components.names("inertia")
+                                                    if k != "paper"):
+        return "kind"
+    return "paper" if "kind" in table or set(table) & set(keys.allowed("inertia")) else None
+
+
+def layered(lower: dict, upper: dict) -> dict:
+    """``upper`` over ``lower`` (a file over another, ``--set`` over a file) by one rule, as
+    a file over the defaults: table by table, except that an ``[inertia]`` of another form
+    (a constant J, the paper's J0, J1, J2, or another kind) replaces the lower one's."""
+    lower_form, upper_form = _inertia_form(lower.get("inertia")), _inertia_form(upper.get("inertia"))
+    if upper_form is not None and lower_form is not None and upper_form != lower_form:
+        lower = {k: v for k, v in lower.items() if k != "inertia"}
+    return merge_tables(lower, upper)
+
+
 def _components(kind: str, table: str, given, default) -> dict:
     """{name: values} of a set of registered components, each in its own ``[table.NAME]``: the
     base mission's (``default``), each merged with its given table, plus any other given a
@@ -616,7 +639,7 @@ def load_job(d: dict, base_dir, job_tables: tuple, base: dict = FLIGHT) -> tuple
     if path is not None:
         tables = _gain_files_in(cfg.read_toml(Path(base_dir) / path), (Path(base_dir) / path).parent)
         base = FLIGHT
-    return from_dict(merge_tables(tables, _gain_files_in(d, base_dir)), base), jobs
+    return from_dict(layered(tables, _gain_files_in(d, base_dir)), base), jobs
 
 
 def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
@@ -624,4 +647,4 @@ def load(path=None, overrides=(), base: dict = FLIGHT) -> Mission:
     KEY=VALUE overrides. A gains file named in the file is relative to the file's folder, one
     named in an override to the current directory."""
     tables = _gain_files_in(cfg.read_toml(path), Path(path).parent) if path is not None else {}
-    return from_dict(cfg.override(tables, overrides), base)
+    return from_dict(layered(tables, cfg.override({}, overrides)), base)
