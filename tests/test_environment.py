@@ -9,6 +9,7 @@ dtypes. Values are computed eagerly (no compilation) except where a test is abou
 import importlib.util
 import json
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -525,3 +526,26 @@ def test_float32():
             env.solar_pressure_torque(orbit, 10.0, R, one, one, cp, 0.5),
             env.atmosphere_density(jnp.asarray(5e5, jnp.float32))]
     assert [x.dtype for x in outs] == [jnp.float32] * len(outs)
+
+
+def test_the_models_constants_are_the_ones_docs_model_md_states():
+    """docs/model.md §4 writes the environment's constants: its atmosphere table, dipole
+    coefficients and reference radius and solar pressure are the code's, digit for digit."""
+    text = (Path(__file__).resolve().parents[1] / "docs" / "model.md").read_text()
+    section = text[text.index("The environment's constants"):]
+    rows = []
+    for line in section.splitlines()[2:]:
+        if line.startswith("| ") and re.match(r"\| \d", line):
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            rows += [tuple(float(x) for x in cells[i:i + 3]) for i in (0, 3) if cells[i]]
+        elif rows:
+            break
+    documented = sorted(rows)
+    np.testing.assert_array_equal(np.array(documented)[:, 0] * 1e3, env.ATMOSPHERE_BASE_ALTITUDE)
+    np.testing.assert_array_equal(np.array(documented)[:, 1], env.ATMOSPHERE_DENSITY)
+    np.testing.assert_allclose(np.array(documented)[:, 2] * 1e3, env.ATMOSPHERE_SCALE_HEIGHT, rtol=1e-15)
+    g10, g11, h11 = env.IGRF_2020_DIPOLE
+    assert f"$g_1^0 = {g10}$" in section and f"$g_1^1 = {g11}$" in section and f"$h_1^1 = {h11}$" in section
+    assert f"$a = {env.IGRF_REFERENCE_RADIUS / 1e3:g}$ km" in section
+    assert f"$S$ = {env.SOLAR_IRRADIANCE:g} W/m²" in section and 1361.0 <= env.SOLAR_IRRADIANCE <= 1368.0
+    assert env.P_SUN == env.SOLAR_IRRADIANCE / env.SPEED_OF_LIGHT and f"{env.P_SUN:.3e}".startswith("4.540")

@@ -44,7 +44,9 @@ from so3jax.dynamics.orbit import EARTH_RADIUS, MU_EARTH, check_mean_motion
 OMEGA_EARTH = 7.2921159e-5  # rad/s, the Earth's sidereal rotation rate
 SIDEREAL_YEAR = 365.25636 * 86400.0  # s: the sun's period in a non-precessing inertial frame
 OBLIQUITY = math.radians(23.4393)  # rad, the ecliptic's obliquity (J2000)
-P_SUN = 4.56e-6  # N/m^2, the solar radiation pressure at 1 AU (fully absorbed)
+SOLAR_IRRADIANCE = 1361.0  # W/m^2 at 1 AU: the IAU 2015 Resolution B3 nominal total solar irradiance
+SPEED_OF_LIGHT = 299_792_458.0  # m/s
+P_SUN = SOLAR_IRRADIANCE / SPEED_OF_LIGHT  # N/m^2, the solar radiation pressure at 1 AU (fully absorbed): 4.540e-6
 
 # IGRF-13's 2020 dipole (degree 1) coefficients [nT] and the IGRF reference radius [m], the
 # radius they refer to (the mean radius, not EARTH_RADIUS: 0.3 % in the field at a given r).
