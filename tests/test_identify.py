@@ -333,6 +333,16 @@ def test_regression_intervals_cover_the_truth(noisy_telemetry):
     assert_calibrated(standardized_errors(regression.identify, noisy_telemetry))
 
 
+def test_the_constant_inertia_is_kept_on_every_flight(noisy_telemetry):
+    """The test of docs/model.md §17.7 on the 12 flights of the manoeuvre (a constant J):
+    kept in each at 0.1 % (statistics 0.9-17.9, the least p 0.0066). Over the same flights
+    with J growing linearly by 30 % (inertia.kind = "linear"), it rejects every one
+    (statistics 58-67, p <= 1.3e-10); tests/test_identify_refusals.py tests a growing body."""
+    tests = [regression.constancy(telemetry.check(data)) for data in noisy_telemetry]
+    assert all(t["tested"] and t["dof"] == 6 for t in tests)
+    assert not any(t["rejected"] for t in tests), [t["p_value"] for t in tests]
+
+
 @pytest.mark.slow  # a longer flight and the fit's compile for its length: ~1 min
 def test_simulation_intervals_cover_the_truth():
     """12 flights x 6 entries at T = 300 s (29 windows of 10 s), the mission's rate-integrating

@@ -36,20 +36,25 @@ def _quaternion_product(p, q):
 
 
 def manoeuvre(T=120.0, amplitude=(0.35, 0.35, 0.05), disturbance=(0.0, 0.0, 0.0), rate=(0.001, -0.01, 0.002),
-              seed=0) -> dict:
+              seed=0, growth=0.0) -> dict:
     """Telemetry (the file's fields) of the docked spacecraft driven for T [s] by a square-wave
     body torque [N m] through its wheels (periods 100, 140, 60 s) and a constant body-fixed
     disturbance [N m], from ``rate`` [rad/s] with the wheels at rest: RK4 at 0.05 s on the
     attitude quaternion, the body's momentum L = J Omega + h and the wheels' spin momenta
-    m = J_s (Omega_w + g . Omega) (so Omega = (J - W)^-1 (L - G m), W the wheels' spin inertia)."""
+    m = J_s (Omega_w + g . Omega) (so Omega = (J - W)^-1 (L - G m), W the wheels' spin inertia).
+    growth: J(t) = (1 + growth t / T) J2, a body whose inertia grows linearly (L' = -Omega x L
+    + d holds for any J(t): the momentum is what the torques change)."""
     W = SPIN * AXES @ AXES.T
-    inverse = np.linalg.inv(J_TRUE - W)
+
+    def inverse(t):
+        return np.linalg.inv((1.0 + growth * t / T) * J_TRUE - W)
+
     motors = np.linalg.pinv(AXES)  # the wheels' torques that put tau on the body: -G u = tau
     periods = np.array([100.0, 140.0, 60.0])
 
     def field(t, x):
         q, L, m = x[:4], x[4:7], x[7:]
-        Omega = inverse @ (L - AXES @ m)
+        Omega = inverse(t) @ (L - AXES @ m)
         tau = np.asarray(amplitude) * np.sign(np.sin(2 * np.pi * t / periods))
         dq = 0.5 * _quaternion_product(q, np.concatenate([[0.0], Omega]))
         return np.concatenate([dq, -np.cross(Omega, L) + disturbance, -(motors @ tau)])
@@ -69,11 +74,12 @@ def manoeuvre(T=120.0, amplitude=(0.35, 0.35, 0.05), disturbance=(0.0, 0.0, 0.0)
             x[:4] /= np.linalg.norm(x[:4])
     rows = np.array(rows)
     q, L, m = rows[:, :4], rows[:, 4:7], rows[:, 7:]
-    Omega = (L - m @ AXES.T) @ inverse.T
+    t = PERIOD * np.arange(len(q))
+    Omega = np.einsum("nij,nj->ni", np.stack([inverse(tk) for tk in t]), L - m @ AXES.T)
     rng = np.random.default_rng(seed)
     small = 0.5e-5 * rng.standard_normal((len(q), 3))  # rad: the star tracker's rotation vector, half angle
     noisy_q = np.array([_quaternion_product(a, np.concatenate([[1.0], b])) for a, b in zip(q, small)])
-    return {"t": PERIOD * np.arange(len(q)), "gyro": Omega + 1e-5 * rng.standard_normal(Omega.shape),
+    return {"t": t, "gyro": Omega + 1e-5 * rng.standard_normal(Omega.shape),
             "attitude": noisy_q / np.linalg.norm(noisy_q, axis=1, keepdims=True),
             "wheel_speed": m / SPIN - Omega @ AXES, "wheel_axes": AXES, "spin_inertia": np.full(4, SPIN)}
 
@@ -254,6 +260,59 @@ def test_windows_the_record_cannot_hold_are_refused(driven, window, match, monke
     with pytest.raises(ValueError, match=match):
         simulation.check(tm, window=window)
     assert simulation.windows(tm, 10.0, True, 3)[:2] == (101, 11)
+
+
+# --- the constant-inertia hypothesis --------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def growing():
+    """The manoeuvre of a body whose inertia grows by 30 % over its 120 s."""
+    return manoeuvre(growth=0.3)
+
+
+def test_the_constant_inertia_test_keeps_a_constant_one_and_rejects_a_growing_one(driven, growing):
+    """The score test of a change of J between the record's halves (docs/model.md §17.7) at
+    0.1 %: the constant body's statistic is 2.0 (p = 0.92; seeds 0-5: 1.0-7.6, p >= 0.27),
+    the body growing by 30 % over the record's 120 s gives 45 (p = 5e-8; by 10 %: 34)."""
+    kept = regression.constancy(telemetry.check(driven))
+    assert kept["tested"] and kept["dof"] == 6 and kept["significance"] == 1e-3
+    assert kept["p_value"] > 0.1 and not kept["rejected"], kept
+    rejected = regression.constancy(telemetry.check(growing))
+    assert rejected["p_value"] < 1e-6 and rejected["rejected"], rejected
+    assert rejected["split_s"] == pytest.approx(60.0, abs=5.0)
+    # a record too short for two halves of the unknowns' block pairs is not tested
+    short = regression.constancy(telemetry.check(manoeuvre(T=40.0)))
+    assert short == {"tested": False, "reason": "the record gives 7 intervals of 5 s; two halves need 12 for 15 "
+                                                "unknowns"}
+    result = {"J": J_TRUE, "theta_cov": np.eye(6), "bias": None, "disturbance": None, "residual_rms": 1.0,
+              "iterations": 3, "converged": True, "constancy": short}
+    assert ("constant inertia (J on the record's two halves): not tested: the record gives 7 intervals"
+            in reports.format_report(reports.summary(result)))
+
+
+def test_the_report_says_when_the_inertia_is_not_constant(driven, growing, cli_env, capsys):
+    """identification.json and the table carry the test; a rejection is a one-line warning,
+    in the report and on stderr."""
+    import json
+
+    for data, rejected in ((driven, False), (growing, True)):
+        path = _write(cli_env / "telemetry.npz", data)
+        out = cli_env / f"out-{rejected}"
+        assert cli.main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
+        std = capsys.readouterr()
+        report = json.loads((out / "identification.json").read_text())
+        assert report["constancy"]["rejected"] is rejected and report["constancy"]["dof"] == 6
+        verdict = "REJECTED at 0.001" if rejected else "not rejected at 0.001"
+        assert "constant inertia (J on the record's two halves): score statistic" in std.out and verdict in std.out
+        warned = [line for line in std.err.splitlines() if "does not fit one constant inertia" in line]
+        assert len(warned) == int(rejected) and ("warning" in report) is rejected
+        if rejected:
+            assert ("the telemetry does not fit one constant inertia: a change of J between the record's halves "
+                    "fits it beyond its noise (score statistic ") in report["warning"] and "\n" not in report["warning"]
+            header = (out / "J_hat.toml").read_text().splitlines()
+            warning = next(line for line in header if line.startswith("# warning"))
+            assert "does not fit one constant inertia" in warning
 
 
 # --- the command: exit 2, one line, nothing written -----------------------------------------

@@ -122,15 +122,20 @@ def _rows(q: dict, sets, bias: bool):
     return X.reshape(-1, X.shape[2]), -diff(mean(q["Rh"])).reshape(-1)
 
 
-def system(tm, bias: bool, degree: int, interval: float, instruments: bool = True):
-    """(X, Xh, y, ends): the momentum equation's rows (:func:`_rows`) between blocks of
-    ``interval`` [s] of telemetry read at its rates' instants (:func:`at_midpoints`), Xh
-    the regressors X projected on the instruments' span (``instruments=False``: Xh = X),
-    and the time [s] each row's later block ends."""
+def unknowns(bias: bool, degree: int) -> int:
+    """k: J's 6 entries, [c = J b], and 3 per disturbance coefficient."""
+    return 6 + (3 if bias else 0) + 3 * (degree + 1)
+
+
+def equation(tm, bias: bool, degree: int, interval: float, instruments: bool = True):
+    """(X, Z, y, ends): the momentum equation's rows (:func:`_rows`) between blocks of
+    ``interval`` [s] of telemetry read at its rates' instants (:func:`at_midpoints`), three
+    per block pair; Z the instruments' rows (``instruments=False``: Z = X), and the time [s]
+    each row's later block ends."""
     tm = at_midpoints(tm)
     check_interval(tm.t, tm.valid, interval)
     groups = blocks(tm.t, tm.valid, interval)
-    k = 6 + (3 if bias else 0) + 3 * (degree + 1)
+    k = unknowns(bias, degree)
     if len(groups) - 1 < k // 3 + 1:
         raise ValueError(f"the telemetry gives {max(len(groups) - 1, 0)} intervals of {interval:g} s; "
                          f"at least {k // 3 + 1} are needed for {k} unknowns: a longer record or a shorter --interval")
@@ -141,9 +146,73 @@ def system(tm, bias: bool, degree: int, interval: float, instruments: bool = Tru
     else:
         X, y = _rows(q, groups, bias)
         Z = X
-    # two-stage least squares: the regressors projected on the instruments' span
+    return X, Z, y, np.array([tm.t[g[-1]] for g in groups[1:]])
+
+
+def projected(X, Z):
+    """Two-stage least squares' regressors: X projected on the span of the instruments Z."""
     Q, _ = np.linalg.qr(Z)
-    return X, Q @ (Q.T @ X), y, np.array([tm.t[g[-1]] for g in groups[1:]])
+    return Q @ (Q.T @ X)
+
+
+def system(tm, bias: bool, degree: int, interval: float, instruments: bool = True):
+    """(X, Xh, y, ends): :func:`equation`'s rows with Xh the regressors X projected on the
+    instruments' span (``instruments=False``: Xh = X)."""
+    X, Z, y, ends = equation(tm, bias, degree, interval, instruments)
+    return X, projected(X, Z), y, ends
+
+
+SIGNIFICANCE = 1e-3  # the constant-inertia test's: the chance it warns on a constant inertia
+
+
+def constancy(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0,
+              significance: float = SIGNIFICANCE) -> dict:
+    """The test of the constant-inertia hypothesis (docs/model.md §17.7), the same for both
+    methods (on the momentum equation's linear instrumental-variable form, fast): the score
+    (Lagrange multiplier) test of a change of J between the record's two halves. The
+    equation's rows get 6 more unknowns, the change of J's entries from the second half's
+    first block pair on (their regressors J's columns there, their instruments likewise),
+    and W = u^T Xa (Xa^T Xa)^-1 Xa^T u / s^2, with Xa the augmented regressors projected on
+    the instruments, u the structural residual of the constant-J fit and s^2 that of the
+    changing-J fit per degree of freedom, is chi-square with 6 degrees of freedom where J is
+    constant. {"tested": True, "statistic", "dof", "p_value", "significance", "rejected"
+    (p_value < significance), "split_s" (the second half's first time [s])}; {"tested":
+    False, "reason"} where a half has too few block pairs."""
+    from scipy import stats  # here: only an identification needs it
+
+    X, Z, y, ends = equation(tm, bias, degree, interval)
+    pairs, k = len(ends), unknowns(bias, degree)
+    first = pairs // 2
+    if first < k // 3 + 1 or pairs - first < 6 // 3 + 1:
+        return {"tested": False, "reason": f"the record gives {pairs} intervals of {interval:g} s; two halves need "
+                                           f"{2 * (k // 3 + 1)} for {k} unknowns"}
+    second = np.repeat(np.arange(pairs) >= first, 3)[:, None]  # the rows of the second half's block pairs
+    Xa, Za = np.concatenate([X, X[:, :6] * second], 1), np.concatenate([Z, Z[:, :6] * second], 1)
+    Q, _ = np.linalg.qr(Za)
+    Xh, Xah = Q @ (Q.T @ X), Q @ (Q.T @ Xa)
+    u = y - X @ np.linalg.lstsq(Xh, y, rcond=None)[0]  # constant J
+    ua = y - Xa @ np.linalg.lstsq(Xah, y, rcond=None)[0]  # J changing between the halves
+    dof = int(np.linalg.matrix_rank(Xah) - np.linalg.matrix_rank(Xh))
+    s2 = ua @ ua / max(len(y) - Xa.shape[1], 1)
+    g = Xah.T @ u
+    W = float(g @ np.linalg.pinv(Xah.T @ Xah, hermitian=True) @ g / s2)
+    p = float(stats.chi2.sf(W, dof))
+    return {"tested": True, "statistic": W, "dof": dof, "p_value": p, "significance": significance,
+            "rejected": p < significance, "split_s": float(ends[first - 1])}
+
+
+def add_constancy(out: dict, tm, *, bias: bool, degree: int, interval: float) -> dict:
+    """The fit ``out`` with its "constancy" (:func:`constancy`) and, where the test rejects
+    a constant inertia, a warning."""
+    test = out["constancy"] = constancy(tm, bias=bias, degree=degree, interval=interval)
+    if test["tested"] and test["rejected"]:
+        fit.add_warning(out, f"the telemetry does not fit one constant inertia: a change of J between the record's "
+                             f"halves fits it beyond its noise (score statistic {test['statistic']:.4g}, {test['dof']} "
+                             f"degrees of freedom, p = {test['p_value']:.2g} < {test['significance']:g}): the inertia "
+                             "changes over the record, or the record breaks the model otherwise (a torque it leaves "
+                             "out, thruster pulses, a disturbance torque fed back into the wheels by a closed loop), "
+                             "and J is no one inertia's estimate")
+    return out
 
 
 def determined(X, Xh, y, wheel_inertia) -> np.ndarray:
@@ -183,7 +252,8 @@ def check(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0) -> N
 def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, instruments: bool = True) -> dict:
     """The fit: {"J", "theta_cov", "bias", "bias_cov", "disturbance", "disturbance_cov",
     "residual_rms", "residuals" ({"t": s, name: (n, 3)}), "intervals", "iterations",
-    "converged", and "warning" where J is poorly determined}; degree: the disturbance
+    "converged", "constancy" (:func:`constancy`), and "warning" where J is poorly determined
+    or does not fit one constant inertia}; degree: the disturbance
     polynomial's (-1: no disturbance torque). Each block's even-numbered samples form the
     equation, its odd-numbered ones the instruments (``instruments=False``: every sample
     in the equation, ordinary least squares). ValueError where the telemetry does not
@@ -199,9 +269,10 @@ def identify(tm, *, bias: bool = True, degree: int = 1, interval: float = 5.0, i
     # the residual's scale from the structural equation (the measured regressors), not the projected one
     structural = X @ np.asarray(_coefficients(jnp.asarray(solution.p), bias)) - y
     scaled = solution._replace(cost=0.5 * float(structural @ structural))
-    return fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution, tm.wheel_inertia,
-                        residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(ends),
-                        residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
+    out = fit.estimate(solution.p, fit.covariance(scaled, len(y)), bias, degree, solution, tm.wheel_inertia,
+                       residual_rms=float(np.sqrt(np.mean(structural ** 2))), intervals=len(ends),
+                       residuals={"t": ends, "momentum equation [N m s]": structural.reshape(-1, 3)})
+    return add_constancy(out, tm, bias=bias, degree=degree, interval=interval)
 
 
 def _coefficients(p, bias: bool):

@@ -25,12 +25,14 @@ UNITS = {"J": "kg m^2", "J_entries_std": "kg m^2", "J_entries_covariance": "kg^2
          "principal_moments_std": "kg m^2", "principal_axes": "-", "principal_axes_std_deg": "deg", "bias": "rad/s",
          "bias_std": "rad/s", "disturbance": "N m / s^k (row k: the coefficient of t^k)",
          "disturbance_std": "N m / s^k", "sigma_gyro": "rad/s",
-         "sigma_star": "rad", "sigma_momentum_jump": "N m s"}
+         "sigma_star": "rad", "sigma_momentum_jump": "N m s",
+         "constancy": "- (split_s: s)"}
 
 
 def summary(fit) -> dict:
     """The estimate as JSON-ready data: J and its entries' covariance, principal moments and
-    axes with 1 sigma, the bias and disturbance with theirs, the residuals' RMS."""
+    axes with 1 sigma, the bias and disturbance with theirs, the residuals' RMS, and the
+    test of a constant inertia."""
     lam, V, lam_std, axis_std = inertia.principal(fit["J"], fit["theta_cov"])
     out = {"J": fit["J"], "J_entries": list(inertia.ENTRIES), "J_entries_std": _std(fit["theta_cov"]),
            "J_entries_covariance": fit["theta_cov"],
@@ -40,7 +42,7 @@ def summary(fit) -> dict:
            "disturbance": fit["disturbance"],
            "disturbance_std": None if fit["disturbance"] is None else _std(fit["disturbance_cov"]).reshape(-1, 3),
            "residual_rms": fit["residual_rms"], "iterations": fit["iterations"], "converged": fit["converged"]}
-    for key in ("intervals", "windows", "sigma_gyro", "sigma_star", "sigma_momentum_jump", "warning"):
+    for key in ("intervals", "windows", "sigma_gyro", "sigma_star", "sigma_momentum_jump", "constancy", "warning"):
         if key in fit:
             out[key] = fit[key]
     # residual_rms: the momentum equation's [N m s] (regression), or the measurements' residuals
@@ -91,6 +93,13 @@ def format_report(r) -> str:
         for p, (d, s) in enumerate(zip(r["disturbance"], r["disturbance_std"])):
             lines.append(f"disturbance s^{p} [N m]: " + ", ".join(
                 f"{_number(x, '+.4g')} +- {_number(e, '.2g')}" for x, e in zip(d, s)))
+    test = r.get("constancy")
+    if test is not None and not test["tested"]:
+        lines.append(f"constant inertia (J on the record's two halves): not tested: {test['reason']}")
+    elif test is not None:
+        verdict = "REJECTED" if test["rejected"] else "not rejected"
+        lines.append(f"constant inertia (J on the record's two halves): score statistic {test['statistic']:.4g}, "
+                     f"{test['dof']} dof, p = {test['p_value']:.3g}: {verdict} at {test['significance']:g}")
     lines.append(f"converged: {r['converged']} ({r['iterations']} iterations)")
     return "\n".join(lines)
 

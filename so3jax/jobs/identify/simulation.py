@@ -100,7 +100,8 @@ def _interval(tm, n_g) -> float:
 
 def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, initial=None) -> dict:
     """The fit (the keys of :func:`so3jax.jobs.identify.regression.identify`, plus "sigma_gyro",
-    "sigma_star", "sigma_momentum_jump", "windows"); initial: the first guess of J (3, 3),
+    "sigma_star", "sigma_momentum_jump", "windows"; "constancy" is the regression's test on
+    blocks of its first guess's length); initial: the first guess of J (3, 3),
     default the regression's estimate (with its bias and disturbance). The disturbance is a
     cubic by default: fitted sample by sample, the output error follows a disturbance the
     polynomial misses (the flight mission's sinusoid over 600 s) into J, where the
@@ -162,6 +163,7 @@ def identify(tm, *, bias: bool = True, degree: int = 3, window: float = 10.0, in
                        residual_rms=float(np.sqrt(np.mean(r ** 2))), windows=n_w,
                        residuals={"t": t[: n_w * K], "gyro [rad/s]": gyro, "star tracker [rad]": star})
     out.update(sigma_gyro=sigma_g, sigma_star=sigma_st, sigma_momentum_jump=sigma_c)
+    regression.add_constancy(out, tm, bias=bias, degree=degree, interval=_interval(tm, n_g))
     if n_w < 2 * n_g:
         fit.add_warning(out, f"{n_w} windows for {n_g} global parameters: the covariance (a sandwich over windows) "
                              f"understates the uncertainty; a longer record or a shorter --window")
