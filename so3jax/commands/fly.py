@@ -14,7 +14,6 @@ from so3jax.commands.common import (
     mission_overrides,
     registered,
 )
-from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs import fly
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder, units
@@ -49,35 +48,31 @@ def run(args) -> int:
 
 
 def _fly_into(args, mission) -> int:
-    scenario, loop = mission.scenario(args.precision), mission.loop(args.precision)
-    budget = memory.check(fly.memory_needed(mission, scenario, loop), memory.from_args(args),
-                          f"T = {mission.T:g} s at record_every = {mission.record_every}",
-                          "raise --record-every or shorten --T")
+    budget = fly.check_memory(mission, args.precision, memory.from_args(args))
     print(f"flying {', '.join(mission.controllers)}: {mission.T:g} s at dt = {mission.dt:g} s"
           + (f", control period {mission.period:g} s" if mission.period else ", continuous control")
           + " ...", file=sys.stderr, flush=True)
-    results, wall = fly.fly(mission, args.precision)
-    reports = {name: fly.report(mission, r) for name, r in results.items()}
+    flight = fly.flight(mission, args.precision)
+    reports = dict(flight.reports)
     reports["units"] = units.table(reports[mission.controllers[0]])
-    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": wall, "memory": budget,
-                         "mission_file": None if args.mission is None else str(args.mission)}
+    reports["config"] = {**mission.describe(), "precision": args.precision, "wall_time_s": flight.wall_s,
+                         "memory": budget, "mission_file": None if args.mission is None else str(args.mission)}
     write_json(args.out / "metrics.json", reports)
-    save_npz(args.out / "trajectory.npz",
-             **fly.trajectory_arrays(results, steps_for_horizon(mission.T, mission.dt) * mission.dt))
-    telemetry = fly.write_telemetry(args.out, mission, results)
-    figures = [] if args.no_figures else fly.write_figures(args.out, mission, results)
-    diverged = [n for n in mission.controllers if reports[n]["diverged"]]
+    save_npz(args.out / "trajectory.npz", **flight.trajectory)
+    telemetry = fly.write_telemetry(args.out, mission, flight.results)
+    figures = [] if args.no_figures else fly.write_figures(args.out, mission, flight.results)
+    diverged, failed = flight.diverged, flight.failed
     if diverged:
         print(f"warning: diverged: {', '.join(diverged)}", file=sys.stderr)
-    failed = [n for n in mission.controllers if not all(q["passed"] for q in reports[n]["requirements"])]
     if failed:
         print(f"warning: requirements failed: {', '.join(failed)}", file=sys.stderr)
     if args.json:
         print(dumps(reports))
     else:
-        print(fly.format_table(mission, {n: reports[n] for n in mission.controllers}))
+        print(flight.table())
         if mission.requirements:
-            print("\n" + fly.format_requirements({n: reports[n] for n in mission.controllers}))
-        print(f"\n{mission.scenario().n_steps} steps x {len(results)} controllers in {wall:.1f} s (compile included); "
-              f"results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, {len(figures)} figures)")
+            print("\n" + flight.requirements_table())
+        print(f"\n{mission.scenario().n_steps} steps x {len(flight.results)} controllers in {flight.wall_s:.1f} s "
+              f"(compile included); results in {args.out}/ (metrics.json, trajectory.npz{telemetry}, "
+              f"{len(figures)} figures)")
     return 1 if diverged or failed else 0

@@ -4,6 +4,7 @@ control, actuators), each controller on the same mission and seed: the job ``so3
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 import warnings
@@ -14,7 +15,9 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.dynamics.scenario import steps_for_horizon
 from so3jax.jobs.identify import telemetry
+from so3jax.missions.mission import Mission
 from so3jax.parallel import devices
 from so3jax.results import io, units
 from so3jax.results.io import save_npz, to_builtin
@@ -55,6 +58,66 @@ def memory_needed(mission, scenario, loop) -> int:
                for name in mission.controllers)
 
 
+def check_memory(mission, dtype: str = "float64", max_memory: int | None = None) -> dict:
+    """Refuse (one-line ValueError) a flight whose rollouts need more than ``max_memory``
+    [bytes] (None: the memory available), before anything compiles; returns
+    {'estimate_bytes', 'limit_bytes'}."""
+    scenario, loop = mission.scenario(dtype), mission.loop(dtype)
+    return memory.check(memory_needed(mission, scenario, loop), max_memory,
+                        f"T = {mission.T:g} s at record_every = {mission.record_every}",
+                        "raise --record-every or shorten --T")
+
+
+@dataclasses.dataclass(frozen=True)
+class Flight:
+    """A mission flown by each of its controllers: what ``so3jax fly`` computes, before any file.
+
+    results: {controller: :class:`so3jax.sim.rollout.Result`, NumPy leaves} (metrics, history,
+    final state, flight metrics); reports: {controller: :func:`report`} (metrics.json's entry:
+    the metrics in SI units, the flight metrics, ``pointing`` [arcsec] and ``requirements``
+    with their verdicts); wall_s: the wall time [s], compilation included."""
+
+    mission: Mission
+    results: dict
+    reports: dict
+    wall_s: float
+
+    @property
+    def trajectory(self) -> dict:
+        """trajectory.npz's arrays: {controller/quantity: array} (:func:`trajectory_arrays`)."""
+        return trajectory_arrays(self.results, steps_for_horizon(self.mission.T, self.mission.dt) * self.mission.dt)
+
+    @property
+    def diverged(self) -> list:
+        """The controllers whose run diverged."""
+        return [n for n in self.mission.controllers if self.reports[n]["diverged"]]
+
+    @property
+    def failed(self) -> list:
+        """The controllers that failed a pointing requirement."""
+        return [n for n in self.mission.controllers if not all(q["passed"] for q in self.reports[n]["requirements"])]
+
+    def telemetry(self, name: str) -> dict:
+        """Controller ``name``'s telemetry arrays (OUT/telemetry/NAME.npz's fields,
+        :func:`so3jax.jobs.identify.telemetry.from_run`): the flight needs a gyro and a star tracker."""
+        return telemetry.from_run(self.mission, self.results[name].history, self.mission.seed)
+
+    def table(self) -> str:
+        """The command's table: one column per controller (:func:`format_table`)."""
+        return format_table(self.mission, {n: self.reports[n] for n in self.mission.controllers})
+
+    def requirements_table(self) -> str:
+        """A line per controller and requirement (:func:`format_requirements`)."""
+        return format_requirements({n: self.reports[n] for n in self.mission.controllers})
+
+
+def flight(mission, dtype: str = "float64") -> Flight:
+    """Every controller of the mission flown (:func:`fly`) and reported (:func:`report`)."""
+    results, wall = fly(mission, dtype)
+    reports = {name: report(mission, r) for name, r in results.items()}
+    return Flight(mission, results, reports, wall)
+
+
 def report(mission, result) -> dict:
     """The metrics of docs/model.md §6 (phases the horizon never reached omitted) and the flight metrics, as
     JSON-ready data: every metric of a diverged run None (null), the run flagged diverged."""
@@ -72,17 +135,27 @@ def report(mission, result) -> dict:
 
 
 def pointing_report(mission, history) -> dict:
-    """The ECSS pointing indices of the recorded history (:func:`so3jax.sim.pointing.report`:
-    APE, MPE, RPE and, with an estimate, AKE, MKE, RKE per phase at the mission's levels and window) and
-    the mission's requirements checked (:func:`so3jax.sim.pointing.check`), JSON-ready."""
+    """:func:`pointing_errors` at the mission's window, levels, phases and requirements."""
+    return pointing_errors(history, mission.scenario(), window=mission.pointing["window"],
+                           levels=mission.pointing["levels"], requirements=mission.requirements,
+                           phase_names=mission.phase_names)
+
+
+def pointing_errors(history, scenario, *, window: float, levels=(0.95, 0.9973), requirements=(),
+                    phase_names=None) -> dict:
+    """The ECSS pointing indices of one run's recorded history (:func:`so3jax.sim.pointing.report`:
+    APE, MPE, RPE and, with an estimate, AKE, MKE, RKE [arcsec], per phase the horizon reaches, at
+    each confidence level, windowed indices over ``window`` [s]) and the requirements
+    (:class:`so3jax.sim.pointing.Requirement`) checked over the scenario's phases
+    (:func:`so3jax.sim.pointing.check`), JSON-ready: {"pointing": ..., "requirements": [...]}."""
     t, performance, knowledge = pointing.signals(history)
-    phases = pointing.phase_bounds_of(mission.scenario())
-    reached = sum(reached_phases(mission.scenario().steps_per_phase))
-    report = pointing.report(t, performance, knowledge, phases[:reached], window=mission.pointing["window"],
-                             levels=mission.pointing["levels"], phase_names=mission.phase_names[:reached],
-                             indices=pointing.reported(knowledge))
+    phases = pointing.phase_bounds_of(scenario)
+    reached = sum(reached_phases(scenario.steps_per_phase))
+    names = None if phase_names is None else tuple(phase_names)[:reached]
+    report = pointing.report(t, performance, knowledge, phases[:reached], window=window, levels=levels,
+                             phase_names=names, indices=pointing.reported(knowledge))
     return {"pointing": to_builtin(report),
-            "requirements": to_builtin(pointing.check(mission.requirements, t, performance, knowledge, phases))}
+            "requirements": to_builtin(pointing.check(requirements, t, performance, knowledge, phases))}
 
 
 def _cell(x, fmt):

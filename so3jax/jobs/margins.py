@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -52,13 +53,21 @@ def phase_of(mission, t: float) -> str:
     return next(mission.phase_names[p] for p, (a, b) in enumerate(bounds) if a <= t < b or p == len(bounds) - 1)
 
 
-def at(mission, name: str, t: float, dtype: str = "float64") -> tuple:
+class Margins(NamedTuple):
+    """A controller's loop at one time, broken at the actuator input."""
+
+    linearization: margins.Linearization  # over one control period, about the noise-free flight
+    loop_at_a_time: margins.LoopMargins  # per-axis gain [dB], phase [deg] and delay [s] margins
+    disk: margins.DiskMargins  # disk margins per axis and for all axes at once
+
+
+def at(mission, name: str, t: float, dtype: str = "float64") -> Margins:
     """(Linearization, LoopMargins, DiskMargins) of controller ``name``'s loop at t [s]."""
     scenario, loop = mission.scenario(dtype), mission.loop(dtype)
     controller, gains = mission.controller(name)
     state = margins.nominal_state(scenario, loop, controller, gains, t)
     lin = margins.linearize(scenario, loop, controller, gains, state, margins.tick_index(scenario, loop, t))
-    return lin, margins.loop_at_a_time(lin), margins.disk_margin(lin)
+    return Margins(lin, margins.loop_at_a_time(lin), margins.disk_margin(lin))
 
 
 def run(mission, times, dtype: str = "float64") -> tuple[dict, dict, float]:
