@@ -425,7 +425,8 @@ def test_a_dispersed_attitude_table_gives_each_sample_its_own_times():
 @pytest.mark.parametrize("table, message", [
     ({"inertia": {"events": {"initial": {"dist": "uniform", "low": 0.0, "high": 1.0}}}},
      r"unknown key\(s\) in \[dispersions.inertia.events.initial\]: dist, high, low"),  # an inertia's form
-    ({"inertia": {"events": {"start": 1.0}}}, "dispersible inertia param"),
+    ({"inertia": {"events": {"start": 1.0}}},
+     r"^dispersions\.inertia\.events\.start cannot be dispersed: dispersible are inertia\.events\.initial, "),
     ({"inertia": {"events": {"times": {"dist": "uniform", "low": -1.0, "high": 1.0}}}}, r"must be >= 0"),
 ])
 def test_bad_event_dispersions_are_one_line_errors(table, message):
