@@ -13,14 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from so3jax.commands.common import add_output_arguments, add_precision_argument
+from so3jax.jobs.api import DEFAULT_DISTURBANCE, DISTURBANCE, identification_options
 from so3jax.jobs.identify import CHECKS, METHODS, inertia, telemetry
 from so3jax.jobs.identify import report as reports
 from so3jax.missions import mission as missions
 from so3jax.results import runfolder
 from so3jax.results.io import dumps, write_json, write_text
-
-DISTURBANCE = {"none": -1, "constant": 0, "linear": 1, "quadratic": 2, "cubic": 3}
-DEFAULT_DISTURBANCE = {"regression": "linear", "simulation": "cubic"}
 
 
 def register(subparsers) -> None:
@@ -89,12 +87,8 @@ def run(args) -> int:
 
 def _options(args, initial) -> dict:
     """The method's keyword arguments."""
-    options = dict(bias=not args.no_bias, degree=DISTURBANCE[args.disturbance or DEFAULT_DISTURBANCE[args.method]])
-    if args.method == "regression":
-        options["interval"] = args.interval
-    else:
-        options.update(window=args.window, initial=initial)
-    return options
+    return identification_options(args.method, bias=not args.no_bias, disturbance=args.disturbance,
+                                  interval=args.interval, window=args.window, initial=initial)
 
 
 def _identify_into(args, tm, initial, options) -> int:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import warnings
 from pathlib import Path
 
 from so3jax.commands.common import (
@@ -15,10 +14,9 @@ from so3jax.commands.common import (
     output_folder,
     registered,
 )
-from so3jax.dynamics.inertia import InertiaWarning
+from so3jax.jobs import api
 from so3jax.jobs.sweep import pointing
-from so3jax.jobs.sweep.config import load_config
-from so3jax.jobs.sweep.engine import LAYOUTS, run_sweep
+from so3jax.jobs.sweep.engine import LAYOUTS
 from so3jax.jobs.sweep.summary import format_summary
 from so3jax.parallel import distributed
 from so3jax.sim import memory
@@ -63,17 +61,9 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     distributed.initialize(args)
-    overrides = list(args.set)
-    for key, where in (("samples", "sweep.samples"), ("T", "T"), ("chunk", "sweep.chunk"), ("seed", "sweep.seed")):
-        if getattr(args, key) is not None:
-            overrides.append(f"{where}={getattr(args, key)}")
-    if args.controllers is not None:
-        overrides.append("controllers=" + str([c.strip() for c in args.controllers.split(",")]).replace("'", '"'))
-    with warnings.catch_warnings():
-        warnings.simplefilter("once", InertiaWarning)
-        config = load_config(args.config, tuple(overrides))
-
-    summary = run_sweep(config, args.out, resume=args.resume, max_memory=memory.from_args(args), layout=args.layout)
+    summary = api.sweep(args.config, args.out, overrides=args.set, samples=args.samples, T=args.T,
+                        controllers=args.controllers, chunk=args.chunk, seed=args.seed, resume=args.resume,
+                        max_memory=memory.from_args(args), layout=args.layout)
     if distributed.writer():
         print(format_summary(summary))
         run = summary["run"]

@@ -7,12 +7,10 @@ import sys
 from pathlib import Path
 
 from so3jax.commands.common import add_precision_argument, output_folder, registered
+from so3jax.jobs import api
 from so3jax.jobs.tune import design_report
-from so3jax.jobs.tune.campaign import tune
-from so3jax.jobs.tune.config import load_config
 from so3jax.jobs.tune.optimizers import NonFiniteGradientError
 from so3jax.jobs.tune.validation import markdown_table
-from so3jax.missions import config as cfg
 from so3jax.parallel import distributed
 
 DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written only when named with --out
@@ -20,15 +18,10 @@ DEFAULT_OUT = Path("results/tune")  # the shipped campaigns' folders are written
 
 def run(args) -> int:
     distributed.initialize(args)  # before anything touches JAX's backend
-    overrides = [cfg.parse_override(text) for text in args.set]
-    if args.iterations is not None:
-        overrides.append(("tune.iterations", args.iterations))
-    if args.T is not None:
-        overrides.append(("T", args.T))
-    config = load_config(args.config, overrides)
     out = Path(args.out) if args.out else DEFAULT_OUT / Path(args.config).stem
     try:
-        report = tune(config, out, resume=args.resume)
+        report = api.tune(args.config, out, overrides=args.set, iterations=args.iterations, T=args.T,
+                          resume=args.resume)
     except NonFiniteGradientError as err:
         print(f"so3jax tune: {err}", file=sys.stderr)
         return 1
