@@ -94,6 +94,12 @@ def test_a_conflict_names_a_goal_held_below_its_limit_by_its_multiplier():
     assert design.conflicts(g, jac, goals, hard) == []
     pushed = design.conflicts(g, jac, goals, hard, lam=np.array([0.3, 0.1, 0.0]))
     assert pushed == [["hold pointing", "mean effort"]]
+    # traded: every iterate that pointed better lost the rms budget, which holds at the design
+    rows = [{"g[hold pointing]": 1.5, "g[mean effort]": 0.7, "g[mean rmse]": 3.0},
+            {"g[hold pointing]": 2.5, "g[mean effort]": 0.9, "g[mean rmse]": 0.4}]
+    assert design.conflicts(g, jac * 0.0, goals, hard, rows=rows) == [["hold pointing", "mean rmse"]]
+    rows.append({"g[hold pointing]": 1.9, "g[mean effort]": 0.7, "g[mean rmse]": 0.9})  # one did both
+    assert design.conflicts(g, jac * 0.0, goals, hard, rows=rows) == []
 
 
 # --- each goal's derivative ------------------------------------------------------------------

@@ -157,11 +157,16 @@ def score(g, soft, hard) -> tuple:
     return (1, worst_hard)
 
 
-def conflicts(g, jac, goals, hard, lam=None) -> list:
-    """Pairs of hard goals that cannot be improved together at a design: among the active
-    ones (over or within 5 % of their limit, or with a positive multiplier lam (one per hard
-    goal): the constraint pushed back during the run), the pairs with one goal over its
-    limit whose gradients dg/dp point against each other (cosine < -0.5)."""
+def conflicts(g, jac, goals, hard, lam=None, rows=()) -> list:
+    """Pairs [a, b] of hard goals that cannot be improved together at a design ``g``, a over
+    its limit there, by either of two signs:
+
+    * local: both active (over or within 5 % of their limit, or with a positive multiplier
+      lam, one per hard goal: the constraint pushed back during the run) and their gradients
+      dg/dp point against each other (cosine < -0.5);
+    * traded: among the run's evaluated iterates ``rows`` (history rows, ``g[NAME]`` per
+      goal), some have a below its value at the design, and every one of them has b over
+      its limit, b within it at the design."""
     pushed = np.zeros(len(goals), bool)
     if lam is not None:
         pushed[np.flatnonzero(hard)] = np.asarray(lam) > 0
@@ -174,6 +179,13 @@ def conflicts(g, jac, goals, hard, lam=None) -> list:
             na, nb = np.linalg.norm(jac[a]), np.linalg.norm(jac[b])
             if na > 0 and nb > 0 and float(jac[a] @ jac[b]) / (na * nb) < -0.5:
                 out.append([goals[a].name, goals[b].name])
+    table = np.array([[float(r[f"g[{goal.name}]"]) for goal in goals] for r in rows]).reshape(-1, len(goals))
+    for a in np.flatnonzero(hard & (np.asarray(g) > FEASIBLE)):
+        for b in np.flatnonzero(hard & (np.asarray(g) <= FEASIBLE)):
+            better = table[table[:, a] < g[a]]
+            pair = sorted([int(a), int(b)])
+            if len(better) and np.all(better[:, b] > FEASIBLE) and [goals[i].name for i in pair] not in out:
+                out.append([goals[i].name for i in pair])
     return out
 
 
@@ -409,7 +421,7 @@ def _report(config, goals, soft, hard, values, parameters, state, train_index, s
         "goals": rows,
         "binding": binding,
         "conflicts": [] if feasible_training else conflicts(g_best, np.array(best["jacobian"]), goals, hard,
-                                                            state["lam"][best["start"]]),
+                                                            state["lam"][best["start"]], state["rows"]),
         "unmet_hard": [goals[i].name for i in range(len(goals))
                        if hard[i] and checked["best"]["g"][i] > FEASIBLE],
         "gains": {"initial": tables(parameters.initial)["gains"], "best": tables(parameters.gains(best["p"]))["gains"]},
