@@ -219,6 +219,7 @@ def test_an_unstable_points_derivative_is_its_spectral_radius(flight_goals):
     ({"bounds": {"k_R": [1.0, 0.5]}}, "tune.bounds.k_R"),
     ({"bounds": {"k_X": [0.1, 1.0]}}, "no gain 'k_X'"),
     ({"starts": 0}, "tune.starts"),
+    ({"dispersions": {"bogus": 1.0}}, "tune.dispersions.bogus cannot be dispersed"),
     ({"fixed": ["k_R", "k_Omega"]}, "nothing is left to tune"),
     ({"dispersions": None}, "needs a [tune.dispersions] table"),
 ])

@@ -358,7 +358,9 @@ def _check_dispersions(config: TuneConfig) -> None:
     try:
         _, leaves = dispersed.parse(config.dispersions, config.mission)
     except ValueError as err:
-        raise ValueError(f"{_key('dispersions')}: {err}") from None
+        message = str(err)  # names the sweep's key, dispersions.X: here it is the campaign's
+        raise ValueError(f"{TUNE}.{message}" if message.startswith("dispersions.") else
+                         f"{_key('dispersions')}: {message}") from None
     _check_samples(config, leaves)
 
 
