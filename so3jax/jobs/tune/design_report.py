@@ -51,7 +51,8 @@ def markdown(report: dict) -> str:
                      f"| {_value(h['best_value'], row['unit'])} |")
     lines += ["", "Binding at the best design: " + (", ".join(report["binding"]) or "none") + "."]
     if report["conflicts"]:
-        lines += ["", "Goals that cannot be improved together there (their gradients point against each other): "
+        lines += ["", "Hard goals that cannot be improved together there (their gradients point against each other, "
+                  "or every iterate of the run that improved one lost the other): "
                   + "; ".join(" and ".join(pair) for pair in report["conflicts"]) + "."]
     gains = report["gains"]
     lines += ["", "| gains | " + " | ".join(gains["initial"]) + " |", "|---|" + "---:|" * len(gains["initial"]),
