@@ -5,7 +5,7 @@
 (tau_a: the actuator's state, integrated by RK4 with the plant), registered as a mission
 component and flown with the PD through the flight mission (missions/flight.toml: gyro,
 star tracker, MEKF, Delta_c = 0.1 s) beside the ideal actuator. The interface is
-so3jax.components.base.Actuator (docs/model.md §11.1): `command` is required, the base
+so3jax.Actuator (docs/model.md §11.1): `command` is required, the base
 gives the rest's defaults (no stored momentum, no limits).
 
 Run: python examples/custom_actuator.py [--T 4000] [--set KEY=VALUE ...]   (horizon T [s];
@@ -21,10 +21,6 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax.components import registry as components
-from so3jax.components.base import Actuator
-from so3jax.components.registry import ComponentSpec
-from so3jax.core.params import Param
 
 NAME = "example_lag"  # the mission's actuator.kind
 FLIGHT = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"
@@ -32,7 +28,7 @@ FLIGHT = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"
 
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
-class FirstOrderLag(Actuator):
+class FirstOrderLag(sj.Actuator):
     time_constant: jax.Array  # s
 
     def init(self, batch_shape, dtype):  # tau_a(0) = 0, components first, batch axes last
@@ -48,9 +44,9 @@ class FirstOrderLag(Actuator):
         return (held - state) / self.time_constant
 
 
-components.register(ComponentSpec(  # the Param declares the domain, checked when a mission is read
+sj.register_component(sj.ComponentSpec(  # the Param declares the domain, checked when a mission is read
     kind="actuator", name=NAME, component=FirstOrderLag, doc="tau_a' = (tau_c - tau_a) / time_constant",
-    params=(Param("time_constant", 0.5, "s", low=1e-6, doc="lag time constant"),),
+    params=(sj.Param("time_constant", 0.5, "s", low=1e-6, doc="lag time constant"),),
     build=lambda values, ctx: FirstOrderLag(ctx.as_array(values["time_constant"])),
 ))
 

@@ -21,11 +21,6 @@ import jax
 import jax.numpy as jnp
 
 import so3jax as sj
-from so3jax.controllers import registry
-from so3jax.controllers.base import tracking_error
-from so3jax.core.params import Param
-from so3jax.jobs.fly import fly
-from so3jax.viz import styles
 
 NAME = "example_saturated_pd"  # the registry's name: what a mission's `controllers` lists
 PAPER = Path(__file__).resolve().parents[1] / "missions" / "paper.toml"
@@ -44,7 +39,7 @@ class SaturatedPD(sj.Controller):
         return ()
 
     def torque(self, gains, state, feedback, desired, t):
-        err = tracking_error(feedback, desired)
+        err = sj.tracking_error(feedback, desired)
         e_R = sj.so3.skew_vee(err.R_e)  # vee of the skew part of R_e (docs/model.md §3.1)
         tau = -gains.k_R * e_R - gains.k_Omega * err.Omega_e
         return jnp.clip(tau, -self.max_torque, self.max_torque), ()
@@ -55,22 +50,22 @@ def check(gains):
         raise ValueError(f"gains must be non-negative, got {gains}")
 
 
-registry.register(registry.ControllerSpec(
+sj.register_controller(sj.ControllerSpec(
     name=NAME, label="saturated PD", factory=SaturatedPD, gains_type=sj.PDGains, defaults=sj.PAPER_PD_GAINS,
-    check=check, options=(Param("max_torque", 0.25, "N m", low=0.0, doc="torque limit per body axis"),),
+    check=check, options=(sj.Param("max_torque", 0.25, "N m", low=0.0, doc="torque limit per body axis"),),
 ))
-styles.register(NAME, color="tab:olive", label="saturated PD")  # its lines in the figures
+sj.register_style(NAME, color="tab:olive", label="saturated PD")  # its lines in the figures
 
 
 def main(T: float, overrides=()) -> dict:
     """{controller: (RMSE [rad/s], effort [N^2 m^2 s])} on the paper's mission (docs/model.md §6)."""
     mission = sj.load_mission(PAPER, [f"T={T}", f'controllers=["pd", "{NAME}"]', *overrides])
-    results, seconds = fly(mission)  # every controller of the mission, compiled and flown side by side
+    flight = sj.fly(mission)  # every controller of the mission, compiled and flown side by side
     out = {}
-    for name, r in results.items():
+    for name, r in flight.results.items():
         out[name] = (float(r.metrics.rmse), float(r.metrics.effort))
         print(f"{name:>22}: RMSE {out[name][0]:.4e} rad/s   effort {out[name][1]:8.3f} N^2 m^2 s")
-    print(f"({seconds:.1f} s, compilation included)")
+    print(f"({flight.wall_s:.1f} s, compilation included)")
     return out
 
 

@@ -6,7 +6,7 @@ differences of the same cost.
     cost(p) = RMSE / 1e-3 rad/s + effort / 100 N^2 m^2 s,   gains (k_R, k_Omega) = exp(p)
 
 (docs/model.md §6's metrics). The rollout is checkpointed one control period at a time, as
-`so3jax tune` does in reverse mode (so3jax.sim.gradients.checkpoint_steps).
+`so3jax tune` does in reverse mode (so3jax.checkpoint_steps).
 
 Run: python examples/gradient_through_flight.py [--T 400] [--set KEY=VALUE ...]   (horizon
 T [s]; default $SO3JAX_EXAMPLE_T, else 400; --set: a mission entry, as for `so3jax fly`)
@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import numpy as np
 
 import so3jax as sj
-from so3jax.sim.gradients import checkpoint_steps
 
 FLIGHT = Path(__file__).resolve().parents[1] / "missions" / "flight.toml"
 
@@ -32,7 +31,7 @@ def main(T: float, overrides=(), h: float = 1e-5) -> dict:
     mission = sj.load_mission(FLIGHT, [f"T={T}", 'controllers=["pd"]', *overrides])
     scenario, loop = mission.scenario(), mission.loop()
     law, gains = mission.controller("pd")  # the paper's gains, [gains.pd] of the mission
-    record_every = checkpoint_steps(loop, "reverse")
+    record_every = sj.checkpoint_steps(loop, "reverse")
 
     def cost(log_gains):
         g = sj.PDGains(*jnp.exp(log_gains))

@@ -2,7 +2,7 @@
 missions/identify.toml (the docked spacecraft, J = the paper's J2, driven by an open-loop
 square-wave torque through four reaction wheels, read by a gyro and a star tracker) is
 flown, its telemetry regenerated from the flight (the readings the filter saw, the wheel
-speeds), and the inertia fitted by the equation-error regression of so3jax.jobs.identify
+speeds), and the inertia fitted by the equation-error regression of so3jax.identify
 (docs/model.md §17.3; log-Cholesky parameters, §17.2: the estimate is always a physical
 inertia). Prints the estimate beside the truth with its 1-sigma.
 
@@ -12,37 +12,29 @@ default $SO3JAX_EXAMPLE_T, else 600; --set: a mission entry, as for `so3jax fly`
 
 import argparse
 import os
-import warnings
 from pathlib import Path
 
 import jax
 import numpy as np
 
 import so3jax as sj
-from so3jax.jobs.identify import inertia, regression, telemetry
 
 MISSION = Path(__file__).resolve().parents[1] / "missions" / "identify.toml"
+ENTRIES = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # J's entries xx, yy, zz, xy, xz, yz
 
 
 def main(T: float, overrides=()) -> dict:
     """{"J": estimate, "J_true", "sigma": 1-sigma of the entries (xx, yy, zz, xy, xz, yz), "relative_error"}."""
-    mission = sj.load_mission(MISSION, [f"T={T}", *overrides])
-    law, gains = mission.controller("open_loop")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", sj.InertiaWarning)
-        flight = sj.simulate(mission.scenario(), law, gains, mission.seed, loop=mission.loop(),
-                             record_every=mission.record_every)  # one history sample per control tick
-    history = jax.tree.map(np.asarray, flight.history)
-    tm = telemetry.check(telemetry.from_run(mission, history, mission.seed))  # what `so3jax fly` writes
-    fit = regression.identify(tm)  # J, gyro bias and a linear disturbance torque
-    J, J_true = np.asarray(fit["J"]), np.asarray(mission.J0)
-    sigma = np.sqrt(np.diag(fit["theta_cov"]))
+    flight = sj.fly(MISSION, overrides=overrides, T=T)  # one history sample per control tick
+    data = flight.telemetry("open_loop")  # what `so3jax fly` writes to OUT/telemetry/open_loop.npz
+    fit = sj.identify(data)  # the regression: J, gyro bias and a linear disturbance torque
+    J, J_true = np.asarray(fit["J"]), np.asarray(flight.mission.J0)
+    sigma = np.asarray(fit["J_entries_std"])
     rel = float(np.linalg.norm(J - J_true) / np.linalg.norm(J_true))
-    print(f"{len(tm.t)} telemetry samples over {T:g} s; fit converged: {fit['converged']}")
+    print(f"{len(data['t'])} telemetry samples over {T:g} s; fit converged: {fit['converged']}")
     print("entry   truth [kg m^2]   estimate +- 1 sigma")
-    for name, true, est, s in zip(("xx", "yy", "zz", "xy", "xz", "yz"), inertia.entries(J_true),
-                                  inertia.entries(J), sigma):
-        print(f"J_{name}  {float(true):12.2f}   {float(est):10.2f} +- {s:.2f}")
+    for name, (i, j), s in zip(fit["J_entries"], ENTRIES, sigma):
+        print(f"{name}  {J_true[i, j]:12.2f}   {J[i, j]:10.2f} +- {s:.2f}")
     print(f"relative error |J - J_true| / |J_true| = {rel:.2e}")
     return {"J": J, "J_true": J_true, "sigma": sigma, "relative_error": rel}
 

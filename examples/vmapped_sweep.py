@@ -1,7 +1,7 @@
 """A small Monte Carlo sweep from Python: the paper's mission (docs/model.md §4) with
 dispersed inertias (J0 and J2 scaled by U(0.8, 1.2), J0's principal moments by U(0.9, 1.1)
 and its axes rotated up to 10 deg; J1 = 2 J0; docs/model.md §15.3) and a disturbance seed
-per sample, drawn by so3jax.missions.dispersions and flown by jax.vmap over so3jax.sim.rollout, one
+per sample, drawn by so3jax.draw_samples and flown by jax.vmap over so3jax.rollout, one
 compiled program per control law. Prints each law's mean and worst RMSE over the samples.
 
 `so3jax sweep` does the same at scale (chunks, resume, several devices);
@@ -19,18 +19,16 @@ import jax
 import numpy as np
 
 import so3jax as sj
-from so3jax.dynamics.paper import PAPER_J0, PAPER_J2
-from so3jax.missions.dispersions import Dispersions, InertiaDispersion, Uniform, draw_samples
 
 
 def main(T: float, samples: int, seed: int = 0) -> dict:
     """{law: RMSE of every sample [rad/s]}."""
-    dispersions = Dispersions(
-        J0=InertiaDispersion(nominal=PAPER_J0, scale=Uniform(0.8, 1.2), axis_scale=Uniform(0.9, 1.1),
-                             rotation_deg=10.0),
-        J2=InertiaDispersion(nominal=PAPER_J2, scale=Uniform(0.8, 1.2)),
+    dispersions = sj.Dispersions(
+        J0=sj.InertiaDispersion(nominal=sj.PAPER_J0, scale=sj.Uniform(0.8, 1.2), axis_scale=sj.Uniform(0.9, 1.1),
+                                rotation_deg=10.0),
+        J2=sj.InertiaDispersion(nominal=sj.PAPER_J2, scale=sj.Uniform(0.8, 1.2)),
     )
-    drawn = draw_samples(dispersions, seed, samples, max_draws=10)  # NumPy, leading axis = sample
+    drawn = sj.draw_samples(dispersions, seed, samples, max_draws=10)  # NumPy, leading axis = sample
     p = drawn.params
     base = sj.paper_scenario(T)
 

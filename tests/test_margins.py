@@ -318,6 +318,12 @@ def test_the_command_reports_the_margins_of_the_loop_it_linearizes(flight, tmp_p
     assert [row["t"] for row in saved] == [0.5]
     assert saved[0]["loop_at_a_time"] == json.loads(json.dumps(mg.loop_at_a_time(lin).to_dict()))
     assert saved[0]["disk"] == json.loads(json.dumps(mg.disk_margin(lin).to_dict()))
+    import so3jax  # the library call computes the same (the same compiled programs)
+
+    found = so3jax.margins(ROOT / "missions" / "flight.toml", "pd", 0.5, T=1.0)
+    np.testing.assert_array_equal(found.linearization.A, lin.A)
+    assert saved[0]["loop_at_a_time"] == json.loads(json.dumps(found.loop_at_a_time.to_dict()))
+    assert saved[0]["disk"] == json.loads(json.dumps(found.disk.to_dict()))
 
 
 def test_the_figures_bode_and_nichols(flight):
