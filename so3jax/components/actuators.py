@@ -146,6 +146,10 @@ class Wheels(Actuator):
     distribution and momentum compensation); plant_axes (3, N) and plant_spin_inertia (N,)
     are the wheels the body carries, where they differ (a misaligned spin axis, a spin
     inertia error; None: as known).
+
+    available: None, or (N,) 1 for a wheel the distribution uses and 0 for one it drops (a
+    wheel known failed, docs/model.md §8.7): u = -W G_s^T (G_s W G_s^T)^{-1} tau with
+    W = diag(available), the distribution of all wheels where every one is available.
     """
 
     axes: jax.Array
@@ -157,6 +161,7 @@ class Wheels(Actuator):
     motor_torque: jax.Array | None = None
     plant_axes: jax.Array | None = None
     plant_spin_inertia: jax.Array | None = None
+    available: jax.Array | None = None
 
     @property
     def count(self) -> int:
@@ -230,7 +235,24 @@ class Wheels(Actuator):
         -G_s u = tau (docs/model.md §8.4), before any limit."""
         G = jnp.asarray(self.axes).astype(tau.dtype)
         gram = so3.batch_like(_weighted_gram(G, jnp.ones(self.count, tau.dtype)), 2, tau)
-        return -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
+        u = -so3.rmatvec(self._axes(tau), so3.solve_spd(gram, tau))
+        if self.available is None:
+            return u
+        return jnp.where(jnp.all(self._available(tau) > 0, axis=0), u, self.distribute_available(tau))
+
+    def _available(self, like):
+        """a (N, *b) in the dtype of ``like`` (3, *b)."""
+        return _per_wheel(self.available, like)
+
+    def distribute_available(self, tau):
+        """u = -W G_s^T (G_s W G_s^T)^{-1} tau (N, *b) [N m], W = diag(available) (docs/model.md
+        (8.17)): the minimum-norm motor torques of the available wheels, so that -G_s u = tau
+        where they span 3-D, and 0 on a wheel dropped."""
+        G, w = self._axes(tau), self._available(tau)
+        gram = w[0] * so3.outer(G[:, 0], G[:, 0])
+        for i in range(1, self.count):
+            gram = gram + w[i] * so3.outer(G[:, i], G[:, i])
+        return -w * so3.rmatvec(G, so3.solve_spd(gram, tau))
 
     def command(self, state, tau_c, Omega_hat):
         """The motor torques u (N, *b) [N m] held over the period (docs/model.md §8.4): the command

@@ -34,6 +34,7 @@ from so3jax.dynamics.paper import PAPER_J0, PHASE_NAMES
 from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
 from so3jax.missions import build, keys
 from so3jax.missions import config as cfg
+from so3jax.missions import faults as fault_list
 from so3jax.missions import schedule as schedules
 from so3jax.results import runfolder
 from so3jax.results.io import to_builtin
@@ -62,10 +63,10 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
              actuator={"kind": "ideal"}, momentum={"kind": "none"},
              inertia=dict(FLIGHT["inertia"], J0={"nominal": keys.matrix(PAPER_J0)}))
 
-TOP_KEYS = keys.TOP + ("requirements",)  # [[requirements]]: pointing requirements (so3jax.sim.pointing)
+TOP_KEYS = keys.TOP + ("requirements", "faults")  # [[requirements]] (so3jax.sim.pointing), [[faults]]
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 MISSION_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference",
-                                "controller", "gains", "schedule")
+                                "controller", "gains", "schedule", "fdir")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
 DEFAULT_INERTIA = {"kind": "paper"}
 ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
@@ -118,6 +119,8 @@ class Mission:
     environment: dict = dataclasses.field(default_factory=dict)  # {torque model: values} of [environment]
     momentum: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_MOMENTUM))  # {"kind": name, name: values}
     schedule: dict = dataclasses.field(default_factory=dict)  # {controller: {"by": ..., ["at": (...), "of": ...]}}
+    faults: tuple = ()  # [[faults]] as plain dicts (so3jax.missions.faults), docs/model.md §8.7
+    fdir: dict = dataclasses.field(default_factory=lambda: dict(fault_list.NO_FDIR))  # what the loop knows of them
 
     @property
     def phase_names(self) -> tuple:
@@ -201,7 +204,8 @@ class Mission:
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
             del d["phases"]
         for name, default in (("inertia", DEFAULT_INERTIA), ("orbit", DEFAULT_ORBIT), ("environment", {}),
-                              ("momentum", DEFAULT_MOMENTUM), ("schedule", {})):
+                              ("momentum", DEFAULT_MOMENTUM), ("schedule", {}), ("faults", ()),
+                              ("fdir", fault_list.NO_FDIR)):
             if to_builtin(getattr(self, name)) == to_builtin(default):
                 del d[name]
         return to_builtin(d)
@@ -240,7 +244,8 @@ def build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
     estimator = components.get("estimator", m.estimator["kind"]).build(m.estimator[m.estimator["kind"]], ctx)
     actuator = components.get("actuator", m.actuator["kind"]).build(m.actuator[m.actuator["kind"]], ctx)
     momentum = components.get("momentum", m.momentum["kind"]).build(m.momentum[m.momentum["kind"]], ctx)
-    return Loop(Sensors(**slots), estimator, actuator, m.period_steps, momentum)
+    return Loop(Sensors(**slots), estimator, actuator, m.period_steps, momentum,
+                fault_list.model(m.faults, m.fdir, as_array))
 
 
 def merge_tables(base: dict, over: dict) -> dict:
@@ -383,6 +388,10 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
     schedule = schedules.parse(full.get("schedule", {}), controllers)
+    fdir = fault_list.parse_fdir(d.get("fdir"))
+    faults = fault_list.parse(d.get("faults", []), wheels=actuator["wheels"]["axes"] if actuator["kind"] == "wheels"
+                              else None, sensors=tuple(sensors), momentum=momentum["kind"],
+                              sampled=period_steps is not None, fdir=fdir)
 
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
@@ -405,7 +414,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
                       phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
-                      schedule=schedule)
+                      schedule=schedule, faults=faults, fdir=fdir)
     pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
     for name in controllers:
         try:

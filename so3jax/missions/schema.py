@@ -38,6 +38,7 @@ from so3jax.controllers.scheduled import BY
 from so3jax.core.params import Param
 from so3jax.missions import dispersed, keys
 from so3jax.missions import dispersions as disp
+from so3jax.missions import faults as fault_list
 from so3jax.missions import mission as missions
 from so3jax.missions import schedule as schedules
 from so3jax.sim import pointing
@@ -285,12 +286,49 @@ def requirements() -> dict:
             "description": "pointing requirements (ECSS-E-ST-60-10C), checked by fly and sweep"}
 
 
+def faults() -> dict:
+    """``[[faults]]``: each entry a time and one target (:mod:`so3jax.missions.faults`)."""
+    values = {
+        "time": {"type": "number", "minimum": 0, "description": "when the fault acts (from the first control tick "
+                 "at or after it) [s]"},
+        "end": {"type": "number", "minimum": 0, "description": "a star-tracker outage's end (the outage is "
+                "[time, end)) [s]"},
+        "wheel": {"type": "integer", "minimum": 1, "description": "the wheel that fails (1-based)"},
+        "mode": {"enum": list(fault_list.WHEEL_MODES), "default": "off",
+                 "description": "off: its motor delivers no torque; degraded: its torque limit times factor"},
+        "factor": {"type": "number", "minimum": 0, "exclusiveMaximum": 1,
+                   "description": "a degraded wheel's torque limit factor, in [0, 1)"},
+        "star_tracker": {"const": fault_list.TARGET_VALUES["star_tracker"],
+                         "description": "no star-tracker sample in [time, end)"},
+        "gyro": {"const": fault_list.TARGET_VALUES["gyro"], "description": "a step in the gyro's bias from time on"},
+        "step": shaped((3,), {"type": "number"}) | {"description": "the gyro bias step [rad/s]"},
+    }
+    entry = {**table({k: values[k] for k in fault_list.KEYS if k in values}), "required": ["time"]}
+    entry["oneOf"] = [{"required": [k]} for k in fault_list.TARGETS if k in values]
+    return {"type": "array", "items": entry,
+            "description": "failures the loop rides through (docs/model.md §8.7), each a time and one target"}
+
+
+def fdir() -> dict:
+    """``[fdir]``: what the loop knows of a wheel that fails off, and when."""
+    return table({"detection": {"enum": list(fault_list.DETECTIONS), "default": "never",
+                                "description": "never: the loop keeps commanding a failed wheel; latency: it drops "
+                                               "it from the distribution fdir.latency after the fault"},
+                  "latency": {"type": "number", "minimum": 0,
+                              "description": "the time from a wheel's fault to its detection [s]"}},
+                 "fault detection, isolation and recovery of the wheels")
+
+
 def _mission_value(name: str) -> dict:
     """The schema of a top-level key or table the mission parser accepts."""
     if name in keys.TOP:
         return param(keys.KEY[name])
     if name == "requirements":
         return requirements()
+    if name == "faults":
+        return faults()
+    if name == "fdir":
+        return fdir()
     if name == "inertia":
         return _inertia()
     if name in keys.TABLES:

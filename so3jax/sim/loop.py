@@ -31,9 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.components.actuators import Ideal
+from so3jax.components.actuators import Ideal, Wheels
 from so3jax.components.base import Actuator, Estimate, Estimator, MomentumManager
 from so3jax.components.estimators import Truth
+from so3jax.components.faults import Faults
 from so3jax.components.sensors import Sensors
 from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
 from so3jax.core import _trig, so3
@@ -62,6 +63,7 @@ class Loop:
     actuator: Actuator = Ideal()
     period_steps: int | None = static_field(default=None)
     momentum: MomentumManager | None = None  # beside the actuator (docs/model.md §8.6), or None
+    faults: Faults | None = None  # the failures the sampled loop rides through (docs/model.md §8.7), or None
 
     @property
     def continuous(self) -> bool:
@@ -308,10 +310,16 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     """Control tick j at step k = j m (docs/model.md §8.1): sensors sample the true state, the
     estimator updates, the controller commands from the estimate (its state advanced by
     its ``update``, else by forward Euler over the period), the actuator turns the
-    command into the held input."""
+    command into the held input. Faults (``loop.faults``) act on the measurements and the
+    actuator of the ticks at or after their times (docs/model.md §8.7)."""
     k = j * loop.period_steps
     t, p, dc = time(scenario, k), phase(scenario, k), period(scenario, loop)
     sensors, measured = loop.sensors.measure(state.sensors, state.R, state.Omega, key, j, dc)
+    faults, actuator = loop.faults, loop.actuator
+    if faults is not None:
+        rate = loop.sensors.rate
+        measured = faults.measured(measured, t, rate is None or j >= rate.first_reading)
+        actuator = faults.actuator(actuator, t)
     truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
     estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
@@ -321,7 +329,7 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     manager, managed = state.manager, state.managed
     if loop.momentum is not None:
         manager, managed = manage(scenario, loop, state, t, key, j)
-    held = loop.actuator.command(state.actuator, _less_feedforward(loop, tau_cmd, managed), estimate.Omega_hat)
+    held = actuator.command(state.actuator, _less_feedforward(loop, tau_cmd, managed), estimate.Omega_hat)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
     else:
@@ -335,7 +343,9 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
         managed=managed,
     )
     bias = loop.sensors.true_bias(state.sensors, state.Omega)
-    tau_applied = loop.actuator.delivered(state.actuator, held, state.Omega)  # the first step's sample
+    if faults is not None:
+        bias = faults.true_bias(bias, t)
+    tau_applied = actuator.delivered(state.actuator, held, state.Omega)  # the first step's sample
     return new, Tick(t, wanted, estimate, bias, tau_cmd, tau_applied)
 
 
@@ -353,6 +363,12 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     check_wiring(m is None, flown, components.MEASUREMENTS, type(loop.estimator), type(loop.estimator).__name__)
     for part in (loop.sensors, loop.estimator, loop.actuator):
         part.check()
+    if loop.faults is not None:
+        if m is None:
+            raise ValueError("faults act at the control ticks: they need the sampled loop (control.mode = 'sampled')")
+        if loop.faults.wheel and not isinstance(loop.actuator, Wheels):
+            raise ValueError(f"a wheel fault needs wheels (actuator.kind = 'wheels'), not the "
+                             f"{type(loop.actuator).__name__} actuator")
     if loop.momentum is not None:
         if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float32)) is None:  # by structure
             raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "

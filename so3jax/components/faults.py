@@ -1,0 +1,107 @@
+"""Faults the loop rides through, and what it knows of them (docs/model.md §8.7).
+
+A :class:`Faults` holds a mission's failures as arrays of times and effects; the control
+tick at t [s] reads the components through it: the wheels with their torque limits scaled
+and the wheels the loop has detected as failed dropped from the distribution
+(:meth:`Faults.actuator`), the measurements with a star-tracker outage and a gyro bias
+step (:meth:`Faults.measured`). Each fault acts from the first control tick at or after
+its time, by ``jnp.where(t >= time, ...)``: the times stay traced (one compilation for
+any), and a fault past the horizon leaves every value as without it. Arrays follow
+:mod:`so3jax.core.so3`: components first, batch axes (if any) last.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+
+from so3jax.components.base import Measurements
+from so3jax.core import so3
+from so3jax.core.pytree import pytree_dataclass, static_field
+
+
+def after(t, time):
+    """Whether a fault at ``time`` [s] acts at the tick at t [s]: t >= time."""
+    return t >= jnp.asarray(time).astype(jnp.asarray(t).dtype)
+
+
+@pytree_dataclass
+class Faults:
+    """A mission's faults (docs/model.md §8.7); an empty kind is None.
+
+    wheel: (F,) the 0-based wheel of each wheel fault (static); wheel_time: (F,) its time
+    [s]; wheel_factor: (F,) its motor torque limit's factor from then on (0: off; in (0, 1):
+    degraded); wheel_detected: (F,) when the loop knows of it and drops that wheel from the
+    distribution [s] (inf: never; a degraded wheel is kept). outage_start, outage_end: (K,)
+    the star tracker's outages [start, end) [s]. bias_time: (M,) the gyro bias steps'
+    times [s]; bias_step: (3, M) the steps [rad/s].
+    """
+
+    wheel: tuple = static_field(default=())
+    wheel_time: jax.Array | None = None
+    wheel_factor: jax.Array | None = None
+    wheel_detected: jax.Array | None = None
+    outage_start: jax.Array | None = None
+    outage_end: jax.Array | None = None
+    bias_time: jax.Array | None = None
+    bias_step: jax.Array | None = None
+
+    def torque_scale(self, t, count: int):
+        """s_i(t) (N, *b): the product of the factors of wheel i's faults acting at t (8.16)."""
+        ones = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
+        scale = [ones] * count
+        for f, i in enumerate(self.wheel):
+            scale[i] = scale[i] * jnp.where(after(t, self.wheel_time[f]), self.wheel_factor[f], 1.0)
+        return jnp.stack(scale)
+
+    def available(self, t, count: int):
+        """a_i(t) (N, *b): 1 for a wheel the distribution uses at t, 0 for one detected failed (8.17)."""
+        ones = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
+        mask = [ones] * count
+        for f, i in enumerate(self.wheel):
+            mask[i] = jnp.where(after(t, self.wheel_detected[f]), 0.0, mask[i])
+        return jnp.stack(mask)
+
+    def actuator(self, actuator, t):
+        """The actuator as the tick at t [s] drives it: each wheel's motor torque limit
+        u_max,i s_i(t), the distribution over the wheels available (a_i(t)); the actuator
+        itself where no wheel fails."""
+        if not self.wheel:
+            return actuator
+        count = actuator.count
+        limit = jnp.asarray(actuator.max_torque)
+        scale = self.torque_scale(t, count).astype(limit.dtype)
+        scale = scale.reshape(scale.shape + (1,) * max(0, limit.ndim - scale.ndim))
+        limit = limit.reshape(limit.shape + (1,) * max(0, scale.ndim - limit.ndim))
+        return dataclasses.replace(actuator, max_torque=limit * scale, available=self.available(t, count))
+
+    def outage(self, t):
+        """Whether the star tracker is out at t [s]: start_k <= t < end_k for some k (*b)."""
+        t = jnp.asarray(t)
+        out = [after(t, s) & ~after(t, e) for s, e in zip(self.outage_start, self.outage_end)]
+        return jnp.any(jnp.stack(out), axis=0)
+
+    def biased(self, x, t, reading=True):
+        """x (3, *b) [rad/s] plus the gyro bias steps acting at t, x + sum_m [t >= t_m] Delta b_m
+        (8.18); x itself, bit for bit, where none acts (or not ``reading``)."""
+        step = jnp.asarray(self.bias_step).astype(x.dtype)
+        for m in range(step.shape[1]):
+            acting = so3.batch_like(after(t, self.bias_time[m]) & reading, 0, x)
+            x = jnp.where(acting, x + so3.batch_like(step[:, m], 1, x), x)
+        return x
+
+    def measured(self, measured: Measurements, t, reading: bool = True) -> Measurements:
+        """The measurements of the tick at t [s] with the faults acting: no star-tracker
+        sample during an outage, the gyro bias steps in omega_m where the gyro has a
+        reading (``reading``: the tick is at or after its first)."""
+        if self.outage_start is not None:
+            measured = measured._replace(star_valid=measured.star_valid & ~self.outage(t))
+        if self.bias_time is not None:
+            measured = measured._replace(omega_m=self.biased(measured.omega_m, t, reading))
+        return measured
+
+    def true_bias(self, bias, t):
+        """The true gyro bias b_j plus the steps acting at t (3, *b) [rad/s]."""
+        return bias if self.bias_time is None else self.biased(bias, t)

@@ -1,0 +1,170 @@
+"""A mission's ``[[faults]]`` and ``[fdir]`` (docs/model.md §8.7): parsed into plain data
+with one-line errors naming the key, before anything compiles, and built into the loop's
+:class:`~so3jax.components.faults.Faults`.
+
+Each ``[[faults]]`` entry has a ``time`` [s] and one target: ``wheel = i`` (1-based) with
+``mode = "off"`` or ``"degraded"`` and its ``factor`` in [0, 1); ``star_tracker = "outage"``
+with its ``end`` [s]; ``gyro = "bias step"`` with its ``step`` [rad/s] (3,). ``[fdir]``
+says what the loop knows of a wheel that fails off: ``detection = "never"`` (the default),
+or ``latency`` [s] after the fault, when the distribution drops that wheel.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+from so3jax.components.faults import Faults
+from so3jax.core import checks
+
+TARGETS = ("wheel", "star_tracker", "gyro", "thruster")  # what an entry fails (one each)
+KEYS = ("time", "end", "mode", "factor", "step") + TARGETS  # an entry's keys
+WHEEL_MODES = ("off", "degraded")
+UNMODELED_MODES = {"stuck": "the model has no locked-wheel dynamics (a wheel's speed is free to change)",
+                   "friction": "the model has no wheel friction"}
+TARGET_VALUES = {"star_tracker": "outage", "gyro": "bias step"}
+DETECTIONS = ("never", "latency")
+NO_FDIR = {"detection": "never"}  # the default: the loop never learns of a fault
+_RANK_TOLERANCE = 1e-9  # smallest singular value of the available wheels' axes below this: rank < 3
+
+
+class ControllabilityWarning(UserWarning):
+    """Wheels failed off leave the others spanning less than 3-D, the loop unaware of it."""
+
+
+def parse_fdir(table) -> dict:
+    """``[fdir]``: {"detection": "never"} or {"detection": "latency", "latency": tau [s] >= 0}.
+    ``detection`` defaults to "latency" where a latency is given, else "never"; "never"
+    turns detection off over a latency (``--set fdir.detection='never'`` over a file)."""
+    if table is None:
+        return dict(NO_FDIR)
+    table = checks.table({"fdir": table}, "fdir", ("detection", "latency"))
+    latency = None if "latency" not in table else checks.number(table["latency"], "fdir.latency [s]", low=0.0)
+    detection = checks.choice(table.get("detection", "never" if latency is None else "latency"), "fdir.detection",
+                              DETECTIONS)
+    if detection == "never":
+        return dict(NO_FDIR)
+    if latency is None:
+        raise ValueError("fdir.detection = 'latency' needs fdir.latency [s]: the time from a fault to its detection")
+    return {"detection": "latency", "latency": latency}
+
+
+def parse(entries, *, wheels: np.ndarray | None, sensors: tuple, momentum: str, sampled: bool, fdir: dict) -> tuple:
+    """The ``[[faults]]`` entries as plain dicts, checked against the mission: wheels: the
+    wheels' axes (N, 3) (None without wheels); sensors: the sensors flown; momentum: the
+    momentum manager's kind; sampled: the loop has control ticks. One-line ValueError
+    naming the key; a :class:`ControllabilityWarning` where wheels failed off leave the
+    others spanning less than 3-D and the loop never drops them (an error where it does)."""
+    if not isinstance(entries, (list, tuple)):
+        raise ValueError(f"faults must be a list of tables ([[faults]]), got {checks.short(entries)}")
+    if entries and not sampled:
+        raise ValueError("faults act at the control ticks: they need the sampled loop (control.mode = 'sampled')")
+    out = tuple(_entry(e, f"faults[{i}]", wheels, sensors, momentum) for i, e in enumerate(entries))
+    off = sorted({f["wheel"] for f in out if f.get("mode") == "off"})
+    if off and wheels is not None:
+        left = np.delete(np.asarray(wheels, float), [i - 1 for i in off], axis=0)
+        if left.shape[0] < 3 or np.linalg.svd(left, compute_uv=False)[-1] < _RANK_TOLERANCE:
+            what = (f"with wheel(s) {', '.join(map(str, off))} off the others no longer span 3-D: the mission is no "
+                    "longer controllable about some axis")
+            if fdir["detection"] != "never":
+                raise ValueError(f"faults: {what} (the reconfigured distribution has no inverse; "
+                                 "fdir.detection = 'never' flies it unaware)")
+            warnings.warn(f"faults: {what}", ControllabilityWarning, stacklevel=2)
+    return out
+
+
+def _entry(entry, where: str, wheels, sensors: tuple, momentum: str) -> dict:
+    """One ``[[faults]]`` entry."""
+    if not isinstance(entry, dict):
+        raise ValueError(f"{where} must be a table, got {checks.short(entry)}")  # noqa: TRY004 (bad input)
+    unknown = sorted(set(entry) - set(KEYS))
+    if unknown:
+        raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; allowed: {', '.join(KEYS)}")
+    targets = [k for k in TARGETS if k in entry]
+    if len(targets) != 1:
+        raise ValueError(f"{where}: one target among {', '.join(TARGETS)}, got {', '.join(targets) or 'none'}")
+    target = targets[0]
+    if "time" not in entry:
+        raise ValueError(f"{where}.time [s] is missing: when the fault acts")
+    out = {"time": checks.number(entry["time"], f"{where}.time [s]", low=0.0)}
+    allowed = {"wheel": ("mode", "factor"), "star_tracker": ("end",), "gyro": ("step",), "thruster": ()}[target]
+    extra = sorted(set(entry) - {"time", target, *allowed})
+    if extra:
+        raise ValueError(f"{where}: {', '.join(extra)} not taken by a {target} fault "
+                         f"(it takes time{''.join(', ' + k for k in allowed)})")
+    if target == "thruster":
+        raise ValueError(f"{where}.thruster: thruster faults are not modeled (momentum.kind = {momentum!r}); "
+                         "fail a wheel, the star tracker or the gyro")
+    if target == "wheel":
+        return {**out, **_wheel(entry, where, wheels)}
+    value = entry[target]
+    if value != TARGET_VALUES[target]:
+        raise ValueError(f"{where}.{target} must be {TARGET_VALUES[target]!r}, got {checks.short(value)}")
+    if target not in sensors:
+        raise ValueError(f"{where}.{target}: the mission flies no {target.replace('_', ' ')} "
+                         f"(sensors.{target} is left out)")
+    if target == "star_tracker":
+        if "end" not in entry:
+            raise ValueError(f"{where}.end [s] is missing: when the outage ends")
+        end = checks.number(entry["end"], f"{where}.end [s]", low=0.0)
+        if end <= out["time"]:
+            raise ValueError(f"{where}.end = {end:g} s must come after its time = {out['time']:g} s "
+                             "(the outage is [time, end))")
+        return {**out, "star_tracker": "outage", "end": end}
+    if "step" not in entry:
+        raise ValueError(f"{where}.step [rad/s] is missing: the bias step (3,)")
+    return {**out, "gyro": "bias step", "step": checks.array(entry["step"], f"{where}.step [rad/s]", (3,))}
+
+
+def _wheel(entry, where: str, wheels) -> dict:
+    """A wheel fault: {"wheel": i (1-based), "mode", "factor"}."""
+    if wheels is None:
+        raise ValueError(f"{where}.wheel: the mission flies no wheels (actuator.kind = 'wheels')")
+    n = np.shape(wheels)[0]
+    index = entry["wheel"]
+    if isinstance(index, bool) or not isinstance(index, int) or not 1 <= index <= n:
+        raise ValueError(f"{where}.wheel must be a wheel's index, 1 to {n} (the mission's wheels), "
+                         f"got {checks.short(index)}")
+    mode = entry.get("mode", "off")
+    if mode in UNMODELED_MODES:
+        raise ValueError(f"{where}.mode = {mode!r} is not modeled: {UNMODELED_MODES[mode]}; "
+                         f"modes: {', '.join(WHEEL_MODES)}")
+    mode = checks.choice(mode, f"{where}.mode", WHEEL_MODES)
+    if mode == "off":
+        if "factor" in entry:
+            raise ValueError(f"{where}.factor is a degraded wheel's (mode = 'degraded'); an off wheel delivers none")
+        return {"wheel": index, "mode": "off", "factor": 0.0}
+    if "factor" not in entry:
+        raise ValueError(f"{where}.factor is missing: the degraded wheel's torque limit factor, in [0, 1)")
+    factor = checks.number(entry["factor"], f"{where}.factor", low=0.0, high=1.0)
+    if factor >= 1.0:
+        raise ValueError(f"{where}.factor must be in [0, 1) (1: no fault), got {factor:g}")
+    return {"wheel": index, "mode": "degraded", "factor": factor}
+
+
+def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
+    """The loop's :class:`~so3jax.components.faults.Faults` of the parsed entries, None
+    without any. A wheel failed off is detected ``fdir.latency`` after its time (never
+    with ``detection = "never"``); a degraded wheel stays in the distribution."""
+    if not faults:
+        return None
+    latency = fdir.get("latency") if fdir["detection"] == "latency" else None
+    wheel = [f for f in faults if "wheel" in f]
+    outage = [f for f in faults if "star_tracker" in f]
+    bias = [f for f in faults if "gyro" in f]
+    values = {}
+    if wheel:
+        detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in wheel]
+        values.update(wheel=tuple(f["wheel"] - 1 for f in wheel),
+                      wheel_time=as_array(np.array([f["time"] for f in wheel])),
+                      wheel_factor=as_array(np.array([f["factor"] for f in wheel])),
+                      wheel_detected=as_array(np.array(detected)))
+    if outage:
+        values.update(outage_start=as_array(np.array([f["time"] for f in outage])),
+                      outage_end=as_array(np.array([f["end"] for f in outage])))
+    if bias:
+        values.update(bias_time=as_array(np.array([f["time"] for f in bias])),
+                      bias_step=as_array(np.stack([np.asarray(f["step"], float) for f in bias], axis=1)))
+    return Faults(**values)
