@@ -72,12 +72,13 @@ def _mission(mission=None, overrides: Sequence[str] = (), *, controllers=None, T
 
 def fly(mission=None, controllers=None, *, overrides: Sequence[str] = (), T=None, seed=None, record_every=None,
         precision: str = "float64", max_memory: int | None = None) -> fly_job.Flight:
-    """Fly the mission with each of its controllers, as ``so3jax fly`` does, without writing
-    anything. Returns a :class:`~so3jax.jobs.fly.Flight`: ``results`` {controller: Result}
-    (metrics, history, final state, flight metrics; NumPy arrays, SI units), ``reports``
-    {controller: metrics.json's entry} (metrics, flight metrics, ``pointing`` indices [arcsec],
-    ``requirements`` with their verdicts), ``trajectory`` (trajectory.npz's arrays),
-    ``wall_s`` [s], ``diverged``, ``failed``, ``table()`` and ``telemetry(controller)``.
+    """Each controller of the mission flown as ``so3jax fly`` flies it, nothing written: a
+    :class:`~so3jax.jobs.fly.Flight`.
+
+    Its ``results`` {controller: Result} (metrics, history, final state, flight metrics; NumPy,
+    SI units), ``reports`` {controller: metrics.json's entry} (the metrics, ``pointing``
+    [arcsec], ``requirements`` with ``passed``), ``trajectory`` (trajectory.npz's arrays),
+    ``telemetry(controller)``, ``wall_s`` [s], ``diverged``, ``failed`` and ``table()``.
 
     mission: a Mission, or a mission file (None: the flight mission) read with ``overrides``
     (``KEY=VALUE`` strings, as ``--set``), T [s], seed, record_every [steps] and controllers
@@ -91,9 +92,11 @@ def fly(mission=None, controllers=None, *, overrides: Sequence[str] = (), T=None
 
 def pointing_errors(history, mission, *, window: float | None = None, levels=None, requirements=None,
                     phase_names=None) -> dict:
-    """The ECSS pointing errors of one run (a History, or a Result's), as ``so3jax fly`` reports
-    them: {"pointing": APE, MPE, RPE (and AKE, MKE, RKE with an estimate) per phase, level and
-    axis [arcsec], "requirements": each requirement's value [arcsec] and verdict ("passed")}.
+    """The ECSS pointing errors of one run (a History, or a Result's) as ``so3jax fly`` reports
+    them: {"pointing": ..., "requirements": [...]}, in arcsec.
+
+    "pointing": APE, MPE, RPE (and AKE, MKE, RKE with an estimate) per phase, level and axis;
+    "requirements": each requirement's value and verdict (``passed``).
 
     mission: a Mission (its scenario's phases, its pointing window [s], levels and
     requirements, each of which the keywords replace) or a Scenario (``window`` [s] then
@@ -124,11 +127,13 @@ def pointing_errors(history, mission, *, window: float | None = None, levels=Non
 
 def margins(mission=None, controller: str | None = None, at=None, *, overrides: Sequence[str] = (), T=None,
             precision: str = "float64"):
-    """The stability margins of a controller's sampled loop, broken at the actuator input, as
-    ``so3jax margins`` takes them: a :class:`~so3jax.jobs.margins.Margins` (``linearization``,
-    ``loop_at_a_time``: per-axis gain [dB], phase [deg] and delay [s] margins, ``disk``: disk
-    margins) at the time ``at`` [s], a whole number of control periods; for a sequence of times,
-    or None (the last tick of each phase the horizon reaches), {t: Margins}.
+    """The stability margins of a controller's sampled loop at ``at`` [s], as ``so3jax margins``
+    takes them: a :class:`~so3jax.jobs.margins.Margins`; {t: Margins} for several times.
+
+    Margins: ``linearization``, ``loop_at_a_time`` (per-axis gain [dB], phase [deg] and delay
+    [s] margins), ``disk`` (disk margins), the loop broken at the actuator input. at: a whole
+    number of control periods, a sequence of them, or None (the last tick of each phase the
+    horizon reaches).
 
     mission: a Mission, or a mission file (None: the flight mission) read with ``overrides``
     (``KEY=VALUE``, as ``--set``) and T [s]; controller: None, the mission's first."""
@@ -146,9 +151,11 @@ def margins(mission=None, controller: str | None = None, at=None, *, overrides: 
 def sweep(config, out, *, overrides: Sequence[str] = (), samples=None, T=None,
           controllers=None, chunk=None, seed=None, resume: bool = False, max_memory: int | None = None,
           layout: str = "chunks", progress: bool | None = None) -> dict:
-    """Run (or finish, with ``resume``) a Monte Carlo sweep into the folder ``out``, as
-    ``so3jax sweep`` does: its files, its checkpointed chunks; returns summary.json's content
-    (statistics per controller and metric, diverged samples, the paired comparison, the run).
+    """A Monte Carlo sweep run (or finished, with ``resume``) into the folder ``out`` as
+    ``so3jax sweep`` runs it: summary.json's content.
+
+    The summary: statistics per controller and metric, diverged samples, the paired comparison,
+    the run; the folder: the command's files and checkpointed chunks.
 
     config: a sweep file (None: the built-in sweep) with ``overrides`` (``KEY=VALUE``: a
     mission key, ``sweep.KEY`` or ``dispersions.LEAF``) and samples, T [s], controllers, chunk,
@@ -177,9 +184,9 @@ def sweep(config, out, *, overrides: Sequence[str] = (), samples=None, T=None,
 
 def tune(campaign, out, *, overrides: Sequence[str] = (), iterations=None, T=None, resume: bool = False,
          progress: bool = True) -> dict:
-    """Run (or resume) a tuning campaign into the folder ``out``, as ``so3jax tune`` does:
-    checkpointed every iteration; returns validation.json's content (the tuned gains, the
-    held-out validation), or a design campaign's report (its goals and verdict).
+    """A tuning campaign run (or resumed) into the folder ``out`` as ``so3jax tune`` runs it,
+    checkpointed every iteration: validation.json's content (the tuned gains, the held-out
+    validation), or a design campaign's report (its goals and verdict).
 
     campaign: a campaign file with ``overrides`` (``KEY=VALUE``: a mission key or a
     ``tune.*`` key), iterations and T [s]; or a campaign configuration already read. A cost or
@@ -202,8 +209,8 @@ def tune(campaign, out, *, overrides: Sequence[str] = (), iterations=None, T=Non
 
 def identification_options(method: str = "regression", *, bias: bool = True, disturbance: str | None = None,
                            interval: float = 5.0, window: float = 10.0, initial=None) -> dict:
-    """The keyword arguments of an identification method (``so3jax identify``'s options),
-    checked: one-line ValueError for a method, disturbance, interval or window it does not take."""
+    """The keyword arguments of an identification method (``so3jax identify``'s options);
+    one-line ValueError for a method, disturbance, interval [s] or window [s] it does not take."""
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
     disturbance = DEFAULT_DISTURBANCE[method] if disturbance is None else disturbance
@@ -228,10 +235,12 @@ def identification_options(method: str = "regression", *, bias: bool = True, dis
 
 def identify(data, method: str = "regression", *, mission=None, bias: bool = True, disturbance: str | None = None,
              interval: float = 5.0, window: float = 10.0, initial=None) -> dict:
-    """The inertia J [kg m^2], a constant gyro bias [rad/s] and a body-fixed disturbance torque
-    (a polynomial in time [N m / s^k]) estimated from telemetry, as ``so3jax identify`` does:
-    identification.json's content without its config (J, its entries' 1 sigma and covariance,
-    principal moments and axes, bias, disturbance, residual RMS, ``converged``, ``units``).
+    """The inertia J [kg m^2], gyro bias [rad/s] and disturbance torque [N m / s^k] estimated
+    from telemetry as ``so3jax identify`` estimates them: identification.json's content
+    without its config.
+
+    The content: J, its entries' 1 sigma and covariance, principal moments and axes, bias,
+    disturbance, residual RMS, ``converged``, ``units``.
 
     data: a telemetry file (.npz), a :class:`~so3jax.jobs.identify.telemetry.Telemetry`, or its
     arrays as a dict (``Flight.telemetry``); mission: the mission file or Mission whose wheels
