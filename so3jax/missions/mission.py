@@ -415,7 +415,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
                       phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
                       schedule=schedule, faults=faults, fdir=fdir)
-    pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
+    if isinstance(d.get("pointing"), dict) and "window" in d["pointing"]:  # a default window is reported, not refused
+        pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
     for name in controllers:
         try:
             mission.controller(name)
