@@ -513,3 +513,72 @@ def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli
     assert err == ("so3jax sweep: error: [dispersions]: every one of the 8 samples is rejected (8 for "
                    f"{dispersed.REJECTED['overlap']}): narrow the dispersions")
     assert not (cli_env / "o").exists()
+
+
+FAULT_DISPERSIONS = {"faults": {"0": {"time": {"dist": "uniform", "low": 2.0, "high": 15.0}},
+                                "1": {"time": {"dist": "uniform", "low": 0.0, "high": 12.0},
+                                      "end": {"dist": "uniform", "low": 2.0, "high": 12.0}},
+                                "2": {"step": {"dist": "normal", "mean": 0.0, "std": 1e-4, "relative": "offset"}}}}
+
+
+def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
+    """faults.I.time, an outage's end and a bias step drawn per sample (a leaf of each
+    sample's loop): each sample's metrics are those of its mission, written with its
+    values, flown alone (one compiled program for those); a sample whose outage ends at or
+    before its time is rejected for that reason."""
+    from test_faults import faulted
+
+    import so3jax as sj
+
+    base = faulted(time=5.0, end=10.0, latency=0.5)
+    m = mission.from_dict(base)
+    parsed, leaves = dispersed.parse(FAULT_DISPERSIONS, m)
+    samples = dispersed.draw(parsed, leaves, 0, 8, 20, mission=m)
+    start, end = samples.leaves["faults.1.time"], samples.leaves["faults.1.end"]
+    np.testing.assert_array_equal(samples.reason == dispersed.REJECTED["outage"], end <= start)
+    assert np.any(end <= start) and np.all(samples.valid == (end > start))
+    valid = np.flatnonzero(samples.valid)[:3]
+    assert len(valid) == 3
+    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
+    controller, gains = m.controller("pd")
+    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    assert len(np.unique(np.asarray(batch["rmse"]))) == len(valid)
+    for j, i in enumerate(valid):
+        own = [dict(f) for f in base["faults"]]
+        own[0]["time"], own[1]["time"], own[1]["end"] = (float(samples.leaves[k][i]) for k in
+                                                         ("faults.0.time", "faults.1.time", "faults.1.end"))
+        own[2]["step"] = samples.leaves["faults.2.step"][i].tolist()
+        alone = mission.from_dict({**base, "faults": own})
+        result = sj.simulate(alone.scenario(), controller, gains, alone.seed, loop=alone.loop())
+        expected = {**result.metrics._asdict(), **result.flight._asdict()}
+        for name in ("rmse", "effort", "max_torque", "max_angle_phase"):
+            np.testing.assert_allclose(batch[name][j], expected[name], rtol=1e-12, atol=0, err_msg=name)
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ({"faults": {"3": {"time": 1.0}}}, "no fault '3' \\(its \\[\\[faults\\]\\] entries are 0 to 2\\)"),
+    ({"faults": {"0": {"factor": 0.5}}}, "fails off \\(no factor\\)"),
+    ({"faults": {"1": {"step": 0.5}}}, "disperses time, end, not 'step'"),
+    ({"faults": {"0": {"time": {"dist": "uniform", "low": -2.0, "high": -1.0}}}}, "must be >= 0"),
+    ({"faults": {"time": 1.0}}, "must name a fault's value"),
+])
+def test_bad_fault_dispersions_are_one_line_errors(table, message):
+    from test_faults import faulted
+
+    with pytest.raises(ValueError, match=message) as err:
+        dispersed.parse(table, mission.from_dict(faulted()))
+    assert "\n" not in str(err.value)
+
+
+def test_a_degraded_wheel_s_factor_is_drawn_in_its_domain():
+    """A factor in [0, 1): a sample drawing 1 or more (or below 0) is rejected for its domain."""
+    from test_faults import BASE
+
+    m = mission.from_dict({**BASE, "faults": [{"time": 3.0, "wheel": 2, "mode": "degraded", "factor": 0.5}]})
+    _, leaves = dispersed.parse({"faults": {"0": {"factor": {"dist": "normal", "mean": 0.9, "std": 0.1}}}}, m)
+    values, valid = dispersed.draw_leaves(leaves, 0, 400)
+    factor = values["faults.0.factor"]
+    assert np.any(factor >= 1.0)
+    np.testing.assert_array_equal(valid, (factor >= 0.0) & (factor < 1.0))
+    loop = dispersed.loop(m, {"faults.0.factor": factor[0]}, np.float64)
+    np.testing.assert_array_equal(np.asarray(loop.faults.wheel_factor), [factor[0]])

@@ -33,7 +33,10 @@ cannot keep within such a bound, by :func:`~so3jax.missions.dispersions.check_do
 rule against the least limit drawn (:func:`~so3jax.missions.dispersions.least`), is
 refused before anything is drawn; its tails are rejected sample by sample. The
 estimator keeps the noise levels the mission's nominal sensors report: the hardware is
-dispersed, not what the filter assumes.
+dispersed, not what the filter assumes. A fault's values (``faults.I.time``, ``.end``,
+``.factor``, ``.step``, I the 0-based ``[[faults]]`` entry: :data:`FAULT_LEAVES`) are leaves of
+each sample's loop as a component's parameters are; a sample whose star-tracker outage ends
+at or before its time is rejected.
 """
 
 from __future__ import annotations
@@ -86,6 +89,12 @@ SCENARIO_LEAVES = {
     ("inertia", "linear"): {"start": INERTIA, "end": INERTIA, "times": (0.0, False)},
     ("inertia", "table"): {"inertias": INERTIA, "times": (-math.inf, False)},
 }
+# A fault's dispersible values ([[faults]] entry i: faults.i.PARAMETER), by its target:
+# {target: {parameter: (low, high, high excluded)}}; a wheel's factor is a degraded one's.
+FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, True)},
+                "star_tracker": {"time": (0.0, math.inf, False), "end": (0.0, math.inf, False)},
+                "gyro": {"time": (0.0, math.inf, False), "step": (-math.inf, math.inf, False)}}
+FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s"}  # samples.csv's units
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {
     "draws": "no positive definite inertia and positive tau_J within sweep.max_draws draws",
@@ -93,6 +102,7 @@ REJECTED = {
              f"{MAX_MEAN_MOTION:.6g} rad/s) or no orbit (orbit.n < 0, or 0 where the mission flies on its orbit)",
     "domain": "a dispersed value outside its parameter's domain",
     "bound": "a dispersed value beyond its limit (|actuator.wheels.initial_speed| > max_speed)",
+    "outage": "a star-tracker outage that ends at or before its time (faults: [time, end))",
     "overlap": "slews that overlap (reference.slews: a slew ends after the next starts)",
     "order": "times that do not increase (reference or inertia table, inertia events)",
     "inertia_table": "an inertia of the inertia kind (events, linear, table) not positive definite",
@@ -117,6 +127,7 @@ class Leaf:
     low: float
     high: float
     bound: tuple | None = None
+    order: tuple | None = None  # (time key, its mission value, end key, its value): end > time (an outage's)
     relative: str | None = None  # "offset" or "scale" of the mission's value (:data:`RELATIVE`)
     nominal: tuple = ()  # the mission's value, flattened (a relative leaf's)
     inertia: disp.InertiaDispersion | None = None  # inertia matrices (..., 3, 3) drawn as inertia.J0 is
@@ -180,11 +191,14 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
             leaves.append(_leaf(path, value, where, mission))
         elif path[0] in ("reference", "inertia") and len(path) == 3:
             leaves.append(_scenario_leaf(path, value, where, mission))
+        elif path[0] == "faults":
+            leaves.append(_fault_leaf(path, value, where, mission))
         else:
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
                              f"orbit.n, {_scenario_parameters(mission)}, disturbance.amplitude/frequency/noise_std, "
-                             "initial.attitude/rate, seed, and the numeric parameters of the mission's sensors, "
-                             "estimator, actuator and momentum management")
+                             "initial.attitude/rate, seed, the numeric parameters of the mission's sensors, "
+                             "estimator, actuator and momentum management, and its faults' "
+                             "(faults.I.time/end/factor/step, I the 0-based [[faults]] entry)")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
         fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
@@ -194,7 +208,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
     users = build.orbit_users(mission)
     if users:  # no orbit (n = 0) is refused, n > 0 drawn: the mission flies on its orbit
         disp.check_domain(dispersions.n, f"dispersions.orbit.n ({', '.join(users)} fly on the orbit)", 0.0, strict=True)
-    return dispersions, _bounded(tuple(leaves), mission)
+    return dispersions, _ordered(_bounded(tuple(leaves), mission), mission)
 
 
 def _bounded(leaves: tuple, mission: Mission) -> tuple:
@@ -218,6 +232,45 @@ def _bounded(leaves: tuple, mission: Mission) -> tuple:
             if leaf is not None:
                 by_key[leaf.key] = dataclasses.replace(leaf, bound=bound)
     return tuple(by_key[leaf.key] for leaf in leaves)
+
+
+def _ordered(leaves: tuple, mission: Mission) -> tuple:
+    """The leaves, each side of a dispersed star-tracker outage given its order (end > time,
+    per sample: the mission's value of the side not dispersed)."""
+    by_key = {leaf.key: leaf for leaf in leaves}
+    for i, fault in enumerate(mission.faults):
+        time, end = f"faults.{i}.time", f"faults.{i}.end"
+        if "star_tracker" not in fault or (time not in by_key and end not in by_key):
+            continue
+        order = (time, (float(fault["time"]),), end, (float(fault["end"]),))
+        for key in (time, end):
+            if key in by_key:
+                by_key[key] = dataclasses.replace(by_key[key], order=order)
+    return tuple(by_key[leaf.key] for leaf in leaves)
+
+
+def _fault_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A numeric value of one of the mission's ``[[faults]]`` (:data:`FAULT_LEAVES`):
+    ``faults.I.PARAMETER``, I the entry's 0-based index."""
+    if len(path) != 3:
+        raise ValueError(f"{where} must name a fault's value, e.g. dispersions.faults.0.time "
+                         "(the 0-based [[faults]] entry)")
+    n = len(mission.faults)
+    if not path[1].isdigit() or int(path[1]) >= n:
+        raise ValueError(f"{where}: the mission has no fault {path[1]!r} "
+                         + (f"(its [[faults]] entries are 0 to {n - 1})" if n else "(it states no [[faults]])"))
+    fault, param = mission.faults[int(path[1])], path[2]
+    target = next(t for t in FAULT_LEAVES if t in fault)
+    if param not in FAULT_LEAVES[target]:
+        raise ValueError(f"{where}: a {target.replace('_', ' ')} fault disperses "
+                         f"{', '.join(FAULT_LEAVES[target])}, not {param!r}")
+    if param == "factor" and fault["mode"] != "degraded":
+        raise ValueError(f"{where}: wheel {fault['wheel']} fails off (no factor); a degraded wheel's factor is "
+                         "dispersed")
+    low, high, high_excluded = FAULT_LEAVES[target][param]
+    leaf = _checked_leaf(f"faults.{int(path[1])}.{param}", value, where, np.asarray(fault[param], np.float64),
+                         low, high, strict=False)
+    return dataclasses.replace(leaf, high=float(np.nextafter(high, -np.inf))) if high_excluded else leaf
 
 
 def _flown(mission: Mission, key: str):
@@ -412,8 +465,10 @@ def draw_leaves(leaves: tuple, seed: int, n_samples: int, first: int = 0) -> tup
 
 def _drawn_leaves(leaves: tuple, seed: int, n_samples: int, first: int) -> tuple[dict, dict]:
     """(:func:`draw_leaves`' values, {reason: (N,) whether each sample passes}: every value in
-    its parameter's domain, every bound kept (:data:`REJECTED`))."""
+    its parameter's domain, every bound kept, every dispersed outage ending after its time
+    (:data:`REJECTED`))."""
     values, domain, bound = {}, np.ones(n_samples, bool), np.ones(n_samples, bool)
+    order = np.ones(n_samples, bool)
     for leaf in leaves:
         size = int(np.prod(leaf.shape))
         n_words = 2 * INERTIA_VARIATES * (size // 9) if leaf.inertia is not None else 2 * max(size, 1)
@@ -435,7 +490,11 @@ def _drawn_leaves(leaves: tuple, seed: int, n_samples: int, first: int) -> tuple
     for leaf in leaves:
         if leaf.bound is not None:
             bound &= within_bound(leaf.bound, values, n_samples)
-    return values, {REJECTED["domain"]: domain, REJECTED["bound"]: bound}
+        if leaf.order is not None:
+            time, nominal_time, end, nominal_end = leaf.order
+            order &= (values[end] if end in values else nominal_end[0]) > (
+                values[time] if time in values else nominal_time[0])
+    return values, {REJECTED["domain"]: domain, REJECTED["bound"]: bound, REJECTED["outage"]: order}
 
 
 def within_bound(bound: tuple, values: dict, n_samples: int) -> np.ndarray:
@@ -567,13 +626,17 @@ def pointing_errors(history) -> dict:
 
 
 def loop(mission: Mission, values: dict, dtype):
-    """The mission's loop with component leaves {key: value} replaced (traceable); the
-    estimator assumes the nominal sensors' noise levels."""
+    """The mission's loop with component and fault leaves {key: value} replaced (traceable);
+    the estimator assumes the nominal sensors' noise levels."""
+    faults = [dict(f) for f in mission.faults]
     tables = {"sensors": {k: dict(v) for k, v in mission.sensors.items()},
               **{table: {k: (dict(v) if isinstance(v, dict) else v) for k, v in getattr(mission, table).items()}
                  for table in ("estimator", "actuator", "momentum")}}
     for key, value in values.items():
         table, name, param = key.split(".")
-        tables[table][name][param] = value
-    changed = dataclasses.replace(mission, **tables)
+        if table == "faults":
+            faults[int(name)][param] = value
+        else:
+            tables[table][name][param] = value
+    changed = dataclasses.replace(mission, **tables, faults=tuple(faults))
     return build_loop(changed, lambda x: jnp.asarray(x, dtype), noise_of=mission)

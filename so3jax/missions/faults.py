@@ -14,6 +14,8 @@ from __future__ import annotations
 import math
 import warnings
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components.faults import Faults
@@ -158,13 +160,21 @@ def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     if wheel:
         detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in wheel]
         values.update(wheel=tuple(f["wheel"] - 1 for f in wheel),
-                      wheel_time=as_array(np.array([f["time"] for f in wheel])),
-                      wheel_factor=as_array(np.array([f["factor"] for f in wheel])),
-                      wheel_detected=as_array(np.array(detected)))
+                      wheel_time=as_array(_stack([f["time"] for f in wheel])),
+                      wheel_factor=as_array(_stack([f["factor"] for f in wheel])),
+                      wheel_detected=as_array(_stack(detected)))
     if outage:
-        values.update(outage_start=as_array(np.array([f["time"] for f in outage])),
-                      outage_end=as_array(np.array([f["end"] for f in outage])))
+        values.update(outage_start=as_array(_stack([f["time"] for f in outage])),
+                      outage_end=as_array(_stack([f["end"] for f in outage])))
     if bias:
-        values.update(bias_time=as_array(np.array([f["time"] for f in bias])),
-                      bias_step=as_array(np.stack([np.asarray(f["step"], float) for f in bias], axis=1)))
+        values.update(bias_time=as_array(_stack([f["time"] for f in bias])),
+                      bias_step=as_array(_stack([f["step"] for f in bias], axis=1)))
     return Faults(**values)
+
+
+def _stack(values: list, axis: int = 0):
+    """The entries' values stacked along ``axis``: a NumPy float array, or a JAX one where a
+    value is traced (a sweep's dispersed fault, :func:`so3jax.missions.dispersed.loop`)."""
+    if any(isinstance(v, jax.Array) for v in values):
+        return jnp.stack([jnp.asarray(v) for v in values], axis=axis)
+    return np.stack([np.asarray(v, float) for v in values], axis=axis)

@@ -441,8 +441,22 @@ def _dispersions() -> dict:
             else:
                 values[name] = distribution(True, text)
         tree.setdefault(table_name, {})[kind] = table(values)
-    return _tables(tree, "what varies from sample to sample: the mission's leaves, each a number (fixed) or a "
-                   "distribution")
+    out = _tables(tree, "what varies from sample to sample: the mission's leaves, each a number (fixed) or a "
+                  "distribution")
+    out["properties"]["faults"] = _fault_dispersions()
+    return out
+
+
+def _fault_dispersions() -> dict:
+    """``faults.I``: the numeric values of the mission's [[faults]] entry I (0-based), each
+    a distribution (:data:`so3jax.missions.dispersed.FAULT_LEAVES`)."""
+    described = {k: v["description"] for k, v in faults()["items"]["properties"].items()}
+    params = dict.fromkeys(p for leaves in dispersed.FAULT_LEAVES.values() for p in leaves)
+    entry = table({p: distribution(True, described[p]) for p in params},
+                  "the values of the mission's [[faults]] entry of this 0-based index")
+    return {"type": "object", "description": "the mission's faults' times, outage ends, degraded wheels' factors "
+            "and gyro bias steps, by the 0-based index of their [[faults]] entry",
+            "patternProperties": {"^[0-9]+$": entry}, "additionalProperties": False}
 
 
 # The definitions a job file's schema holds (its [dispersions] and its distributions), by name.

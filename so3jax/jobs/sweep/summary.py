@@ -122,6 +122,8 @@ def column_units(config: SweepConfig, names) -> dict:
             out[name] = PARAMETER_UNITS[name]
         elif key == "inertia.events.targets" and len(leaves[key].shape) == 1:
             out[name] = "-"  # scales of the inertia at the event
+        elif key is not None and key.startswith("faults."):
+            out[name] = dispersed.FAULT_UNITS[key.split(".")[2]]
         elif key is not None:
             table, component, param = key.split(".")
             kind = "sensor" if table == "sensors" else table
