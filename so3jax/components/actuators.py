@@ -328,6 +328,11 @@ class Wheels(Actuator):
         _check_values("wheel initial_speed [rad/s]", self.initial_speed, (n,))
         if self.motor_torque is not None:
             _check_values("wheel motor_torque [N m]", self.motor_torque, (n,))
+        if self.available is not None:
+            _check_values("wheel available", self.available, (n,), nonnegative=True)
+            flags = _values(self.available)
+            if flags is not None and not np.all((flags == 0) | (flags == 1)):
+                raise ValueError(f"wheel available must be 1 (used) or 0 (dropped) per wheel, got {flags.tolist()}")
         if self.plant_axes is not None:
             _check_values("wheel plant_axes", self.plant_axes, shape)
         if self.plant_spin_inertia is not None:
