@@ -262,21 +262,3 @@ def test_the_loop_refuses_wheel_faults_without_wheels():
     loop = missions.from_dict(faulted()).loop()
     with pytest.raises(ValueError, match="a wheel fault needs wheels"):
         check_loop(dataclasses.replace(loop, actuator=Ideal()), {})
-
-
-def test_fault_times_per_trajectory_fly_as_one_batch():
-    """A batch of loops, each with its own fault times (batch axis last, as a sweep builds
-    them), flies each trajectory as it flies alone (to the last bits of its vectorized arithmetic)."""
-    from so3jax.sim.rollout import rollout_batch
-
-    missions_at = [missions.from_dict(faulted(time=t, end=t + 1.0, latency=0.5)) for t in (4.0, 6.0)]
-    m = missions_at[0]
-    controller, gains = m.controller("pd")
-    loops = jax.tree.map(lambda *x: jnp.stack(x), *(mi.loop(jnp.float64) for mi in missions_at))
-    batch = rollout_batch(m.scenario(), controller, gains, jnp.asarray([0, 0]), scenario_axes=None, gains_axes=None,
-                          loop=loops, loop_axes=0, record_every=10).history
-    for b, mi in enumerate(missions_at):
-        alone = sj.simulate(mi.scenario(), controller, gains, 0, loop=mi.loop(), record_every=10).history
-        for field in ("tau", "tau_cmd", "actuator", "bias", "R_hat", "std"):
-            np.testing.assert_allclose(np.asarray(getattr(batch, field))[b], np.asarray(getattr(alone, field)),
-                                       rtol=1e-12, atol=1e-18, err_msg=field)  # the batch vectorizes: last bits
