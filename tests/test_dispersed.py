@@ -515,15 +515,16 @@ def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli
     assert not (cli_env / "o").exists()
 
 
-FAULT_DISPERSIONS = {"faults": {"0": {"time": {"dist": "uniform", "low": 2.0, "high": 15.0}},
+FAULT_DISPERSIONS = {"faults": {"0": {"time": {"dist": "uniform", "low": 2.0, "high": 15.0},
+                                      "wheel": {"dist": "choice", "values": [1, 2, 3, 4]}},
                                 "1": {"time": {"dist": "uniform", "low": 0.0, "high": 12.0},
                                       "end": {"dist": "uniform", "low": 2.0, "high": 12.0}},
                                 "2": {"step": {"dist": "normal", "mean": 0.0, "std": 1e-4, "relative": "offset"}}}}
 
 
 def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
-    """faults.I.time, an outage's end and a bias step drawn per sample (a leaf of each
-    sample's loop): each sample's metrics are those of its mission, written with its
+    """faults.I.time, which wheel fails, an outage's end and a bias step drawn per sample (a
+    leaf of each sample's loop): each sample's metrics are those of its mission, written with its
     values, flown alone (one compiled program for those); a sample whose outage ends at or
     before its time is rejected for that reason."""
     from test_faults import faulted
@@ -538,7 +539,7 @@ def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
     np.testing.assert_array_equal(samples.reason == dispersed.REJECTED["outage"], end <= start)
     assert np.any(end <= start) and np.all(samples.valid == (end > start))
     valid = np.flatnonzero(samples.valid)[:3]
-    assert len(valid) == 3
+    assert len(valid) == 3 and len(set(samples.leaves["faults.0.wheel"][valid])) > 1
     inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
     controller, gains = m.controller("pd")
     batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
@@ -548,6 +549,7 @@ def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
         own[0]["time"], own[1]["time"], own[1]["end"] = (float(samples.leaves[k][i]) for k in
                                                          ("faults.0.time", "faults.1.time", "faults.1.end"))
         own[2]["step"] = samples.leaves["faults.2.step"][i].tolist()
+        own[0]["wheel"] = int(samples.leaves["faults.0.wheel"][i])
         alone = mission.from_dict({**base, "faults": own})
         result = sj.simulate(alone.scenario(), controller, gains, alone.seed, loop=alone.loop())
         expected = {**result.metrics._asdict(), **result.flight._asdict()}
@@ -561,6 +563,9 @@ def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
     ({"faults": {"1": {"step": 0.5}}}, "disperses time, end, not 'step'"),
     ({"faults": {"0": {"time": {"dist": "uniform", "low": -2.0, "high": -1.0}}}}, "must be >= 0"),
     ({"faults": {"time": 1.0}}, "must name a fault's value"),
+    ({"faults": {"0": {"wheel": {"dist": "choice", "values": [1, 5]}}}}, "draws a wheel's index, 1 to 4"),
+    ({"faults": {"0": {"wheel": {"dist": "uniform", "low": 1, "high": 4}}}}, "draws a wheel's index, 1 to 4"),
+    ({"faults": {"0": {"wheel": {"dist": "choice", "values": []}}}}, "values must be a list of numbers"),
 ])
 def test_bad_fault_dispersions_are_one_line_errors(table, message):
     from test_faults import faulted
@@ -582,3 +587,24 @@ def test_a_degraded_wheel_s_factor_is_drawn_in_its_domain():
     np.testing.assert_array_equal(valid, (factor >= 0.0) & (factor < 1.0))
     loop = dispersed.loop(m, {"faults.0.factor": factor[0]}, np.float64)
     np.testing.assert_array_equal(np.asarray(loop.faults.wheel_factor), [factor[0]])
+
+
+def test_two_failed_wheels_drawn_apart_leave_two_wheels_and_reject_the_sample():
+    """Two wheels of the pyramid failing off, each drawn among the four: with detection on,
+    a sample whose two failures strike different wheels keeps two wheels (rank 2) and is
+    rejected for it; one whose failures strike the same wheel keeps three and flies. With
+    detection "never" every sample flies (unaware, as fly flies it); values uniform over
+    the choice within confidence bounds."""
+    from test_faults import BASE
+
+    two = [{"time": 3.0, "wheel": 1, "mode": "off"}, {"time": 4.0, "wheel": 1, "mode": "off"}]
+    table = {"faults": {str(i): {"wheel": {"dist": "choice", "values": [1, 2, 3, 4]}} for i in range(2)}}
+    n = 2000
+    for fdir, rejected in (({"latency": 1.0}, True), ({"detection": "never"}, False)):
+        m = mission.from_dict({**BASE, "faults": two, "fdir": fdir})
+        parsed, leaves = dispersed.parse(table, m)
+        samples = dispersed.draw(parsed, leaves, 0, n, 20, mission=m)
+        a, b = samples.leaves["faults.0.wheel"], samples.leaves["faults.1.wheel"]
+        np.testing.assert_array_equal(samples.reason == dispersed.REJECTED["wheels"], (a != b) & rejected)
+        counts = np.array([np.sum(a == k) for k in (1, 2, 3, 4)])
+        assert np.all(np.abs(counts - n / 4) < 4.5 * np.sqrt(n * 0.25 * 0.75))  # binomial, 4.5 sigma

@@ -19,7 +19,7 @@ import jax.numpy as jnp
 
 from so3jax.components.base import Measurements
 from so3jax.core import so3
-from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.core.pytree import pytree_dataclass
 
 
 def after(t, time):
@@ -31,15 +31,16 @@ def after(t, time):
 class Faults:
     """A mission's faults (docs/model.md §8.7); an empty kind is None.
 
-    wheel: (F,) the 0-based wheel of each wheel fault (static); wheel_time: (F,) its time
-    [s]; wheel_factor: (F,) its motor torque limit's factor from then on (0: off; in (0, 1):
-    degraded); wheel_detected: (F,) when the loop knows of it and drops that wheel from the
-    distribution [s] (inf: never; a degraded wheel is kept). outage_start, outage_end: (K,)
+    wheel: (F,) the 0-based wheel of each wheel fault (a number: a sweep draws it per
+    sample); wheel_time: (F,) its time [s]; wheel_factor: (F,) its motor torque limit's
+    factor from then on (0: off; in (0, 1): degraded); wheel_detected: (F,) when the loop
+    knows of it and drops that wheel from the distribution [s] (inf: never; a degraded
+    wheel is kept). outage_start, outage_end: (K,)
     the star tracker's outages [start, end) [s]. bias_time: (M,) the gyro bias steps'
     times [s]; bias_step: (3, M) the steps [rad/s].
     """
 
-    wheel: tuple = static_field(default=())
+    wheel: jax.Array | None = None
     wheel_time: jax.Array | None = None
     wheel_factor: jax.Array | None = None
     wheel_detected: jax.Array | None = None
@@ -50,25 +51,31 @@ class Faults:
 
     def torque_scale(self, t, count: int):
         """s_i(t) (N, *b): the product of the factors of wheel i's faults acting at t (8.16)."""
-        ones = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
-        scale = [ones] * count
-        for f, i in enumerate(self.wheel):
-            scale[i] = scale[i] * jnp.where(after(t, self.wheel_time[f]), self.wheel_factor[f], 1.0)
-        return jnp.stack(scale)
+        scale = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
+        scale = jnp.stack([scale] * count)
+        for f in range(len(self.wheel)):
+            hit = self._hits(f, count) & after(t, self.wheel_time[f])
+            scale = jnp.where(hit, scale * self.wheel_factor[f], scale)
+        return scale
+
+    def _hits(self, f: int, count: int):
+        """(N, *b) whether wheel fault f strikes each wheel: i == wheel_f."""
+        wheel = jnp.asarray(self.wheel[f])
+        return jnp.stack([wheel == i for i in range(count)])
 
     def available(self, t, count: int):
         """a_i(t) (N, *b): 1 for a wheel the distribution uses at t, 0 for one detected failed (8.17)."""
-        ones = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
-        mask = [ones] * count
-        for f, i in enumerate(self.wheel):
-            mask[i] = jnp.where(after(t, self.wheel_detected[f]), 0.0, mask[i])
-        return jnp.stack(mask)
+        mask = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
+        mask = jnp.stack([mask] * count)
+        for f in range(len(self.wheel)):
+            mask = jnp.where(self._hits(f, count) & after(t, self.wheel_detected[f]), 0.0, mask)
+        return mask
 
     def actuator(self, actuator, t):
         """The actuator as the tick at t [s] drives it: each wheel's motor torque limit
         u_max,i s_i(t), the distribution over the wheels available (a_i(t)); the actuator
         itself where no wheel fails."""
-        if not self.wheel:
+        if self.wheel is None:
             return actuator
         count = actuator.count
         limit = jnp.asarray(actuator.max_torque)

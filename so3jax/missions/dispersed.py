@@ -34,9 +34,10 @@ rule against the least limit drawn (:func:`~so3jax.missions.dispersions.least`),
 refused before anything is drawn; its tails are rejected sample by sample. The
 estimator keeps the noise levels the mission's nominal sensors report: the hardware is
 dispersed, not what the filter assumes. A fault's values (``faults.I.time``, ``.end``,
-``.factor``, ``.step``, I the 0-based ``[[faults]]`` entry: :data:`FAULT_LEAVES`) are leaves of
-each sample's loop as a component's parameters are; a sample whose star-tracker outage ends
-at or before its time is rejected.
+``.factor``, ``.wheel``, ``.step``, I the 0-based ``[[faults]]`` entry: :data:`FAULT_LEAVES`)
+are leaves of each sample's loop as a component's parameters are; a sample whose
+star-tracker outage ends at or before its time is rejected, and so is one whose wheels
+failed off leave the others spanning less than 3-D where the loop drops them.
 """
 
 from __future__ import annotations
@@ -57,6 +58,7 @@ from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE
 from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
 from so3jax.missions import dispersions as disp
+from so3jax.missions import faults as fault_list
 from so3jax.missions.mission import Mission, build_loop
 from so3jax.sim import memory
 from so3jax.sim.rollout import rollout_batch
@@ -91,10 +93,10 @@ SCENARIO_LEAVES = {
 }
 # A fault's dispersible values ([[faults]] entry i: faults.i.PARAMETER), by its target:
 # {target: {parameter: (low, high, high excluded)}}; a wheel's factor is a degraded one's.
-FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, True)},
+FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, True), "wheel": (1.0, math.inf, False)},
                 "star_tracker": {"time": (0.0, math.inf, False), "end": (0.0, math.inf, False)},
                 "gyro": {"time": (0.0, math.inf, False), "step": (-math.inf, math.inf, False)}}
-FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s"}  # samples.csv's units
+FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s", "wheel": "-"}  # samples.csv's units
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {
     "draws": "no positive definite inertia and positive tau_J within sweep.max_draws draws",
@@ -103,6 +105,7 @@ REJECTED = {
     "domain": "a dispersed value outside its parameter's domain",
     "bound": "a dispersed value beyond its limit (|actuator.wheels.initial_speed| > max_speed)",
     "outage": "a star-tracker outage that ends at or before its time (faults: [time, end))",
+    "wheels": "wheels failed off that leave the others spanning less than 3-D, with detection on (fdir)",
     "overlap": "slews that overlap (reference.slews: a slew ends after the next starts)",
     "order": "times that do not increase (reference or inertia table, inertia events)",
     "inertia_table": "an inertia of the inertia kind (events, linear, table) not positive definite",
@@ -198,7 +201,7 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
                              f"orbit.n, {_scenario_parameters(mission)}, disturbance.amplitude/frequency/noise_std, "
                              "initial.attitude/rate, seed, the numeric parameters of the mission's sensors, "
                              "estimator, actuator and momentum management, and its faults' "
-                             "(faults.I.time/end/factor/step, I the 0-based [[faults]] entry)")
+                             "(faults.I.time/end/factor/wheel/step, I the 0-based [[faults]] entry)")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
         fields["J1"] = disp.InertiaDispersion(nominal=None, scale=disp.Fixed(1.0))
         fields["J2"] = disp.InertiaDispersion(nominal=_matrix(mission.J0))
@@ -268,6 +271,13 @@ def _fault_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
         raise ValueError(f"{where}: wheel {fault['wheel']} fails off (no factor); a degraded wheel's factor is "
                          "dispersed")
     low, high, high_excluded = FAULT_LEAVES[target][param]
+    if param == "wheel":  # which wheel fails: one of the mission's, 1-based
+        high = float(len(mission.actuator["wheels"]["axes"]))
+        dist = _distribution(value, where)
+        drawn = dist.values if isinstance(dist, disp.Choice) else (dist.value,) if isinstance(dist, disp.Fixed) else ()
+        if not drawn or not all(v == int(v) and low <= v <= high for v in drawn):
+            raise ValueError(f"{where} draws a wheel's index, 1 to {high:g} (the mission's wheels): a number or "
+                             f"{{dist = \"choice\", values = [...]}} of those, got {checks.short(value)}")
     leaf = _checked_leaf(f"faults.{int(path[1])}.{param}", value, where, np.asarray(fault[param], np.float64),
                          low, high, strict=False)
     return dataclasses.replace(leaf, high=float(np.nextafter(high, -np.inf))) if high_excluded else leaf
@@ -445,6 +455,21 @@ def _scenario_checks(mission: Mission, values: dict, n_samples: int) -> dict:
     return {**passed, REJECTED["order"]: order, REJECTED["inertia_table"]: definite}
 
 
+def _wheels_span(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
+    """(N,) whether each sample's wheels left after those failed off (``values``' drawn
+    wheels, the mission's where not drawn) span 3-D, or the loop never drops them (fdir
+    detection "never", which flies the sample unaware, as ``fly`` does)."""
+    if mission.fdir["detection"] == "never":
+        return np.ones(n_samples, bool)
+    axes = np.asarray(mission.actuator["wheels"]["axes"], float)
+    off = np.zeros((n_samples, len(axes)), bool)
+    for i, fault in enumerate(mission.faults):
+        if fault.get("mode") == "off":
+            wheel = np.broadcast_to(values.get(f"faults.{i}.wheel", fault["wheel"]), (n_samples,)).astype(int)
+            off[np.arange(n_samples), wheel - 1] = True
+    return fault_list.spanning(axes, off)
+
+
 # --- drawing ---------------------------------------------------------------------------------
 
 
@@ -523,6 +548,10 @@ def draw(dispersions: disp.Dispersions, leaves: tuple, seed: int, n_samples: int
         if mission is None:
             raise TypeError("draw: dispersed reference or inertia parameters need the mission (mission=)")
         passed.update(_scenario_checks(mission, values, n_samples))
+    if any(leaf.key.startswith("faults.") and leaf.key.endswith(".wheel") for leaf in leaves):
+        if mission is None:
+            raise TypeError("draw: a dispersed failed wheel needs the mission (mission=)")
+        passed[REJECTED["wheels"]] = _wheels_span(mission, values, n_samples)
     reason = np.where(samples.valid, "", REJECTED["draws"]).astype(object)
     for why, ok in passed.items():
         reason[(reason == "") & ~ok] = why

@@ -84,12 +84,24 @@ class LogNormal:
         return self.median * np.exp(self.sigma * z)
 
 
-DISTRIBUTIONS = {"fixed": Fixed, "uniform": Uniform, "normal": Normal, "lognormal": LogNormal}
-Distribution = Fixed | Uniform | Normal | LogNormal
+@dataclasses.dataclass(frozen=True)
+class Choice:
+    """One of ``values``, each with probability 1 / len(values): value floor(u len(values))."""
+
+    values: tuple
+
+    def sample(self, u, z):
+        values = np.asarray(self.values, float)
+        return values[np.minimum((np.asarray(u) * len(values)).astype(np.int64), len(values) - 1)]
+
+
+DISTRIBUTIONS = {"fixed": Fixed, "uniform": Uniform, "normal": Normal, "lognormal": LogNormal, "choice": Choice}
+Distribution = Fixed | Uniform | Normal | LogNormal | Choice
 
 
 def parse_distribution(value, where: str) -> Distribution:
-    """A number (fixed) or a table ``{dist = "uniform", low = .., high = ..}`` -> distribution."""
+    """A number (fixed) or a table ``{dist = "uniform", low = .., high = ..}`` (``{dist =
+    "choice", values = [..]}``: one of the values, equally likely) -> distribution."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return _checked(Fixed(float(value)), where)
     if not isinstance(value, dict) or "dist" not in value:
@@ -102,6 +114,12 @@ def parse_distribution(value, where: str) -> Distribution:
     names = [f.name for f in dataclasses.fields(kind)]
     if sorted(params) != sorted(names):
         raise ValueError(f"{where}: distribution {value['dist']!r} takes exactly {names}, got {sorted(params)}")
+    if kind is Choice:
+        values = params["values"]
+        if (not isinstance(values, (list, tuple)) or not values
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values)):
+            raise ValueError(f"{where}.values must be a list of numbers, got {values!r}")
+        return _checked(Choice(tuple(float(v) for v in values)), where)
     for name, v in params.items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ValueError(f"{where}.{name} must be a number, got {v!r}")  # noqa: TRY004
@@ -118,13 +136,14 @@ def _spread(dist: Distribution) -> float:
     try:
         return {Fixed: lambda d: abs(d.value), Uniform: lambda d: d.high - d.low,
                 Normal: lambda d: abs(d.mean) + Z_MAX * d.std,
-                LogNormal: lambda d: d.median * math.exp(Z_MAX * d.sigma)}[type(dist)](dist)
+                LogNormal: lambda d: d.median * math.exp(Z_MAX * d.sigma),
+                Choice: lambda d: max(map(abs, d.values))}[type(dist)](dist)
     except OverflowError:
         return math.inf
 
 
 def _checked(dist: Distribution, where: str) -> Distribution:
-    values = dataclasses.astuple(dist)
+    values = dist.values if isinstance(dist, Choice) else dataclasses.astuple(dist)
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"{where}: parameters must be finite, got {dist}")
     if not math.isfinite(_spread(dist)):
@@ -149,6 +168,7 @@ def check_domain(dist: Distribution, where: str, low: float = 0.0, strict: bool 
         Uniform: lambda d: d.low >= low and (d.high > low if strict else True),
         Normal: lambda d: d.mean > low if strict else d.mean >= low,
         LogNormal: lambda d: low <= 0.0,
+        Choice: lambda d: min(d.values) > low if strict else min(d.values) >= low,
     }[type(dist)](dist)
     if not ok:
         raise ValueError(f"{where} must be {'>' if strict else '>='} {low:g}: {describe(dist)} is outside that domain")
@@ -165,6 +185,7 @@ def check_magnitude(dist: Distribution, where: str, limit: float, limit_name: st
         Uniform: lambda d: -limit <= d.low and d.high <= limit,
         Normal: lambda d: abs(d.mean) <= limit,
         LogNormal: lambda d: d.median <= limit,
+        Choice: lambda d: max(map(abs, d.values)) <= limit,
     }[type(dist)](dist)
     if not ok:
         raise ValueError(f"{where} must not exceed {limit_name} = {limit:g} in magnitude: {describe(dist)} "
@@ -177,7 +198,7 @@ def least(dist: Distribution) -> float:
     a uniform's low end, a normal's mean, a lognormal's median (a tail below is rejected,
     sample by sample, where a check needs it)."""
     return {Fixed: lambda d: d.value, Uniform: lambda d: d.low, Normal: lambda d: d.mean,
-            LogNormal: lambda d: d.median}[type(dist)](dist)
+            LogNormal: lambda d: d.median, Choice: lambda d: min(d.values)}[type(dist)](dist)
 
 
 def greatest(dist: Distribution) -> float:
@@ -185,10 +206,10 @@ def greatest(dist: Distribution) -> float:
     a uniform's high end, a normal's mean, a lognormal's median (a tail above is rejected,
     sample by sample, where a check needs it)."""
     return {Fixed: lambda d: d.value, Uniform: lambda d: d.high, Normal: lambda d: d.mean,
-            LogNormal: lambda d: d.median}[type(dist)](dist)
+            LogNormal: lambda d: d.median, Choice: lambda d: max(d.values)}[type(dist)](dist)
 
 
-_BOUND_NAME = {Uniform: "the upper end", Normal: "the mean", LogNormal: "the median"}
+_BOUND_NAME = {Uniform: "the upper end", Normal: "the mean", LogNormal: "the median", Choice: "the largest value"}
 
 
 def check_orbit(dist: Distribution, where: str = "orbit.n") -> Distribution:
@@ -273,6 +294,8 @@ def describe(dist: Distribution) -> Any:
     if isinstance(dist, Fixed):
         return dist.value
     name = next(k for k, v in DISTRIBUTIONS.items() if isinstance(dist, v))
+    if isinstance(dist, Choice):
+        return {"dist": name, "values": list(dist.values)}
     return {"dist": name, **dataclasses.asdict(dist)}
 
 

@@ -29,7 +29,7 @@ UNMODELED_MODES = {"stuck": "the model has no locked-wheel dynamics (a wheel's s
 TARGET_VALUES = {"star_tracker": "outage", "gyro": "bias step"}
 DETECTIONS = ("never", "latency")
 NO_FDIR = {"detection": "never"}  # the default: the loop never learns of a fault
-_RANK_TOLERANCE = 1e-9  # smallest singular value of the available wheels' axes below this: rank < 3
+RANK_TOLERANCE = 1e-9  # smallest singular value of the available wheels' axes below this: rank < 3
 
 
 class ControllabilityWarning(UserWarning):
@@ -66,8 +66,8 @@ def parse(entries, *, wheels: np.ndarray | None, sensors: tuple, momentum: str, 
     out = tuple(_entry(e, f"faults[{i}]", wheels, sensors, momentum) for i, e in enumerate(entries))
     off = sorted({f["wheel"] for f in out if f.get("mode") == "off"})
     if off and wheels is not None:
-        left = np.delete(np.asarray(wheels, float), [i - 1 for i in off], axis=0)
-        if left.shape[0] < 3 or np.linalg.svd(left, compute_uv=False)[-1] < _RANK_TOLERANCE:
+        failed = np.isin(np.arange(1, np.shape(wheels)[0] + 1), off)
+        if not spanning(wheels, failed):
             what = (f"with wheel(s) {', '.join(map(str, off))} off the others no longer span 3-D: the mission is no "
                     "longer controllable about some axis")
             if fdir["detection"] != "never":
@@ -75,6 +75,13 @@ def parse(entries, *, wheels: np.ndarray | None, sensors: tuple, momentum: str, 
                                  "fdir.detection = 'never' flies it unaware)")
             warnings.warn(f"faults: {what}", ControllabilityWarning, stacklevel=2)
     return out
+
+
+def spanning(axes, failed) -> np.ndarray:
+    """Whether the wheels not ``failed`` (..., N) bool span 3-D: the smallest singular value
+    of their axes (N, 3), a failed wheel's row zeroed, at least RANK_TOLERANCE (...)."""
+    left = np.where(np.asarray(failed)[..., None], 0.0, np.asarray(axes, float))
+    return np.linalg.svd(left, compute_uv=False)[..., -1] >= RANK_TOLERANCE
 
 
 def _entry(entry, where: str, wheels, sensors: tuple, momentum: str) -> dict:
@@ -159,7 +166,7 @@ def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     values = {}
     if wheel:
         detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in wheel]
-        values.update(wheel=tuple(f["wheel"] - 1 for f in wheel),
+        values.update(wheel=as_array(_stack([f["wheel"] for f in wheel])) - 1,
                       wheel_time=as_array(_stack([f["time"] for f in wheel])),
                       wheel_factor=as_array(_stack([f["factor"] for f in wheel])),
                       wheel_detected=as_array(_stack(detected)))

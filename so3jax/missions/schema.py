@@ -386,7 +386,10 @@ def _distribution(relative: bool) -> dict:
     tables = []
     for name, cls in disp.DISTRIBUTIONS.items():
         fields = [f.name for f in dataclasses.fields(cls)]
-        properties = {"dist": {"const": name}, **{f: {"type": "number"} for f in fields}}
+        number = {"type": "number"}
+        properties = {"dist": {"const": name},
+                      **{f: {"type": "array", "items": number, "minItems": 1} if f == "values" else number
+                         for f in fields}}
         if relative:
             properties["relative"] = {"enum": list(dispersed.RELATIVE),
                                       "description": "offset: the mission's value plus the draw; scale: times it"}

@@ -366,7 +366,7 @@ def check_loop(loop: Loop, inertias: dict) -> None:
     if loop.faults is not None:
         if m is None:
             raise ValueError("faults act at the control ticks: they need the sampled loop (control.mode = 'sampled')")
-        if loop.faults.wheel and not isinstance(loop.actuator, Wheels):
+        if loop.faults.wheel is not None and not isinstance(loop.actuator, Wheels):
             raise ValueError(f"a wheel fault needs wheels (actuator.kind = 'wheels'), not the "
                              f"{type(loop.actuator).__name__} actuator")
     if loop.momentum is not None:
