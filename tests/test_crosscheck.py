@@ -6,6 +6,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from so3jax import commands as cli
@@ -36,6 +37,10 @@ ONLY_MRP = 'controllers=["mrp_feedback"]'
     ("crosscheck.toml", ["gains.mrp_feedback.K_i=-1.0"], "K_i = -1, use 0"),
     ("crosscheck.toml", ["inertia.events.time_constants=[5.0]"], "an inertia event's blend"),
     ("crosscheck.toml", ["inertia.events.times=[60.004]"], "an inertia step at 60.004 s"),
+    ("crosscheck.toml", ['estimator.kind="raw"', "sensors.gyro={}", "sensors.star_tracker={}",
+                         'faults=[{time=10.0, star_tracker="outage", end=20.0}]'], "a star-tracker outage"),
+    ("crosscheck.toml", ['estimator.kind="raw"', "sensors.gyro={}", "sensors.star_tracker={}",
+                         'faults=[{time=10.0, gyro="bias step", step=[1e-5, 0.0, 0.0]}]'], "a gyro bias step"),
 ])
 def test_what_basilisk_cannot_fly_is_one_line(mission, sets, message, in_process, capsys, monkeypatch):
     """Named in one line, exit 2, with Basilisk's import refused (nothing reaches it)."""
@@ -85,6 +90,38 @@ def test_so3jax_and_basilisk_agree_at_round_off(sets, cli_env, capsys):
     assert report["max_torque_command"] > 0.01  # a manoeuvre, not a rest
     assert {"crosscheck.json", "differences.npz"} <= {p.name for p in out.iterdir()}
     assert sets != ["T=100.0"] or (out / "crosscheck.png").stat().st_size > 0
+
+
+# Wheel 1 fails off at 5.03 s, acting from the tick at 5.1 s, and is dropped from the
+# distribution 2 s later (the tick at 7.1 s); wheel 2 is degraded to 0.1 of its limit from
+# 3 s, where its clip binds. Basilisk without the faults is 1.8 rad/s apart in wheel speed,
+# without the drop 1.4 rad/s, without the degraded limit 0.15 rad/s; either event a tick
+# early or late 2e-2 rad/s: the round-off bounds tell each apart.
+FAULTS = ["T=20.0", 'faults=[{time=5.03, wheel=1, mode="off"}, {time=3.0, wheel=2, mode="degraded", factor=0.1}]',
+          "fdir.latency=2.0"]
+
+
+def test_a_wheel_that_fails_off_is_flown_by_both_at_round_off(cli_env, capsys, monkeypatch):
+    """The bounds of the flights without faults; in Basilisk's run wheel 1 coasts from its
+    fault's tick on: its axial momentum's rate g_1^T Omega + Omega_w,1 constant to round-off
+    (it changed before)."""
+    pytest.importorskip("Basilisk")
+    from so3jax.missions import mission as missions
+
+    flown, honest = [], basilisk.fly
+    monkeypatch.setattr(basilisk, "fly", lambda *args, **kwargs: flown.append(honest(*args, **kwargs)) or flown[-1])
+    code = cli.main(["crosscheck", "basilisk", CROSSCHECK, "--out", str(cli_env / "out"), "--json", "--no-figures",
+                     *(x for s in FAULTS for x in ("--set", s))])
+    assert code == 0
+    report = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["mrp_feedback"]
+    for key, bound in BOUNDS.items():
+        assert report[key] <= bound, (key, report[key])
+    assert report["ticks_compared"] == 200
+    g = missions.load(CROSSCHECK, FAULTS).actuator["wheels"]["axes"][0]
+    (run,) = flown
+    spin = run.Omega @ g + run.wheel_speed[:, 0]  # [rad/s], at the ticks 0, 0.1, ... s
+    assert np.max(np.abs(spin[51:] - spin[51])) <= BOUNDS["max_wheel_speed"], np.max(np.abs(spin[51:] - spin[51]))
+    assert abs(spin[51] - spin[0]) > 1e-3 and abs(spin[50] - spin[51]) > 1e-6, (spin[0], spin[50], spin[51])
 
 
 NAVIGATION = ["T=10.0", 'estimator.kind="raw"', "sensors.nav_attitude={sigma=1e-5, bound=3e-5}",

@@ -5,10 +5,14 @@ navigation errors), inertial3D (or, for the orbit frame, hillPoint on the hub's 
 under a point-mass Earth), attTrackingError and mrpFeedback. The dynamics task steps at
 the mission's dt and runs before the flight-software task, which ticks at the control
 period: a tick reads the state at its time and its command is held over the period, as in
-so3jax's sampled loop. Basilisk is imported here only (the ``basilisk`` extra)."""
+so3jax's sampled loop. A wheel fault acts at so3jax's tick: the effector's motor torque
+limit of that wheel scaled (a wheel failed off zeroes its command), and rwMotorTorque's
+availability message drops a wheel detected failed. Basilisk is imported here only (the
+``basilisk`` extra)."""
 
 from __future__ import annotations
 
+import math
 import time
 from typing import NamedTuple
 
@@ -96,6 +100,63 @@ def inertias(mission) -> tuple[np.ndarray, list]:
     return initial, [(t, J) for t, J in zip(times, targets) if 0.0 < t < mission.T]
 
 
+class WheelFaults(NamedTuple):
+    """The wheel faults as the control ticks see them: limits [(j, s (N,))], each control
+    tick j from which the wheels' torque limits are u_max,i s_i (8.16), and available
+    [(j, a (N,))], each tick j from which the distribution uses the wheels with a_i = 1 (8.17)."""
+
+    limits: list
+    available: list
+
+
+def tick_time(mission, j: int) -> float:
+    """t_j = (j m) dt [s], in float64 as so3jax's loop computes it (so3jax.sim.loop.time)."""
+    return float(np.float64(j * mission.period_steps) * np.float64(mission.dt))
+
+
+def first_tick(mission, time: float) -> int:
+    """The first control tick j with t_j >= time: the tick from which a fault at ``time``
+    acts in so3jax's loop (so3jax.components.faults.after), off the grid or on it."""
+    j = max(0, math.ceil(time / mission.period))
+    while j > 0 and tick_time(mission, j - 1) >= time:
+        j -= 1
+    while tick_time(mission, j) < time:
+        j += 1
+    return j
+
+
+def wheel_faults(mission) -> WheelFaults:
+    """The mission's wheel faults (docs/model.md §8.7) at the ticks flown (t_j < T) where
+    something changes: a fault's first tick (its factor), and for a wheel failed off with
+    fdir.detection = "latency", the first tick at or after its time plus the latency (the
+    wheel dropped). s_i and a_i at each such tick as so3jax's Faults compute them."""
+    faults = [f for f in mission.faults if "wheel" in f]
+    if not faults:
+        return WheelFaults([], [])
+    n = len(mission.actuator["wheels"]["axes"])
+    latency = mission.fdir.get("latency") if mission.fdir["detection"] == "latency" else None
+    detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in faults]
+    ticks = round(mission.T / mission.period)
+
+    def scale(t):
+        s = [1.0] * n
+        for f in faults:
+            s[f["wheel"] - 1] *= f["factor"] if t >= f["time"] else 1.0
+        return np.asarray(s)
+
+    def available(t):
+        a = [1.0] * n
+        for f, when in zip(faults, detected):
+            a[f["wheel"] - 1] = 0.0 if t >= when else a[f["wheel"] - 1]
+        return np.asarray(a)
+
+    def changes(times, of):
+        at = sorted({first_tick(mission, t) for t in times if not math.isinf(t)})
+        return [(j, of(tick_time(mission, j))) for j in at if j < ticks]
+
+    return WheelFaults(changes([f["time"] for f in faults], scale), changes(detected, available))
+
+
 def _column(v) -> list:
     return [[float(x)] for x in v]
 
@@ -150,7 +211,7 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
         n = len(axes)
         per = {k: np.broadcast_to(np.asarray(values[k], float), (n,))
                for k in ("spin_inertia", "max_torque", "max_speed", "initial_speed")}
-        factory = bsk["simIncludeRW"].rwFactory()
+        factory, rws = bsk["simIncludeRW"].rwFactory(), []
         for i, g in enumerate(axes):
             rw = factory.create("custom", [float(x) for x in g], Js=float(per["spin_inertia"][i]),
                                 u_max=float(per["max_torque"][i]), Omega_max=float(per["max_speed"][i]) / macros.RPM,
@@ -159,6 +220,7 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
             rw.Omega_max = float(per["max_speed"][i])
             rw.Jt = rw.Jg = 0.0  # a wheel's inertia about its spin axis only, as so3jax's
             rw.mass = 0.0  # the hub carries the whole inertia J, the wheels' spin inertia included
+            rws.append(rw)  # the effector's own (shared): a fault sets its limits between runs
         effector = bsk["reactionWheelStateEffector"].ReactionWheelStateEffector()
         factory.addToSpacecraft("wheels", effector, sc)
         sim.AddModelToTask("dynamicsTask", effector, 2)
@@ -208,12 +270,33 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     for module in (reference, error, control):
         sim.AddModelToTask("softwareTask", module)
 
+    events = []  # (time [ns], action): each action taken once the simulation has run up to its time
     if wheels:
         effector_in = effector.rwMotorCmdInMsg
         motors = bsk["rwMotorTorque"].rwMotorTorque()
         motors.controlAxes_B = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
         motors.vehControlInMsg.subscribeTo(control.cmdTorqueOutMsg)
         motors.rwParamsInMsg.subscribeTo(wheel_config)
+        faults = wheel_faults(mission)
+
+        def limit(scale):  # the effector clips to +-u_max; u_min = inf zeroes any command (u_max <= 0: no limit)
+            for rw, u_max, s in zip(rws, per["max_torque"], scale):
+                rw.u_max, rw.u_min = (float(u_max) * s, 0.0) if s > 0 else (float(u_max), math.inf)
+
+        for j, scale in faults.limits:  # the tick j's command is the first the effector clips so
+            events.append((j * period_ns, lambda scale=scale: limit(scale)))
+        if faults.available:  # each Update of rwMotorTorque reads it: written before the tick j runs
+            avail_msg = messaging.RWAvailabilityMsg()
+
+            def avail(mask):
+                payload = messaging.RWAvailabilityMsgPayload()
+                payload.wheelAvailability = [messaging.AVAILABLE if a > 0 else messaging.UNAVAILABLE for a in mask]
+                avail_msg.write(payload)
+
+            avail(np.ones(n))
+            motors.rwAvailInMsg.subscribeTo(avail_msg)
+            for j, mask in faults.available:
+                events.append((j * period_ns - dt_ns, lambda mask=mask: avail(mask)))
         effector_in.subscribeTo(motors.rwMotorTorqueOutMsg)
         sim.AddModelToTask("softwareTask", motors)
         control.rwParamsInMsg.subscribeTo(wheel_config)  # the wheels' momentum in the law
@@ -232,14 +315,21 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     for log in logs:
         sim.AddModelToTask("softwareTask", log)
 
-    sim.InitializeSimulation()
+    def step(t, J_after):  # the step ending at t flies the inertia before, the next one J_after
+        sc.hub.IHubPntBc_B = J_after.tolist()
+        sc.updateSCMassProps(float(t))  # from the next step on; the hub alone would keep the old one a step longer
+
+    events += [(macros.sec2nano(t), lambda t=t, J_after=J_after: step(t, J_after)) for t, J_after in steps]
     stop = macros.sec2nano(mission.T) - period_ns  # the ticks so3jax records: 0 .. T - period
-    for t, J_after in steps:  # the step ending at t flies the inertia before, the next one J_after
-        if macros.sec2nano(t) <= stop:
-            sim.ConfigureStopTime(macros.sec2nano(t))
-            sim.ExecuteSimulation()
-            sc.hub.IHubPntBc_B = J_after.tolist()
-            sc.updateSCMassProps(float(t))  # from the next step on; the hub alone would keep the old one a step longer
+    events.sort(key=lambda event: event[0])  # stable: an inertia step after a fault at the same time
+    for _, action in (e for e in events if e[0] <= 0):  # a fault at tick 0: before anything runs
+        action()
+    sim.InitializeSimulation()
+    for at in sorted({e[0] for e in events if 0 < e[0] <= stop}):
+        sim.ConfigureStopTime(at)
+        sim.ExecuteSimulation()
+        for _, action in (e for e in events if e[0] == at):
+            action()
     sim.ConfigureStopTime(stop)
     sim.ExecuteSimulation()
 

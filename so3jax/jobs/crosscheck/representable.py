@@ -51,6 +51,7 @@ def check(mission) -> None:
         _refuse(f"environment torques ({names})", "leave [environment] out")
     if m.momentum["kind"] != "none":
         _refuse(f"momentum management (momentum.kind = \"{m.momentum['kind']}\")", "momentum.kind = \"none\"")
+    _faults(m)
     _navigation(m)
     kind = m.actuator["kind"]
     if kind not in ACTUATORS:
@@ -75,6 +76,19 @@ def _navigation(m) -> None:
     kind = m.estimator["kind"]
     if kind not in ("truth", "raw") or (kind == "truth") != (not m.sensors):
         _refuse(f"estimator.kind = \"{kind}\"" + (" with sensors" if kind == "truth" else ""), remedy)
+
+
+def _faults(m) -> None:
+    """Wheels failed off or degraded (their limit scaled at so3jax's tick, the wheel dropped
+    from rwMotorTorque's distribution once detected: :func:`so3jax.jobs.crosscheck.basilisk.wheel_faults`);
+    simpleNav has neither a star tracker to lose nor a gyro bias to step."""
+    for fault in m.faults:
+        if "star_tracker" in fault:
+            _refuse(f"a star-tracker outage (faults: star_tracker = \"outage\" from {fault['time']:g} s)",
+                    "simpleNav draws no star tracker: leave the outage out (wheel faults it flies)")
+        if "gyro" in fault:
+            _refuse(f"a gyro bias step (faults: gyro = \"bias step\" at {fault['time']:g} s)",
+                    "simpleNav draws no gyro bias: leave the step out (wheel faults it flies)")
 
 
 def _inertia(m) -> None:
