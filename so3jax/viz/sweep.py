@@ -69,7 +69,43 @@ def figures(config, cols: dict, phases: list) -> dict:
         out["pointing.png"] = _pointing_figure(config, cols, phases, color)
     if config.margins_at:
         out["margins.png"] = _margins_figure(config, cols, color)
+    if "fault_case" in cols:
+        out["faults.png"] = _faults_figure(config, cols, color)
     return out
+
+
+def _faults_figure(config, cols: dict, color: dict):
+    """Per fault case, the CDF over its samples of each sample's own APE (solid) and RPE
+    (dashed) angle at the mission's first level after its last detection (after its fault
+    where nothing is detected) [arcsec]; a lost (diverged) sample's above every value (the
+    curve ends below 1), the legend counting them."""
+    from matplotlib.figure import Figure  # here: matplotlib only when drawing
+
+    level = config.mission.pointing["levels"][0]
+    period = next(p for p in ("after_detection", "after_fault")
+                  if pointing.column(config.controllers[0], "APE", level, p) in cols)
+    labels = sorted(set(cols["fault_case"].tolist()))
+    fig = Figure(figsize=(max(6.0, 3.6 * len(labels)), 3.8), layout="constrained")
+    for ax, label in zip(fig.subplots(1, len(labels), squeeze=False, sharey=True)[0], labels):
+        for c in config.controllers:
+            members = (cols["fault_case"] == label) & ~np.isnan(cols[f"{c}_diverged"])
+            lost = int((cols[f"{c}_diverged"][members] == 1).sum())
+            for index, line in zip(pointing.SAMPLE_COLUMNS, ("-", "--")):
+                x = cols[pointing.column(c, index, level, period)][members]
+                v = np.sort(x[np.isfinite(x) & (cols[f"{c}_diverged"][members] == 0)])
+                if len(v):  # a lost sample's is above every value: the curve ends below 1
+                    ax.step(v, np.arange(1, len(v) + 1) / members.sum(), where="post", ls=line, color=color[c]["color"],
+                            label=f"{color[c]['label']} {index}" + (f" ({lost} lost)" if lost and index == "APE"
+                                                                     else ""))
+        ax.set_xscale("log")
+        ax.set_title(f"{label} ({int((cols['fault_case'] == label).sum())} samples)")
+        ax.set_xlabel(f"quantile at {level:g} {period.replace('_', ' ')} [arcsec]")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.axes[0].set_ylabel("fraction of the case's samples")
+    fig.suptitle(f"{len(cols['index'])} samples: each one's APE and RPE through its fault (angle; RPE window "
+                 f"{config.mission.pointing['window']:g} s)")
+    return fig
 
 
 def _margins_figure(config, cols: dict, color: dict):

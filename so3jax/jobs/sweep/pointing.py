@@ -31,7 +31,7 @@ def times(config, n_records: int) -> np.ndarray:
     return np.arange(n_records) * (block * m.dt)
 
 
-def _phases(config) -> tuple:
+def phases(config) -> tuple:
     """((t_start, t_end) per phase, reached phases' bounds, their names)."""
     scenario = config.mission.scenario()
     bounds = pointing.phase_bounds_of(scenario)
@@ -39,7 +39,7 @@ def _phases(config) -> tuple:
     return bounds, bounds[:reached], config.mission.phase_names[:reached]
 
 
-def _signals(config, r: dict, simulated) -> tuple:
+def signals(config, r: dict, simulated) -> tuple:
     """(t, e_P, e_K or None) of the simulated samples, (S, M, 3) rad."""
     e_p = r["pointing_performance"][simulated]
     e_k = r["pointing_knowledge"][simulated] if "pointing_knowledge" in r else None
@@ -51,7 +51,7 @@ def columns(config, results: dict, n: int) -> dict:
     the mission's first level (NaN where not simulated or a diverged sample's is)."""
     if not config.pointing:
         return {}
-    _, bounds, names = _phases(config)
+    _, bounds, names = phases(config)
     level, window = config.mission.pointing["levels"][0], config.mission.pointing["window"]
     cols = {}
     for c in config.controllers:
@@ -62,7 +62,7 @@ def columns(config, results: dict, n: int) -> dict:
                 value = np.full(n, np.nan)
                 usable = index not in pointing.WINDOWED or pointing.whole_windows(b, window) >= 1
                 if done.any() and usable:
-                    t, e, _ = _signals(config, r, done)
+                    t, e, _ = signals(config, r, done)
                     x = pointing.index_samples(index, t, e, b, window if index in pointing.WINDOWED else None)
                     if x.shape[1]:
                         value[done] = pointing.quantile(x[..., 3], level, axis=1) * pointing.ARCSEC
@@ -76,14 +76,14 @@ def summarize(config, results: dict, simulated: dict) -> dict:
     JSON-ready; {} where the sweep records no pointing."""
     if not config.pointing:
         return {}
-    all_bounds, bounds, names = _phases(config)
+    all_bounds, bounds, names = phases(config)
     m = config.mission
     out = {}
     for c in config.controllers:
         r = results.get(c, {})
         if not simulated[c].any():
             continue
-        t, e_p, e_k = _signals(config, r, simulated[c])
+        t, e_p, e_k = signals(config, r, simulated[c])
         report = pointing.report(t, e_p, e_k, bounds, window=m.pointing["window"], levels=m.pointing["levels"],
                                  phase_names=names, indices=pointing.reported(e_k),
                                  interpretations=pointing.INTERPRETATIONS, diverged_worst=True)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.components import registry as components
-from so3jax.jobs.sweep import margins, pointing
+from so3jax.jobs.sweep import fault_cases, margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.missions import dispersed, keys
 from so3jax.missions import dispersions as disp
@@ -92,6 +92,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
             at_limit = np.maximum(r["time_at_torque_limit"], r["time_at_speed_limit"]) > config.limit_share * config.T
             cols[f"{c}_at_limit"] = np.where(done, at_limit, np.nan)
     cols.update(pointing.columns(config, results, n))
+    cols.update(fault_cases.columns(config, samples, results))
     cols.update(margins.columns(config, results, n))
     return cols
 
@@ -99,7 +100,7 @@ def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
 # The units of samples.csv's parameter columns (a dispersed component parameter's is its
 # declared unit; a controller's metric's its metric's, a phase's that of the per-phase metric).
 PARAMETER_UNITS = {"index": "-", "status": "-", "draws": "-", "disturbance_seed": "-", "physical": "-",
-                   "J0_trace_ratio": "-", "J2_trace_ratio": "-", "initial_angle_deg": "deg",
+                   "fault_case": "-", "J0_trace_ratio": "-", "J2_trace_ratio": "-", "initial_angle_deg": "deg",
                    **{f"attitude_error_{a}": "rad" for a in "xyz"}, **{f"Omega0_{a}": "rad/s" for a in "xyz"},
                    **{key: keys.KEY[path].unit for key, path in (("tau_J", "deployment.tau_J"), ("n", "orbit.n"),
                       ("amplitude", "disturbance.amplitude"), ("frequency", "disturbance.frequency"),
@@ -176,7 +177,8 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
     samples that did not diverge (each with its number of samples; None where there is
     none); counts and parameters of diverged and rejected samples; paired comparisons (every
     pair of controllers in config order, on the samples where neither diverged); the unit of
-    each samples.csv column and of each summarized metric."""
+    each samples.csv column and of each summarized metric; with faults, their cases
+    (:mod:`~so3jax.jobs.sweep.fault_cases`)."""
     cols = columns(config, samples, results)
     phases = reached_phases(config)
     summary: dict[str, Any] = {
@@ -239,6 +241,8 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             summary["paired"][f"{b}_vs_{a}"] = pair
     if config.pointing:
         summary["pointing"] = pointing.summarize(config, results, simulated)
+    if fault_cases.applies(config):
+        summary["faults"] = fault_cases.summarize(config, samples, results, cols, simulated, bad)
     if config.margins_at:
         summary["margins"] = margins.summary_of(config, results, simulated)
     return summary
@@ -307,5 +311,6 @@ def format_summary(summary: dict) -> str:
                 lines.append(f"- {metric} [{units.shown_unit(metric)}]: {b} - {a} median {q['p50']:.4g}, "
                              f"5-95 % [{q['p5']:.4g}, {q['p95']:.4g}], mean {q['mean']:.4g}")
     lines += pointing.format_lines(summary)
+    lines += fault_cases.format_lines(summary)
     lines += margins.format_summary(summary)
     return "\n".join(lines) + "\n"
