@@ -262,3 +262,39 @@ def test_the_loop_refuses_wheel_faults_without_wheels():
     loop = missions.from_dict(faulted()).loop()
     with pytest.raises(ValueError, match="a wheel fault needs wheels"):
         check_loop(dataclasses.replace(loop, actuator=Ideal()), {})
+
+
+AFTER_FAULT = [{"index": "APE", "axis": "angle", "level": 0.9, "limit": 100.0, "phase": "after fault"},
+               {"index": "RPE", "axis": "each", "level": 0.9, "limit": 100.0, "window": 2.0, "phase": "after fault"}]
+
+
+def test_a_requirement_after_the_fault_reads_from_the_first_fault_to_the_end(flights):
+    """phase = "after fault": the period [t_f, T), t_f the mission's first fault; its value is
+    the index over that period written out (NumPy over the recorded errors)."""
+    from so3jax.sim import pointing
+
+    _, history = flights["detected"]
+    m = missions.from_dict({**faulted(), "requirements": AFTER_FAULT})
+    assert [r.after for r in m.requirements] == [FAULT, FAULT]
+    signals = pointing.signals(history)
+    bounds = pointing.phase_bounds_of(m.scenario())
+    checked = pointing.check(m.requirements, signals.t, signals.performance, signals.knowledge, bounds)
+    keep = (signals.t >= FAULT) & (signals.t < m.T)
+    angles = np.sort(np.linalg.norm(signals.performance[keep], axis=1))
+    ape = angles[int(np.ceil(0.9 * len(angles))) - 1] * pointing.ARCSEC
+    np.testing.assert_allclose(checked[0]["value"], ape, rtol=1e-12)
+    assert checked[0]["requirement"].endswith(f"after fault (from {FAULT:g} s): <= 100 arcsec")
+    x = pointing.index_samples("RPE", signals.t, signals.performance[None], (FAULT, m.T), 2.0)
+    np.testing.assert_allclose(checked[1]["value"], pointing.quantile(x[0, :, :3], 0.9).max() * pointing.ARCSEC,
+                               rtol=1e-12)
+
+
+def test_after_fault_needs_a_fault_and_a_fault_time_common_to_the_samples():
+    from so3jax.missions import dispersed
+
+    with pytest.raises(ValueError, match=r"requirements\[0\].phase: 'after fault' starts at the mission's first "
+                                         r"fault: it needs a mission with \[\[faults\]\]"):
+        missions.from_dict({**BASE, "requirements": AFTER_FAULT[:1]})
+    m = missions.from_dict({**faulted(), "requirements": AFTER_FAULT[:1]})
+    with pytest.raises(ValueError, match="faults.0.time is dispersed: each sample's starts elsewhere"):
+        dispersed.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)

@@ -61,6 +61,7 @@ from so3jax.missions import dispersions as disp
 from so3jax.missions import faults as fault_list
 from so3jax.missions.mission import Mission, build_loop
 from so3jax.sim import memory
+from so3jax.sim.pointing import AFTER_FAULT
 from so3jax.sim.rollout import rollout_batch
 
 STRUCTURED = {
@@ -211,6 +212,11 @@ def parse(table: dict, mission: Mission) -> tuple[disp.Dispersions, tuple[Leaf, 
     users = build.orbit_users(mission)
     if users:  # no orbit (n = 0) is refused, n > 0 drawn: the mission flies on its orbit
         disp.check_domain(dispersions.n, f"dispersions.orbit.n ({', '.join(users)} fly on the orbit)", 0.0, strict=True)
+    timed = [leaf.key for leaf in leaves if leaf.key.startswith("faults.") and leaf.key.endswith(".time")]
+    if timed and any(r.after is not None for r in mission.requirements):
+        raise ValueError(f"requirements: phase = {AFTER_FAULT!r} starts at the mission's first fault, and "
+                         f"{', '.join(timed)} is dispersed: each sample's starts elsewhere (a sweep's fault cases "
+                         "give each sample's APE and RPE after its own fault)")
     return dispersions, _ordered(_bounded(tuple(leaves), mission), mission)
 
 

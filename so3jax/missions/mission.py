@@ -431,8 +431,9 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
         inertias = {f"inertia.{inertia['kind']}.{name}": J for name, J in scenario.inertia.matrices().items()}
     check_loop(build_loop(mission, np.asarray), inertias)
     bounds = pointing.phase_bounds_of(scenario)
+    first_fault = min((f["time"] for f in mission.faults), default=None)
     requirements = pointing.parse_requirements(d.get("requirements", []), mission.phase_names, bounds,
-                                               mission.recording, mission.no_estimate)
+                                               mission.recording, mission.no_estimate, first_fault)
     return dataclasses.replace(mission, requirements=requirements)
 
 

@@ -59,7 +59,8 @@ REQUIREMENT_VALUES = {
     "separation": lambda: {"type": "number", "exclusiveMinimum": 0,
                            "description": f"the separation Dt_s [s] of {', '.join(pointing.DRIFT)}"},
     "phase": lambda: {"anyOf": [{"type": "integer", "minimum": 0}, {"type": "string", "minLength": 1}],
-                      "description": "a phase's name or index (left out: the whole run)"},
+                      "description": "a phase's name or index, or \"after fault\" (from the mission's first "
+                                     "fault) (left out: the whole run)"},
     "interpretation": lambda: {"enum": list(pointing.INTERPRETATIONS), "default": "temporal",
                                "description": "the statistical interpretation (ECSS-E-ST-60-10C)"},
     "name": lambda: {"type": "string", "description": "the requirement's name in reports and goals"},

@@ -61,6 +61,7 @@ WINDOWED = ("MPE", "RPE", "PDE", "MKE", "RKE", "KDE")
 DRIFT = ("PDE", "KDE")
 AXES = ("x", "y", "z", "angle", "each")
 INTERPRETATIONS = ("temporal", "ensemble", "mixed")
+AFTER_FAULT = "after fault"  # a requirement's phase: from the mission's first fault to the end
 KEYS = ("index", "axis", "level", "limit", "window", "separation", "phase", "interpretation", "name")
 REQUIRED = ("index", "axis", "level", "limit")
 REPORTED = ("APE", "MPE", "RPE", "AKE", "MKE", "RKE")  # a report's, with an estimate (else the first three)
@@ -268,7 +269,8 @@ def statistic(x, level: float, interpretation: str = "temporal", diverged_worst:
 @dataclass(frozen=True)
 class Requirement:
     """index's magnitude on ``axis`` at confidence ``level`` <= ``limit`` [arcsec]; window,
-    separation [s]; phase: its index, None for the whole run."""
+    separation [s]; phase: its index, None for the whole run; after: where set, the period
+    starts there instead [s] (phase "after fault": the mission's first fault)."""
 
     index: str
     axis: str
@@ -280,6 +282,7 @@ class Requirement:
     interpretation: str = "temporal"
     name: str | None = None
     phase_name: str | None = None  # the phase's name, where the mission names its phases
+    after: float | None = None  # s: the period's start (phase "after fault")
 
     @property
     def signal(self) -> str:
@@ -294,6 +297,8 @@ class Requirement:
         if self.separation is not None:
             what += f", separation {self.separation:g} s"
         where = "whole run" if self.phase is None else self.phase_name or f"phase {self.phase}"
+        if self.after is not None:
+            where = f"{AFTER_FAULT} (from {self.after:g} s)"
         label = "" if self.name is None else f"{self.name}: "
         return f"{label}{what}, {where}: <= {self.limit:g} arcsec"
 
@@ -303,7 +308,7 @@ def _is_number(x) -> bool:
 
 
 def _phase_index(value, where, phase_names, n_phases):
-    if value is None:
+    if value is None or value == AFTER_FAULT:
         return None
     if isinstance(value, str):
         if phase_names is None or value not in phase_names:
@@ -344,7 +349,7 @@ def check_signal(requirement: Requirement, where: str, no_estimate=None) -> None
 
 
 def parse_requirement(item, where: str = "requirement", phase_names=None, phase_bounds=None,
-                      recording=None, no_estimate=None) -> Requirement:
+                      recording=None, no_estimate=None, first_fault=None) -> Requirement:
     """One requirement from a dict (see :func:`parse_requirements`)."""
     if not isinstance(item, dict):
         raise ValueError(f"{where}: must be a table of keys, got {checks.short(item)}")
@@ -392,30 +397,38 @@ def parse_requirement(item, where: str = "requirement", phase_names=None, phase_
     n_phases = len(phase_bounds) if phase_bounds is not None else n_phases
     phase = _phase_index(item.get("phase"), where, phase_names, n_phases)
     phase_name = None if phase is None or phase_names is None or phase >= len(phase_names) else phase_names[phase]
+    after = None
+    if item.get("phase") == AFTER_FAULT:
+        if first_fault is None:
+            raise ValueError(f"{where}.phase: {AFTER_FAULT!r} starts at the mission's first fault: it needs a "
+                             "mission with [[faults]] (in the mission's [[requirements]])")
+        after = float(first_fault)
     requirement = Requirement(index, axis, float(level), float(limit), window, separation, phase, interpretation, name,
-                              phase_name)
+                              phase_name, after)
     check_signal(requirement, where, no_estimate)
     if phase_bounds is not None and window is not None:
         try:
-            check_window(period(phase, phase_bounds), window, separation)
+            check_window(requirement_period(requirement, phase_bounds), window, separation)
         except ValueError as error:
             raise ValueError(f"{where}.window: {error}") from None
     return requirement
 
 
 def parse_requirements(items, phase_names=None, phase_bounds=None, recording=None,
-                       no_estimate=None) -> tuple[Requirement, ...]:
+                       no_estimate=None, first_fault=None) -> tuple[Requirement, ...]:
     """Requirements from a list of dicts {index, axis, level, limit [arcsec], window [s],
     separation [s], phase, interpretation, name}; a one-line ValueError naming the entry and
     key for any bad one. phase: an index, a name of ``phase_names``, or None (whole run);
     ``phase_bounds`` (t_start, t_end) per phase, where known, also checks the windows fit;
     ``recording`` (the recording interval [s], what sets it), where known, that each window
     holds a sample (:func:`check_recorded`); ``no_estimate``, why the runs have no estimate
-    that can be wrong where they have none, refuses the knowledge requirements (:func:`check_signal`)."""
+    that can be wrong where they have none, refuses the knowledge requirements (:func:`check_signal`);
+    ``first_fault``, the time of the mission's first fault [s] where it has faults, lets a
+    requirement take phase "after fault": from then to the end."""
     if not isinstance(items, (list, tuple)):
         raise ValueError(f"requirements: must be a list of tables, got {checks.short(items)}")
-    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording, no_estimate)
-                 for i, item in enumerate(items))
+    return tuple(parse_requirement(item, f"requirements[{i}]", phase_names, phase_bounds, recording, no_estimate,
+                                   first_fault) for i, item in enumerate(items))
 
 
 def period(phase, phase_bounds) -> tuple[float, float]:
@@ -423,6 +436,13 @@ def period(phase, phase_bounds) -> tuple[float, float]:
     if phase is None:
         return (float(phase_bounds[0][0]), float(phase_bounds[-1][1]))
     return tuple(float(b) for b in phase_bounds[phase])
+
+
+def requirement_period(requirement: Requirement, phase_bounds) -> tuple[float, float]:
+    """(t_start, t_end) [s] a requirement is evaluated over: its phase's (:func:`period`),
+    from ``requirement.after`` on where set."""
+    start, end = period(requirement.phase, phase_bounds)
+    return (start, end) if requirement.after is None else (max(start, requirement.after), end)
 
 
 class Evaluation(NamedTuple):
@@ -438,6 +458,7 @@ class Evaluation(NamedTuple):
         r = self.requirement
         return {"name": r.name, "requirement": r.describe(), "index": r.index, "axis": r.axis, "level": r.level,
                 "interpretation": r.interpretation, "window": r.window, "separation": r.separation, "phase": r.phase,
+                "after": r.after,
                 "limit": r.limit, "value": self.value, "passed": self.passed, "samples": self.samples,
                 "resolved": self.resolved, "unit": "arcsec"}
 
@@ -449,7 +470,7 @@ def evaluate(requirement: Requirement, t, e_runs, phase_bounds, diverged_worst: 
     sample). diverged_worst: see :func:`statistic`."""
     e = np.asarray(e_runs, np.float64)
     e = e[None] if e.ndim == 2 else e
-    x = index_samples(requirement.index, t, e, period(requirement.phase, phase_bounds), requirement.window,
+    x = index_samples(requirement.index, t, e, requirement_period(requirement, phase_bounds), requirement.window,
                       requirement.separation)
     stat = statistic(x, requirement.level, requirement.interpretation, diverged_worst)
     if stat.samples == 0:

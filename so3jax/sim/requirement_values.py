@@ -75,7 +75,7 @@ def plan(requirement: pointing.Requirement, t, phase_bounds, runs: int | None = 
         raise ValueError(f"unknown interpretation {r.interpretation!r} "
                          f"(one of {', '.join(pointing.INTERPRETATIONS)})")
     t = np.asarray(t, np.float64)
-    bounds = pointing.period(r.phase, phase_bounds)
+    bounds = pointing.requirement_period(r, phase_bounds)
     kind = "D" if r.index in pointing.DRIFT else r.index[0]
     columns = (0, 1, 2) if r.axis == "each" else (pointing.COLUMNS.index(r.axis),)
     common = dict(kind=kind, columns=columns, interpretation=r.interpretation, level=float(r.level),
