@@ -225,7 +225,8 @@ def test_a_mission_without_faults_describes_and_builds_as_before():
     ({"faults": [{"time": 1.0, "wheel": 1, "mode": "degraded"}]}, r"faults\[0\].factor is missing"),
     ({"faults": [{"time": -1.0, "wheel": 1}]}, r"faults\[0\].time"),
     ({"faults": [{"time": 1.0, "wheel": 1, "gyro": "bias step"}]}, "one target among"),
-    ({"faults": [{"time": 1.0, "thruster": 1}]}, "thruster faults are not modeled"),
+    ({"faults": [{"time": 1.0, "thruster": "+x"}]}, r"faults\[0\].thruster: the mission flies no thrusters "
+                                                     r"\(momentum.kind = 'none'"),
     ({"faults": [{"time": 1.0, "wheel": 1, "speed": 3}]}, r"unknown key\(s\) speed"),
     ({"fdir": {"latency": -1.0}}, r"fdir.latency \[s\]"),
     ({"fdir": {"detection": "latency"}}, "needs fdir.latency"),
@@ -298,3 +299,122 @@ def test_after_fault_needs_a_fault_and_a_fault_time_common_to_the_samples():
     m = missions.from_dict({**faulted(), "requirements": AFTER_FAULT[:1]})
     with pytest.raises(ValueError, match="faults.0.time is dispersed: each sample's starts elsewhere"):
         dispersed.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
+
+
+# --- thrusters ---------------------------------------------------------------------------------------
+
+# Holding an inertial attitude with the wheels' momentum h_w ~ (78, 13, 9) N m s above start: the
+# -x, -y and -z thrusters fire throughout, no wheel limit binds, and nothing but the thrusters
+# puts a torque on the body (no disturbance). -x fails off between two ticks.
+THRUSTER_FAULT = 5.03  # [s]: acts from the tick at 5.1 s, detected from the tick at 8.1 s
+PULSE = 0.1  # [N m]
+THRUSTERS = {**BASE, "reference": {"kind": "inertial"}, "disturbance": {"amplitude": 0.0, "noise_std": 0.0},
+             "actuator": {"wheels": {"initial_speed": [300.0, 100.0, -300.0, 0.0]}},
+             "momentum": {"kind": "thrusters", "thrusters": {"torque": PULSE, "start": 20.0, "stop": 5.0,
+                                                             "min_on_time": 0.5}}}
+
+
+def thruster_off(time=THRUSTER_FAULT, latency: float | None = LATENCY) -> dict:
+    fdir = {"detection": "never"} if latency is None else {"latency": latency}
+    return {**THRUSTERS, "faults": [{"time": time, "thruster": "-x"}], "fdir": fdir}
+
+
+@pytest.fixture(scope="module")
+def thruster_flights():
+    """The nominal flight and -x failed off, detected, unaware and past the horizon (one
+    compilation for the three faulted)."""
+    return {"nominal": fly(THRUSTERS), "detected": fly(thruster_off()), "unaware": fly(thruster_off(latency=None)),
+            "late": fly(thruster_off(time=1e6))}
+
+
+def fed_forward(h):
+    """The pulses the wheels were commanded to absorb (M, 3) [N m]: tau_cmd - tau, the wheels
+    delivering the command less the feedforward where no limit binds (docs/model.md §8.6)."""
+    return h.tau_cmd - h.tau
+
+
+def test_a_failed_thruster_gives_the_body_no_torque_from_its_fault_tick(thruster_flights):
+    """The body's thruster torque (the held input the history records) has no -x pulse from
+    the first tick at or after the fault on, the others fire on; and it is what the body gets:
+    the total angular momentum R (J Omega + h_w) changes by its impulse alone, not by the
+    pulses commanded (docs/model.md (8.20))."""
+    for name in ("detected", "unaware"):
+        m, h = thruster_flights[name]
+        failed = h.t >= 5.1 - 1e-9
+        assert np.sum(~failed) == 51 and np.all(h.managed[~failed] == -PULSE)  # every thruster fires before
+        assert np.all(h.managed[failed, 0] == 0.0)
+        assert np.all(h.managed[failed, 1:] == -PULSE)  # the others fire on
+        G, J_s = axes(m), np.asarray(m.actuator["wheels"]["spin_inertia"], float)
+        H = np.einsum("mij,mj->mi", h.R, np.einsum("mij,mj->mi", h.J, h.Omega) + (G @ (J_s * h.actuator).T).T)
+        delivered = np.cumsum(np.einsum("mij,mj->mi", h.R, h.managed) * m.period, axis=0)
+        commanded = np.cumsum(np.einsum("mij,mj->mi", h.R, fed_forward(h)) * m.period, axis=0)
+        np.testing.assert_allclose(H[1:] - H[0], delivered[:-1], rtol=0, atol=1e-4)  # R turns within a period
+        assert np.abs(commanded - delivered).max() > 0.25  # >= 3 s of 0.1 N m lost
+
+
+def test_the_wheels_absorb_a_failed_thruster_s_pulses_until_it_is_detected(thruster_flights):
+    """Before the detection the flight software fires -x and feeds its pulse forward to the
+    wheels; from the first tick at or after it (fdir.latency later) never again: -x is not
+    commanded and nothing is fed forward (docs/model.md (8.21)); unaware, it fires to the end."""
+    for name, detected in (("detected", 8.1), ("unaware", np.inf)):
+        _, h = thruster_flights[name]
+        fed = fed_forward(h)
+        failed = h.t >= 5.1 - 1e-9
+        np.testing.assert_allclose(fed[~failed], h.managed[~failed], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fed[:, 1:], h.managed[:, 1:], rtol=0, atol=1e-12)  # no wheel limit binds
+        known = h.t >= detected - 1e-9
+        np.testing.assert_allclose(fed[failed & ~known, 0], -PULSE, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(fed[known, 0], 0.0, rtol=0, atol=1e-12)
+        assert np.sum(failed & ~known) == (30 if name == "detected" else 149)
+
+
+def test_a_thruster_fault_past_the_horizon_changes_nothing(thruster_flights):
+    _, nominal = thruster_flights["nominal"]
+    _, late = thruster_flights["late"]
+    for field in nominal._fields:
+        for x, y in zip(jax.tree.leaves(getattr(nominal, field)), jax.tree.leaves(getattr(late, field)), strict=True):
+            np.testing.assert_array_equal(x, y, err_msg=field)
+
+
+def test_a_thruster_fault_builds_its_loop():
+    m = missions.from_dict(thruster_off())
+    assert m.faults == ({"time": THRUSTER_FAULT, "thruster": "-x"},)
+    assert missions.from_dict({**thruster_off(), "faults": [{"time": 1.0, "thruster": "+z", "mode": "off"}]}).faults \
+        == ({"time": 1.0, "thruster": "+z"},)
+    faults = m.loop(jnp.float64).faults
+    np.testing.assert_array_equal(np.asarray(faults.thruster_axis), [0.0])
+    np.testing.assert_array_equal(np.asarray(faults.thruster_sign), [-1.0])
+    np.testing.assert_array_equal(np.asarray(faults.thruster_detected), [THRUSTER_FAULT + LATENCY])
+    failed = np.asarray(faults.failed_thrusters(jnp.asarray(5.1), faults.thruster_time))
+    np.testing.assert_array_equal(failed, [[False] * 3, [True, False, False]])
+    pulses = jnp.asarray([-PULSE, PULSE, -PULSE])
+    np.testing.assert_array_equal(np.asarray(faults.delivered(pulses, jnp.asarray(5.0))), np.asarray(pulses))
+    np.testing.assert_array_equal(np.asarray(faults.delivered(pulses, jnp.asarray(5.1))), [0.0, PULSE, -PULSE])
+    loop = missions.from_dict(thruster_off()).loop()
+    with pytest.raises(ValueError, match=r"^a thruster fault needs thrusters \(momentum.kind = 'thrusters'\); the "
+                                         "loop's momentum manager is none$"):
+        check_loop(dataclasses.replace(loop, momentum=None), {})
+
+
+def test_a_sweep_disperses_a_thruster_fault_s_time():
+    from so3jax.missions import dispersed
+
+    m = missions.from_dict(thruster_off())
+    leaves = dispersed.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
+    assert "faults.0.time" in str(leaves)
+    with pytest.raises(ValueError, match="a thruster fault disperses time, not 'factor'"):
+        dispersed.parse({"faults": {"0": {"factor": 0.5}}}, m)
+
+
+@pytest.mark.parametrize(("fault", "message"), [
+    ({"thruster": "+w"}, r"faults\[0\].thruster must be one of \+x, -x, \+y, -y, \+z, -z"),
+    ({"thruster": "x"}, r"faults\[0\].thruster must be one of"),
+    ({"thruster": 1}, r"faults\[0\].thruster must be one of .*got 1$"),
+    ({"thruster": "+x", "factor": 0.5}, r"faults\[0\]: factor not taken by a thruster fault \(it takes time, mode\)"),
+    ({"thruster": "+x", "end": 9.0}, r"faults\[0\]: end not taken by a thruster fault"),
+    ({"thruster": "+x", "mode": "degraded"}, r"faults\[0\].mode = 'degraded' is not modeled for a thruster"),
+])
+def test_bad_thruster_faults_are_refused_in_one_line(fault, message):
+    with pytest.raises(ValueError, match=message) as err:
+        missions.from_dict({**THRUSTERS, "faults": [{"time": 1.0, **fault}]})
+    assert "\n" not in str(err.value)

@@ -4,7 +4,9 @@ A :class:`Faults` holds a mission's failures as arrays of times and effects; the
 tick at t [s] reads the components through it: the wheels with their torque limits scaled
 and the wheels the loop has detected as failed dropped from the distribution
 (:meth:`Faults.actuator`), the measurements with a star-tracker outage and a gyro bias
-step (:meth:`Faults.measured`). Each fault acts from the first control tick at or after
+step (:meth:`Faults.measured`), the thrusters with those it has detected as failed never
+fired (:meth:`Faults.momentum`) and the body's torque without the failed ones' pulses
+(:meth:`Faults.delivered`). Each fault acts from the first control tick at or after
 its time, by ``jnp.where(t >= time, ...)``: the times stay traced (one compilation for
 any), and a fault past the horizon leaves every value as without it. Arrays follow
 :mod:`so3jax.core.so3`: components first, batch axes (if any) last.
@@ -37,7 +39,10 @@ class Faults:
     knows of it and drops that wheel from the distribution [s] (inf: never; a degraded
     wheel is kept). outage_start, outage_end: (K,)
     the star tracker's outages [start, end) [s]. bias_time: (M,) the gyro bias steps'
-    times [s]; bias_step: (3, M) the steps [rad/s].
+    times [s]; bias_step: (3, M) the steps [rad/s]. thruster_axis: (P,) the 0-based body
+    axis of each failed thruster; thruster_sign: (P,) the sign of the torque it fires
+    (+1, -1); thruster_time: (P,) when it fails off [s]; thruster_detected: (P,) when the
+    loop knows of it and never fires it again [s] (inf: never).
     """
 
     wheel: jax.Array | None = None
@@ -48,6 +53,10 @@ class Faults:
     outage_end: jax.Array | None = None
     bias_time: jax.Array | None = None
     bias_step: jax.Array | None = None
+    thruster_axis: jax.Array | None = None
+    thruster_sign: jax.Array | None = None
+    thruster_time: jax.Array | None = None
+    thruster_detected: jax.Array | None = None
 
     def torque_scale(self, t, count: int):
         """s_i(t) (N, *b): the product of the factors of wheel i's faults acting at t (8.16)."""
@@ -112,3 +121,31 @@ class Faults:
     def true_bias(self, bias, t):
         """The true gyro bias b_j plus the steps acting at t (3, *b) [rad/s]."""
         return bias if self.bias_time is None else self.biased(bias, t)
+
+    def failed_thrusters(self, t, times):
+        """(2, 3, *b) bool: whether the thruster of each sign (row 0: +, row 1: -) on each
+        body axis has a fault whose ``times`` (thruster_time or thruster_detected) [s] are
+        reached at the tick at t [s]."""
+        failed = False
+        for f in range(len(self.thruster_axis)):
+            axis, sign = jnp.asarray(self.thruster_axis[f]), jnp.asarray(self.thruster_sign[f])
+            hits = jnp.stack([jnp.stack([(axis == i) & (sign == s) for i in range(3)]) for s in (1, -1)])
+            failed = failed | (hits & after(t, times[f]))
+        return failed
+
+    def momentum(self, manager, t):
+        """The momentum manager as the tick at t [s] commands it: the thrusters the loop has
+        detected as failed never fired (docs/model.md (8.21)); the manager itself where no
+        thruster fails."""
+        if self.thruster_axis is None:
+            return manager
+        return dataclasses.replace(manager, available=~self.failed_thrusters(t, self.thruster_detected))
+
+    def delivered(self, held, t):
+        """The thrusters' torque the body gets over the period of the tick at t [s]: held
+        (3, *b) [N m], the torque commanded, less the pulse of every thruster failed at t
+        (docs/model.md (8.20)); held itself where no thruster fails."""
+        if self.thruster_axis is None:
+            return held
+        failed = so3.batch_like(self.failed_thrusters(t, self.thruster_time), 2, held)
+        return jnp.where(((held > 0) & failed[0]) | ((held < 0) & failed[1]), jnp.zeros_like(held), held)

@@ -65,13 +65,17 @@ class ThrusterState(NamedTuple):
 class Thrusters(MomentumManager):
     """Thruster momentum dumping: torque (3,) [N m] per axis pair; start, stop [N m s]
     thresholds on |h_w|; pulses of ``min_periods`` control periods at least (>= 1);
-    feedforward_pulses: the wheels are commanded to absorb each pulse (tau_c - tau_m)."""
+    feedforward_pulses: the wheels are commanded to absorb each pulse (tau_c - tau_m);
+    available: (2, 3, *b) bool, whether the flight software fires the thruster of each sign
+    (row 0: +, row 1: -) on each axis (False: one it knows failed, docs/model.md §8.7;
+    :meth:`so3jax.components.faults.Faults.momentum`), None: all of them."""
 
     torque: jax.Array
     start: jax.Array
     stop: jax.Array
     min_periods: int = static_field(default=1)
     feedforward_pulses: bool = static_field(default=True)
+    available: jax.Array | None = None
 
     def init(self, batch_shape, dtype):
         zero = jnp.zeros((3, *batch_shape), dtype)
@@ -85,6 +89,10 @@ class Thrusters(MomentumManager):
         begin = dumping & (state.remaining <= 0) & (jnp.abs(h_rel) > axis_limit)
         sign = jnp.where(state.remaining > 0, state.sign, jnp.where(begin, -jnp.sign(h_rel), 0.0))
         remaining = jnp.where(state.remaining > 0, state.remaining - 1, jnp.where(begin, self.min_periods - 1, 0))
+        if self.available is not None:  # a thruster known failed is never fired: its pulse ends, none begins
+            available = so3.batch_like(self.available, 2, h_rel)
+            fired = jnp.where(sign > 0, available[0], available[1]) | (sign == 0)
+            sign, remaining = jnp.where(fired, sign, jnp.zeros_like(sign)), jnp.where(fired, remaining, 0)
         torque = so3.batch_like(jnp.asarray(self.torque, h_rel.dtype), 1, h_rel)
         return ThrusterState(dumping, remaining.astype(jnp.int32), sign), sign * torque
 

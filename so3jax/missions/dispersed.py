@@ -96,7 +96,8 @@ SCENARIO_LEAVES = {
 # {target: {parameter: (low, high, high excluded)}}; a wheel's factor is a degraded one's.
 FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, True), "wheel": (1.0, math.inf, False)},
                 "star_tracker": {"time": (0.0, math.inf, False), "end": (0.0, math.inf, False)},
-                "gyro": {"time": (0.0, math.inf, False), "step": (-math.inf, math.inf, False)}}
+                "gyro": {"time": (0.0, math.inf, False), "step": (-math.inf, math.inf, False)},
+                "thruster": {"time": (0.0, math.inf, False)}}
 FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s", "wheel": "-"}  # samples.csv's units
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {

@@ -4,9 +4,12 @@ with one-line errors naming the key, before anything compiles, and built into th
 
 Each ``[[faults]]`` entry has a ``time`` [s] and one target: ``wheel = i`` (1-based) with
 ``mode = "off"`` or ``"degraded"`` and its ``factor`` in [0, 1); ``star_tracker = "outage"``
-with its ``end`` [s]; ``gyro = "bias step"`` with its ``step`` [rad/s] (3,). ``[fdir]``
-says what the loop knows of a wheel that fails off: ``detection = "never"`` (the default),
-or ``latency`` [s] after the fault, when the distribution drops that wheel.
+with its ``end`` [s]; ``gyro = "bias step"`` with its ``step`` [rad/s] (3,); ``thruster =
+"+x"`` (one of :data:`THRUSTERS`: the thruster of the momentum manager's pair on that body
+axis that fires a torque of that sign, ``momentum.kind = "thrusters"``) with ``mode = "off"``
+(optional, the only mode). ``[fdir]`` says what the loop knows of a wheel or a thruster
+that fails off: ``detection = "never"`` (the default), or ``latency`` [s] after the fault,
+when the distribution drops that wheel, or the flight software stops firing that thruster.
 """
 
 from __future__ import annotations
@@ -24,6 +27,8 @@ from so3jax.core import checks
 TARGETS = ("wheel", "star_tracker", "gyro", "thruster")  # what an entry fails (one each)
 KEYS = ("time", "end", "mode", "factor", "step") + TARGETS  # an entry's keys
 WHEEL_MODES = ("off", "degraded")
+THRUSTERS = ("+x", "-x", "+y", "-y", "+z", "-z")  # a thruster: the sign of its torque and its body axis
+THRUSTER_MODES = ("off",)
 UNMODELED_MODES = {"stuck": "the model has no locked-wheel dynamics (a wheel's speed is free to change)",
                    "friction": "the model has no wheel friction"}
 TARGET_VALUES = {"star_tracker": "outage", "gyro": "bias step"}
@@ -98,14 +103,13 @@ def _entry(entry, where: str, wheels, sensors: tuple, momentum: str) -> dict:
     if "time" not in entry:
         raise ValueError(f"{where}.time [s] is missing: when the fault acts")
     out = {"time": checks.number(entry["time"], f"{where}.time [s]", low=0.0)}
-    allowed = {"wheel": ("mode", "factor"), "star_tracker": ("end",), "gyro": ("step",), "thruster": ()}[target]
+    allowed = {"wheel": ("mode", "factor"), "star_tracker": ("end",), "gyro": ("step",), "thruster": ("mode",)}[target]
     extra = sorted(set(entry) - {"time", target, *allowed})
     if extra:
         raise ValueError(f"{where}: {', '.join(extra)} not taken by a {target} fault "
                          f"(it takes time{''.join(', ' + k for k in allowed)})")
     if target == "thruster":
-        raise ValueError(f"{where}.thruster: thruster faults are not modeled (momentum.kind = {momentum!r}); "
-                         "fail a wheel, the star tracker or the gyro")
+        return {**out, **_thruster(entry, where, momentum)}
     if target == "wheel":
         return {**out, **_wheel(entry, where, wheels)}
     value = entry[target]
@@ -153,16 +157,33 @@ def _wheel(entry, where: str, wheels) -> dict:
     return {"wheel": index, "mode": "degraded", "factor": factor}
 
 
+def _thruster(entry, where: str, momentum: str) -> dict:
+    """A thruster fault: {"thruster": "+x" (one of THRUSTERS)}, failed off."""
+    if momentum != "thrusters":
+        raise ValueError(f"{where}.thruster: the mission flies no thrusters (momentum.kind = {momentum!r}; "
+                         "a thruster fault needs momentum.kind = 'thrusters')")
+    name = entry["thruster"]
+    if name not in THRUSTERS:
+        raise ValueError(f"{where}.thruster must be one of {', '.join(THRUSTERS)} (the thruster of the pair on that "
+                         f"body axis that fires a torque of that sign), got {checks.short(name)}")
+    mode = entry.get("mode", "off")
+    if mode != "off":
+        raise ValueError(f"{where}.mode = {checks.short(mode)} is not modeled for a thruster: it fails off "
+                         "(mode = 'off', the default)")
+    return {"thruster": name}
+
+
 def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     """The loop's :class:`~so3jax.components.faults.Faults` of the parsed entries, None
-    without any. A wheel failed off is detected ``fdir.latency`` after its time (never
-    with ``detection = "never"``); a degraded wheel stays in the distribution."""
+    without any. A wheel or a thruster failed off is detected ``fdir.latency`` after its
+    time (never with ``detection = "never"``); a degraded wheel stays in the distribution."""
     if not faults:
         return None
     latency = fdir.get("latency") if fdir["detection"] == "latency" else None
     wheel = [f for f in faults if "wheel" in f]
     outage = [f for f in faults if "star_tracker" in f]
     bias = [f for f in faults if "gyro" in f]
+    thruster = [f for f in faults if "thruster" in f]
     values = {}
     if wheel:
         detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in wheel]
@@ -176,6 +197,12 @@ def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     if bias:
         values.update(bias_time=as_array(_stack([f["time"] for f in bias])),
                       bias_step=as_array(_stack([f["step"] for f in bias], axis=1)))
+    if thruster:
+        detected = [f["time"] + latency if latency is not None else math.inf for f in thruster]
+        values.update(thruster_axis=as_array(_stack(["xyz".index(f["thruster"][1]) for f in thruster])),
+                      thruster_sign=as_array(_stack([1.0 if f["thruster"][0] == "+" else -1.0 for f in thruster])),
+                      thruster_time=as_array(_stack([f["time"] for f in thruster])),
+                      thruster_detected=as_array(_stack(detected)))
     return Faults(**values)
 
 

@@ -296,13 +296,17 @@ def faults() -> dict:
                 "[time, end)) [s]"},
         "wheel": {"type": "integer", "minimum": 1, "description": "the wheel that fails (1-based)"},
         "mode": {"enum": list(fault_list.WHEEL_MODES), "default": "off",
-                 "description": "off: its motor delivers no torque; degraded: its torque limit times factor"},
+                 "description": "off: a wheel's motor or a thruster delivers no torque; degraded (a wheel's): its "
+                 "torque limit times factor"},
         "factor": {"type": "number", "minimum": 0, "exclusiveMaximum": 1,
                    "description": "a degraded wheel's torque limit factor, in [0, 1)"},
         "star_tracker": {"const": fault_list.TARGET_VALUES["star_tracker"],
                          "description": "no star-tracker sample in [time, end)"},
         "gyro": {"const": fault_list.TARGET_VALUES["gyro"], "description": "a step in the gyro's bias from time on"},
         "step": shaped((3,), {"type": "number"}) | {"description": "the gyro bias step [rad/s]"},
+        "thruster": {"enum": list(fault_list.THRUSTERS),
+                     "description": "the thruster that fails off: of the pair on that body axis, the one firing a "
+                     "torque of that sign (momentum.kind = 'thrusters')"},
     }
     entry = {**table({k: values[k] for k in fault_list.KEYS if k in values}), "required": ["time"]}
     entry["oneOf"] = [{"required": [k]} for k in fault_list.TARGETS if k in values]

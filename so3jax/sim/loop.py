@@ -35,6 +35,7 @@ from so3jax.components.actuators import Ideal, Wheels
 from so3jax.components.base import Actuator, Estimate, Estimator, MomentumManager
 from so3jax.components.estimators import Truth
 from so3jax.components.faults import Faults
+from so3jax.components.momentum import Thrusters
 from so3jax.components.sensors import Sensors
 from so3jax.controllers.base import Controller, Desired, Feedback, tracking_error
 from so3jax.core import _trig, so3
@@ -196,13 +197,14 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None,
     return field
 
 
-def manage(scenario: Scenario, loop: Loop, state: State, t, key, j):
+def manage(scenario: Scenario, loop: Loop, state: State, t, key, j, momentum=None):
     """The momentum manager's tick j at t [s] (every step in the continuous wiring): (its next
     state, the input it holds until its next tick), from the wheels' momentum and the true
-    attitude in ``state``."""
+    attitude in ``state``. momentum: the manager as the faults leave it (None: the loop's)."""
     h_rel = loop.actuator.stored_momentum(state.actuator)
-    return loop.momentum.command(state.manager, None if h_rel is None else h_rel.relative, scenario.environment, t,
-                                 state.R, key, j)
+    momentum = loop.momentum if momentum is None else momentum
+    return momentum.command(state.manager, None if h_rel is None else h_rel.relative, scenario.environment, t,
+                            state.R, key, j)
 
 
 def _less_feedforward(loop: Loop, tau_c, managed):
@@ -310,16 +312,17 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     """Control tick j at step k = j m (docs/model.md §8.1): sensors sample the true state, the
     estimator updates, the controller commands from the estimate (its state advanced by
     its ``update``, else by forward Euler over the period), the actuator turns the
-    command into the held input. Faults (``loop.faults``) act on the measurements and the
-    actuator of the ticks at or after their times (docs/model.md §8.7)."""
+    command into the held input. Faults (``loop.faults``) act on the measurements, the
+    actuator and the thrusters of the ticks at or after their times (docs/model.md §8.7)."""
     k = j * loop.period_steps
     t, p, dc = time(scenario, k), phase(scenario, k), period(scenario, loop)
     sensors, measured = loop.sensors.measure(state.sensors, state.R, state.Omega, key, j, dc)
-    faults, actuator = loop.faults, loop.actuator
+    faults, actuator, momentum = loop.faults, loop.actuator, loop.momentum
     if faults is not None:
         rate = loop.sensors.rate
         measured = faults.measured(measured, t, rate is None or j >= rate.first_reading)
         actuator = faults.actuator(actuator, t)
+        momentum = None if momentum is None else faults.momentum(momentum, t)
     truth = (state.R, state.Omega) if loop.estimator.reads_truth else None  # only an estimator that reads it
     estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
@@ -327,9 +330,11 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     feedback = Feedback(estimate.R_hat, estimate.Omega_hat, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
     manager, managed = state.manager, state.managed
-    if loop.momentum is not None:
-        manager, managed = manage(scenario, loop, state, t, key, j)
+    if momentum is not None:
+        manager, managed = manage(scenario, loop, state, t, key, j, momentum)
     held = actuator.command(state.actuator, _less_feedforward(loop, tau_cmd, managed), estimate.Omega_hat)
+    if faults is not None and momentum is not None:  # the body gets the commanded pulses less the failed ones'
+        managed = faults.delivered(managed, t)
     if controller.update is None:
         controller_state = jax.tree.map(lambda x, dx: x + dc * dx, state.controller, controller_dot)
     else:
@@ -369,6 +374,10 @@ def check_loop(loop: Loop, inertias: dict) -> None:
         if loop.faults.wheel is not None and not isinstance(loop.actuator, Wheels):
             raise ValueError(f"a wheel fault needs wheels (actuator.kind = 'wheels'), not the "
                              f"{type(loop.actuator).__name__} actuator")
+        if loop.faults.thruster_axis is not None and not isinstance(loop.momentum, Thrusters):
+            manager = "none" if loop.momentum is None else type(loop.momentum).__name__
+            raise ValueError(f"a thruster fault needs thrusters (momentum.kind = 'thrusters'); the loop's momentum "
+                             f"manager is {manager}")
     if loop.momentum is not None:
         if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float32)) is None:  # by structure
             raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "
