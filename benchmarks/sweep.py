@@ -48,6 +48,14 @@ gives the ratio of the rates per round (``dispersed_over_undispersed``):
     python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 100 --samples 256 --chunk 128 \
         --rounds 3 --undispersed
 
+--faultless also times, right after each run and on the same samples, the same sweep without
+its faults (``[[faults]]`` and their dispersions left out: every sample flying the mission's
+loop without the faults' program), and gives the ratio of the rates per round
+(``faulted_over_faultless``):
+
+    python benchmarks/sweep.py --config sweeps/faults.toml --devices 2 --T 1000 --samples 128 --chunk 64 \
+        --rounds 3 --faultless
+
 Prints one JSON object: ``runs`` (one per round, layout and controller; with --numba, also
 the Numba rate and the ratio), ``full_sweep`` (per layout: the median rate over rounds and
 the extrapolation) and, with --numba, ``numba_head_to_head`` (per layout and controller:
@@ -57,6 +65,7 @@ both rates and the ratio per round, and the ratio's median).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import platform
@@ -111,6 +120,7 @@ def _child(spec: dict) -> list:
     drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws, mission=config.mission)
     params, leaves = dispersed.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
     key = config.mission
+    without_faults = dataclasses.replace(key, faults=()) if spec.get("faultless") else None  # its samples: the same
     use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop
     if use_numba:  # the parent raised NUMBA_NUM_THREADS to at least the device count
         import numba
@@ -128,7 +138,7 @@ def _child(spec: dict) -> list:
         gains = jax.tree.map(np.asarray, config.gains[controller])
         rmse = {}  # first sample of a chunk -> so3jax's rmse of the chunk
 
-        def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse, leaves=leaves):
+        def run(first, last, controller=controller, gains=gains, claims=None, rmse=rmse, leaves=leaves, key=key):
             for start in range(first, last, chunk):
                 if claims is not None and not sweep.claim_chunk(claims, controller, start):
                     continue
@@ -168,6 +178,14 @@ def _child(spec: dict) -> list:
             wall_u = time.perf_counter() - start_u
             head_to_head |= {"undispersed_wall_s": wall_u, "undispersed_trajectory_steps_per_s": n * n_steps / wall_u,
                              "dispersed_over_undispersed": wall_u / wall}  # the ratio of the rates
+        if spec.get("faultless") and config.mission.faults and jax.process_count() == 1:
+            faultless = {k: v for k, v in leaves.items() if not k.startswith("faults.")}
+            run(0, chunk, leaves=faultless, rmse={}, key=without_faults)  # compile, not timed
+            start_f = time.perf_counter()
+            run(0, n, leaves=faultless, rmse={}, key=without_faults)
+            wall_f = time.perf_counter() - start_f
+            head_to_head |= {"faultless_wall_s": wall_f, "faultless_trajectory_steps_per_s": n * n_steps / wall_f,
+                             "faulted_over_faultless": wall_f / wall}  # the ratio of the rates
         if spec.get("flops"):
             flops = _step_flops(config, controller, params)
             head_to_head |= {"flops_per_trajectory_step": flops, "flops_per_s": flops * n * n_steps / wall,
@@ -315,6 +333,9 @@ def main() -> None:
     parser.add_argument("--undispersed", action="store_true",
                         help="also time each run's samples with the dispersed component parameters at the mission's "
                              "values (the batched loop without dispersion), right after it")
+    parser.add_argument("--faultless", action="store_true",
+                        help="also time each run's samples without the sweep's faults (the mission's loop without "
+                             "them), right after it")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -333,7 +354,7 @@ def main() -> None:
                 spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "config": args.config,
                         "overrides": args.overrides,
                         "controllers": args.controllers.split(","), "numba": args.numba,
-                        "flops": args.flops, "undispersed": args.undispersed}
+                        "flops": args.flops, "undispersed": args.undispersed, "faultless": args.faultless}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
     finally:
         if hog is not None:

@@ -4,7 +4,7 @@ the missions lost, those indices' spread and the mission's requirements.
 
 A sample's periods start at its own times (a dispersed fault time is the sample's):
 "after fault" at its earliest fault, t_f = min_k t_k; "after detection", where the loop
-detects a wheel failed off (``[fdir]``), at its last detection, max_k (t_k + tau). Each runs
+detects a wheel or a thruster failed off (``[fdir]``), at its last detection, max_k (t_k + tau). Each runs
 to the end of the reached phases. Over such a period a sample's APE and RPE are its temporal
 quantiles at the mission's first pointing level, as :func:`so3jax.jobs.sweep.pointing.columns`
 gives them per phase (NaN for a diverged sample, or an RPE whose period holds no whole
@@ -38,27 +38,31 @@ def fault_times(config, samples) -> np.ndarray:
 
 def period_starts(config, samples) -> dict:
     """{period: (N,) its start [s] per sample}: "after_fault", and "after_detection" where
-    the loop detects a wheel failed off."""
+    the loop detects a wheel or a thruster failed off."""
     m = config.mission
     times = fault_times(config, samples)
     out = {"after_fault": times.min(axis=1)}
-    detected = [i for i, f in enumerate(m.faults) if f.get("mode") == "off"]
+    detected = [i for i, f in enumerate(m.faults) if f.get("mode") == "off" or "thruster" in f]
     if detected and m.fdir["detection"] == "latency":
         out["after_detection"] = (times[:, detected] + m.fdir["latency"]).max(axis=1)
     return out
 
 
 def cases(config, samples) -> np.ndarray:
-    """(N,) each sample's case: the wheels its wheel faults strike ("wheel 1", "wheels 1, 3"),
-    "all" for a mission without wheel faults."""
+    """(N,) each sample's case: the wheels its wheel faults strike and the thrusters that fail
+    ("wheel 1", "wheels 1, 3", "wheel 2, thruster +x"); "all" for a mission with neither."""
     m = config.mission
     n = len(samples.params.seed)
     struck = [np.broadcast_to(samples.leaves.get(f"faults.{i}.wheel", f["wheel"]), (n,)).astype(int)
               for i, f in enumerate(m.faults) if "wheel" in f]
-    if not struck:
-        return np.full(n, "all", dtype=object)
-    wheels = [sorted(set(w)) for w in np.stack(struck, axis=1).tolist()]
-    return np.array([("wheel " if len(w) == 1 else "wheels ") + ", ".join(map(str, w)) for w in wheels], dtype=object)
+    thrusters = sorted({f["thruster"] for f in m.faults if "thruster" in f})
+    labels = []
+    for w in (np.stack(struck, axis=1).tolist() if struck else [[]] * n):
+        w = sorted(set(w))
+        parts = [("wheel " if len(w) == 1 else "wheels ") + ", ".join(map(str, w))] if w else []
+        parts += [("thruster " if len(thrusters) == 1 else "thrusters ") + ", ".join(thrusters)] if thrusters else []
+        labels.append(", ".join(parts) or "all")
+    return np.array(labels, dtype=object)
 
 
 def _index(index: str, t, e, start: float, end: float, level: float, window: float) -> float:
