@@ -60,7 +60,7 @@ def main(argv=None) -> dict:
     from so3jax.jobs.tune.goals import parse_goals
     from so3jax.jobs.tune.problem import Sampler
     from so3jax.missions import config as cfg
-    from so3jax.missions import dispersed
+    from so3jax.missions import draw
 
     config = load_config(args.config, [cfg.parse_override(text) for text in args.set])
     if args.run:
@@ -82,7 +82,7 @@ def main(argv=None) -> dict:
     dtype = jnp.result_type(float)
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
     parameters = design.Parameters(config, initial)
-    parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+    parsed, leaves = draw.parse(config.dispersions, config.mission)
     train, _ = design.draw_inputs(Sampler(parsed, leaves, config.mission), config.train.seeds[0],
                                   config.train.samples, dtype)
     values = GoalValues(goals, config.mission, config.mission.controller(config.controller)[0], parameters.unravel)

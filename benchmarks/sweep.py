@@ -106,7 +106,7 @@ def _child(spec: dict) -> list:
     from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.dynamics.scenario import steps_for_horizon
     from so3jax.jobs import sweep
-    from so3jax.missions import dispersed
+    from so3jax.missions import batched, draw
     from so3jax.parallel import distributed
 
     with warnings.catch_warnings():
@@ -117,8 +117,8 @@ def _child(spec: dict) -> list:
     mesh = sweep.batch_mesh(layout)
     chunk = sweep.padded_chunk(spec["chunk"], mesh.size)
     n = -(-spec["samples"] // chunk) * chunk
-    drawn = dispersed.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws, mission=config.mission)
-    params, leaves = dispersed.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
+    drawn = draw.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws, mission=config.mission)
+    params, leaves = batched.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
     key = config.mission
     without_faults = dataclasses.replace(key, faults=()) if spec.get("faultless") else None  # its samples: the same
     use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop

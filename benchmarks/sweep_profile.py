@@ -50,15 +50,15 @@ def main() -> None:
     from so3jax.core import _trig
     from so3jax.dynamics.inertia import InertiaWarning
     from so3jax.jobs import sweep
-    from so3jax.missions import build, dispersed
+    from so3jax.missions import batched, build, draw
     from so3jax.sim.rollout import rollout_batch
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", InertiaWarning)
         config = sweep.load_config(None, (f"T={args.T}",))
-        samples = dispersed.draw(config.dispersions, config.leaves, config.seed, args.batch, config.max_draws,
-                                 mission=config.mission)
-    params, _ = dispersed.inputs(samples, jnp.float64)
+        samples = draw.draw(config.dispersions, config.leaves, config.seed, args.batch, config.max_draws,
+                            mission=config.mission)
+    params, _ = batched.inputs(samples, jnp.float64)
     mission = config.mission
     per_sample = jax.vmap(lambda p: build.scenario(mission, p))(params)
     first = jax.tree.map(lambda x: x[0], per_sample)

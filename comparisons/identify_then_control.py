@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     from so3jax.jobs.identify import inertia, regression, telemetry
     from so3jax.jobs.sweep.config import load_config
     from so3jax.missions import mission as missions
-    from so3jax.missions.dispersions import draw_samples
+    from so3jax.missions.draw import draw_samples
 
     started = time.perf_counter()
     post = missions.load(ROOT / "missions" / "post_docking.toml")

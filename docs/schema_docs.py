@@ -457,10 +457,10 @@ def sweep_table() -> str:
 
 def distributions_table() -> str:
     """The distributions a ``[dispersions]`` leaf takes."""
-    from so3jax.missions import dispersions
+    from so3jax.missions import distributions
 
     rows = [("a number", "—", "fixed at that value")]
-    for name, cls in dispersions.DISTRIBUTIONS.items():
+    for name, cls in distributions.DISTRIBUTIONS.items():
         fields = ", ".join(f.name for f in dataclasses.fields(cls))
         rows.append((f'`{{dist = "{name}", ...}}`', fields, _prose((cls.__doc__ or "").strip())))
     return _table(("value", "parameters", "meaning"), rows)
@@ -484,11 +484,11 @@ def default_dispersions_table() -> str:
 
 def inertia_dispersion_table() -> str:
     """The structured dispersion of an inertia leaf (``inertia.J0``, ``J1``, ``J2``)."""
-    from so3jax.missions import dispersed, dispersions
+    from so3jax.missions import draw
 
-    doc = inspect.getdoc(dispersions.InertiaDispersion) or ""
+    doc = inspect.getdoc(draw.InertiaDispersion) or ""
     rows = []
-    for key in dispersed.INERTIA_KEYS:
+    for key in draw.INERTIA_KEYS:
         match = re.search(rf"\b{key}: (.*?)(?=; \w+: |\.\s|$)", " ".join(doc.split()))
         rows.append((f"`{key}`", _prose(match.group(1) if match else "")))
     return _table(("key", "meaning"), rows)

@@ -75,16 +75,8 @@ from so3jax.dynamics.plant import ConstantInertia, InertiaFunction, PaperInertia
 from so3jax.dynamics.reference import PiecewiseConstantRate, RateFunction, piecewise_constant_rate
 from so3jax.dynamics.scenario import Scenario, paper_scenario, steps_for_horizon
 from so3jax.dynamics.space import Environment, EnvironmentTorque
-from so3jax.missions.dispersions import (
-    Dispersions,
-    Fixed,
-    InertiaDispersion,
-    LogNormal,
-    Normal,
-    Samples,
-    Uniform,
-    draw_samples,
-)
+from so3jax.missions.distributions import Fixed, LogNormal, Normal, Uniform
+from so3jax.missions.draw import Dispersions, InertiaDispersion, Samples, draw_samples
 from so3jax.missions.mission import Mission
 from so3jax.missions.mission import load as load_mission
 from so3jax.parallel import devices

@@ -16,7 +16,7 @@ from so3jax.jobs.tune.gains import resolve_gains, to_gains
 from so3jax.jobs.tune.goal_values import UNSTABLE, GoalValues
 from so3jax.jobs.tune.goals import parse_goals
 from so3jax.jobs.tune.problem import Sampler
-from so3jax.missions import dispersed
+from so3jax.missions import draw
 from so3jax.missions.mission import gains_file
 from so3jax.sim import margins
 
@@ -128,7 +128,7 @@ def flight_goals():
     goals = parse_goals(list(config.goals), config.mission)
     initial = resolve_gains("pd", "mission", jnp.float64, mission=config.mission)
     parameters = design.Parameters(config, initial)
-    parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+    parsed, leaves = draw.parse(config.dispersions, config.mission)
     inputs, _ = design.draw_inputs(Sampler(parsed, leaves, config.mission), 0, 2, jnp.float64)
     values = GoalValues(goals, config.mission, config.mission.controller("pd")[0], parameters.unravel)
     P = np.stack([parameters.p0, parameters.p0 + np.array([0.3, -0.2])])  # two starts at once

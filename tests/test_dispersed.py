@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from so3jax.dynamics.inertia import InertiaWarning
-from so3jax.missions import dispersed, mission
-from so3jax.missions import dispersions as disp
+from so3jax.missions import batched, draw, mission
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {
@@ -27,8 +26,8 @@ def flight():
 
 
 def test_component_leaves_draw_each_element_from_its_distribution(flight):
-    _, leaves = dispersed.parse(LEAVES, flight)
-    values, valid = dispersed.draw_leaves(leaves, 3, 4000)
+    _, leaves = draw.parse(LEAVES, flight)
+    values, valid = draw.draw_leaves(leaves, 3, 4000)
     torque, arw = values["actuator.wheels.max_torque"], values["sensors.gyro.arw"]
     assert torque.shape == (4000, 4) and arw.shape == (4000,) and valid.all()
     # uniform on [0.2, 0.3]: mean 0.25 +- 4 standard errors, every wheel its own draw
@@ -41,26 +40,26 @@ def test_component_leaves_draw_each_element_from_its_distribution(flight):
 
 
 def test_a_leaf_s_draws_do_not_move_when_another_is_added(flight):
-    one = dispersed.draw_leaves(dispersed.parse({"sensors": LEAVES["sensors"]}, flight)[1], 0, 16)[0]
-    both = dispersed.draw_leaves(dispersed.parse(LEAVES, flight)[1], 0, 16)[0]
+    one = draw.draw_leaves(draw.parse({"sensors": LEAVES["sensors"]}, flight)[1], 0, 16)[0]
+    both = draw.draw_leaves(draw.parse(LEAVES, flight)[1], 0, 16)[0]
     np.testing.assert_array_equal(one["sensors.gyro.arw"], both["sensors.gyro.arw"])
-    other_seed = dispersed.draw_leaves(dispersed.parse(LEAVES, flight)[1], 1, 16)[0]
+    other_seed = draw.draw_leaves(draw.parse(LEAVES, flight)[1], 1, 16)[0]
     assert not np.any(other_seed["sensors.gyro.arw"] == both["sensors.gyro.arw"])
 
 
 def test_values_outside_the_parameter_domain_reject_the_sample(flight):
-    _, leaves = dispersed.parse({"actuator": {"wheels": {"initial_speed": {"dist": "normal", "mean": 0.0, "std": 1.0}}},
-                                 "sensors": {"gyro": {"rrw": {"dist": "normal", "mean": 1e-9, "std": 1e-9}}}}, flight)
-    values, valid = dispersed.draw_leaves(leaves, 0, 2000)
+    _, leaves = draw.parse({"actuator": {"wheels": {"initial_speed": {"dist": "normal", "mean": 0.0, "std": 1.0}}},
+                            "sensors": {"gyro": {"rrw": {"dist": "normal", "mean": 1e-9, "std": 1e-9}}}}, flight)
+    values, valid = draw.draw_leaves(leaves, 0, 2000)
     negative = values["sensors.gyro.rrw"] < 0
     assert 0.05 < negative.mean() < 0.3  # P(N(1, 1) < 0) = 0.16
     np.testing.assert_array_equal(valid, ~negative)
 
 
 def test_the_sampled_loop_carries_the_drawn_values_and_the_filter_keeps_the_nominal(flight):
-    _, leaves = dispersed.parse(LEAVES, flight)
-    values, _ = dispersed.draw_leaves(leaves, 0, 2)
-    loop = dispersed.loop(flight, {k: v[1] for k, v in values.items()}, np.float64)
+    _, leaves = draw.parse(LEAVES, flight)
+    values, _ = draw.draw_leaves(leaves, 0, 2)
+    loop = batched.loop(flight, {k: v[1] for k, v in values.items()}, np.float64)
     np.testing.assert_allclose(np.asarray(loop.sensors.rate.arw), values["sensors.gyro.arw"][1], rtol=1e-15)
     np.testing.assert_allclose(np.asarray(loop.actuator.max_torque), values["actuator.wheels.max_torque"][1],
                                rtol=1e-15)
@@ -81,7 +80,7 @@ def test_the_sampled_loop_carries_the_drawn_values_and_the_filter_keeps_the_nomi
 ])
 def test_bad_dispersions_are_one_line_errors(flight, table, message):
     with pytest.raises(ValueError, match=message) as err:
-        dispersed.parse(table, flight)
+        draw.parse(table, flight)
     assert "\n" not in str(err.value)
 
 
@@ -100,7 +99,7 @@ def test_a_key_that_cannot_be_dispersed_is_named_with_the_keys_that_can(flight, 
     """The message names the user's keys (the mission's reference and inertia kinds' own),
     never the module's tables."""
     with pytest.raises(ValueError) as err:
-        dispersed.parse(table, flight)
+        draw.parse(table, flight)
     assert str(err.value).startswith(message) and "\n" not in str(err.value)
     assert "SCENARIO_LEAVES" not in str(err.value)
 
@@ -115,7 +114,7 @@ def test_a_scenario_key_that_cannot_be_dispersed_lists_the_mission_s_own():
                           "dispersed: dispersible are inertia.events.initial, inertia.events.times, "
                           "inertia.events.time_constants, inertia.events.targets")]:
         with pytest.raises(ValueError) as err:
-            dispersed.parse(table, slews)
+            draw.parse(table, slews)
         assert known in str(err.value) and "SCENARIO_LEAVES" not in str(err.value)
 
 
@@ -127,10 +126,10 @@ def test_the_paper_mission_s_structured_dispersions_keep_the_recorded_samples():
     from so3jax.jobs import sweep
 
     config = sweep.load_config(ROOT / "sweeps" / "default.toml")
-    d, leaves = dispersed.parse(config.table, config.mission)
+    d, leaves = draw.parse(config.table, config.mission)
     assert leaves == ()
     rows = list(csv.DictReader(open(ROOT / "sweeps" / "default" / "samples.csv")))
-    s = disp.draw_samples(d, 0, len(rows), 20)
+    s = draw.draw_samples(d, 0, len(rows), 20)
     p = s.params
     got = {"tau_J": p.tau_J, "n": p.n, "amplitude": p.amplitude, "frequency": p.frequency, "noise_std": p.noise_std,
            "disturbance_seed": p.seed, "draws": s.draws}
@@ -307,8 +306,8 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
     from so3jax.missions import mission as missions
 
     m = missions.from_dict(EVENTS)
-    parsed, leaves = dispersed.parse(EVENT_DISPERSIONS, m)
-    samples = dispersed.draw(parsed, leaves, 0, 16, 20, mission=m)
+    parsed, leaves = draw.parse(EVENT_DISPERSIONS, m)
+    samples = draw.draw(parsed, leaves, 0, 16, 20, mission=m)
     slews, events = samples.leaves["reference.slews.times"], samples.leaves["inertia.events.times"]
     offsets = slews - np.array([3.0, 8.0])
     assert np.all(np.abs(offsets) <= 3.0) and len(np.unique(offsets)) == 32
@@ -317,8 +316,8 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
     assert not np.any(samples.valid & (np.diff(events, axis=1)[:, 0] <= 0))
     valid = np.flatnonzero(samples.valid)  # a sweep flies the valid samples alone
     assert len(valid) >= 3
-    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
-    scenarios = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p))(*inputs)
+    inputs = jax.tree.map(lambda x: x[valid], batched.inputs(samples, np.float64))
+    scenarios = jax.vmap(lambda p, v: build.scenario(batched.scenario_values(m, v), p))(*inputs)
     batch_last = lambda tree: jax.tree.map(lambda x: np.moveaxis(x, 0, -1), tree)  # a batched rollout's layout
 
     @jax.jit
@@ -326,7 +325,7 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
         at = lambda f: jax.vmap(lambda s: f(s, 0))(np.linspace(0.0, 12.0, 25))
         return at(reference.attitude), at(reference.rate), at(reference.rate_dot), at(inertia)
 
-    batched = evaluate(batch_last(scenarios.reference), batch_last(scenarios.inertia))
+    together = evaluate(batch_last(scenarios.reference), batch_last(scenarios.inertia))
     for j, i in enumerate(valid):
         own = {"reference": {"kind": "slews", "slews": dict(
                    EVENTS["reference"]["slews"], times=slews[i].tolist(),
@@ -338,11 +337,11 @@ def test_dispersed_slews_and_inertia_events_fly_each_sample_s_own():
                    "time_constants": samples.leaves["inertia.events.time_constants"][i].tolist()}}}
         alone = build.scenario(missions.from_dict({**EVENTS, **own}))
         expected = evaluate(alone.reference, alone.inertia)
-        for name, got, want, tol in zip(("R_d", "Omega_d", "Omega_d'", "J"), batched, expected,
+        for name, got, want, tol in zip(("R_d", "Omega_d", "Omega_d'", "J"), together, expected,
                                         (1e-14, 1e-15, 1e-15, 1e-10)):  # exp's round-off; J ~ 1e3 kg m^2
             np.testing.assert_allclose(got[..., j], want, rtol=0, atol=tol, err_msg=name)
     controller, gains = m.controller("pd")
-    fly = jax.jit(dispersed.sample_metrics, static_argnames=("controller", "mission"))
+    fly = jax.jit(batched.sample_metrics, static_argnames=("controller", "mission"))
     batch = fly(inputs, gains, controller=controller, mission=m)
     assert len(np.unique(np.asarray(batch["rmse"]))) == len(valid)
     repeated = jax.tree.map(lambda x: np.repeat(x[1:2], len(valid), axis=0), inputs)
@@ -367,14 +366,14 @@ def test_a_dispersed_inertia_table_gives_each_sample_its_own(kind):
     mission = {**EVENTS, "reference": {"kind": "inertial"}, "inertia": {"kind": kind, kind: given}}
     m = missions.from_dict(mission)
     table = {"inertia": {kind: {drawn: BODY, "times": {**OFFSET, "low": -1.0, "high": 1.0}}}}
-    samples = dispersed.draw(*dispersed.parse(table, m), 0, 4, 20, mission=m)
+    samples = draw.draw(*draw.parse(table, m), 0, 4, 20, mission=m)
     inertias = samples.leaves[f"inertia.{kind}.{drawn}"]
     moments = np.linalg.eigvalsh(inertias)
     assert samples.valid.all() and np.all(moments[..., 0] + moments[..., 1] >= moments[..., 2])  # bodies
     assert len(np.unique(inertias[..., 0, 0])) == inertias[..., 0, 0].size
     np.testing.assert_allclose(inertias, np.swapaxes(inertias, -1, -2), rtol=1e-15)
-    inputs = dispersed.inputs(samples, np.float64)
-    profiles = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p).inertia)(*inputs)
+    inputs = batched.inputs(samples, np.float64)
+    profiles = jax.vmap(lambda p, v: build.scenario(batched.scenario_values(m, v), p).inertia)(*inputs)
     lanes = jax.tree.map(lambda x: np.moveaxis(x, 0, -1), profiles)
     t = np.linspace(0.0, 10.0, 11)
     got = jax.jit(lambda profile: jax.vmap(lambda s: profile(s, 0))(t))(lanes)
@@ -401,13 +400,13 @@ def test_a_dispersed_attitude_table_gives_each_sample_its_own_times():
                                                                      axis=1, keepdims=True)).tolist()
     m = missions.from_dict(mission)
     table = {"reference": {"table": {"times": {**OFFSET, "low": -0.9, "high": 0.9}}}}
-    samples = dispersed.draw(*dispersed.parse(table, m), 0, 12, 20, mission=m)
+    samples = draw.draw(*draw.parse(table, m), 0, 12, 20, mission=m)
     times = samples.leaves["reference.table.times"]
     np.testing.assert_array_equal(samples.valid, np.all(np.diff(times, axis=1) > 0, axis=1))
     valid = np.flatnonzero(samples.valid)
     assert 2 <= len(valid) < 12
-    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
-    references = jax.vmap(lambda p, v: build.scenario(dispersed.scenario_values(m, v), p).reference)(*inputs)
+    inputs = jax.tree.map(lambda x: x[valid], batched.inputs(samples, np.float64))
+    references = jax.vmap(lambda p, v: build.scenario(batched.scenario_values(m, v), p).reference)(*inputs)
 
     @jax.jit
     def evaluate(reference):
@@ -433,13 +432,13 @@ def test_bad_event_dispersions_are_one_line_errors(table, message):
     from so3jax.missions import mission as missions
 
     with pytest.raises(ValueError, match=message):
-        dispersed.parse(table, missions.from_dict(EVENTS))
+        draw.parse(table, missions.from_dict(EVENTS))
     matrix_targets = dict(EVENTS["inertia"]["events"], targets=[EVENTS["inertia"]["events"]["initial"], 0.8])
     with pytest.raises(ValueError, match="all are scales of the inertia at their event, or all inertias"):
-        dispersed.parse({"inertia": {"events": {"targets": 1.0}}},
-                        missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": matrix_targets}}))
+        draw.parse({"inertia": {"events": {"targets": 1.0}}},
+                   missions.from_dict({**EVENTS, "inertia": {"kind": "events", "events": matrix_targets}}))
     with pytest.raises(ValueError, match="not 'events'"):
-        dispersed.parse({"inertia": {"events": {"times": 1.0}}}, missions.from_dict({"T": 10.0}))
+        draw.parse({"inertia": {"events": {"times": 1.0}}}, missions.from_dict({"T": 10.0}))
 
 
 @pytest.mark.parametrize("name", ["spin_inertia", "max_torque", "max_speed"])
@@ -448,7 +447,7 @@ def test_a_limit_divided_by_is_refused_at_zero_when_dispersed(name):
     so a dispersion that can draw 0 is refused before anything is drawn, as fly refuses it."""
     flight = mission.load(None, ["actuator.wheels.initial_speed=0.0"])
     with pytest.raises(ValueError, match=f"dispersions.actuator.wheels.{name}"):
-        dispersed.parse({"actuator": {"wheels": {name: 0.0}}}, flight)
+        draw.parse({"actuator": {"wheels": {name: 0.0}}}, flight)
     with pytest.raises(ValueError, match=f"actuator.wheels.{name} .* must be > 0"):
         mission.load(None, [f"actuator.wheels.{name}=0.0"])
 
@@ -461,9 +460,9 @@ def test_each_rejected_sample_is_counted_for_its_reason():
     from so3jax.missions import mission as missions
 
     m = missions.from_dict(EVENTS)
-    samples = dispersed.draw(*dispersed.parse(EVENT_DISPERSIONS, m), 0, 16, 20, mission=m)
-    reasons = dispersed.rejections(samples)
-    overlap, order = dispersed.REJECTED["overlap"], dispersed.REJECTED["order"]
+    samples = draw.draw(*draw.parse(EVENT_DISPERSIONS, m), 0, 16, 20, mission=m)
+    reasons = draw.rejections(samples)
+    overlap, order = draw.REJECTED["overlap"], draw.REJECTED["order"]
     assert reasons[overlap] > 0 and set(reasons) <= {overlap, order}
     assert sum(reasons.values()) == np.sum(~samples.valid) and np.all((samples.reason == "") == samples.valid)
     events = samples.leaves["inertia.events.times"]
@@ -480,23 +479,23 @@ def test_an_orbit_below_the_least_altitude_rejects_its_sample_for_that_reason(fl
     counted for its orbit; a distribution that draws only such orbits is refused before drawing."""
     from so3jax.dynamics.orbit import MAX_MEAN_MOTION
 
-    dispersions, leaves = dispersed.parse({"orbit": {"n": {"dist": "normal", "mean": 1.15e-3, "std": 5e-5}}}, flight)
-    samples = dispersed.draw(dispersions, leaves, 0, 400, 20, mission=flight)
+    dispersions, leaves = draw.parse({"orbit": {"n": {"dist": "normal", "mean": 1.15e-3, "std": 5e-5}}}, flight)
+    samples = draw.draw(dispersions, leaves, 0, 400, 20, mission=flight)
     low = samples.params.n > MAX_MEAN_MOTION
     assert 0 < low.sum() < 100  # P(z > 1.22) = 0.11
     np.testing.assert_array_equal(samples.valid, ~low)
-    assert dispersed.rejections(samples) == {dispersed.REJECTED["orbit"]: int(low.sum())}
+    assert draw.rejections(samples) == {draw.REJECTED["orbit"]: int(low.sum())}
     with pytest.raises(ValueError, match=r"^dispersions.orbit.n \(the upper end of .*\) = 0.002 rad/s is a circular "
                                          r"orbit of radius 4636 km, altitude -1742 km: below the least altitude"):
-        dispersed.parse({"orbit": {"n": {"dist": "uniform", "low": 1e-3, "high": 2e-3}}}, flight)
+        draw.parse({"orbit": {"n": {"dist": "uniform", "low": 1e-3, "high": 2e-3}}}, flight)
     leo = mission.load(ROOT / "missions" / "leo.toml", ["T=1.0"])  # flies on its orbit: n > 0
     with pytest.raises(ValueError, match=r"dispersions.orbit.n \(environment.gravity_gradient.* fly on the orbit\) "
                                          "must be > 0"):
-        dispersed.parse({"orbit": {"n": 0.0}}, leo)
-    samples = dispersed.draw(*dispersed.parse({"orbit": {"n": {"dist": "normal", "mean": 2e-5, "std": 2e-5}}}, leo),
-                             0, 64, 20, mission=leo)
+        draw.parse({"orbit": {"n": 0.0}}, leo)
+    samples = draw.draw(*draw.parse({"orbit": {"n": {"dist": "normal", "mean": 2e-5, "std": 2e-5}}}, leo),
+                        0, 64, 20, mission=leo)
     np.testing.assert_array_equal(samples.valid, samples.params.n > 0)
-    assert 0 < dispersed.rejections(samples)[dispersed.REJECTED["orbit"]] < 64
+    assert 0 < draw.rejections(samples)[draw.REJECTED["orbit"]] < 64
 
 
 def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli_env, capsys):
@@ -511,7 +510,7 @@ def test_a_sweep_whose_every_sample_is_rejected_is_an_error_before_compiling(cli
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert err == ("so3jax sweep: error: [dispersions]: every one of the 8 samples is rejected (8 for "
-                   f"{dispersed.REJECTED['overlap']}): narrow the dispersions")
+                   f"{draw.REJECTED['overlap']}): narrow the dispersions")
     assert not (cli_env / "o").exists()
 
 
@@ -533,16 +532,16 @@ def test_dispersed_faults_fly_each_sample_as_its_mission_alone():
 
     base = faulted(time=5.0, end=10.0, latency=0.5)
     m = mission.from_dict(base)
-    parsed, leaves = dispersed.parse(FAULT_DISPERSIONS, m)
-    samples = dispersed.draw(parsed, leaves, 0, 8, 20, mission=m)
+    parsed, leaves = draw.parse(FAULT_DISPERSIONS, m)
+    samples = draw.draw(parsed, leaves, 0, 8, 20, mission=m)
     start, end = samples.leaves["faults.1.time"], samples.leaves["faults.1.end"]
-    np.testing.assert_array_equal(samples.reason == dispersed.REJECTED["outage"], end <= start)
+    np.testing.assert_array_equal(samples.reason == draw.REJECTED["outage"], end <= start)
     assert np.any(end <= start) and np.all(samples.valid == (end > start))
     valid = np.flatnonzero(samples.valid)[:3]
     assert len(valid) == 3 and len(set(samples.leaves["faults.0.wheel"][valid])) > 1
-    inputs = jax.tree.map(lambda x: x[valid], dispersed.inputs(samples, np.float64))
+    inputs = jax.tree.map(lambda x: x[valid], batched.inputs(samples, np.float64))
     controller, gains = m.controller("pd")
-    batch = dispersed.sample_metrics(inputs, gains, controller=controller, mission=m)
+    batch = batched.sample_metrics(inputs, gains, controller=controller, mission=m)
     assert len(np.unique(np.asarray(batch["rmse"]))) == len(valid)
     for j, i in enumerate(valid):
         own = [dict(f) for f in base["faults"]]
@@ -571,7 +570,7 @@ def test_bad_fault_dispersions_are_one_line_errors(table, message):
     from test_faults import faulted
 
     with pytest.raises(ValueError, match=message) as err:
-        dispersed.parse(table, mission.from_dict(faulted()))
+        draw.parse(table, mission.from_dict(faulted()))
     assert "\n" not in str(err.value)
 
 
@@ -580,12 +579,12 @@ def test_a_degraded_wheel_s_factor_is_drawn_in_its_domain():
     from test_faults import BASE
 
     m = mission.from_dict({**BASE, "faults": [{"time": 3.0, "wheel": 2, "mode": "degraded", "factor": 0.5}]})
-    _, leaves = dispersed.parse({"faults": {"0": {"factor": {"dist": "normal", "mean": 0.9, "std": 0.1}}}}, m)
-    values, valid = dispersed.draw_leaves(leaves, 0, 400)
+    _, leaves = draw.parse({"faults": {"0": {"factor": {"dist": "normal", "mean": 0.9, "std": 0.1}}}}, m)
+    values, valid = draw.draw_leaves(leaves, 0, 400)
     factor = values["faults.0.factor"]
     assert np.any(factor >= 1.0)
     np.testing.assert_array_equal(valid, (factor >= 0.0) & (factor < 1.0))
-    loop = dispersed.loop(m, {"faults.0.factor": factor[0]}, np.float64)
+    loop = batched.loop(m, {"faults.0.factor": factor[0]}, np.float64)
     np.testing.assert_array_equal(np.asarray(loop.faults.wheel_factor), [factor[0]])
 
 
@@ -602,9 +601,9 @@ def test_two_failed_wheels_drawn_apart_leave_two_wheels_and_reject_the_sample():
     n = 2000
     for fdir, rejected in (({"latency": 1.0}, True), ({"detection": "never"}, False)):
         m = mission.from_dict({**BASE, "faults": two, "fdir": fdir})
-        parsed, leaves = dispersed.parse(table, m)
-        samples = dispersed.draw(parsed, leaves, 0, n, 20, mission=m)
+        parsed, leaves = draw.parse(table, m)
+        samples = draw.draw(parsed, leaves, 0, n, 20, mission=m)
         a, b = samples.leaves["faults.0.wheel"], samples.leaves["faults.1.wheel"]
-        np.testing.assert_array_equal(samples.reason == dispersed.REJECTED["wheels"], (a != b) & rejected)
+        np.testing.assert_array_equal(samples.reason == draw.REJECTED["wheels"], (a != b) & rejected)
         counts = np.array([np.sum(a == k) for k in (1, 2, 3, 4)])
         assert np.all(np.abs(counts - n / 4) < 4.5 * np.sqrt(n * 0.25 * 0.75))  # binomial, 4.5 sigma

@@ -11,7 +11,7 @@ import pytest
 from so3jax.jobs import sweep
 from so3jax.jobs.sweep import fault_cases
 from so3jax.jobs.sweep import pointing as sweep_pointing
-from so3jax.missions import dispersed
+from so3jax.missions import draw
 from so3jax.sim import pointing
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -21,8 +21,8 @@ N = 64
 @pytest.fixture(scope="module")
 def drawn():
     config = sweep.load_config(ROOT / "sweeps" / "faults.toml", (f"sweep.samples={N}",))
-    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, N, config.max_draws,
-                             mission=config.mission)
+    samples = draw.draw(config.dispersions, config.leaves, config.seed, N, config.max_draws,
+                        mission=config.mission)
     return config, samples
 
 

@@ -291,14 +291,14 @@ def test_a_requirement_after_the_fault_reads_from_the_first_fault_to_the_end(fli
 
 
 def test_after_fault_needs_a_fault_and_a_fault_time_common_to_the_samples():
-    from so3jax.missions import dispersed
+    from so3jax.missions import draw
 
     with pytest.raises(ValueError, match=r"requirements\[0\].phase: 'after fault' starts at the mission's first "
                                          r"fault: it needs a mission with \[\[faults\]\]"):
         missions.from_dict({**BASE, "requirements": AFTER_FAULT[:1]})
     m = missions.from_dict({**faulted(), "requirements": AFTER_FAULT[:1]})
     with pytest.raises(ValueError, match="faults.0.time is dispersed: each sample's starts elsewhere"):
-        dispersed.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
+        draw.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
 
 
 # --- thrusters ---------------------------------------------------------------------------------------
@@ -397,13 +397,13 @@ def test_a_thruster_fault_builds_its_loop():
 
 
 def test_a_sweep_disperses_a_thruster_fault_s_time():
-    from so3jax.missions import dispersed
+    from so3jax.missions import draw
 
     m = missions.from_dict(thruster_off())
-    leaves = dispersed.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
+    leaves = draw.parse({"faults": {"0": {"time": {"dist": "uniform", "low": 1.0, "high": 2.0}}}}, m)
     assert "faults.0.time" in str(leaves)
     with pytest.raises(ValueError, match="a thruster fault disperses time, not 'factor'"):
-        dispersed.parse({"faults": {"0": {"factor": 0.5}}}, m)
+        draw.parse({"faults": {"0": {"factor": 0.5}}}, m)
 
 
 @pytest.mark.parametrize(("fault", "message"), [

@@ -265,12 +265,11 @@ def test_the_dispersed_and_the_nominal_scenario_are_one_builder():
     import jax
     import jax.numpy as jnp
 
-    from so3jax.missions import build
-    from so3jax.missions import dispersions as disp
+    from so3jax.missions import build, draw
 
     m = missions.load(None, ["T=2.0", "initial.attitude=[0.0, 0.0, 0.5]", "initial.rate=[0.01, 0.0, 0.0]"])
     nominal = m.scenario()
-    p = disp.RolloutParams(J0=jnp.asarray(m.J0), J1=jnp.asarray(m.J1), J2=jnp.asarray(m.J2), tau_J=jnp.asarray(m.tau_J),
+    p = draw.RolloutParams(J0=jnp.asarray(m.J0), J1=jnp.asarray(m.J1), J2=jnp.asarray(m.J2), tau_J=jnp.asarray(m.tau_J),
                            n=jnp.asarray(m.n), amplitude=jnp.asarray(m.disturbance["amplitude"]),
                            frequency=jnp.asarray(m.disturbance["frequency"]),
                            noise_std=jnp.asarray(m.disturbance["noise_std"]), R0=jnp.eye(3), Omega0=jnp.zeros(3),

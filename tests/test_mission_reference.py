@@ -130,17 +130,17 @@ def test_a_sweep_s_samples_share_a_reference_they_do_not_change():
     import jax
     import jax.numpy as jnp
 
-    from so3jax.missions import build, dispersed
+    from so3jax.missions import batched, build, draw
     from so3jax.sim.rollout import rollout
 
     m = missions.load(None, ["T=2.0", "control.mode='continuous'", "sensors.gyro=false", "sensors.star_tracker=false",
                              "estimator.kind='truth'", "actuator.kind='ideal'", "controllers=['pd']", *EVENTS,
                              "phases.names=['a']", "phases.start=[0.0]", "reference.kind='slews'",
                              "reference.slews.attitudes=[[0.02, 0.0, 0.0]]", "reference.slews.times=[0.5]"])
-    dispersions, leaves = dispersed.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)
-    inputs = dispersed.inputs(dispersed.draw(dispersions, leaves, 0, 3, 20), jnp.float64)
+    dispersions, leaves = draw.parse({"initial": {"attitude": {"max_angle_deg": 5.0}}}, m)
+    inputs = batched.inputs(draw.draw(dispersions, leaves, 0, 3, 20), jnp.float64)
     controller, gains = m.controller("pd")
-    run = jax.jit(lambda inputs: dispersed.sample_metrics(inputs, gains, controller=controller, mission=m))
+    run = jax.jit(lambda inputs: batched.sample_metrics(inputs, gains, controller=controller, mission=m))
     batch = run(inputs)  # under jit, as a sweep runs it
     params = type(inputs[0])(*(x[1] for x in inputs[0]))
     alone = rollout(build.scenario(m, params), controller, gains, params.seed).metrics

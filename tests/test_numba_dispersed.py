@@ -19,7 +19,7 @@ from benchmarks.baselines.numpy_loop import J0, J1, J2, ORBITAL_RATE  # noqa: E4
 from so3jax.dynamics.inertia import InertiaWarning  # noqa: E402
 from so3jax.dynamics.scenario import steps_for_horizon  # noqa: E402
 from so3jax.jobs import sweep  # noqa: E402
-from so3jax.missions import dispersed
+from so3jax.missions import batched, draw
 
 T = 510.0  # s: across the first phase switch (500 s)
 N_SAMPLES = 8
@@ -32,7 +32,7 @@ def sweep_samples():
         warnings.simplefilter("ignore", InertiaWarning)
         config = sweep.load_config(None, (f"T={T}",))
     assert not np.any(config.mission.initial["attitude"]) and not np.any(config.mission.initial["rate"])
-    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, N_SAMPLES, config.max_draws)
+    samples = draw.draw(config.dispersions, config.leaves, config.seed, N_SAMPLES, config.max_draws)
     assert samples.valid.all() and not samples.leaves
     return config, samples
 
@@ -41,9 +41,9 @@ def sweep_samples():
 def test_matches_so3jax_sweep_metrics(sweep_samples, controller):
     config, samples = sweep_samples
     gains = jax.tree.map(lambda g: np.asarray(g, np.float64), config.gains[controller])
-    run = functools.partial(dispersed.sample_metrics, controller=config.mission.controller(controller)[0],
+    run = functools.partial(batched.sample_metrics, controller=config.mission.controller(controller)[0],
                             mission=config.mission)
-    ours = {k: np.asarray(v) for k, v in jax.jit(run)(dispersed.inputs(samples, np.float64), gains).items()}
+    ours = {k: np.asarray(v) for k, v in jax.jit(run)(batched.inputs(samples, np.float64), gains).items()}
     theirs = simulate_dispersed(controller, samples.params, steps_for_horizon(config.T, config.dt), dt=config.dt,
                                 gains=config.gains[controller])
     assert sorted(theirs) == sorted(ours)

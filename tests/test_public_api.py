@@ -76,7 +76,7 @@ def test_the_docs_and_examples_use_only_public_names():
 
 def test_the_check_sees_a_private_module_and_a_name_outside_all():
     source = ("import so3jax as sj\nimport so3jax.sim.margins\nfrom so3jax.jobs.identify import telemetry\n"
-              "from so3jax import fly, _metadata\nsj.missions.dispersed\nsj.simulate\n")
+              "from so3jax import fly, _metadata\nsj.missions.draw\nsj.simulate\n")
     assert non_public([source]) == ["import so3jax.sim.margins", "from so3jax.jobs.identify import telemetry",
                                     "from so3jax import _metadata", "sj.missions"]
 

@@ -17,8 +17,7 @@ import pytest
 from so3jax import commands as cli
 from so3jax.jobs.sweep.config import load_config
 from so3jax.jobs.tune.config import parse_config
-from so3jax.missions import dispersed, mission
-from so3jax.missions import dispersions as disp
+from so3jax.missions import batched, distributions, draw, mission
 from so3jax.results import io
 from so3jax.sim import memory
 
@@ -63,14 +62,14 @@ def test_a_horizon_beyond_the_step_counter_is_refused_before_any_folder(argv, in
 def test_input_shapes_are_those_of_drawn_inputs():
     """The shapes the memory estimate reads, without drawing, are those a draw gives."""
     flight = mission.load(None, ["T=1.0"])
-    parsed, leaves = dispersed.parse({"actuator": {"wheels": {"max_torque": 0.2}}, "sensors": {"gyro": {"arw": 1e-6}}},
-                                     flight)
-    drawn = dispersed.inputs(dispersed.draw(parsed, leaves, 0, 3, 2), np.float32)
-    shapes = dispersed.input_shapes(leaves, 3, np.float32)
+    parsed, leaves = draw.parse({"actuator": {"wheels": {"max_torque": 0.2}}, "sensors": {"gyro": {"arw": 1e-6}}},
+                                flight)
+    drawn = batched.inputs(draw.draw(parsed, leaves, 0, 3, 2), np.float32)
+    shapes = batched.input_shapes(leaves, 3, np.float32)
     got = [(tuple(x.shape), np.dtype(x.dtype)) for x in jax.tree.leaves(drawn)]
     assert got == [(tuple(s.shape), np.dtype(s.dtype)) for s in jax.tree.leaves(shapes)]
-    assert dispersed.samples_bytes(leaves, 3, np.float32) == memory.nbytes(drawn) + memory.nbytes(
-        dispersed.inputs(dispersed.draw(parsed, leaves, 0, 3, 2), np.float64))
+    assert batched.samples_bytes(leaves, 3, np.float32) == memory.nbytes(drawn) + memory.nbytes(
+        batched.inputs(draw.draw(parsed, leaves, 0, 3, 2), np.float64))
 
 
 def test_memory_nbytes_does_not_overflow():
@@ -90,7 +89,7 @@ def test_sweep_samples_beyond_memory_are_refused_before_drawing(cli_env, capsys,
     def drawn(*args, **kwargs):
         raise AssertionError("drew the samples")
 
-    monkeypatch.setattr(dispersed, "draw", drawn)
+    monkeypatch.setattr(draw, "draw", drawn)
     out = cli_env / "out"
     assert cli.main(["sweep", "--T", "1", "--samples", "4000000000", "--max-memory", "1G", "--out", str(out)]) == 2
     line = one_line_error(capsys, "sweep")
@@ -145,15 +144,15 @@ def _wheels(**values) -> dict:
 
 def test_a_fixed_speed_limit_refuses_a_uniform_beyond_it(flight):
     with pytest.raises(ValueError, match=r"must not exceed the least actuator.wheels.max_speed = 628"):
-        dispersed.parse(_wheels(initial_speed={"dist": "uniform", "low": -700.0, "high": 0.0}), flight)
+        draw.parse(_wheels(initial_speed={"dist": "uniform", "low": -700.0, "high": 0.0}), flight)
     with pytest.raises(ValueError, match=r"must not exceed"):
-        dispersed.parse(_wheels(initial_speed=700.0), flight)
+        draw.parse(_wheels(initial_speed=700.0), flight)
 
 
 def test_initial_speeds_beyond_the_limit_reject_their_sample(flight):
     """A normal's tails beyond the mission's 628 rad/s: those samples rejected, and only they."""
-    _, leaves = dispersed.parse(_wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 400.0}), flight)
-    values, valid = dispersed.draw_leaves(leaves, 0, 2000)
+    _, leaves = draw.parse(_wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 400.0}), flight)
+    values, valid = draw.draw_leaves(leaves, 0, 2000)
     over = np.any(np.abs(values["actuator.wheels.initial_speed"]) > 628.0, axis=1)
     assert 0.2 < over.mean() < 0.6  # 1 - P(|N(0, 400)| <= 628)^4 = 0.39
     np.testing.assert_array_equal(valid, ~over)
@@ -161,8 +160,8 @@ def test_initial_speeds_beyond_the_limit_reject_their_sample(flight):
 
 def test_a_sample_rejected_for_a_component_value_is_counted_apart(flight):
     """draw's ``outside``: the samples rejected for a component value alone (the inertias were fine)."""
-    dispersions, leaves = dispersed.parse(_wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 400.0}), flight)
-    samples = dispersed.draw(dispersions, leaves, 0, 200, 20)
+    dispersions, leaves = draw.parse(_wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 400.0}), flight)
+    samples = draw.draw(dispersions, leaves, 0, 200, 20)
     over = np.any(np.abs(samples.leaves["actuator.wheels.initial_speed"]) > 628.0, axis=1)
     assert over.any()
     np.testing.assert_array_equal(samples.outside, over)
@@ -172,8 +171,8 @@ def test_a_sample_rejected_for_a_component_value_is_counted_apart(flight):
 def test_both_dispersed_reject_the_samples_whose_speed_exceeds_their_own_limit(flight):
     table = _wheels(initial_speed={"dist": "normal", "mean": 0.0, "std": 300.0},
                     max_speed={"dist": "uniform", "low": 500.0, "high": 700.0})
-    _, leaves = dispersed.parse(table, flight)
-    values, valid = dispersed.draw_leaves(leaves, 1, 2000)
+    _, leaves = draw.parse(table, flight)
+    values, valid = draw.draw_leaves(leaves, 1, 2000)
     speed, limit = values["actuator.wheels.initial_speed"], values["actuator.wheels.max_speed"]
     over = np.any(np.abs(speed) > limit, axis=1)
     assert over.any() and not over.all()
@@ -185,20 +184,22 @@ def test_a_dispersed_limit_below_the_mission_s_initial_speed(flight):
     fast = mission.load(None, ["T=1.0", "actuator.wheels.initial_speed=550.0"])
     with pytest.raises(ValueError, match=r"dispersions.actuator.wheels.max_speed \(the limit of "
                                          r"actuator.wheels.initial_speed\) must be >= 550"):
-        dispersed.parse(_wheels(max_speed={"dist": "uniform", "low": 500.0, "high": 700.0}), fast)
-    _, leaves = dispersed.parse(_wheels(max_speed={"dist": "normal", "mean": 600.0, "std": 50.0}), fast)
-    values, valid = dispersed.draw_leaves(leaves, 0, 1000)
+        draw.parse(_wheels(max_speed={"dist": "uniform", "low": 500.0, "high": 700.0}), fast)
+    _, leaves = draw.parse(_wheels(max_speed={"dist": "normal", "mean": 600.0, "std": 50.0}), fast)
+    values, valid = draw.draw_leaves(leaves, 0, 1000)
     np.testing.assert_array_equal(valid, np.all(values["actuator.wheels.max_speed"] >= 550.0, axis=1))
     assert not valid.all()
 
 
 def test_check_magnitude_follows_check_domain_s_rule():
-    assert disp.check_magnitude(disp.Normal(-10.0, 1e3), "x", 10.0, "limit")  # its mean within: tails rejected
-    for dist in (disp.Fixed(-11.0), disp.Uniform(-5.0, 11.0), disp.Normal(11.0, 1.0), disp.LogNormal(11.0, 0.1)):
+    Fixed, Uniform, Normal, LogNormal = (distributions.Fixed, distributions.Uniform, distributions.Normal,
+                                         distributions.LogNormal)
+    assert distributions.check_magnitude(Normal(-10.0, 1e3), "x", 10.0, "limit")  # its mean within: tails rejected
+    for dist in (Fixed(-11.0), Uniform(-5.0, 11.0), Normal(11.0, 1.0), LogNormal(11.0, 0.1)):
         with pytest.raises(ValueError, match="x must not exceed limit = 10 in magnitude"):
-            disp.check_magnitude(dist, "x", 10.0, "limit")
-    assert [disp.least(d) for d in (disp.Fixed(3.0), disp.Uniform(1.0, 2.0), disp.Normal(4.0, 9.0),
-                                    disp.LogNormal(5.0, 1.0))] == [3.0, 1.0, 4.0, 5.0]
+            distributions.check_magnitude(dist, "x", 10.0, "limit")
+    assert [distributions.least(d) for d in (Fixed(3.0), Uniform(1.0, 2.0), Normal(4.0, 9.0),
+                                             LogNormal(5.0, 1.0))] == [3.0, 1.0, 4.0, 5.0]
 
 
 # --- a file the system refuses -------------------------------------------------------------

@@ -12,7 +12,7 @@ import so3jax as sj
 from so3jax.dynamics import stepped
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.jobs import sweep
-from so3jax.missions import build, dispersed
+from so3jax.missions import batched, build, draw
 from so3jax.sim.rollout import _batch_last
 
 
@@ -22,8 +22,8 @@ def batch():
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", sj.InertiaWarning)
         config = sweep.load_config(None, ("T=3000.0",))
-        samples = dispersed.draw(config.dispersions, config.leaves, config.seed, 4, config.max_draws)
-    params, _ = dispersed.inputs(samples, np.float64)
+        samples = draw.draw(config.dispersions, config.leaves, config.seed, 4, config.max_draws)
+    params, _ = batched.inputs(samples, np.float64)
     scenarios = jax.vmap(lambda p: build.scenario(config.mission, p))(params)
     return scenarios, _batch_last(scenarios, 0)
 

@@ -21,8 +21,7 @@ import pytest
 import so3jax as sj
 from so3jax.jobs import sweep
 from so3jax.jobs.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
-from so3jax.missions import build
-from so3jax.missions import dispersions as disp
+from so3jax.missions import build, distributions, draw
 
 ROOT = Path(__file__).resolve().parents[1]
 # The paper's own inertias dispersed by the matrix form (tests/data/sweep_reference_samples.csv records them)
@@ -112,24 +111,25 @@ def test_overrides_and_distributions():
     cfg = config('dispersions.inertia.J0.scale={dist="normal", mean=1.0, std=0.05}', "seed=7",
                  'dispersions.seed="mission"', "dispersions.orbit.n=1e-3")
     d = cfg.dispersions
-    assert d.J0.scale == disp.Normal(1.0, 0.05) and d.disturbance_seed == 7 and d.n == disp.Fixed(1e-3)
+    assert d.J0.scale == distributions.Normal(1.0, 0.05) and d.disturbance_seed == 7
+    assert d.n == distributions.Fixed(1e-3)
     assert cfg.samples == 11 and cfg.dt == 0.5
 
 
 def test_samples_depend_only_on_seed_and_index():
     d = config().dispersions
-    few = disp.draw_samples(d, 3, 5, 20)
-    many = disp.draw_samples(d, 3, disp.BLOCK + 9, 20)  # two sampler blocks
-    fewer_draws = disp.draw_samples(d, 3, 5, 4)
+    few = draw.draw_samples(d, 3, 5, 20)
+    many = draw.draw_samples(d, 3, draw.BLOCK + 9, 20)  # two sampler blocks
+    fewer_draws = draw.draw_samples(d, 3, 5, 4)
     for a, b, c in zip(jax.tree.leaves(few), jax.tree.leaves(many), jax.tree.leaves(fewer_draws)):
         np.testing.assert_array_equal(a, b[:5])
         np.testing.assert_array_equal(a, c)  # none needed more than 4 draws
-    other = disp.draw_samples(d, 4, 5, 20)
+    other = draw.draw_samples(d, 4, 5, 20)
     assert not np.array_equal(few.params.J0, other.params.J0)
 
 
 def test_every_dispersion_is_sampled_within_its_law():
-    s = disp.draw_samples(config().dispersions, 0, 400, 20)
+    s = draw.draw_samples(config().dispersions, 0, 400, 20)
     p = s.params
     assert s.valid.all()
     for name, value in p._asdict().items():
@@ -153,8 +153,8 @@ def test_every_dispersion_is_sampled_within_its_law():
 
 def test_haar_angle_law():
     """Rotations uniform on SO(3) up to a maximum angle: P(angle < a) = (a - sin a) / (m - sin m)."""
-    d = dataclasses.replace(disp.Dispersions(), initial_angle_deg=120.0)
-    angle = np.linalg.norm(disp.draw_samples(d, 0, 4000, 1).attitude_error, axis=1)
+    d = dataclasses.replace(draw.Dispersions(), initial_angle_deg=120.0)
+    angle = np.linalg.norm(draw.draw_samples(d, 0, 4000, 1).attitude_error, axis=1)
     m = np.radians(120.0)
     for a in (0.5, 1.0, 1.5, 2.0):
         assert abs(np.mean(angle < a) - (a - np.sin(a)) / (m - np.sin(m))) < 0.02
@@ -166,9 +166,9 @@ def test_haar_angle_law():
 def test_each_dispersed_value_reaches_the_rollout():
     """Changing any one parameter of a sample changes its simulated motion."""
     cfg = config()
-    base = jax.tree.map(lambda x: x[0], disp.draw_samples(cfg.dispersions, 0, 1, 20).params)
+    base = jax.tree.map(lambda x: x[0], draw.draw_samples(cfg.dispersions, 0, 1, 20).params)
     changed = {name: 1.1 * value for name, value in base._asdict().items() if value.dtype.kind == "f"}
-    changed.update(R0=disp.rotation_matrix(np.array([0.0, 0.1, 0.0])) @ base.R0, Omega0=base.Omega0 + 1e-3,
+    changed.update(R0=draw.rotation_matrix(np.array([0.0, 0.1, 0.0])) @ base.R0, Omega0=base.Omega0 + 1e-3,
                    seed=base.seed + 1)
     variants = [base] + [base._replace(**{name: changed[name]}) for name in base._fields]
     batch = jax.tree.map(lambda *xs: np.stack(xs), *(variants + [base] * (-len(variants) % 8)))
@@ -182,7 +182,7 @@ def test_each_dispersed_value_reaches_the_rollout():
 
 def test_sample_parameters_map_onto_the_mission():
     cfg = config()
-    p = jax.tree.map(lambda x: x[0], disp.draw_samples(cfg.dispersions, 0, 1, 20).params)
+    p = jax.tree.map(lambda x: x[0], draw.draw_samples(cfg.dispersions, 0, 1, 20).params)
     expected = sj.paper_scenario(
         2700.0,
         0.5,
@@ -369,7 +369,7 @@ def test_statistics_are_over_finite_samples_and_null_without_any():
     """Summaries from made-up results (no rollout): sample 1 non-finite, sample 2 rejected;
     then every sample non-finite."""
     cfg = config("sweep.samples=3", 'controllers=["pd", "adaptive"]')
-    samples = disp.draw_samples(cfg.dispersions, 0, 3, 20)
+    samples = draw.draw_samples(cfg.dispersions, 0, 3, 20)
     samples = samples._replace(valid=np.array([True, True, False]))
     n, phases = 3, len(sweep.PHASE_NAMES)
 
@@ -408,7 +408,7 @@ def test_flight_metrics_are_summarized_and_samples_at_a_limit_flagged():
     from so3jax.sim.flight_metrics import FlightMetrics
 
     cfg = config("sweep.samples=4", 'controllers=["pd", "adaptive"]', "T=10.0", "sweep.limit_share=0.05")
-    samples = disp.draw_samples(cfg.dispersions, 0, 4, 20)
+    samples = draw.draw_samples(cfg.dispersions, 0, 4, 20)
     n, phases = 4, len(sweep.PHASE_NAMES)
 
     def results(torque, speed, estimation, nonfinite=(0, 0, 0, 0)):

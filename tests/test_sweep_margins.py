@@ -16,7 +16,7 @@ from so3jax.jobs import margins as jobs_margins
 from so3jax.jobs.sweep import config as sweep_config
 from so3jax.jobs.sweep import engine
 from so3jax.jobs.sweep import margins as sweep_margins
-from so3jax.missions import dispersed
+from so3jax.missions import batched, draw
 
 ROOT = Path(__file__).parents[1]
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
@@ -56,7 +56,7 @@ def sweep(tmp_path_factory):
     out = tmp_path_factory.mktemp("sweep")
     summary = engine.run_sweep(config, out, progress=False)
     mission = config.mission
-    inputs = dispersed.inputs(dispersed.draw(config.dispersions, config.leaves, 0, 3, 20), np.float64)
+    inputs = batched.inputs(draw.draw(config.dispersions, config.leaves, 0, 3, 20), np.float64)
     with np.load(out / "chunks" / "pd-000000000.npz") as chunk:
         values = {k.removeprefix(sweep_margins.PREFIX): chunk[k] for k in chunk.files
                   if k.startswith(sweep_margins.PREFIX)}
@@ -217,9 +217,9 @@ def test_dispersed_reference_and_inertia_leaves_give_each_sample_its_margins():
     offset = {"dist": "uniform", "low": -0.5, "high": 0.5, "relative": "offset"}  # [s]
     table = {"reference": {"slews": {"times": offset}},
              "inertia": {"events": {"times": offset, "targets": {"dist": "uniform", "low": 1.2, "high": 1.8}}}}
-    samples = dispersed.draw(*dispersed.parse(table, m), 0, 2, 20, mission=m)
+    samples = draw.draw(*draw.parse(table, m), 0, 2, 20, mission=m)
     assert samples.valid.all()
-    inputs = dispersed.inputs(samples, np.float64)
+    inputs = batched.inputs(samples, np.float64)
     controller, gains = m.controller("pd")
     values = sweep_margins.sample_margins(inputs, gains, controller=controller, mission=m, times=(4.0,))
     assert values["stable"].all() and values["disk_db"][0, 0] != values["disk_db"][1, 0]

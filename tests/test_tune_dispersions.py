@@ -14,7 +14,7 @@ from so3jax.jobs import tune
 from so3jax.jobs.tune import campaign
 from so3jax.jobs.tune.cost import cvar
 from so3jax.jobs.tune.problem import batch_at, build_problem
-from so3jax.missions import dispersed
+from so3jax.missions import draw
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
 
@@ -85,10 +85,10 @@ def test_a_dispersed_campaign_draws_a_fresh_batch_each_iteration_and_resumes_as_
     config = tune.parse_config(CAMPAIGN)
     problem = build_problem(config)
     # iteration i trains on samples 4i .. 4i + 3 of sampling seed 0; validation on seed 1's first 6
-    drawn = dispersed.draw(problem.sampler.dispersions, problem.sampler.leaves, 0, 4, 20, first=8)
+    drawn = draw.draw(problem.sampler.dispersions, problem.sampler.leaves, 0, 4, 20, first=8)
     np.testing.assert_array_equal(batch_at(config, problem, 2).params.tau_J, drawn.params.tau_J)  # samples 8-11
     assert not np.array_equal(batch_at(config, problem, 0).params.tau_J, batch_at(config, problem, 1).params.tau_J)
-    held_out = dispersed.draw(problem.sampler.dispersions, problem.sampler.leaves, 1, 4, 20)
+    held_out = draw.draw(problem.sampler.dispersions, problem.sampler.leaves, 1, 4, 20)
     np.testing.assert_array_equal(problem.validation.params.tau_J, held_out.params.tau_J)
 
     report = tune.tune(config, tmp_path / "straight", progress=False)

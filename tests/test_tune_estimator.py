@@ -12,7 +12,7 @@ from so3jax.jobs.tune.config import parse_config
 from so3jax.jobs.tune.cost import CostRefs, cost_and_grad
 from so3jax.jobs.tune.gains import split, tables, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.problem import build_problem
-from so3jax.missions import dispersed
+from so3jax.missions import batched, draw
 from so3jax.missions import mission as missions
 
 pytestmark = pytest.mark.filterwarnings("ignore::so3jax.dynamics.inertia.InertiaWarning")
@@ -67,10 +67,10 @@ def test_dispersed_missions_fly_the_tuned_filter():
     values = {"arw": 2e-6, "sigma_st": 5e-5}
     mission = missions.from_dict({"T": 1.0, "controllers": ["pd"]}, missions.FLIGHT)
     written = missions.from_dict({"T": 1.0, "controllers": ["pd"], "estimator": {"mekf": values}}, missions.FLIGHT)
-    parsed, leaves = dispersed.parse({"seed": "random", "sensors.gyro.arw": 1.5e-6}, mission)
-    inputs = dispersed.inputs(dispersed.draw(parsed, leaves, 0, 2, 20), jnp.float64)
+    parsed, leaves = draw.parse({"seed": "random", "sensors.gyro.arw": 1.5e-6}, mission)
+    inputs = batched.inputs(draw.draw(parsed, leaves, 0, 2, 20), jnp.float64)
     gains = PDGains(jnp.asarray(0.5714), jnp.asarray(25.0))
-    run = lambda m, **kw: dispersed.sample_metrics(inputs, gains, controller=m.controller("pd")[0], mission=m, **kw)
+    run = lambda m, **kw: batched.sample_metrics(inputs, gains, controller=m.controller("pd")[0], mission=m, **kw)
     tuned = run(mission, estimator={k: jnp.asarray(v) for k, v in values.items()})
     np.testing.assert_allclose(tuned["attitude_estimation_rms"], run(written)["attitude_estimation_rms"], rtol=1e-12)
     assert not np.allclose(tuned["attitude_estimation_rms"], run(mission)["attitude_estimation_rms"], rtol=1e-6)

@@ -304,13 +304,13 @@ def test_possible_dispersions_are_accepted():
 
 
 def test_draw_samples_checks_its_dispersions():
-    from so3jax.missions import dispersions as disp
+    from so3jax.missions import distributions, draw
 
-    bad = dataclasses.replace(disp.Dispersions(), tau_J=disp.Fixed(0.0))
+    bad = dataclasses.replace(draw.Dispersions(), tau_J=distributions.Fixed(0.0))
     with pytest.raises(ValueError, match="deployment.tau_J \\[s\\] must be > 0"):
-        disp.draw_samples(bad, 0, 8, 20)
+        draw.draw_samples(bad, 0, 8, 20)
     with pytest.raises(ValueError, match="n_samples must be a positive integer"):
-        disp.draw_samples(disp.Dispersions(), 0, 0, 20)
+        draw.draw_samples(draw.Dispersions(), 0, 0, 20)
 
 
 def test_tune_checks_its_mission_values():

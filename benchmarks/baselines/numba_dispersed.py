@@ -6,7 +6,7 @@ stage arithmetic is imported from there (``_stage``, ``_exp_minus_identity``, ``
 the noise eta_k is drawn inside the kernel from each trajectory's seed, CHUNK steps at a
 time, bit for bit as JAX draws it (:func:`numba_noise.fill_eta`). What differs from
 numba_loop is the scenario: each trajectory b has its own parameters, those of a sample of
-``so3jax.missions.dispersed`` (the fields of ``so3jax.missions.dispersions.RolloutParams``):
+``so3jax.missions.draw`` (the fields of ``so3jax.missions.draw.RolloutParams``):
 
 * inertias J0, J1, J2 (3, 3) [kg m^2] and the deployment time constant tau_J [s]:
   J(t) = J0 in phase 0, J1 - (J1 - J0) exp(-(t - T_GROW)/tau_J) in phase 1, J2 in phase 2;
@@ -34,7 +34,7 @@ Scalar code: the trajectories are split into one group per thread (``numba.prang
 each trajectory advanced on local scalars, allocating nothing per step. Units: SI (s, rad,
 rad/s, N m, kg m^2). float64 only; FMA contraction allowed (no other fast-math).
 
-The result holds the metrics ``so3jax.missions.dispersed.sample_metrics`` returns for the paper's
+The result holds the metrics ``so3jax.missions.batched.sample_metrics`` returns for the paper's
 mission, under its names and shapes ((B,) or (B, 3) per phase; a phase the horizon never
 reaches has 0, as there); ``diverged`` flags a trajectory whose state was non-finite after
 any step.
@@ -292,7 +292,7 @@ def simulate_dispersed(controller: str, samples, n_steps: int, *, dt: float = 0.
     amplitude [N m], frequency [rad/s], noise_std [N m], seed (B,); R0 (B, 3, 3), Omega0
     (B, 3) [rad/s].
 
-    Returns numpy arrays under ``so3jax.missions.dispersed.sample_metrics``' names: rmse,
+    Returns numpy arrays under ``so3jax.missions.batched.sample_metrics``' names: rmse,
     rmse_unrotated [rad/s], effort [N^2 m^2 s], max_torque [N m], orthogonality_error
     (|R^T R - I|_F at the end), diverged (bool) (B,); rmse_phase, effort_phase,
     max_torque_phase, rms_angle_phase, max_angle_phase [rad] (B, 3).

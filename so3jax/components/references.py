@@ -35,7 +35,7 @@ class ReferenceContext(NamedTuple):
     orbital rate n [rad/s] (a sample's, in a sweep); the scenario's phase start times [s]
     after the first; the paper's reference of the same n. Only a
     :class:`~so3jax.dynamics.reference.PiecewiseConstantRate` may depend on n: a sweep's
-    samples share a reference of another class (:func:`so3jax.missions.dispersed.sample_metrics`)."""
+    samples share a reference of another class (:func:`so3jax.missions.batched.sample_metrics`)."""
 
     as_array: Callable[[Any], Any]
     orbit_rate: Any

@@ -1,6 +1,6 @@
 """A mission's :class:`~so3jax.dynamics.scenario.Scenario`: the one builder of the nominal
 mission (:meth:`so3jax.missions.mission.Mission.scenario`) and of its dispersed samples
-(:func:`so3jax.missions.dispersed.sample_metrics`)."""
+(:func:`so3jax.missions.batched.sample_metrics`)."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from so3jax.dynamics.space import Environment
 def scenario(mission, params=None, dtype=None) -> Scenario:
     """The scenario of ``mission`` (a :class:`~so3jax.missions.mission.Mission`): its own
     values, in ``dtype`` (default: JAX's float), or with ``params`` (a
-    :class:`~so3jax.missions.dispersions.RolloutParams` of one sample, traceable: vmap over
+    :class:`~so3jax.missions.draw.RolloutParams` of one sample, traceable: vmap over
     samples) its inertias, time constant, orbital rate and disturbance, and its R(0) and
     Omega(0) composed with the mission's (R(0) = R_mission(0) R_sample(0), Omega(0) =
     Omega_sample(0) + Omega_mission(0)), in the dtype of params.J0."""

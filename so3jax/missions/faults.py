@@ -208,7 +208,7 @@ def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
 
 def _stack(values: list, axis: int = 0):
     """The entries' values stacked along ``axis``: a NumPy float array, or a JAX one where a
-    value is traced (a sweep's dispersed fault, :func:`so3jax.missions.dispersed.loop`)."""
+    value is traced (a sweep's dispersed fault, :func:`so3jax.missions.batched.loop`)."""
     if any(isinstance(v, jax.Array) for v in values):
         return jnp.stack([jnp.asarray(v) for v in values], axis=axis)
     return np.stack([np.asarray(v, float) for v in values], axis=axis)

@@ -4,7 +4,7 @@ cannot drift from the parser: the tables the mission parser accepts
 (:mod:`so3jax.missions.mission`), the mission's own keys (:data:`so3jax.missions.keys.KEYS`),
 the registered components' and controllers' parameters, options and gains, the gain
 schedules' keys (:mod:`so3jax.missions.schedule`), the pointing requirements' keys
-(:mod:`so3jax.sim.pointing`) and the dispersible leaves (:mod:`so3jax.missions.dispersed`).
+(:mod:`so3jax.sim.pointing`) and the dispersible leaves (:mod:`so3jax.missions.draw`).
 
 Each :class:`~so3jax.core.params.Param` becomes a value schema (:func:`param`): its type and
 shapes, its domain (``minimum``, ``exclusiveMinimum``, ``maximum``), its choices (``enum``), its
@@ -36,8 +36,7 @@ from so3jax.controllers import gains as gain_domains
 from so3jax.controllers import registry
 from so3jax.controllers.scheduled import BY
 from so3jax.core.params import Param
-from so3jax.missions import dispersed, keys
-from so3jax.missions import dispersions as disp
+from so3jax.missions import distributions, draw, keys
 from so3jax.missions import faults as fault_list
 from so3jax.missions import mission as missions
 from so3jax.missions import schedule as schedules
@@ -65,8 +64,8 @@ REQUIREMENT_VALUES = {
                                "description": "the statistical interpretation (ECSS-E-ST-60-10C)"},
     "name": lambda: {"type": "string", "description": "the requirement's name in reports and goals"},
 }
-DISPERSION_SEEDS = ("random", "mission")  # dispersions.seed (so3jax.missions.dispersed.parse)
-# dispersions.initial.attitude and .rate: {key: dispersed.parse's reading} (a distribution or a number [deg])
+DISPERSION_SEEDS = ("random", "mission")  # dispersions.seed (so3jax.missions.draw.parse)
+# dispersions.initial.attitude and .rate: {key: draw.parse's reading} (a distribution or a number [deg])
 INITIAL_DISPERSIONS = {"attitude": {"max_angle_deg": "angle"}, "rate": {"norm": "distribution"}}
 
 
@@ -382,32 +381,32 @@ def ref(name: str, description: str = "") -> dict:
 
 def distribution(relative: bool = False, description: str = "") -> dict:
     """A number (fixed) or a distribution table ``{dist = NAME, ...}``
-    (:data:`so3jax.missions.dispersions.DISTRIBUTIONS`); relative: with an optional
+    (:data:`so3jax.missions.distributions.DISTRIBUTIONS`); relative: with an optional
     ``relative`` (an offset from or a scale of the mission's value)."""
     return ref("relative_distribution" if relative else "distribution", description)
 
 
 def _distribution(relative: bool) -> dict:
     tables = []
-    for name, cls in disp.DISTRIBUTIONS.items():
+    for name, cls in distributions.DISTRIBUTIONS.items():
         fields = [f.name for f in dataclasses.fields(cls)]
         number = {"type": "number"}
         properties = {"dist": {"const": name},
                       **{f: {"type": "array", "items": number, "minItems": 1} if f == "values" else number
                          for f in fields}}
         if relative:
-            properties["relative"] = {"enum": list(dispersed.RELATIVE),
+            properties["relative"] = {"enum": list(draw.RELATIVE),
                                       "description": "offset: the mission's value plus the draw; scale: times it"}
         tables.append({**table(properties, (cls.__doc__ or "").strip()), "required": ["dist", *fields]})
     return {"anyOf": [{"type": "number", "description": "fixed at this value"}, *tables]}
 
 
 def _inertia_dispersion() -> dict:
-    """An inertia matrix's dispersion (:class:`so3jax.missions.dispersions.InertiaDispersion`)."""
-    types = {f.name: f.type for f in dataclasses.fields(disp.InertiaDispersion)}
+    """An inertia matrix's dispersion (:class:`so3jax.missions.draw.InertiaDispersion`)."""
+    types = {f.name: f.type for f in dataclasses.fields(draw.InertiaDispersion)}
     values = {key: distribution() if "Distribution" in str(types[key]) else {"type": "number"}
-              for key in dispersed.INERTIA_KEYS}
-    return table(values, (disp.InertiaDispersion.__doc__ or "").strip().split("\n\n")[0])
+              for key in draw.INERTIA_KEYS}
+    return table(values, (draw.InertiaDispersion.__doc__ or "").strip().split("\n\n")[0])
 
 
 def _leaves(kind: str, name: str) -> dict:
@@ -418,7 +417,7 @@ def _leaves(kind: str, name: str) -> dict:
 
 
 def dispersions(description: str = "") -> dict:
-    """A ``[dispersions]`` table (:func:`so3jax.missions.dispersed.parse`): the mission's
+    """A ``[dispersions]`` table (:func:`so3jax.missions.draw.parse`): the mission's
     dispersible leaves, each a number or a distribution (a reference to the document's definition)."""
     return ref("dispersions", description)
 
@@ -426,23 +425,23 @@ def dispersions(description: str = "") -> dict:
 def _dispersions() -> dict:
     tree = {"seed": {"enum": list(DISPERSION_SEEDS), "default": "mission",
                      "description": "random: a disturbance and sensor-noise seed per sample; mission: the mission's"}}
-    for table_name, key in dispersed.STRUCTURED:
+    for table_name, key in draw.STRUCTURED:
         declared = keys.KEY[f"{table_name}.{key}"]
         tree.setdefault(table_name, {})[key] = distribution(False, describe(declared.doc, declared.unit))
     tree.setdefault("inertia", {}).update({J: ref("inertia_dispersion") for J in ("J0", "J1", "J2")})
     readings = {"angle": {"type": "number", "description": "[deg]"}, "distribution": distribution()}
     tree.setdefault("initial", {}).update({name: table({k: readings[v] for k, v in values.items()})
                                            for name, values in INITIAL_DISPERSIONS.items()})
-    for table_name in dispersed.LOOP_TABLES:
+    for table_name in draw.LOOP_TABLES:
         kind = SETS.get(table_name, table_name)
         tree[table_name] = {name: _leaves(kind, name) for name in components.names(kind)}
-    for (table_name, kind), leaves in dispersed.SCENARIO_LEAVES.items():
+    for (table_name, kind), leaves in draw.SCENARIO_LEAVES.items():
         declared = {p.name: p for p in components.get(table_name, kind).params}
         values = {}
         for name, domain in leaves.items():
             p = declared.get(name)
             text = describe(p.doc, p.unit) if p is not None else ""
-            if domain == dispersed.INERTIA:
+            if domain == draw.INERTIA:
                 values[name] = ref("inertia_dispersion", text)
             elif isinstance(p, inertias.Targets):  # scales (a distribution) or inertias (an inertia's dispersion)
                 values[name] = {"anyOf": [distribution(True), ref("inertia_dispersion")], "description": text}
@@ -457,9 +456,9 @@ def _dispersions() -> dict:
 
 def _fault_dispersions() -> dict:
     """``faults.I``: the numeric values of the mission's [[faults]] entry I (0-based), each
-    a distribution (:data:`so3jax.missions.dispersed.FAULT_LEAVES`)."""
+    a distribution (:data:`so3jax.missions.draw.FAULT_LEAVES`)."""
     described = {k: v["description"] for k, v in faults()["items"]["properties"].items()}
-    params = dict.fromkeys(p for leaves in dispersed.FAULT_LEAVES.values() for p in leaves)
+    params = dict.fromkeys(p for leaves in draw.FAULT_LEAVES.values() for p in leaves)
     entry = table({p: distribution(True, described[p]) for p in params},
                   "the values of the mission's [[faults]] entry of this 0-based index")
     return {"type": "object", "description": "the mission's faults' times, outage ends, degraded wheels' factors "

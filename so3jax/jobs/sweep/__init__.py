@@ -1,6 +1,6 @@
 """Monte Carlo robustness sweeps of a mission: the job ``so3jax sweep`` (:mod:`so3jax.commands.sweep`) runs.
 
-Samples (:mod:`so3jax.missions.dispersions`) run with every chosen controller, so results pair
+Samples (:mod:`so3jax.missions.draw`) run with every chosen controller, so results pair
 sample by sample. Rollouts run in chunks, each split over the devices one chunk runs
 over (:mod:`so3jax.parallel.devices`): every device runs the same program (a natively batched
 rollout, :func:`so3jax.sim.rollout.rollout_batch`) on its shard. Over several processes,

@@ -1,5 +1,5 @@
 """Sweep configuration: a mission, a ``[sweep]`` table and a ``[dispersions]`` table on the
-mission's leaves (:mod:`so3jax.missions.dispersed`); the defaults are sweeps/default.toml."""
+mission's leaves (:mod:`so3jax.missions.draw`); the defaults are sweeps/default.toml."""
 
 from __future__ import annotations
 
@@ -10,8 +10,7 @@ from pathlib import Path
 from so3jax.core import checks
 from so3jax.jobs import margins
 from so3jax.missions import config as cfg
-from so3jax.missions import dispersed, keys
-from so3jax.missions import dispersions as disp
+from so3jax.missions import draw, keys
 from so3jax.missions import mission as missions
 
 # The default sweep (sweeps/default.toml): the paper's mission on a rigid body's J0
@@ -60,7 +59,7 @@ class SweepConfig:
     """
 
     mission: missions.Mission
-    dispersions: disp.Dispersions
+    dispersions: draw.Dispersions
     leaves: tuple
     table: dict
     samples: int = 1024
@@ -109,13 +108,13 @@ def config_from_dict(d: dict, base_dir: Path = Path(".")) -> SweepConfig:
     top["pointing"] = values["pointing"] or bool(mission.requirements)
     top["margins_at"] = _margins_at(values["margins_at"], mission)
     table = jobs.get("dispersions", DEFAULT["dispersions"])
-    dispersions, leaves = dispersed.parse(table, mission)
+    dispersions, leaves = draw.parse(table, mission)
     if not dispersions.initial_angle_deg < top["divergence_angle_deg"]:
         raise ValueError(
             f"sweep.divergence_angle_deg ({top['divergence_angle_deg']}) must exceed dispersions.initial.attitude's "
             f"max_angle_deg ({dispersions.initial_angle_deg}), or every large initial error would count as diverged"
         )
-    disp.check(dispersions)  # the nominal inertias' warnings, once
+    draw.check(dispersions)  # the nominal inertias' warnings, once
     return SweepConfig(mission, dispersions, leaves, table, **top)
 
 

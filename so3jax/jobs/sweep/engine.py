@@ -21,8 +21,8 @@ from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.jobs.sweep.storage import chunk_path, claim_chunk, load_chunks, prepare_out, write_outputs
 from so3jax.jobs.sweep.summary import summarize
-from so3jax.missions import dispersed
-from so3jax.missions.dispersions import MAX_SAMPLES
+from so3jax.missions import batched, draw
+from so3jax.missions.draw import MAX_SAMPLES
 from so3jax.missions.mission import Mission
 from so3jax.parallel import devices, distributed
 from so3jax.results import runfolder
@@ -36,12 +36,12 @@ LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 @functools.partial(jax.jit, static_argnames=("controller", "mission", "mesh", "pointing"))
 def simulate_batch(inputs, gains, *, controller: str, mission: Mission, mesh: Mesh | None = None,
                    pointing: bool = False) -> dict:
-    """:func:`so3jax.missions.dispersed.sample_metrics` of a batch of samples by controller
+    """:func:`so3jax.missions.batched.sample_metrics` of a batch of samples by controller
     name, the batch split over the devices of ``mesh`` (:func:`so3jax.parallel.devices.split`;
     None: one device): without histories, or with ``pointing`` the attitude errors recorded
     every ``mission.record_every`` steps."""
     every = mission.record_every if pointing else steps_for_horizon(mission.T, mission.dt)  # else no history
-    shard = functools.partial(dispersed.sample_metrics, controller=mission.controller(controller)[0], mission=mission,
+    shard = functools.partial(batched.sample_metrics, controller=mission.controller(controller)[0], mission=mission,
                               record_every=every, pointing=pointing)
     return devices.split(shard, mesh, batched=(True, False))(inputs, gains)
 
@@ -109,16 +109,16 @@ def memory_needed(config: SweepConfig, chunk: int, mesh: Mesh | None = None) -> 
     controller's chunk program is traced as the chunks call it (``chunk`` samples placed
     on ``mesh``), so that the chunks reuse this trace."""
     dtype = jnp.result_type(float)
-    first = dispersed.input_shapes(config.leaves, 1, dtype)
+    first = batched.input_shapes(config.leaves, 1, dtype)
     per_sample = 0
     for controller in config.controllers:
         gains = jax.tree.map(lambda g: np.asarray(g, dtype), config.gains[controller])
-        args = devices.placed_shapes((dispersed.input_shapes(config.leaves, chunk, dtype), gains), mesh)
+        args = devices.placed_shapes((batched.input_shapes(config.leaves, chunk, dtype), gains), mesh)
         run = functools.partial(simulate_batch, controller=controller, mission=config.mission, mesh=mesh,
                                 pointing=config.pointing)
         per_sample = max(per_sample, -(-memory.outputs(run, *args) // chunk) + memory.nbytes(first))
     table = config.samples * len(config.controllers) * per_sample
-    return chunk * per_sample + table + dispersed.samples_bytes(config.leaves, config.samples, dtype)
+    return chunk * per_sample + table + batched.samples_bytes(config.leaves, config.samples, dtype)
 
 
 def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: str, mesh: Mesh, chunk: int,
@@ -128,12 +128,12 @@ def _run_sweep(config: SweepConfig, out: Path, resume: bool, progress, layout: s
     distributed.check_shared(out)  # every process reads the finished chunks; with layout "chunks", writes its own
     # every check before the first file (sweep.json): a refused sweep writes nothing
     dtype = jnp.result_type(float)
-    samples = dispersed.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws,
-                             mission=config.mission)
-    inputs = dispersed.inputs(samples, dtype)
+    samples = draw.draw(config.dispersions, config.leaves, config.seed, config.samples, config.max_draws,
+                        mission=config.mission)
+    inputs = batched.inputs(samples, dtype)
     valid = np.flatnonzero(samples.valid)
     if not len(valid):
-        reasons = "; ".join(f"{n} for {why}" for why, n in dispersed.rejections(samples).items())
+        reasons = "; ".join(f"{n} for {why}" for why, n in draw.rejections(samples).items())
         raise ValueError(f"[dispersions]: every one of the {config.samples} samples is rejected ({reasons}): "
                          "narrow the dispersions")
     n_steps = steps_for_horizon(config.T, config.dt)

@@ -1,8 +1,8 @@
 """Stability margins of each dispersed sample's sampled loop (docs/model.md §19), per time.
 
 Each sample's loop (its scenario :func:`so3jax.missions.build.scenario` with its reference and
-inertia values :func:`so3jax.missions.dispersed.scenario_values`, its components
-:func:`so3jax.missions.dispersed.loop`) is flown noise-free and disturbance-free from its
+inertia values :func:`so3jax.missions.batched.scenario_values`, its components
+:func:`so3jax.missions.batched.loop`) is flown noise-free and disturbance-free from its
 initial state to each time asked, as :func:`so3jax.sim.margins.nominal_state` flies one
 mission, the samples together (:func:`fly`, a vmap: one program per chunk size and number
 of times). There its one-period map is linearized (19.2), broken at the actuator input
@@ -35,7 +35,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.jobs import margins as jobs_margins
-from so3jax.missions import build, dispersed
+from so3jax.missions import batched, build
 from so3jax.missions.mission import Mission
 from so3jax.results.io import to_builtin
 from so3jax.sim import margins
@@ -54,9 +54,9 @@ def _cast(tree, dtype):
 def _sample(mission: Mission, p, values, dtype):
     """(scenario, noise-free loop) of one sample: its RolloutParams p and dispersed values
     (reference, inertia and component leaves)."""
-    own, components = dispersed.split(values)
-    scenario = build.scenario(dispersed.scenario_values(mission, own), p)
-    return scenario, margins.noise_free(dispersed.loop(mission, components, dtype))
+    own, components = batched.split(values)
+    scenario = build.scenario(batched.scenario_values(mission, own), p)
+    return scenario, margins.noise_free(batched.loop(mission, components, dtype))
 
 
 @functools.partial(jax.jit, static_argnames=("controller", "mission"))
@@ -140,7 +140,7 @@ def sample_margins(inputs, gains, *, controller, mission: Mission, times) -> dic
     horizon, :func:`so3jax.jobs.margins.check_times`; None: the last tick of each phase the
     horizon reaches, :func:`so3jax.jobs.margins.default_times`), its loop broken at the actuator input
     (docs/model.md §19). inputs = (RolloutParams, {dispersed component parameter: values}),
-    leading batch axis S, as :func:`so3jax.missions.dispersed.sample_metrics` takes them;
+    leading batch axis S, as :func:`so3jax.missions.batched.sample_metrics` takes them;
     ``controller`` a :class:`~so3jax.controllers.Controller` (``mission.controller(name)[0]``).
 
     Returns numpy arrays, (S, K) for K times:

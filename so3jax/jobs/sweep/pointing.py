@@ -3,7 +3,7 @@ in the three statistical interpretations, the mission's requirements checked on 
 each sample's own (temporal) APE and RPE.
 
 The samples' attitude errors e_P, e_K are recorded at the start of every block of the
-mission's ``record_every`` steps (:func:`so3jax.missions.dispersed.pointing_errors`), the
+mission's ``record_every`` steps (:func:`so3jax.missions.batched.pointing_errors`), the
 grid ``fly`` records on. Over S samples: temporal, the worst sample's quantile over its
 times; ensemble, the worst time's quantile over the samples; mixed, the quantile of every
 sample's every time. A diverged sample's errors count as +inf (larger than every other:

@@ -17,7 +17,7 @@ import numpy as np
 
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
 from so3jax.jobs.sweep.summary import columns, format_summary, reached_phases, summary_row
-from so3jax.missions import dispersions as disp
+from so3jax.missions import draw
 from so3jax.parallel import distributed
 from so3jax.results import runfolder
 from so3jax.results.io import save_figure, save_npz, to_builtin, write_json, write_text
@@ -142,7 +142,7 @@ def write_csv(path: Path, cols: dict) -> None:
     write_text(path, buffer.getvalue())
 
 
-def write_outputs(out: Path, config: SweepConfig, samples: disp.Samples, results: dict, summary: dict) -> None:
+def write_outputs(out: Path, config: SweepConfig, samples: draw.Samples, results: dict, summary: dict) -> None:
     cols = columns(config, samples, results)
     write_csv(out / "samples.csv", cols)
     save_npz(out / "samples.npz", **cols)

@@ -13,8 +13,7 @@ import numpy as np
 from so3jax.components import registry as components
 from so3jax.jobs.sweep import fault_cases, margins, pointing
 from so3jax.jobs.sweep.config import SweepConfig, config_to_dict
-from so3jax.missions import dispersed, keys
-from so3jax.missions import dispersions as disp
+from so3jax.missions import draw, keys
 from so3jax.results import units
 from so3jax.sim.flight_metrics import FlightMetrics
 from so3jax.sim.metrics import Metrics, cell, finite_values, reported
@@ -39,7 +38,7 @@ def diverged(config: SweepConfig, r: dict) -> np.ndarray:
     return (r["diverged"] == 1) | ~(angle <= math.radians(config.divergence_angle_deg))
 
 
-def columns(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
+def columns(config: SweepConfig, samples: draw.Samples, results: dict) -> dict:
     """Per-sample table: parameters, then each controller's metrics: NaN where not
     simulated, and every metric NaN where the state became non-finite (``nonfinite``)."""
     p = samples.params
@@ -124,7 +123,7 @@ def column_units(config: SweepConfig, names) -> dict:
         elif key == "inertia.events.targets" and len(leaves[key].shape) == 1:
             out[name] = "-"  # scales of the inertia at the event
         elif key is not None and key.startswith("faults."):
-            out[name] = dispersed.FAULT_UNITS[key.split(".")[2]]
+            out[name] = draw.FAULT_UNITS[key.split(".")[2]]
         elif key is not None:
             table, component, param = key.split(".")
             kind = "sensor" if table == "sensors" else table
@@ -172,7 +171,7 @@ def summary_row(cols: dict, i: int) -> dict:
     return {k: (v[i].item() if hasattr(v[i], "item") else v[i]) for k, v in cols.items()}
 
 
-def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict:
+def summarize(config: SweepConfig, samples: draw.Samples, results: dict) -> dict:
     """Statistics of RMSE [rad/s] and effort [N^2 m^2 s] per controller and phase over the
     samples that did not diverge (each with its number of samples; None where there is
     none); counts and parameters of diverged and rejected samples; paired comparisons (every
@@ -190,7 +189,7 @@ def summarize(config: SweepConfig, samples: disp.Samples, results: dict) -> dict
             "rejected": int((~samples.valid).sum()),
             "rejected_indices": np.flatnonzero(~samples.valid).tolist(),
             "rejected_component": int(0 if samples.outside is None else samples.outside.sum()),
-            "rejected_for": dispersed.rejections(samples),
+            "rejected_for": draw.rejections(samples),
             "redraws": int((samples.draws[samples.valid] - 1).sum()),
             "nonphysical_inertia": int((samples.valid & ~cols["physical"]).sum()),
         },

@@ -17,9 +17,10 @@ RMSE_ref and Effort_ref default to the initial gains' batch means; Effort_budget
 number or another controller's effort on the same scenario (e.g. the PD with the
 paper's gains), scenario by scenario. ``objective = "cvar"`` replaces the batch mean by
 the mean of the worst 1 - alpha share of the scenario costs. With a
-``[tune.dispersions]`` table the scenarios are dispersed missions (:mod:`so3jax.missions.dispersed`),
-a fresh batch of them every iteration. A ``[tune.constraints]`` table adds a penalty on the
-sampled loop's disk margin below a floor (:mod:`so3jax.jobs.tune.constraints`).
+``[tune.dispersions]`` table the scenarios are dispersed missions (drawn by
+:mod:`so3jax.missions.draw`, flown by :mod:`so3jax.missions.batched`), a fresh batch of them
+every iteration. A ``[tune.constraints]`` table adds a penalty on the sampled loop's disk
+margin below a floor (:mod:`so3jax.jobs.tune.constraints`).
 ``estimator = [names]`` tunes positive parameters of the mission's estimator (the noise
 levels the MEKF assumes) beside the gains, in log space too
 (:func:`so3jax.jobs.tune.gains.with_estimator`).

@@ -20,9 +20,8 @@ from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
 from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
 from so3jax.jobs.tune.goals import MAX_DB, formed_before, parse_goals
+from so3jax.missions import batched, draw
 from so3jax.missions import config as cfg
-from so3jax.missions import dispersed
-from so3jax.missions import dispersions as disp
 from so3jax.missions import mission as missions
 from so3jax.sim import memory
 from so3jax.sim.gradients import MODES
@@ -356,7 +355,7 @@ def _check_dispersions(config: TuneConfig) -> None:
         raise ValueError(f"config key {_key('dispersions')!r} needs {_key('method')} = \"gradient\": a fresh batch "
                          "every iteration, where the ES's elitist selection would compare costs of different batches")
     try:
-        _, leaves = dispersed.parse(config.dispersions, config.mission)
+        _, leaves = draw.parse(config.dispersions, config.mission)
     except ValueError as err:
         message = str(err)  # names the sweep's key, dispersions.X: here it is the campaign's
         raise ValueError(f"{TUNE}.{message}" if message.startswith("dispersions.") else
@@ -366,16 +365,16 @@ def _check_dispersions(config: TuneConfig) -> None:
 
 def _check_samples(config: TuneConfig, leaves: tuple) -> None:
     """The dispersed missions a campaign draws: sample indices within
-    :data:`~so3jax.missions.dispersions.MAX_SAMPLES` (training: samples x iterations), and
+    :data:`~so3jax.missions.draw.MAX_SAMPLES` (training: samples x iterations), and
     each batch within the memory available, before anything is drawn."""
     for section, count in (("train", config.train.samples * config.iterations),
                            ("validation", config.validation.samples)):
-        if count > disp.MAX_SAMPLES:
+        if count > draw.MAX_SAMPLES:
             raise ValueError(f"{_key(section + '.samples')} draws {count} dispersed missions"
                              f"{' over the iterations' if section == 'train' else ''}, more than the "
-                             f"{disp.MAX_SAMPLES} a sampling seed numbers; lower it")
+                             f"{draw.MAX_SAMPLES} a sampling seed numbers; lower it")
         samples = getattr(config, section).samples
-        memory.check(dispersed.samples_bytes(leaves, samples, jnp.result_type(float)), None,
+        memory.check(batched.samples_bytes(leaves, samples, jnp.result_type(float)), None,
                      f"{_key(section + '.samples')} = {samples} dispersed missions",
                      f"lower {_key(section + '.samples')}")
 

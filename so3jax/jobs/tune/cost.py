@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax.jobs.tune.gains import split, to_gains
-from so3jax.missions import dispersed
+from so3jax.missions import batched
 from so3jax.parallel import devices
 from so3jax.sim.gradients import batch_metrics, value_and_grad
 from so3jax.sim.loop import PAPER_LOOP
@@ -88,8 +88,8 @@ def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, missi
     if mission is not None:
         def missions(gains, batch):
             gains, believed = split(gains)
-            m = dispersed.sample_metrics((batch.params, batch.leaves), gains, controller=controller, mission=mission,
-                                         record_every=record_every, estimator=believed)
+            m = batched.sample_metrics((batch.params, batch.leaves), gains, controller=controller, mission=mission,
+                                       record_every=record_every, estimator=believed)
             return Metrics(**{k: m[k] for k in Metrics._fields})
 
         return devices.split(missions, mesh, batched=(False, True))(gains, batch)

@@ -39,7 +39,7 @@ from so3jax.jobs.tune.gains import gain_columns, resolve_gains, tables, to_gains
 from so3jax.jobs.tune.goal_values import GoalValues
 from so3jax.jobs.tune.problem import MAX_DRAWS, Sampler
 from so3jax.jobs.tune.storage import write_history
-from so3jax.missions import dispersed
+from so3jax.missions import batched, draw
 from so3jax.results import io, runfolder
 from so3jax.sim import pointing
 
@@ -54,11 +54,11 @@ FEASIBLE = 1.0  # a hard goal holds where g <= FEASIBLE
 def draw_inputs(sampler: Sampler, seed: int, samples: int, dtype) -> tuple:
     """(sample_metrics' inputs of the valid samples among samples 0 .. samples - 1 of sampling
     seed ``seed``, their indices)."""
-    drawn = dispersed.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, 0, sampler.mission)
+    drawn = draw.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, 0, sampler.mission)
     keep = np.flatnonzero(np.asarray(drawn.valid))
     if not len(keep):
         raise ValueError(f"every dispersed mission of sampling seed {seed} is rejected: narrow the dispersions")
-    inputs = dispersed.inputs(drawn, dtype)
+    inputs = batched.inputs(drawn, dtype)
     return jax.tree.map(lambda x: jnp.asarray(x[keep]), inputs), keep
 
 
@@ -202,7 +202,7 @@ def run(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     controller = config.mission.controller(config.controller)[0]
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
     parameters = Parameters(config, initial)
-    parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+    parsed, leaves = draw.parse(config.dispersions, config.mission)
     sampler = Sampler(parsed, leaves, config.mission)
     train, train_index = draw_inputs(sampler, config.train.seeds[0], config.train.samples, dtype)
     values = GoalValues(goals, config.mission, controller, parameters.unravel)
@@ -357,8 +357,8 @@ def held_out(config, goals, values: GoalValues, parameters: Parameters, sampler,
         gains = parameters.gains(p)
         parts = []
         for chunk, n in chunks(inputs, size):
-            r = dispersed.sample_metrics(chunk, gains, controller=controller, mission=config.mission,
-                                         record_every=config.mission.record_every, pointing=True)
+            r = batched.sample_metrics(chunk, gains, controller=controller, mission=config.mission,
+                                       record_every=config.mission.record_every, pointing=True)
             parts.append({k: np.asarray(v)[:n] for k, v in r.items()})
         results = {k: np.concatenate([p_[k] for p_ in parts]) for k in parts[0]}
         t = np.arange(results["pointing_performance"].shape[1]) * (values.block * config.mission.dt)

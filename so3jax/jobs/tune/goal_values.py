@@ -3,7 +3,7 @@ missions, for N sets of tuned parameters at once (the starts: a vmap), docs/mode
 
 The parameters are flat vectors p (P,) (:func:`jax.flatten_util.ravel_pytree` of the
 log-gains, :func:`so3jax.jobs.tune.gains.to_params`). Requirement and budget goals are
-traced through the batch's rollouts (:func:`so3jax.missions.dispersed.sample_metrics`,
+traced through the batch's rollouts (:func:`so3jax.missions.batched.sample_metrics`,
 the attitude errors recorded on the mission's ``record_every`` grid, the one ``fly`` and
 ``sweep`` check requirements on) and differentiated in forward mode, one JVP per parameter.
 Margin goals linearize each sample's loop at each time about its noise-free flight at the
@@ -23,7 +23,7 @@ from scipy import linalg
 from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.tune.gains import to_gains
 from so3jax.jobs.tune.goals import budget_value, normalized
-from so3jax.missions import dispersed
+from so3jax.missions import batched
 from so3jax.sim import margins, pointing, requirement_values
 from so3jax.sim.rollout import block_steps
 
@@ -56,8 +56,8 @@ class GoalValues:
     # --- requirement and budget goals: traced ---------------------------------------------
 
     def _results(self, p, inputs) -> dict:
-        return dispersed.sample_metrics(inputs, to_gains(self.unravel(p)), controller=self.controller,
-                                        mission=self.mission, record_every=self.mission.record_every, pointing=True)
+        return batched.sample_metrics(inputs, to_gains(self.unravel(p)), controller=self.controller,
+                                      mission=self.mission, record_every=self.mission.record_every, pointing=True)
 
     def _plan(self, p, inputs) -> None:
         """The requirements' plans on the record grid t_m = m b dt of the batch's rollouts."""

@@ -16,7 +16,7 @@ from so3jax.dynamics.scenario import Scenario
 from so3jax.jobs.tune.config import TuneConfig
 from so3jax.jobs.tune.cost import CostRefs, batch_cost_metrics, batch_mean
 from so3jax.jobs.tune.gains import resolve_gains
-from so3jax.missions import dispersed
+from so3jax.missions import batched, draw
 from so3jax.parallel import devices
 from so3jax.parallel.devices import place
 from so3jax.sim.gradients import Batch, checkpoint_steps, make_batch
@@ -24,11 +24,11 @@ from so3jax.sim.loop import Loop
 
 
 class DispersedBatch(NamedTuple):
-    """B dispersed missions (:mod:`so3jax.missions.dispersed`): their parameters and component
+    """B dispersed missions (:mod:`so3jax.missions.draw`): their parameters and component
     values, leading axis B, and which were drawn valid (a rejected draw flies the batch's
     first valid sample in its place and counts for nothing)."""
 
-    params: object  # so3jax.missions.dispersions.RolloutParams
+    params: object  # so3jax.missions.draw.RolloutParams
     leaves: dict
     valid: jax.Array  # (B,) bool
 
@@ -36,8 +36,8 @@ class DispersedBatch(NamedTuple):
 class Sampler(NamedTuple):
     """[tune.dispersions] parsed: what draws a batch of dispersed missions."""
 
-    dispersions: object  # so3jax.missions.dispersions.Dispersions
-    leaves: tuple  # so3jax.missions.dispersed.Leaf, the dispersed component parameters
+    dispersions: object  # so3jax.missions.draw.Dispersions
+    leaves: tuple  # so3jax.missions.draw.Leaf, the dispersed component parameters
     mission: object  # so3jax.missions.mission.Mission, the campaign's (a static argument of jit)
 
 
@@ -86,7 +86,7 @@ def build_problem(config: TuneConfig) -> Problem:
     mode = config.gradient if config.method == "gradient" else None  # the ES differentiates nothing
     record_every = checkpoint_steps(loop, mode, config.record_every)
     if config.dispersions is not None:
-        parsed, leaves = dispersed.parse(config.dispersions, config.mission)
+        parsed, leaves = draw.parse(config.dispersions, config.mission)
         sampler = Sampler(parsed, leaves, config.mission)
         validation = draw_batch(sampler, config.validation.seeds[0], config.validation.samples, 0, dtype, mesh)
         return Problem(place(scenario, mesh), config.controller, None, validation, record_every, mesh,
@@ -100,12 +100,12 @@ def build_problem(config: TuneConfig) -> Problem:
 
 def draw_batch(sampler: Sampler, seed: int, samples: int, first: int, dtype, mesh) -> DispersedBatch:
     """Dispersed missions first .. first + samples - 1 of sampling seed ``seed``."""
-    drawn = dispersed.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, first, sampler.mission)
+    drawn = draw.draw(sampler.dispersions, sampler.leaves, seed, samples, MAX_DRAWS, first, sampler.mission)
     valid = np.asarray(drawn.valid)
     if not valid.any():
         raise ValueError(f"every dispersed mission {first}..{first + samples - 1} of sampling seed {seed} is rejected "
                          "(an inertia not positive definite, or a value outside its domain): narrow the dispersions")
-    params, leaves = dispersed.inputs(drawn, dtype)
+    params, leaves = batched.inputs(drawn, dtype)
     stand_in = np.where(valid, np.arange(samples), int(np.argmax(valid)))  # a rejected draw flies a valid one
     params, leaves = jax.tree.map(lambda x: x[stand_in], (params, leaves))
     return place(DispersedBatch(params, leaves, valid), mesh)
