@@ -199,6 +199,9 @@ class Mission:
             del d["pointing"]
         if not self.requirements:
             del d["requirements"]
+        for r in d.get("requirements", ()):  # a period of its own where given ("after fault")
+            if r["after"] is None:
+                del r["after"]
         if to_builtin(self.reference) == to_builtin(DEFAULT_REFERENCE):
             del d["reference"]
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):

@@ -458,7 +458,7 @@ class Evaluation(NamedTuple):
         r = self.requirement
         return {"name": r.name, "requirement": r.describe(), "index": r.index, "axis": r.axis, "level": r.level,
                 "interpretation": r.interpretation, "window": r.window, "separation": r.separation, "phase": r.phase,
-                "after": r.after,
+                **({} if r.after is None else {"after": r.after}),
                 "limit": r.limit, "value": self.value, "passed": self.passed, "samples": self.samples,
                 "resolved": self.resolved, "unit": "arcsec"}
 
