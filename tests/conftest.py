@@ -4,9 +4,13 @@ processes, the pinned paper metrics among them, run with the command's, configur
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
 folder made fresh for each test session (so a run never reads executables from an
-earlier one): in this process, and in every ``so3jax`` child process the tests start
-(through SO3JAX_CACHE_DIR, which the command line reads). Two children that compile
-the same program (``so3jax paper`` with two seeds, say) compile it once.
+earlier one): by every test worker of the session (the first process to load this file
+makes the folder and removes it at its exit; pytest-xdist's workers inherit it through
+SO3JAX_TEST_SESSION_CACHE), and by every ``so3jax`` child process the tests start
+(through SO3JAX_CACHE_DIR, which the command line reads). A program one worker compiled
+is read by the other; two children that compile the same program (``so3jax paper`` with
+two seeds, say) compile it once. The cache has a size bound, which makes JAX lock it
+(filelock) while an entry is read or written: no process reads a half-written entry.
 """
 
 import atexit
@@ -22,9 +26,15 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
-SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
-atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
+SESSION_CACHE = os.environ.get("SO3JAX_TEST_SESSION_CACHE")
+if not SESSION_CACHE:
+    SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
+    os.environ["SO3JAX_TEST_SESSION_CACHE"] = SESSION_CACHE  # the test workers: the same folder
+    atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
+CACHE_BYTES = 64 * 2**30  # a bound never reached: it turns on JAX's lock on the cache (and its files' atimes)
 jax.config.update("jax_compilation_cache_dir", SESSION_CACHE)
+jax.config.update("jax_compilation_cache_max_size", CACHE_BYTES)
+os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(CACHE_BYTES)  # child processes: the same bound
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cache
