@@ -144,11 +144,11 @@ def test_every_goal_derivative_matches_central_differences(flight_goals):
     for k in range(P.shape[1]):
         step = np.zeros_like(P)
         step[:, k] = h
-        up, _, _ = values(P + step, inputs)  # the same compiled program as the derivative's
-        down, _, _ = values(P - step, inputs)
+        up = np.asarray(values._value(P + step, inputs)[1][0])  # the traced goals' values alone
+        down = np.asarray(values._value(P - step, inputs)[1][0])
         fd = (up - down) / (2 * h)
         assert np.all(jac[:, traced, k] != 0.0)
-        np.testing.assert_allclose(jac[:, traced, k], fd[:, traced], rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(jac[:, traced, k], fd, rtol=1e-5, atol=1e-7)
     # a margin's derivative holds the linearization's point fixed (docs/model.md §16.6)
     margin = values.goals[-1]
     *_, states = values._margin_points(P[0], inputs, margin.at)
