@@ -418,3 +418,22 @@ def test_bad_thruster_faults_are_refused_in_one_line(fault, message):
     with pytest.raises(ValueError, match=message) as err:
         missions.from_dict({**THRUSTERS, "faults": [{"time": 1.0, **fault}]})
     assert "\n" not in str(err.value)
+
+
+def test_time_at_the_torque_limit_reads_a_degraded_wheel_s_own_limit():
+    """A wheel degraded from t = 0 flies as the mission whose wheel has that limit; its time
+    at the torque limit is that mission's (to a tick), where the nominal limit would never
+    bind; a wheel off never binds."""
+    u_max = np.asarray(missions.from_dict(BASE).actuator["wheels"]["max_torque"], float) * np.ones(4)
+    f, slew = 0.01, {**BASE, "initial": {"attitude": [0.3, -0.2, 0.25]}}  # a slew: the commands are large
+    degraded = missions.from_dict({**slew, "faults": [{"time": 0.0, "wheel": 3, "mode": "degraded", "factor": f}]})
+    weak = missions.from_dict({**slew, "actuator": {"wheels": {"max_torque": (u_max * [1, 1, f, 1]).tolist()}}})
+    times = []
+    for m in (degraded, weak):
+        controller, gains = m.controller("pd")
+        times.append(float(sj.simulate(m.scenario(), controller, gains, m.seed, loop=m.loop()).flight
+                           .time_at_torque_limit))
+    assert times[1] > 1.0 and abs(times[0] - times[1]) <= degraded.period_steps * degraded.dt * (1 + 1e-9)
+    loop = missions.from_dict(faulted()).loop(jnp.float64)
+    judged = loop.faults.judged(loop.actuator, jnp.asarray(FAULT))
+    assert np.asarray(judged.max_torque)[0] == np.inf and np.all(np.isfinite(np.asarray(judged.max_torque)[1:]))

@@ -93,6 +93,16 @@ class Faults:
         limit = limit.reshape(limit.shape + (1,) * max(0, scale.ndim - limit.ndim))
         return dataclasses.replace(actuator, max_torque=limit * scale, available=self.available(t, count))
 
+    def judged(self, actuator, t):
+        """The actuator whose limits the flight metrics read at the tick at t [s]: each
+        wheel's torque limit u_max,i s_i(t), a wheel off (s_i = 0) never binding (its limit
+        infinite); the actuator itself where no wheel fails."""
+        if self.wheel is None:
+            return actuator
+        faulted = self.actuator(actuator, t)
+        limit = jnp.asarray(faulted.max_torque)
+        return dataclasses.replace(faulted, max_torque=jnp.where(limit > 0, limit, jnp.inf))
+
     def outage(self, t):
         """Whether the star tracker is out at t [s]: start_k <= t < end_k for some k (*b)."""
         t = jnp.asarray(t)

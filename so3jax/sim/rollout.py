@@ -257,7 +257,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     def one_tick(carry, ds):
         state, k, acc, flight = carry
         new, out = tick(scenario, loop, controller, gains, key, state, k // m)
-        sample = _tick_sample(loop, state, new, out)
+        sample = _tick_sample(loop, state, new, out, time(scenario, k))
         record = _flight_record(scenario, loop, state, out, k, key)._replace(managed=_or_none(new.managed))
         share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
         flight = flight_metrics.update(flight, sample, k < n, share)
@@ -286,10 +286,12 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     )
 
 
-def _tick_sample(loop: Loop, before: State, after: State, out) -> flight_metrics.TickSample:
-    """A tick's contribution to the flight metrics: estimation errors against the truth at t_j, limits."""
+def _tick_sample(loop: Loop, before: State, after: State, out, t) -> flight_metrics.TickSample:
+    """A tick's contribution to the flight metrics at t_j [s]: estimation errors against the
+    truth, limits (with faults, each wheel's degraded limit, a wheel off never binding)."""
     est = out.estimate
-    at_torque, at_speed = loop.actuator.limits(before.actuator, after.held, out.tau_cmd)
+    actuator = loop.actuator if loop.faults is None else loop.faults.judged(loop.actuator, t)
+    at_torque, at_speed = actuator.limits(before.actuator, after.held, out.tau_cmd)
     return flight_metrics.TickSample(
         so3.angle(so3.rmatmul(est.R_hat, before.R)),
         est.bias_hat - out.bias,
