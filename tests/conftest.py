@@ -3,14 +3,14 @@ in-process with JAX's own XLA settings, as a library user gets them (``so3jax`` 
 processes, the pinned paper metrics among them, run with the command's, configure_xla).
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
-folder made fresh for each test session (so a run never reads executables from an
-earlier one): by every test worker of the session (the first process to load this file
-makes the folder and removes it at its exit; pytest-xdist's workers inherit it through
-SO3JAX_TEST_SESSION_CACHE), and by every ``so3jax`` child process the tests start
-(through SO3JAX_CACHE_DIR, which the command line reads). A program one worker compiled
-is read by the other; two children that compile the same program (``so3jax paper`` with
-two seeds, say) compile it once. The cache has a size bound, which makes JAX lock it
-(filelock) while an entry is read or written: no process reads a half-written entry.
+folder made fresh for each test process (so a run never reads executables from an
+earlier one), and the ``so3jax`` child processes the tests start share one of their own
+inside it (SO3JAX_CACHE_DIR, which the command line reads): two children that compile the
+same program (``so3jax paper`` with two seeds, say) compile it once. The children's is
+apart because the command line bounds its cache where ``filelock`` is installed, and a
+bounded cache (JAX's eviction, which reads every entry's access time at each write) must
+not be written by processes that keep no access times. The test processes' own caches are
+unbounded: no eviction scan at each of their thousands of writes.
 """
 
 import atexit
@@ -26,18 +26,12 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
-SESSION_CACHE = os.environ.get("SO3JAX_TEST_SESSION_CACHE")
-if not SESSION_CACHE:
-    SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
-    os.environ["SO3JAX_TEST_SESSION_CACHE"] = SESSION_CACHE  # the test workers: the same folder
-    atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
-CACHE_BYTES = 64 * 2**30  # a bound never reached: it turns on JAX's lock on the cache (and its files' atimes)
+SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
+atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
 jax.config.update("jax_compilation_cache_dir", SESSION_CACHE)
-jax.config.update("jax_compilation_cache_max_size", CACHE_BYTES)
-os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"] = str(CACHE_BYTES)  # child processes: the same bound
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
-os.environ["SO3JAX_CACHE_DIR"] = SESSION_CACHE  # child processes: the same cache
+os.environ["SO3JAX_CACHE_DIR"] = os.path.join(SESSION_CACHE, "children")  # the child processes' cache
 os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"] = "0"
 
 
