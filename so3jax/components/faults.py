@@ -60,12 +60,16 @@ class Faults:
 
     def torque_scale(self, t, count: int):
         """s_i(t) (N, *b): the product of the factors of wheel i's faults acting at t (8.16)."""
-        scale = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
-        scale = jnp.stack([scale] * count)
+        scale = self._ones(t, count)
         for f in range(len(self.wheel)):
             hit = self._hits(f, count) & after(t, self.wheel_time[f])
             scale = jnp.where(hit, scale * self.wheel_factor[f], scale)
         return scale
+
+    def _ones(self, t, count: int):
+        """(N, *b) ones in the factors' dtype, of the batch shape of the ticks' times."""
+        ones = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
+        return jnp.stack([ones] * count)
 
     def _hits(self, f: int, count: int):
         """(N, *b) whether wheel fault f strikes each wheel: i == wheel_f."""
@@ -74,8 +78,7 @@ class Faults:
 
     def available(self, t, count: int):
         """a_i(t) (N, *b): 1 for a wheel the distribution uses at t, 0 for one detected failed (8.17)."""
-        mask = jnp.ones_like(after(t, self.wheel_time[0]), dtype=jnp.asarray(self.wheel_factor).dtype)
-        mask = jnp.stack([mask] * count)
+        mask = self._ones(t, count)
         for f in range(len(self.wheel)):
             mask = jnp.where(self._hits(f, count) & after(t, self.wheel_detected[f]), 0.0, mask)
         return mask

@@ -29,11 +29,16 @@ def applies(config) -> bool:
     return bool(config.mission.faults) and config.pointing
 
 
+def per_sample(samples, i: int, fault: dict, param: str) -> np.ndarray:
+    """(N,) fault i's ``param`` in each sample: drawn (``faults.I.PARAM``) or the mission's."""
+    n = len(samples.params.seed)
+    return np.broadcast_to(samples.leaves.get(f"faults.{i}.{param}", fault[param]), (n,))
+
+
 def fault_times(config, samples) -> np.ndarray:
     """(N, F) each sample's fault times [s]: drawn (``faults.I.time``) or the mission's."""
-    n = len(samples.params.seed)
-    return np.stack([np.broadcast_to(samples.leaves.get(f"faults.{i}.time", f["time"]), (n,)).astype(float)
-                     for i, f in enumerate(config.mission.faults)], axis=1)
+    return np.stack([per_sample(samples, i, f, "time").astype(float) for i, f in enumerate(config.mission.faults)],
+                    axis=1)
 
 
 def period_starts(config, samples) -> dict:
@@ -53,8 +58,7 @@ def cases(config, samples) -> np.ndarray:
     ("wheel 1", "wheels 1, 3", "wheel 2, thruster +x"); "all" for a mission with neither."""
     m = config.mission
     n = len(samples.params.seed)
-    struck = [np.broadcast_to(samples.leaves.get(f"faults.{i}.wheel", f["wheel"]), (n,)).astype(int)
-              for i, f in enumerate(m.faults) if "wheel" in f]
+    struck = [per_sample(samples, i, f, "wheel").astype(int) for i, f in enumerate(m.faults) if "wheel" in f]
     thrusters = sorted({f["thruster"] for f in m.faults if "thruster" in f})
     labels = []
     for w in (np.stack(struck, axis=1).tolist() if struck else [[]] * n):
@@ -107,6 +111,7 @@ def summarize(config, samples, results: dict, cols: dict, simulated: dict, lost:
     m = config.mission
     level = m.pointing["levels"][0]
     case = cols["fault_case"]
+    periods = list(period_starts(config, samples))
     all_bounds, _, _ = sweep_pointing.phases(config)
     out = {}
     for label in sorted(set(case.tolist())):
@@ -115,7 +120,7 @@ def summarize(config, samples, results: dict, cols: dict, simulated: dict, lost:
             members = simulated[c] & (case == label)
             kept = members & ~lost[c]
             row = {"samples": int(members.sum()), "lost": int((members & lost[c]).sum())}
-            for name in period_starts(config, samples):
+            for name in periods:
                 row[name] = {index: _stats(cols[pointing.column(c, index, level, name)][kept])
                              for index in pointing.SAMPLE_COLUMNS}
             if members.any() and m.requirements:
