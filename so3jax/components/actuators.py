@@ -127,6 +127,8 @@ class WheelCommand(NamedTuple):
 
     u: jax.Array  # (N, *b) motor torques, N m (the body receives -G_s u)
     compensation: jax.Array  # (3, *b) Omega_hat x h_w_hat included in u, N m (zeros without)
+    stuck: jax.Array | None = None  # (N, *b) 1 for a wheel stuck at its speed (8.22), 0 else; None: none sticks
+    friction: jax.Array | None = None  # (N, *b) each wheel's friction factor k_i (8.23); None: 1
 
 
 @pytree_dataclass
@@ -150,6 +152,12 @@ class Wheels(Actuator):
     available: None, or (N,) 1 for a wheel the distribution uses and 0 for one it drops (a
     wheel known failed, docs/model.md §8.7): u = -W G_s^T (G_s W G_s^T)^{-1} tau with
     W = diag(available), the distribution of all wheels where every one is available.
+
+    coulomb_friction f_c (N,) [N m], viscous_friction c_v (N,) [N m s/rad], friction_speed
+    omega_lc (N,) [rad/s]: the bearing friction of the wheels the body carries (8.13a), None
+    without friction. stuck (N,): 1 for a wheel stuck at its speed (8.22); friction_factor
+    (N,): k_i, each wheel's friction scaled (8.23); None without such faults (set at a tick by
+    :meth:`so3jax.components.faults.Faults.actuator`, held in the :class:`WheelCommand`).
     """
 
     axes: jax.Array
@@ -162,10 +170,20 @@ class Wheels(Actuator):
     plant_axes: jax.Array | None = None
     plant_spin_inertia: jax.Array | None = None
     available: jax.Array | None = None
+    coulomb_friction: jax.Array | None = None
+    viscous_friction: jax.Array | None = None
+    friction_speed: jax.Array | None = None
+    stuck: jax.Array | None = None
+    friction_factor: jax.Array | None = None
 
     @property
     def count(self) -> int:
         return np.shape(self.axes)[1]
+
+    @property
+    def has_friction(self) -> bool:
+        """Whether the wheels the body carries have bearing friction (8.13a)."""
+        return self.coulomb_friction is not None
 
     def _axes(self, like, plant: bool = False):
         """G_s (the plant's with ``plant``) as (3, N, 1, ...) in the dtype of ``like`` (3 or N, *b)."""
@@ -268,15 +286,49 @@ class Wheels(Actuator):
         tau = tau_c + compensation
         u = self.torque_limited(wanted, _per_wheel(self.max_torque, tau))
         faster = (jnp.abs(state) >= _per_wheel(self.max_speed, tau)) & (u * state > 0)
-        return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation)
+        held = [None if x is None else jnp.broadcast_to(_per_wheel(x, state), state.shape)
+                for x in (self.stuck, self.friction_factor)]
+        return WheelCommand(jnp.where(faster, jnp.zeros_like(u), u), compensation, *held)
 
     def torque_limited(self, u, u_max):
         """The motor torques u (N, *b) clipped to +-u_max (N, *b) [N m]."""
         return jnp.clip(u, -u_max, u_max)
 
+    def friction_torque(self, state, factor=None):
+        """tau_f (N, *b) [N m], the bearing friction on each wheel at its relative speed
+        Omega_w (N, *b) (docs/model.md (8.13a), Basilisk's reactionWheelStateEffector without
+        Stribeck): -(f_c sign(Omega_w) + c_v Omega_w) for |Omega_w| >= omega_lc, linear within
+        (-(f_c + c_v omega_lc) / omega_lc Omega_w); f_c and c_v scaled by ``factor`` k_i (N, *b)."""
+        f_c, c_v = _per_wheel(self.coulomb_friction, state), _per_wheel(self.viscous_friction, state)
+        limit = _per_wheel(self.friction_speed, state)
+        if factor is not None:
+            f_c, c_v = factor * f_c, factor * c_v
+        outside = jnp.sign(state) * f_c + c_v * state
+        inside = (f_c + c_v * limit) / limit * state
+        return -jnp.where(jnp.abs(state) < limit, inside, outside)
+
+    def _spin_torque(self, state, held):
+        """u + tau_f (N, *b) [N m], the torque on each wheel about its axis besides a stuck
+        wheel's constraint (0 on a stuck wheel: the body carries it, (8.22))."""
+        torque = held.u if not self.has_friction else held.u + self.friction_torque(state, held.friction)
+        return torque if held.stuck is None else jnp.where(held.stuck > 0, jnp.zeros_like(torque), torque)
+
     def body_torque(self, state, held, Omega):
-        """-G_s u (3, *b) [N m], along the axes the body carries."""
-        return -_spin_sum(self._axes(held.u, plant=True), held.u)
+        """-G_s (u + tau_f) (3, *b) [N m], along the axes the body carries."""
+        return -_spin_sum(self._axes(held.u, plant=True), self._spin_torque(state, held))
+
+    def constrained_inertia(self, held):
+        """sum_i s_i J_s,i g_i g_i^T (3, 3, *b) [kg m^2] of the wheels stuck (s_i = 1, (8.22)),
+        None where none can stick."""
+        if held.stuck is None:
+            return None
+        G = jnp.asarray(self._plant_axes()).astype(held.u.dtype)
+        w = held.stuck * _per_wheel(self._plant_spin_inertia(), held.u)
+        unit = (1,) * (w.ndim - 1)
+        total = so3.outer(G[:, 0], G[:, 0]).reshape((3, 3) + unit) * w[0]
+        for i in range(1, self.count):
+            total = total + so3.outer(G[:, i], G[:, i]).reshape((3, 3) + unit) * w[i]
+        return total
 
     def uncompensated_momentum(self, state, Omega_hat):
         """h_w_hat (from Omega_hat and the tachometers) without the momentum compensation,
@@ -293,9 +345,11 @@ class Wheels(Actuator):
         return self.body_torque(state, held, Omega) - held.compensation
 
     def derivative(self, state, held, Omega, Omega_dot):
-        """Omega_w' = J_s^{-1} u - G_s^T Omega' (N, *b) [rad/s^2] (docs/model.md §8.4)."""
-        return (held.u / _per_wheel(self._plant_spin_inertia(), Omega)
+        """Omega_w' = J_s^{-1} (u + tau_f) - G_s^T Omega' (N, *b) [rad/s^2] (docs/model.md §8.4),
+        0 on a wheel stuck at its speed (8.22)."""
+        rate = (self._spin_torque(state, held) / _per_wheel(self._plant_spin_inertia(), Omega)
                 - so3.rmatvec(self._axes(Omega, plant=True), Omega_dot))
+        return rate if held.stuck is None else jnp.where(held.stuck > 0, jnp.zeros_like(rate), rate)
 
     def effort(self, held):
         """sum_i u_i^2 [N^2 m^2]."""
@@ -337,6 +391,10 @@ class Wheels(Actuator):
             _check_values("wheel plant_axes", self.plant_axes, shape)
         if self.plant_spin_inertia is not None:
             _check_values("wheel plant_spin_inertia [kg m^2]", self.plant_spin_inertia, (n,), positive=True)
+        if self.has_friction:
+            _check_values("wheel coulomb_friction [N m]", self.coulomb_friction, (n,), nonnegative=True)
+            _check_values("wheel viscous_friction [N m s/rad]", self.viscous_friction, (n,), nonnegative=True)
+            _check_values("wheel friction_speed [rad/s]", self.friction_speed, (n,), positive=True)
         speed, limit = _values(self.initial_speed), _values(self.max_speed)
         if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
             i = int(np.argmax(np.abs(speed) > limit))
@@ -371,7 +429,9 @@ def pyramid_axes(n: int = 4, elevation_deg: float = 54.74, azimuth0_deg: float =
 _PYRAMID = [[0.8165408118857462, 0.0, 0.5772877120855479], [0.0, 0.8165408118857462, 0.5772877120855479],
             [-0.8165408118857462, 0.0, 0.5772877120855479], [0.0, -0.8165408118857462, 0.5772877120855479]]
 _PER_WHEEL = ((), (None,))  # one value for every wheel, or one per wheel
-_WHEEL_LISTS = ("spin_inertia", "max_torque", "max_speed", "initial_speed", "spin_inertia_error")
+FRICTION_KEYS = ("coulomb_friction", "viscous_friction", "friction_speed")  # a wheel's bearing friction (8.13a)
+MAX_FRICTION_STEP = 2.0  # dt times friction_rate() at most: within RK4's real-axis stability limit (about 2.79)
+_WHEEL_LISTS = ("spin_inertia", "max_torque", "max_speed", "initial_speed", "spin_inertia_error") + FRICTION_KEYS
 
 
 def _wheel_values(values: dict) -> dict:
@@ -396,6 +456,17 @@ def _wheel_values(values: dict) -> dict:
     return out
 
 
+def friction_rate(values: dict, factor: float = 1.0) -> float:
+    """The fastest rate the wheels' friction alone sets a wheel's speed to decay at [1/s]:
+    max_i k (f_c,i / omega_lc,i + c_v,i) / J_s,i, the friction's slope at rest (8.13a) over
+    the wheel's spin inertia, with its friction scaled by ``factor`` k (a fault's, (8.23));
+    the plant's RK4 step dt is stable for dt times it up to about 2.8 (checked against
+    :data:`MAX_FRICTION_STEP`)."""
+    slope = np.asarray(values["coulomb_friction"], float) / np.asarray(values["friction_speed"], float)
+    spin = np.asarray(values["spin_inertia"], float) * (1.0 + np.asarray(values["spin_inertia_error"], float))
+    return float(np.max(factor * (slope + np.asarray(values["viscous_friction"], float)) / spin))
+
+
 def _known_zero(x) -> bool:
     """x is concrete and all zero (a dispersed, traced value is not)."""
     return isinstance(x, (int, float, np.ndarray, list)) and not np.any(np.asarray(x))
@@ -409,8 +480,10 @@ def _wheels(w: dict, ctx) -> Wheels:
     axes, spin = a(w["axes"].T), a(w["spin_inertia"])
     plant_axes = None if _known_zero(w["misalignment"]) else so3.matvec(so3.exp(a(w["misalignment"]).T), axes)
     plant_spin = None if _known_zero(w["spin_inertia_error"]) else spin * (1 + a(w["spin_inertia_error"]))
+    frictionless = _known_zero(w["coulomb_friction"]) and _known_zero(w["viscous_friction"])
+    friction = (None,) * 3 if frictionless else tuple(a(w[k]) for k in FRICTION_KEYS)
     return Wheels(axes, spin, a(w["max_torque"]), a(w["max_speed"]), a(w["initial_speed"]),
-                  bool(w["momentum_compensation"]), motor, plant_axes, plant_spin)
+                  bool(w["momentum_compensation"]), motor, plant_axes, plant_spin, None, *friction)
 
 
 components.register(components.ComponentSpec(
@@ -441,6 +514,12 @@ components.register(components.ComponentSpec(
                   "keeping `axes` (default: none)"),
         Param("spin_inertia_error", 0.0, "-", shapes=_PER_WHEEL, low=-0.9, high=10.0,
               doc="the body's wheels have J_s (1 + error), the flight software keeping `spin_inertia`"),
+        Param("coulomb_friction", 0.0, "N m", shapes=_PER_WHEEL, low=0.0,
+              doc="bearing friction f_c, against the wheel's speed relative to the body (Basilisk's fCoulomb)"),
+        Param("viscous_friction", 0.0, "N m s/rad", shapes=_PER_WHEEL, low=0.0,
+              doc="bearing friction c_v Omega_w (Basilisk's cViscous)"),
+        Param("friction_speed", 1e-4, "rad/s", shapes=_PER_WHEEL, low=0.0, low_excluded=True,
+              doc="below this speed the friction is linear in it, to 0 at rest (Basilisk's omegaLimitCycle)"),
     ),
     complete=_wheel_values,
     effort_label="motor effort",

@@ -131,6 +131,12 @@ class Actuator(abc.ABC):
         (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]."""
         return None
 
+    def constrained_inertia(self, held):
+        """None, or the part of J_locked the held input ties to the body (3, 3, *b) [kg m^2]
+        (a wheel stuck at its speed, docs/model.md (8.22)): the plant then solves with
+        J - J_locked + it."""
+        return None
+
     def derivative(self, state, held, Omega, Omega_dot):
         """Its state's rate given the body's (() without state)."""
         return ()

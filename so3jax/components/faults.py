@@ -49,6 +49,8 @@ class Faults:
     wheel_time: jax.Array | None = None
     wheel_factor: jax.Array | None = None
     wheel_detected: jax.Array | None = None
+    wheel_stuck: jax.Array | None = None
+    wheel_friction: jax.Array | None = None
     outage_start: jax.Array | None = None
     outage_end: jax.Array | None = None
     bias_time: jax.Array | None = None
@@ -60,11 +62,19 @@ class Faults:
 
     def torque_scale(self, t, count: int):
         """s_i(t) (N, *b): the product of the factors of wheel i's faults acting at t (8.16)."""
+        return self._product(t, count, self.wheel_factor)
+
+    def _product(self, t, count: int, factors):
+        """(N, *b): the product of ``factors`` (F,) of wheel i's faults acting at t."""
         scale = self._ones(t, count)
         for f in range(len(self.wheel)):
             hit = self._hits(f, count) & after(t, self.wheel_time[f])
-            scale = jnp.where(hit, scale * self.wheel_factor[f], scale)
+            scale = jnp.where(hit, scale * factors[f], scale)
         return scale
+
+    def stuck(self, t, count: int):
+        """(N, *b): 1 for a wheel stuck at its speed at t (8.22), 0 else."""
+        return 1.0 - self._product(t, count, 1.0 - jnp.asarray(self.wheel_stuck))
 
     def _ones(self, t, count: int):
         """(N, *b) ones in the factors' dtype, of the batch shape of the ticks' times."""
@@ -85,8 +95,9 @@ class Faults:
 
     def actuator(self, actuator, t):
         """The actuator as the tick at t [s] drives it: each wheel's motor torque limit
-        u_max,i s_i(t), the distribution over the wheels available (a_i(t)); the actuator
-        itself where no wheel fails."""
+        u_max,i s_i(t), the distribution over the wheels available (a_i(t)), the wheels stuck
+        (8.22) and their friction factors (8.23) where the mission has such faults; the
+        actuator itself where no wheel fails."""
         if self.wheel is None:
             return actuator
         count = actuator.count
@@ -94,7 +105,10 @@ class Faults:
         scale = self.torque_scale(t, count).astype(limit.dtype)
         scale = scale.reshape(scale.shape + (1,) * max(0, limit.ndim - scale.ndim))
         limit = limit.reshape(limit.shape + (1,) * max(0, scale.ndim - limit.ndim))
-        return dataclasses.replace(actuator, max_torque=limit * scale, available=self.available(t, count))
+        stuck = None if self.wheel_stuck is None else self.stuck(t, count)
+        friction = None if self.wheel_friction is None else self._product(t, count, self.wheel_friction)
+        return dataclasses.replace(actuator, max_torque=limit * scale, available=self.available(t, count),
+                                   stuck=stuck, friction_factor=friction)
 
     def judged(self, actuator, t):
         """The actuator whose limits the flight metrics read at the tick at t [s]: each

@@ -138,7 +138,7 @@ def angular_acceleration(J, omega, torque, J_dot=None):
 def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
     """(Omega' [rad/s^2], the actuator state's rate) with the actuator's input ``held``:
 
-        (J - J_locked) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
+        (J - J_locked [+ J_constrained]) Omega' = -Omega x (J Omega + h_rel) + tau_body + d [- J' Omega]
 
     (docs/model.md §8.4; §1 where the actuator stores no momentum, then computed as the
     paper's mode always has). J, J_dot (3, 3, ...) [kg m^2, kg m^2/s]; Omega, d (3, *b);
@@ -157,5 +157,8 @@ def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
         if J_dot is not None:
             rhs = rhs - so3.matvec(J_dot, Omega)
         J_body = J - so3.batch_like(stored.locked_inertia, 2, Omega)
+        constrained = actuator.constrained_inertia(held)
+        if constrained is not None:  # a stuck wheel spins with the body (docs/model.md (8.22))
+            J_body = J_body + constrained
         Omega_dot = so3.solve_spd(J_body, materialize(rhs, t))
     return Omega_dot, actuator.derivative(state, held, Omega, Omega_dot)

@@ -135,6 +135,7 @@ FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, T
                 "star_tracker": {"time": (0.0, math.inf, False), "end": (0.0, math.inf, False)},
                 "gyro": {"time": (0.0, math.inf, False), "step": (-math.inf, math.inf, False)},
                 "thruster": {"time": (0.0, math.inf, False)}}
+FRICTION_FACTOR = {"friction": (0.0, math.inf, False)}  # a friction fault's factor: >= 0 (8.23)
 FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s", "wheel": "-"}  # samples.csv's units
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {
@@ -511,10 +512,11 @@ def _fault_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     if param not in FAULT_LEAVES[target]:
         raise ValueError(f"{where}: a {target.replace('_', ' ')} fault disperses "
                          f"{', '.join(FAULT_LEAVES[target])}, not {param!r}")
-    if param == "factor" and fault["mode"] != "degraded":
-        raise ValueError(f"{where}: wheel {fault['wheel']} fails off (no factor); a degraded wheel's factor is "
-                         "dispersed")
-    low, high, high_excluded = FAULT_LEAVES[target][param]
+    if param == "factor" and fault["mode"] not in FRICTION_FACTOR and fault["mode"] != "degraded":
+        raise ValueError(f"{where}: wheel {fault['wheel']} is {fault['mode']} (no factor); a degraded wheel's "
+                         "factor, or its friction's, is dispersed")
+    low, high, high_excluded = FAULT_LEAVES[target][param] if param != "factor" else FRICTION_FACTOR.get(
+        fault["mode"], FAULT_LEAVES[target][param])
     if param == "wheel":  # which wheel fails: one of the mission's, 1-based
         high = float(len(mission.actuator["wheels"]["axes"]))
         dist = _distribution(value, where)
@@ -856,7 +858,7 @@ def _scenario_checks(mission: Mission, values: dict, n_samples: int) -> dict:
 
 
 def _wheels_span(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
-    """(N,) whether each sample's wheels left after those failed off (``values``' drawn
+    """(N,) whether each sample's wheels left after those failed off or stuck (``values``' drawn
     wheels, the mission's where not drawn) span 3-D, or the loop never drops them (fdir
     detection "never", which flies the sample unaware, as ``fly`` does)."""
     if mission.fdir["detection"] == "never":
@@ -864,7 +866,7 @@ def _wheels_span(mission: Mission, values: dict, n_samples: int) -> np.ndarray:
     axes = np.asarray(mission.actuator["wheels"]["axes"], float)
     off = np.zeros((n_samples, len(axes)), bool)
     for i, fault in enumerate(mission.faults):
-        if fault.get("mode") == "off":
+        if fault_list.lost(fault):
             wheel = np.broadcast_to(values.get(f"faults.{i}.wheel", fault["wheel"]), (n_samples,)).astype(int)
             off[np.arange(n_samples), wheel - 1] = True
     return fault_list.spanning(axes, off)

@@ -3,13 +3,15 @@ with one-line errors naming the key, before anything compiles, and built into th
 :class:`~so3jax.components.faults.Faults`.
 
 Each ``[[faults]]`` entry has a ``time`` [s] and one target: ``wheel = i`` (1-based) with
-``mode = "off"`` or ``"degraded"`` and its ``factor`` in [0, 1); ``star_tracker = "outage"``
+``mode = "off"``, ``"stuck"`` (at its speed), ``"degraded"`` with its torque limit's ``factor``
+in [0, 1), or ``"friction"`` with its bearing friction's ``factor`` >= 0 (not 1); ``star_tracker = "outage"``
 with its ``end`` [s]; ``gyro = "bias step"`` with its ``step`` [rad/s] (3,); ``thruster =
 "+x"`` (one of :data:`THRUSTERS`: the thruster of the momentum manager's pair on that body
 axis that fires a torque of that sign, ``momentum.kind = "thrusters"``) with ``mode = "off"``
 (optional, the only mode). ``[fdir]`` says what the loop knows of a wheel or a thruster
-that fails off: ``detection = "never"`` (the default), or ``latency`` [s] after the fault,
-when the distribution drops that wheel, or the flight software stops firing that thruster.
+that fails off or sticks (:data:`LOST_MODES`): ``detection = "never"`` (the default), or
+``latency`` [s] after the fault, when the distribution drops that wheel, or the flight
+software stops firing that thruster.
 """
 
 from __future__ import annotations
@@ -26,11 +28,10 @@ from so3jax.core import checks
 
 TARGETS = ("wheel", "star_tracker", "gyro", "thruster")  # what an entry fails (one each)
 KEYS = ("time", "end", "mode", "factor", "step") + TARGETS  # an entry's keys
-WHEEL_MODES = ("off", "degraded")
+WHEEL_MODES = ("off", "stuck", "degraded", "friction")
+LOST_MODES = ("off", "stuck")  # a wheel that delivers none of its command: detected, dropped, < 3-D refused
 THRUSTERS = ("+x", "-x", "+y", "-y", "+z", "-z")  # a thruster: the sign of its torque and its body axis
 THRUSTER_MODES = ("off",)
-UNMODELED_MODES = {"stuck": "the model has no locked-wheel dynamics (a wheel's speed is free to change)",
-                   "friction": "the model has no wheel friction"}
 TARGET_VALUES = {"star_tracker": "outage", "gyro": "bias step"}
 DETECTIONS = ("never", "latency")
 NO_FDIR = {"detection": "never"}  # the default: the loop never learns of a fault
@@ -58,22 +59,29 @@ def parse_fdir(table) -> dict:
     return {"detection": "latency", "latency": latency}
 
 
-def parse(entries, *, wheels: np.ndarray | None, sensors: tuple, momentum: str, sampled: bool, fdir: dict) -> tuple:
+def lost(fault: dict) -> bool:
+    """Whether a parsed fault is a wheel's that delivers none of its command from its time
+    (:data:`LOST_MODES`): the loop detects it and drops the wheel."""
+    return fault.get("mode") in LOST_MODES and "wheel" in fault
+
+
+def parse(entries, *, wheels: dict | None, sensors: tuple, momentum: str, sampled: bool, fdir: dict) -> tuple:
     """The ``[[faults]]`` entries as plain dicts, checked against the mission: wheels: the
-    wheels' axes (N, 3) (None without wheels); sensors: the sensors flown; momentum: the
+    ``[actuator.wheels]`` table (None without wheels); sensors: the sensors flown; momentum: the
     momentum manager's kind; sampled: the loop has control ticks. One-line ValueError
     naming the key; a :class:`ControllabilityWarning` where wheels failed off leave the
-    others spanning less than 3-D and the loop never drops them (an error where it does)."""
+    others spanning less than 3-D and the loop never drops them (an error where it does); a
+    wheel failed off or stuck counts as failed."""
     if not isinstance(entries, (list, tuple)):
         raise ValueError(f"faults must be a list of tables ([[faults]]), got {checks.short(entries)}")
     if entries and not sampled:
         raise ValueError("faults act at the control ticks: they need the sampled loop (control.mode = 'sampled')")
     out = tuple(_entry(e, f"faults[{i}]", wheels, sensors, momentum) for i, e in enumerate(entries))
-    off = sorted({f["wheel"] for f in out if f.get("mode") == "off"})
+    off = sorted({f["wheel"] for f in out if lost(f)})
     if off and wheels is not None:
-        failed = np.isin(np.arange(1, np.shape(wheels)[0] + 1), off)
-        if not spanning(wheels, failed):
-            what = (f"with wheel(s) {', '.join(map(str, off))} off the others no longer span 3-D: the mission is no "
+        axes = wheels["axes"]
+        if not spanning(axes, np.isin(np.arange(1, np.shape(axes)[0] + 1), off)):
+            what = (f"with wheel(s) {', '.join(map(str, off))} failed the others no longer span 3-D: the mission is no "
                     "longer controllable about some axis")
             if fdir["detection"] != "never":
                 raise ValueError(f"faults: {what} (the reconfigured distribution has no inverse; "
@@ -135,26 +143,38 @@ def _wheel(entry, where: str, wheels) -> dict:
     """A wheel fault: {"wheel": i (1-based), "mode", "factor"}."""
     if wheels is None:
         raise ValueError(f"{where}.wheel: the mission flies no wheels (actuator.kind = 'wheels')")
-    n = np.shape(wheels)[0]
+    n = np.shape(wheels["axes"])[0]
     index = entry["wheel"]
     if isinstance(index, bool) or not isinstance(index, int) or not 1 <= index <= n:
         raise ValueError(f"{where}.wheel must be a wheel's index, 1 to {n} (the mission's wheels), "
                          f"got {checks.short(index)}")
-    mode = entry.get("mode", "off")
-    if mode in UNMODELED_MODES:
-        raise ValueError(f"{where}.mode = {mode!r} is not modeled: {UNMODELED_MODES[mode]}; "
-                         f"modes: {', '.join(WHEEL_MODES)}")
-    mode = checks.choice(mode, f"{where}.mode", WHEEL_MODES)
-    if mode == "off":
+    mode = checks.choice(entry.get("mode", "off"), f"{where}.mode", WHEEL_MODES)
+    if mode in LOST_MODES:
         if "factor" in entry:
-            raise ValueError(f"{where}.factor is a degraded wheel's (mode = 'degraded'); an off wheel delivers none")
-        return {"wheel": index, "mode": "off", "factor": 0.0}
+            raise ValueError(f"{where}.factor is a degraded wheel's or its friction's (mode = 'degraded' or "
+                             f"'friction'); a wheel {mode} delivers no torque")
+        return {"wheel": index, "mode": mode, "factor": 0.0}
+    if mode == "friction":
+        return {"wheel": index, "mode": mode, "factor": _friction_factor(entry, where, wheels)}
     if "factor" not in entry:
         raise ValueError(f"{where}.factor is missing: the degraded wheel's torque limit factor, in [0, 1)")
     factor = checks.number(entry["factor"], f"{where}.factor", low=0.0, high=1.0)
     if factor >= 1.0:
         raise ValueError(f"{where}.factor must be in [0, 1) (1: no fault), got {factor:g}")
     return {"wheel": index, "mode": "degraded", "factor": factor}
+
+
+def _friction_factor(entry, where: str, wheels: dict) -> float:
+    """A friction fault's factor k >= 0 (not 1) on wheels that have bearing friction."""
+    if not np.any(np.asarray(wheels["coulomb_friction"])) and not np.any(np.asarray(wheels["viscous_friction"])):
+        raise ValueError(f"{where}: the mission's wheels have no bearing friction to scale (set "
+                         "actuator.wheels.coulomb_friction or viscous_friction)")
+    if "factor" not in entry:
+        raise ValueError(f"{where}.factor is missing: the factor the wheel's bearing friction is scaled by, >= 0")
+    factor = checks.number(entry["factor"], f"{where}.factor", low=0.0)
+    if factor == 1.0:
+        raise ValueError(f"{where}.factor = 1 scales the friction by nothing: no fault")
+    return factor
 
 
 def _thruster(entry, where: str, momentum: str) -> dict:
@@ -176,7 +196,8 @@ def _thruster(entry, where: str, momentum: str) -> dict:
 def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     """The loop's :class:`~so3jax.components.faults.Faults` of the parsed entries, None
     without any. A wheel or a thruster failed off is detected ``fdir.latency`` after its
-    time (never with ``detection = "never"``); a degraded wheel stays in the distribution."""
+    time (never with ``detection = "never"``), as is a wheel stuck; a degraded wheel, or one
+    whose friction changes, stays in the distribution."""
     if not faults:
         return None
     latency = fdir.get("latency") if fdir["detection"] == "latency" else None
@@ -186,11 +207,17 @@ def model(faults: tuple, fdir: dict, as_array) -> Faults | None:
     thruster = [f for f in faults if "thruster" in f]
     values = {}
     if wheel:
-        detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in wheel]
+        detected = [f["time"] + latency if lost(f) and latency is not None else math.inf for f in wheel]
+        friction = [f["mode"] == "friction" for f in wheel]
         values.update(wheel=as_array(_stack([f["wheel"] for f in wheel])) - 1,
                       wheel_time=as_array(_stack([f["time"] for f in wheel])),
-                      wheel_factor=as_array(_stack([f["factor"] for f in wheel])),
+                      wheel_factor=as_array(_stack([1.0 if rubs else f["factor"] for f, rubs in zip(wheel, friction)])),
                       wheel_detected=as_array(_stack(detected)))
+        if any(f["mode"] == "stuck" for f in wheel):
+            values["wheel_stuck"] = as_array(_stack([float(f["mode"] == "stuck") for f in wheel]))
+        if any(friction):
+            values["wheel_friction"] = as_array(_stack([f["factor"] if rubs else 1.0
+                                                        for f, rubs in zip(wheel, friction)]))
     if outage:
         values.update(outage_start=as_array(_stack([f["time"] for f in outage])),
                       outage_end=as_array(_stack([f["end"] for f in outage])))

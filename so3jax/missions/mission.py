@@ -24,6 +24,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.components import actuators
 from so3jax.components import registry as components
 from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
@@ -202,6 +203,10 @@ class Mission:
         for r in d.get("requirements", ()):  # a period of its own where given ("after fault")
             if r["after"] is None:
                 del r["after"]
+        wheels = d["actuator"].get("wheels")
+        if wheels is not None and not np.any(wheels["coulomb_friction"]) and not np.any(wheels["viscous_friction"]):
+            for key in actuators.FRICTION_KEYS:  # frictionless wheels: no friction described (friction_speed acts
+                del wheels[key]  # only with friction)
         if to_builtin(self.reference) == to_builtin(DEFAULT_REFERENCE):
             del d["reference"]
         if to_builtin(self.phases) == to_builtin(PAPER_PHASES):
@@ -392,9 +397,11 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     _check_wiring(period_steps, sensors, estimator["kind"])
     schedule = schedules.parse(full.get("schedule", {}), controllers)
     fdir = fault_list.parse_fdir(d.get("fdir"))
-    faults = fault_list.parse(d.get("faults", []), wheels=actuator["wheels"]["axes"] if actuator["kind"] == "wheels"
-                              else None, sensors=tuple(sensors), momentum=momentum["kind"],
+    wheels = actuator["wheels"] if actuator["kind"] == "wheels" else None
+    faults = fault_list.parse(d.get("faults", []), wheels=wheels, sensors=tuple(sensors), momentum=momentum["kind"],
                               sampled=period_steps is not None, fdir=fdir)
+    if wheels is not None:
+        _check_friction_step(wheels, dt, faults)
 
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
@@ -623,6 +630,18 @@ def _initial(given: dict, full: dict) -> dict:
     sin_half = np.linalg.norm(v)
     angle = 2.0 * np.arctan2(sin_half, w)
     return {"attitude": v * (angle / sin_half) if sin_half > 0 else np.zeros(3), "rate": rate}
+
+
+def _check_friction_step(wheels: dict, dt: float, faults: tuple) -> None:
+    """ValueError where the wheels' bearing friction, scaled by the largest friction fault's
+    factor, decays a wheel's speed too fast for the plant's RK4 step (docs/model.md (8.13a))."""
+    factor = max([1.0] + [f["factor"] for f in faults if f.get("mode") == "friction"])
+    rate = actuators.friction_rate(wheels, factor)
+    if dt * rate > actuators.MAX_FRICTION_STEP:
+        raise ValueError(f"actuator.wheels: the bearing friction's slope at rest (f_c / friction_speed + c_v"
+                         f"{f', times the friction fault factor {factor:g}' if factor != 1.0 else ''}) over J_s is "
+                         f"{rate:.4g} 1/s, too steep for dt = {dt:g} s (dt times it at most "
+                         f"{actuators.MAX_FRICTION_STEP:g}): raise friction_speed or lower dt")
 
 
 def _check_wiring(period_steps, sensors: dict, estimator: str) -> None:

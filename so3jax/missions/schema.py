@@ -295,10 +295,11 @@ def faults() -> dict:
                 "[time, end)) [s]"},
         "wheel": {"type": "integer", "minimum": 1, "description": "the wheel that fails (1-based)"},
         "mode": {"enum": list(fault_list.WHEEL_MODES), "default": "off",
-                 "description": "off: a wheel's motor or a thruster delivers no torque; degraded (a wheel's): its "
-                 "torque limit times factor"},
-        "factor": {"type": "number", "minimum": 0, "exclusiveMaximum": 1,
-                   "description": "a degraded wheel's torque limit factor, in [0, 1)"},
+                 "description": "off: a wheel's motor or a thruster delivers no torque; stuck (a wheel's): it "
+                 "keeps its speed relative to the body; degraded: its torque limit times factor; friction: its "
+                 "bearing friction times factor"},
+        "factor": {"type": "number", "minimum": 0,
+                   "description": "a degraded wheel's torque limit factor, in [0, 1), or a friction fault's, >= 0"},
         "star_tracker": {"const": fault_list.TARGET_VALUES["star_tracker"],
                          "description": "no star-tracker sample in [time, end)"},
         "gyro": {"const": fault_list.TARGET_VALUES["gyro"], "description": "a step in the gyro's bias from time on"},

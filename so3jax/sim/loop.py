@@ -148,10 +148,11 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
     if loop.continuous:
         return state
     zero = jnp.zeros_like(Omega0)
+    actuator = loop.actuator if loop.faults is None else loop.faults.actuator(loop.actuator, jnp.zeros((), dtype))
     return state._replace(
         sensors=loop.sensors.init(batch_shape, dtype),
         estimator=loop.estimator.init(R0, batch_shape, dtype),
-        held=loop.actuator.command(state.actuator, zero, zero),
+        held=actuator.command(state.actuator, zero, zero),  # the held input's structure; tick 0 sets it
     )
 
 

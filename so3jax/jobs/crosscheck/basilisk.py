@@ -6,8 +6,10 @@ under a point-mass Earth), attTrackingError and mrpFeedback. The dynamics task s
 the mission's dt and runs before the flight-software task, which ticks at the control
 period: a tick reads the state at its time and its command is held over the period, as in
 so3jax's sampled loop. A wheel fault acts at so3jax's tick: the effector's motor torque
-limit of that wheel scaled (a wheel failed off zeroes its command), and rwMotorTorque's
-availability message drops a wheel detected failed. Basilisk is imported here only (the
+limit of that wheel scaled (a wheel failed off zeroes its command), its friction
+coefficients scaled, and rwMotorTorque's availability message drops a wheel detected
+failed. The wheels' bearing friction is the effector's Coulomb and viscous model with its
+limit-cycle speed (Stribeck off). Basilisk is imported here only (the
 ``basilisk`` extra)."""
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from so3jax.components.actuators import FRICTION_KEYS
 from so3jax.dynamics.orbit import MU_EARTH
+from so3jax.missions import faults as fault_list
 
 INSTALL = 'pip install -e ".[basilisk]"'
 
@@ -102,11 +106,13 @@ def inertias(mission) -> tuple[np.ndarray, list]:
 
 class WheelFaults(NamedTuple):
     """The wheel faults as the control ticks see them: limits [(j, s (N,))], each control
-    tick j from which the wheels' torque limits are u_max,i s_i (8.16), and available
-    [(j, a (N,))], each tick j from which the distribution uses the wheels with a_i = 1 (8.17)."""
+    tick j from which the wheels' torque limits are u_max,i s_i (8.16), available
+    [(j, a (N,))], each tick j from which the distribution uses the wheels with a_i = 1 (8.17),
+    and friction [(j, k (N,))], each tick j from which wheel i's friction is scaled by k_i (8.23)."""
 
     limits: list
     available: list
+    friction: list
 
 
 def tick_time(mission, j: int) -> float:
@@ -132,16 +138,16 @@ def wheel_faults(mission) -> WheelFaults:
     wheel dropped). s_i and a_i at each such tick as so3jax's Faults compute them."""
     faults = [f for f in mission.faults if "wheel" in f]
     if not faults:
-        return WheelFaults([], [])
+        return WheelFaults([], [], [])
     n = len(mission.actuator["wheels"]["axes"])
     latency = mission.fdir.get("latency") if mission.fdir["detection"] == "latency" else None
-    detected = [f["time"] + latency if f["mode"] == "off" and latency is not None else math.inf for f in faults]
+    detected = [f["time"] + latency if fault_list.lost(f) and latency is not None else math.inf for f in faults]
     ticks = round(mission.T / mission.period)
 
-    def scale(t):
+    def product(t, modes):
         s = [1.0] * n
         for f in faults:
-            s[f["wheel"] - 1] *= f["factor"] if t >= f["time"] else 1.0
+            s[f["wheel"] - 1] *= f["factor"] if t >= f["time"] and f["mode"] in modes else 1.0
         return np.asarray(s)
 
     def available(t):
@@ -154,7 +160,10 @@ def wheel_faults(mission) -> WheelFaults:
         at = sorted({first_tick(mission, t) for t in times if not math.isinf(t)})
         return [(j, of(tick_time(mission, j))) for j in at if j < ticks]
 
-    return WheelFaults(changes([f["time"] for f in faults], scale), changes(detected, available))
+    rubbing = [f["time"] for f in faults if f["mode"] == "friction"]
+    return WheelFaults(changes([f["time"] for f in faults if f["mode"] != "friction"],
+                               lambda t: product(t, ("off", "stuck", "degraded"))),
+                       changes(detected, available), changes(rubbing, lambda t: product(t, ("friction",))))
 
 
 def _column(v) -> list:
@@ -210,7 +219,7 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
         axes = np.asarray(values["axes"], float)  # (N, 3) rows
         n = len(axes)
         per = {k: np.broadcast_to(np.asarray(values[k], float), (n,))
-               for k in ("spin_inertia", "max_torque", "max_speed", "initial_speed")}
+               for k in ("spin_inertia", "max_torque", "max_speed", "initial_speed", *FRICTION_KEYS)}
         factory, rws = bsk["simIncludeRW"].rwFactory(), []
         for i, g in enumerate(axes):
             rw = factory.create("custom", [float(x) for x in g], Js=float(per["spin_inertia"][i]),
@@ -220,6 +229,8 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
             rw.Omega_max = float(per["max_speed"][i])
             rw.Jt = rw.Jg = 0.0  # a wheel's inertia about its spin axis only, as so3jax's
             rw.mass = 0.0  # the hub carries the whole inertia J, the wheels' spin inertia included
+            rw.betaStatic = -1.0  # Coulomb and viscous friction, no Stribeck (docs/model.md (8.13a))
+            rw.omegaLimitCycle = float(per["friction_speed"][i])
             rws.append(rw)  # the effector's own (shared): a fault sets its limits between runs
         effector = bsk["reactionWheelStateEffector"].ReactionWheelStateEffector()
         factory.addToSpacecraft("wheels", effector, sc)
@@ -285,6 +296,14 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
 
         for j, scale in faults.limits:  # the tick j's command is the first the effector clips so
             events.append((j * period_ns, lambda scale=scale: limit(scale)))
+
+        def friction(scale):  # from the dynamics' next step on: so3jax's friction factor held from the tick
+            for rw, f_c, c_v, k in zip(rws, per["coulomb_friction"], per["viscous_friction"], scale):
+                rw.fCoulomb, rw.cViscous = float(k * f_c), float(k * c_v)
+
+        friction(np.ones(n))
+        for j, scale in faults.friction:
+            events.append((j * period_ns, lambda scale=scale: friction(scale)))
         if faults.available:  # each Update of rwMotorTorque reads it: written before the tick j runs
             avail_msg = messaging.RWAvailabilityMsg()
 

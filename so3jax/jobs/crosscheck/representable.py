@@ -80,7 +80,9 @@ def _navigation(m) -> None:
 
 def _faults(m) -> None:
     """Wheels failed off or degraded (their limit scaled at so3jax's tick, the wheel dropped
-    from rwMotorTorque's distribution once detected: :func:`so3jax.jobs.crosscheck.basilisk.wheel_faults`);
+    from rwMotorTorque's distribution once detected), or their friction scaled (the effector's
+    fCoulomb and cViscous from the tick: :func:`so3jax.jobs.crosscheck.basilisk.wheel_faults`);
+    a wheel stuck the effector cannot hold;
     simpleNav has neither a star tracker to lose nor a gyro bias to step."""
     for fault in m.faults:
         if "star_tracker" in fault:
@@ -89,6 +91,10 @@ def _faults(m) -> None:
         if "gyro" in fault:
             _refuse(f"a gyro bias step (faults: gyro = \"bias step\" at {fault['time']:g} s)",
                     "simpleNav draws no gyro bias: leave the step out (wheel faults it flies)")
+        if fault.get("mode") == "stuck":
+            _refuse(f"a wheel stuck at its speed (faults: wheel = {fault['wheel']}, mode = \"stuck\")",
+                    "reactionWheelStateEffector has no locked rotor: a wheel off, degraded or with its friction "
+                    "scaled it flies")
 
 
 def _inertia(m) -> None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from so3jax.jobs.sweep import pointing as sweep_pointing
+from so3jax.missions import faults as fault_list
 from so3jax.results.io import to_builtin
 from so3jax.sim import pointing
 
@@ -47,7 +48,7 @@ def period_starts(config, samples) -> dict:
     m = config.mission
     times = fault_times(config, samples)
     out = {"after_fault": times.min(axis=1)}
-    detected = [i for i, f in enumerate(m.faults) if f.get("mode") == "off" or "thruster" in f]
+    detected = [i for i, f in enumerate(m.faults) if fault_list.lost(f) or "thruster" in f]
     if detected and m.fdir["detection"] == "latency":
         out["after_detection"] = (times[:, detected] + m.fdir["latency"]).max(axis=1)
     return out
