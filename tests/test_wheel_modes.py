@@ -12,7 +12,7 @@ import pytest
 import so3jax as sj
 from so3jax.components.actuators import WheelCommand, Wheels, pyramid_axes
 from so3jax.dynamics import plant
-from so3jax.missions import draw
+from so3jax.missions import batched, draw
 from so3jax.missions import mission as missions
 
 J = np.array([[625.0, 5.5, 3.0], [5.5, 350.0, 4.0], [3.0, 4.0, 900.0]])  # [kg m^2], the wheels' spin inertia in it
@@ -220,8 +220,37 @@ def test_a_friction_fault_s_factor_is_dispersible_above_one():
     m = missions.from_dict(with_faults(FAULT, 1.0))
     _, leaves = draw.parse({"faults": {"1": {"factor": {"dist": "uniform", "low": 1.5, "high": 8.0}}}}, m)
     assert [leaf.key for leaf in leaves] == ["faults.1.factor"]
-    with pytest.raises(ValueError, match="stuck"):
+    with pytest.raises(ValueError, match="wheel 2 sticks"):
         draw.parse({"faults": {"0": {"factor": {"dist": "uniform", "low": 0.1, "high": 0.5}}}}, m)
+
+
+SPREAD = {"faults": {"0": {"time": {"dist": "uniform", "low": 2.0, "high": 15.0}},
+                     "1": {"factor": {"dist": "uniform", "low": 1.5, "high": 6.0}}},
+          "actuator": {"wheels": {"misalignment": {"dist": "normal", "mean": 0.0, "std": 1e-3},
+                                  "coulomb_friction": {"dist": "uniform", "low": 2e-4, "high": 8e-4}}}}
+
+
+def test_dispersed_wheel_modes_fly_each_sample_as_its_mission_alone():
+    """The stuck wheel's time, the friction fault's factor, the wheels' friction and their
+    misalignment (the plant's axes) drawn per sample: each sample's metrics are those of its
+    mission, written with its values, flown alone."""
+    base = with_faults(FAULT, 1.0)
+    m = missions.from_dict(base)
+    samples = draw.draw(*draw.parse(SPREAD, m), 0, 3, 20, mission=m)
+    assert np.all(samples.valid)
+    controller, gains = m.controller("pd")
+    batch = batched.sample_metrics(batched.inputs(samples, np.float64), gains, controller=controller, mission=m)
+    assert len(np.unique(np.asarray(batch["rmse"]))) == 3
+    for i in range(3):
+        own = [dict(f) for f in base["faults"]]
+        own[0]["time"], own[1]["factor"] = (float(samples.leaves[k][i]) for k in ("faults.0.time", "faults.1.factor"))
+        drawn = {k: samples.leaves[f"actuator.wheels.{k}"][i].tolist() for k in ("misalignment", "coulomb_friction")}
+        wheels = {**base["actuator"]["wheels"], **drawn}
+        alone = missions.from_dict({**base, "faults": own, "actuator": {"kind": "wheels", "wheels": wheels}})
+        result = sj.simulate(alone.scenario(), controller, gains, alone.seed, loop=alone.loop())
+        expected = {**result.metrics._asdict(), **result.flight._asdict()}
+        for name in ("rmse", "effort", "max_torque", "max_angle_phase"):
+            np.testing.assert_allclose(batch[name][i], expected[name], rtol=1e-12, atol=0, err_msg=name)
 
 
 def test_stuck_wheels_that_leave_less_than_three_axes_are_refused():

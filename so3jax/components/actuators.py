@@ -322,12 +322,11 @@ class Wheels(Actuator):
         None where none can stick."""
         if held.stuck is None:
             return None
-        G = jnp.asarray(self._plant_axes()).astype(held.u.dtype)
+        G = self._axes(held.u, plant=True)
         w = held.stuck * _per_wheel(self._plant_spin_inertia(), held.u)
-        unit = (1,) * (w.ndim - 1)
-        total = so3.outer(G[:, 0], G[:, 0]).reshape((3, 3) + unit) * w[0]
+        total = so3.outer(G[:, 0], G[:, 0]) * w[0]
         for i in range(1, self.count):
-            total = total + so3.outer(G[:, i], G[:, i]).reshape((3, 3) + unit) * w[i]
+            total = total + so3.outer(G[:, i], G[:, i]) * w[i]
         return total
 
     def uncompensated_momentum(self, state, Omega_hat):

@@ -513,8 +513,8 @@ def _fault_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
         raise ValueError(f"{where}: a {target.replace('_', ' ')} fault disperses "
                          f"{', '.join(FAULT_LEAVES[target])}, not {param!r}")
     if param == "factor" and fault["mode"] not in FRICTION_FACTOR and fault["mode"] != "degraded":
-        raise ValueError(f"{where}: wheel {fault['wheel']} is {fault['mode']} (no factor); a degraded wheel's "
-                         "factor, or its friction's, is dispersed")
+        raise ValueError(f"{where}: wheel {fault['wheel']} {'fails off' if fault['mode'] == 'off' else 'sticks'} "
+                         "(no factor); a degraded wheel's factor, or its friction's, is dispersed")
     low, high, high_excluded = FAULT_LEAVES[target][param] if param != "factor" else FRICTION_FACTOR.get(
         fault["mode"], FAULT_LEAVES[target][param])
     if param == "wheel":  # which wheel fails: one of the mission's, 1-based
