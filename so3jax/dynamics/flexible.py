@@ -1,0 +1,389 @@
+"""Flexible appendages and propellant slosh on a free hub (docs/flexible.md).
+
+A rigid hub carries N hinged rigid panels (one hinge angle theta_i each, Basilisk's
+hingedRigidBodyStateEffector) and M spring-mass-damper particles (one displacement rho_j
+each, Basilisk's linearSpringMassDamper). The hub is free to translate and rotate, with no
+external force and an external torque L on the hub. The state is (omega (3, *b), theta
+(N, *b), theta_dot (N, *b), rho (M, *b), rho_dot (M, *b)); :func:`accelerations` solves the
+system's mass matrix (F.10) for (a_B, omega_dot, theta_ddot, rho_ddot), the hub's
+translational acceleration a_B solved but not integrated: nothing here depends on the
+hub's position or velocity. Nonlinear in theta and rho.
+
+Arrays follow :mod:`so3jax.core.so3`: components first, batch axes last. Parameters are
+shared by the batch and cast to the state's dtype. Vectors are in the body frame B, from
+the hub's reference point B.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from so3jax.core import integrate, so3
+from so3jax.core.pytree import pytree_dataclass, static_field
+
+
+@pytree_dataclass
+class Hub:
+    """The rigid hub: mass [kg], inertia (3, 3) about its own centre of mass Bc in the body
+    frame [kg m^2] (Basilisk's IHubPntBc_B), r_BcB (3,) its centre of mass from B [m]."""
+
+    mass: jax.Array
+    inertia: jax.Array
+    r_BcB: jax.Array
+
+
+@pytree_dataclass
+class HingedPanel:
+    """A rigid panel on a torsional hinge, Basilisk's hingedRigidBodyStateEffector conventions.
+
+    mass m [kg]; inertia I_S (3, 3) about the panel's centre of mass S in the panel frame
+    (s1, s2, s3) [kg m^2]; d: the centre of mass lies at r_HB - d s1 [m]; k [N m/rad], c
+    [N m s/rad]: the hinge's spring and damper about theta = 0; r_HB (3,): the hinge point
+    from B [m]; dcm_HB (3, 3): rows h1, h2, h3 of the hinge frame in body components, the
+    hinge axis h2 (F.1). locked: the hinge held at its angle (theta_ddot = 0, a rigid part).
+    """
+
+    mass: jax.Array
+    inertia: jax.Array
+    d: jax.Array
+    k: jax.Array
+    c: jax.Array
+    r_HB: jax.Array
+    dcm_HB: jax.Array
+    locked: bool = static_field(default=False)
+
+
+@pytree_dataclass
+class SloshParticle:
+    """A point mass on a linear spring and damper, Basilisk's linearSpringMassDamper
+    conventions: mass [kg], r_PB (3,) its equilibrium location from B [m] (Basilisk's
+    r_PB_B), p_hat (3,) the unit direction it moves along, the particle at r_PB + rho p_hat
+    (F.3); k [N/m], c [N s/m]."""
+
+    mass: jax.Array
+    r_PB: jax.Array
+    p_hat: jax.Array
+    k: jax.Array
+    c: jax.Array
+
+
+@pytree_dataclass
+class FlexibleBody:
+    """The hub with its panels and slosh particles (tuples, possibly empty)."""
+
+    hub: Hub
+    panels: tuple = ()
+    slosh: tuple = ()
+
+
+class FlexState(NamedTuple):
+    """omega (3, *b) [rad/s] the hub's body rate; theta, theta_dot (N, *b) [rad, rad/s]; rho,
+    rho_dot (M, *b) [m, m/s]. Its rate (:func:`derivative`) has the same structure."""
+
+    omega: jax.Array
+    theta: jax.Array
+    theta_dot: jax.Array
+    rho: jax.Array
+    rho_dot: jax.Array
+
+
+class Accelerations(NamedTuple):
+    """The solution of (F.10): omega_dot (3, *b) [rad/s^2], theta_ddot (N, *b) [rad/s^2],
+    rho_ddot (M, *b) [m/s^2], hub_acceleration a_B (3, *b) [m/s^2], the inertial
+    acceleration of B in body components."""
+
+    omega_dot: jax.Array
+    theta_ddot: jax.Array
+    rho_ddot: jax.Array
+    hub_acceleration: jax.Array
+
+
+def initial_state(body: FlexibleBody, omega, theta=None, theta_dot=None, rho=None, rho_dot=None) -> FlexState:
+    """A :class:`FlexState` of ``omega`` (3,) with zeros for the coordinates not given."""
+    omega = jnp.asarray(omega)
+    zeros = lambda n: jnp.zeros((n,) + omega.shape[1:], omega.dtype)
+    given = lambda x, n: zeros(n) if x is None else jnp.asarray(x).astype(omega.dtype)
+    n, m = len(body.panels), len(body.slosh)
+    return FlexState(omega, given(theta, n), given(theta_dot, n), given(rho, m), given(rho_dot, m))
+
+
+# --- geometry ----------------------------------------------------------------------------
+
+
+def _cast(x, like, core_ndim):
+    """A parameter in the dtype of ``like`` (3, *b), with unit axes to broadcast against it."""
+    return so3.batch_like(jnp.asarray(x).astype(like.dtype), core_ndim, like)
+
+
+def _scalar(x, like):
+    """A scalar parameter in the dtype of ``like``."""
+    return jnp.asarray(x).astype(like.dtype)
+
+
+def panel_axes(panel: HingedPanel, theta, like):
+    """(s1, s2, s3) (3, *b): the panel frame at hinge angle theta, s = M2(theta) h (F.1)."""
+    H = _cast(panel.dcm_HB, like, 2)
+    h1, h2, h3 = H[0], H[1], H[2]
+    ct, st = jnp.cos(theta), jnp.sin(theta)
+    return ct * h1 - st * h3, h2, st * h1 + ct * h3
+
+
+def _in_body(inertia, axes, like):
+    """A matrix given in the frame of ``axes`` (rows s_a) in body components,
+    sum_ab I_ab s_a s_b^T (3, 3, *b) (F.4)."""
+    inertia = _cast(inertia, like, 2)
+    total = None
+    for a in range(3):
+        for b in range(3):
+            term = inertia[a, b] * so3.outer(axes[a], axes[b])
+            total = term if total is None else total + term
+    return total
+
+
+class _Part(NamedTuple):
+    """One rigid part at a state: mass [kg], r (3, *b) its centre of mass from B, r_dot its
+    rate relative to B, r_ddot its relative acceleration at zero generalized accelerations,
+    inertia (3, 3, *b) about its centre of mass, omega_rel (3, *b) its rate relative to B,
+    alpha_rel its relative angular acceleration at zero generalized accelerations, all in
+    body components (None: a particle, or the hub's zero rates)."""
+
+    mass: jax.Array
+    r: jax.Array
+    r_dot: jax.Array
+    r_ddot: jax.Array
+    inertia: jax.Array | None
+    omega_rel: jax.Array | None
+    alpha_rel: jax.Array | None
+
+
+def _parts(body: FlexibleBody, state: FlexState):
+    """The hub, each panel and each particle as a :class:`_Part`, with each panel's and
+    particle's partial velocity e (3, *b) and partial angular velocity w (3, *b) or None of
+    its coordinate, its spring and damper force [N m or N] (F.2)-(F.5)."""
+    omega = state.omega
+    zero = jnp.zeros_like(omega)
+    hub = body.hub
+    r_c = _cast(hub.r_BcB, omega, 1) + zero
+    parts = [(_Part(_scalar(hub.mass, omega), r_c, zero, zero, _cast(hub.inertia, omega, 2), None, None), None)]
+    for i, panel in enumerate(body.panels):
+        theta, theta_dot = state.theta[i], state.theta_dot[i]
+        s1, s2, s3 = panel_axes(panel, theta, omega)
+        d = _scalar(panel.d, omega)
+        r = _cast(panel.r_HB, omega, 1) - d * s1
+        r_dot = d * theta_dot * s3
+        r_ddot = d * theta_dot**2 * s1
+        w_rel = theta_dot * s2
+        alpha_rel = theta_dot * so3.cross(omega, s2)
+        spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
+        part = _Part(_scalar(panel.mass, omega), r, r_dot, r_ddot,
+                     _in_body(panel.inertia, (s1, s2, s3), omega), w_rel, alpha_rel)
+        parts.append((part, (d * s3, s2, spring, panel.locked)))
+    for j, particle in enumerate(body.slosh):
+        rho, rho_dot = state.rho[j], state.rho_dot[j]
+        p = _cast(particle.p_hat, omega, 1) + zero
+        r = _cast(particle.r_PB, omega, 1) + rho * p
+        spring = -_scalar(particle.k, omega) * rho - _scalar(particle.c, omega) * rho_dot
+        part = _Part(_scalar(particle.mass, omega), r, rho_dot * p, zero, None, None, None)
+        parts.append((part, (p, None, spring, False)))
+    return parts
+
+
+def _remainders(part: _Part, omega):
+    """(a_rem, g): the part's inertial acceleration at zero generalized accelerations,
+    omega x (omega x r) + 2 omega x r' + r'' (F.6), and its inertia torque about its centre of
+    mass, I alpha_rel + omega_p x I omega_p with omega_p = omega + omega_rel (F.7), or None."""
+    a_rem = so3.cross(omega, so3.cross(omega, part.r)) + 2.0 * so3.cross(omega, part.r_dot) + part.r_ddot
+    if part.inertia is None:
+        return a_rem, None
+    omega_p = omega if part.omega_rel is None else omega + part.omega_rel
+    g = so3.cross(omega_p, so3.matvec(part.inertia, omega_p))
+    if part.alpha_rel is not None:
+        g = g + so3.matvec(part.inertia, part.alpha_rel)
+    return a_rem, g
+
+
+# --- the equations of motion ---------------------------------------------------------------
+
+
+class _System(NamedTuple):
+    """The blocks of (F.10): A, B, D (3, 3, *b), f_v, f_w (3, *b), and per flexible
+    coordinate (cv, cw (3, *b), m_f, f (*b), locked)."""
+
+    A: jax.Array
+    B: jax.Array
+    D: jax.Array
+    f_v: jax.Array
+    f_w: jax.Array
+    columns: list
+
+
+def _system(body: FlexibleBody, state: FlexState, torque=None) -> _System:
+    """The mass matrix's blocks and the right-hand side (F.8)-(F.10) at a state; torque:
+    L (3, *b) [N m] on the hub, None for none."""
+    omega = state.omega
+    eye = so3.eye_like(omega)
+    A = B = D = None
+    f_v = jnp.zeros_like(omega)
+    f_w = jnp.zeros_like(omega) if torque is None else jnp.asarray(torque).astype(omega.dtype) + 0 * omega
+    columns = []
+    for part, coordinate in _parts(body, state):
+        m = part.mass
+        r_hat = so3.hat(part.r)
+        I_B = m * so3.rmatmul(r_hat, r_hat)  # m r~^T r~
+        if part.inertia is not None:
+            I_B = I_B + part.inertia
+        A = m * eye if A is None else A + m * eye
+        B = -m * r_hat if B is None else B - m * r_hat
+        D = I_B if D is None else D + I_B
+        a_rem, g = _remainders(part, omega)
+        f_v = f_v - m * a_rem
+        moment = m * so3.cross(part.r, a_rem) + (0.0 if g is None else g)
+        f_w = f_w - moment
+        if coordinate is not None:
+            e, w, spring, locked = coordinate
+            cv = m * e
+            cw = m * so3.cross(part.r, e)
+            m_f = m * so3.dot(e, e)
+            f = spring - m * so3.dot(e, a_rem)
+            if w is not None:
+                Iw = so3.matvec(part.inertia, w)
+                cw = cw + Iw
+                m_f = m_f + so3.dot(w, Iw)
+                f = f - so3.dot(w, g)
+            columns.append((cv, cw, m_f, f, locked))
+    return _System(A, B, D, f_v, f_w, columns)
+
+
+def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
+    """Solve (F.10) for (omega_dot, theta_ddot, rho_ddot, a_B) by eliminating the flexible
+    coordinates, then the translation (F.11)-(F.13), as Basilisk's back-substitution does.
+    torque: L (3, *b) [N m] on the hub (a couple), None for none."""
+    A, B, D, f_v, f_w, columns = _system(body, state, torque)
+    for cv, cw, m_f, f, locked in columns:
+        if locked:
+            continue
+        A = A - so3.outer(cv, cv) / m_f
+        B = B - so3.outer(cv, cw) / m_f
+        D = D - so3.outer(cw, cw) / m_f
+        f_v = f_v - cv * (f / m_f)
+        f_w = f_w - cw * (f / m_f)
+    X = jnp.stack([so3.solve_spd(A, B[:, j]) for j in range(3)], axis=1)  # A^{-1} B
+    omega_dot = so3.solve_spd(D - so3.rmatmul(B, X), f_w - so3.rmatvec(B, so3.solve_spd(A, f_v)))
+    a_B = so3.solve_spd(A, f_v - so3.matvec(B, omega_dot))
+    q_ddot = [jnp.zeros_like(f) if locked else (f - so3.dot(cv, a_B) - so3.dot(cw, omega_dot)) / m_f
+              for cv, cw, m_f, f, locked in columns]
+    n = len(body.panels)
+    stack = lambda xs, like: jnp.stack(xs) if xs else jnp.zeros((0,) + like.shape[1:], like.dtype)
+    return Accelerations(omega_dot, stack(q_ddot[:n], state.theta), stack(q_ddot[n:], state.rho), a_B)
+
+
+def derivative(body: FlexibleBody, state: FlexState, torque=None) -> FlexState:
+    """The state's rate (omega_dot, theta_dot, theta_ddot, rho_dot, rho_ddot) (F.10)."""
+    acc = accelerations(body, state, torque)
+    return FlexState(acc.omega_dot, state.theta_dot, acc.theta_ddot, state.rho_dot, acc.rho_ddot)
+
+
+def rk4_step(body: FlexibleBody, state: FlexState, dt, torque=None) -> FlexState:
+    """One classical RK4 step of dt [s], the torque held over it."""
+    field = lambda t, x: (derivative(body, x, torque), None)
+    return integrate.rk4_step(field, jnp.zeros((), state.omega.dtype), dt, state)[0]
+
+
+def mass_matrix(body: FlexibleBody, state: FlexState):
+    """The symmetric mass matrix of (F.10), (6 + N + M, 6 + N + M) for an unbatched state,
+    in the order (a_B, omega_dot, theta_ddot, rho_ddot)."""
+    A, B, D, _, _, columns = _system(body, state)
+    top = jnp.concatenate([jnp.concatenate([A, B], axis=1), jnp.concatenate([B.T, D], axis=1)], axis=0)
+    if not columns:
+        return top
+    C = jnp.stack([jnp.concatenate([cv, cw]) for cv, cw, _, _, _ in columns], axis=1)
+    diag = jnp.diag(jnp.stack([m_f for _, _, m_f, _, _ in columns]))
+    return jnp.concatenate([jnp.concatenate([top, C], axis=1), jnp.concatenate([C.T, diag], axis=1)], axis=0)
+
+
+# --- energy and momentum -------------------------------------------------------------------
+
+
+def _about_centre(body: FlexibleBody, state: FlexState):
+    """The parts with the system's centre of mass c and its rate c' relative to B (F.14)."""
+    parts = [part for part, _ in _parts(body, state)]
+    total = sum(part.mass for part in parts)
+    c = sum(part.mass * part.r for part in parts) / total
+    c_dot = sum(part.mass * part.r_dot for part in parts) / total
+    return parts, c, c_dot
+
+
+def angular_momentum(body: FlexibleBody, state: FlexState):
+    """H_C (3, *b) [N m s]: the total angular momentum about the system's centre of mass,
+    body components (F.15); conserved in inertial space without external torque."""
+    omega = state.omega
+    parts, c, c_dot = _about_centre(body, state)
+    H = jnp.zeros_like(omega)
+    for part in parts:
+        rel = part.r - c
+        H = H + part.mass * so3.cross(rel, so3.cross(omega, rel) + part.r_dot - c_dot)
+        if part.inertia is not None:
+            omega_p = omega if part.omega_rel is None else omega + part.omega_rel
+            H = H + so3.matvec(part.inertia, omega_p)
+    return H
+
+
+def energy(body: FlexibleBody, state: FlexState):
+    """E (*b) [J]: kinetic energy relative to the system's centre of mass plus the springs'
+    energy (F.16) (Basilisk's rotational energy); constant without torque and damping."""
+    omega = state.omega
+    parts, c, c_dot = _about_centre(body, state)
+    E = jnp.zeros_like(omega[0])
+    for part in parts:
+        v = so3.cross(omega, part.r - c) + part.r_dot - c_dot
+        E = E + 0.5 * part.mass * so3.dot(v, v)
+        if part.inertia is not None:
+            omega_p = omega if part.omega_rel is None else omega + part.omega_rel
+            E = E + 0.5 * so3.dot(omega_p, so3.matvec(part.inertia, omega_p))
+    for i, panel in enumerate(body.panels):
+        E = E + 0.5 * _scalar(panel.k, omega) * state.theta[i] ** 2
+    for j, particle in enumerate(body.slosh):
+        E = E + 0.5 * _scalar(particle.k, omega) * state.rho[j] ** 2
+    return E
+
+
+# --- the linearization about rest ----------------------------------------------------------
+
+
+class Modes(NamedTuple):
+    """The flexible modes on a free hub, by ascending frequency: frequency (K,) [rad/s],
+    damping ratio (K,) [1], shape (K, K) M_eff-normalized columns over the free coordinates
+    (the unlocked panels' theta, then the particles' rho)."""
+
+    frequency: jax.Array
+    damping_ratio: jax.Array
+    shape: jax.Array
+
+
+def modes(body: FlexibleBody, dtype=None) -> Modes:
+    """The linearization about rest (omega = 0, theta = 0, rho = 0): K phi = w^2 M_eff phi with
+    the rigid-body modes condensed out of the mass matrix (F.17)-(F.19); damping ratios
+    zeta_r = phi_r^T C phi_r / (2 w_r) (F.20)."""
+    if dtype is None:
+        dtype = jnp.asarray(body.hub.inertia).dtype
+        dtype = dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.zeros(()).dtype
+    state = initial_state(body, jnp.zeros(3, dtype))
+    M = mass_matrix(body, state)
+    free = [6 + i for i, p in enumerate(body.panels) if not p.locked]
+    free += [6 + len(body.panels) + j for j in range(len(body.slosh))]
+    rigid = list(range(6))
+    M_rr, M_rf, M_ff = M[np.ix_(rigid, rigid)], M[np.ix_(rigid, free)], M[np.ix_(free, free)]
+    M_eff = M_ff - M_rf.T @ jnp.linalg.solve(M_rr, M_rf)
+    springs = [p for p in body.panels if not p.locked] + list(body.slosh)
+    k = jnp.stack([jnp.asarray(p.k).astype(dtype) for p in springs])
+    c = jnp.stack([jnp.asarray(p.c).astype(dtype) for p in springs])
+    L = jnp.linalg.cholesky(M_eff)
+    Linv = jax.scipy.linalg.solve_triangular(L, jnp.eye(len(free), dtype=dtype), lower=True)
+    lam, Y = jnp.linalg.eigh(Linv @ (k[:, None] * Linv.T))
+    phi = Linv.T @ Y
+    frequency = jnp.sqrt(lam)
+    return Modes(frequency, jnp.einsum("ir,i,ir->r", phi, c, phi) / (2.0 * frequency), phi)
