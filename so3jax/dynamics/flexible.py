@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.core import integrate, so3
+from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
 
 
@@ -119,6 +120,11 @@ def _cast(x, like, core_ndim):
     return so3.batch_like(jnp.asarray(x).astype(like.dtype), core_ndim, like)
 
 
+def _opaque(state):
+    """A traced scalar of the state for :func:`so3jax.core._fusion.materialize`."""
+    return state.omega.reshape(-1)[0]
+
+
 def _scalar(x, like):
     """A scalar parameter in the dtype of ``like``."""
     return jnp.asarray(x).astype(like.dtype)
@@ -129,19 +135,15 @@ def panel_axes(panel: HingedPanel, theta, like):
     H = _cast(panel.dcm_HB, like, 2)
     h1, h2, h3 = H[0], H[1], H[2]
     ct, st = jnp.cos(theta), jnp.sin(theta)
-    return ct * h1 - st * h3, h2, st * h1 + ct * h3
+    s1 = ct * h1 - st * h3
+    return s1, jnp.broadcast_to(h2, s1.shape), st * h1 + ct * h3
 
 
 def _in_body(inertia, axes, like):
     """A matrix given in the frame of ``axes`` (rows s_a) in body components,
     sum_ab I_ab s_a s_b^T (3, 3, *b) (F.4)."""
-    inertia = _cast(inertia, like, 2)
-    total = None
-    for a in range(3):
-        for b in range(3):
-            term = inertia[a, b] * so3.outer(axes[a], axes[b])
-            total = term if total is None else total + term
-    return total
+    S = jnp.stack(axes)  # (a, i, *b): the frame's rows
+    return so3.matmul_compact(so3.transpose(S), so3.matmul_compact(_cast(inertia, like, 2), S))
 
 
 class _Part(NamedTuple):
@@ -263,6 +265,10 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     coordinates, then the translation (F.11)-(F.13), as Basilisk's back-substitution does.
     torque: L (3, *b) [N m] on the hub (a couple), None for none."""
     A, B, D, f_v, f_w, columns = _system(body, state, torque)
+    locks = [locked for *_, locked in columns]
+    # computed once, not within each of their consumers (XLA:CPU would, and compile slowly)
+    A, B, D, f_v, f_w, values = materialize((A, B, D, f_v, f_w, [c[:4] for c in columns]), _opaque(state))
+    columns = [(*v, locked) for v, locked in zip(values, locks)]
     for cv, cw, m_f, f, locked in columns:
         if locked:
             continue
@@ -271,9 +277,10 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
         D = D - so3.outer(cw, cw) / m_f
         f_v = f_v - cv * (f / m_f)
         f_w = f_w - cw * (f / m_f)
-    X = jnp.stack([so3.solve_spd(A, B[:, j]) for j in range(3)], axis=1)  # A^{-1} B
-    omega_dot = so3.solve_spd(D - so3.rmatmul(B, X), f_w - so3.rmatvec(B, so3.solve_spd(A, f_v)))
-    a_B = so3.solve_spd(A, f_v - so3.matvec(B, omega_dot))
+    A_inv = so3.inv_spd(A)
+    X = so3.matmul_compact(A_inv, B)  # A^{-1} B
+    omega_dot = so3.solve_spd(D - so3.rmatmul(B, X), f_w - so3.rmatvec(X, f_v))
+    a_B = so3.matvec(A_inv, f_v - so3.matvec(B, omega_dot))
     q_ddot = [jnp.zeros_like(f) if locked else (f - so3.dot(cv, a_B) - so3.dot(cw, omega_dot)) / m_f
               for cv, cw, m_f, f, locked in columns]
     n = len(body.panels)
