@@ -313,7 +313,7 @@ def components_table(kind: str, heading: str = "###") -> str:
     from so3jax.components import registry as components
 
     table = {"sensor": "sensors", "estimator": "estimator", "actuator": "actuator", "reference": "reference",
-             "inertia": "inertia", "momentum": "momentum", "environment": "environment"}[kind]
+             "inertia": "inertia", "momentum": "momentum", "filter": "filter", "environment": "environment"}[kind]
     out = []
     for name in components.names(kind):
         spec = components.get(kind, name)
@@ -562,6 +562,7 @@ def render(what: str, args: tuple = ()) -> str:
         "references": lambda: components_table("reference", *rest),
         "inertias": lambda: components_table("inertia", *rest),
         "momentum": lambda: components_table("momentum", *rest),
+        "filters": lambda: components_table("filter", *rest),
         "environment": lambda: components_table("environment", *rest),
         "controllers": lambda: controllers_table(*rest),
         "tune": tune_table,

@@ -14,6 +14,7 @@ from so3jax.components.base import (
     Actuator,
     Estimate,
     Estimator,
+    Filter,
     Measurements,
     MomentumManager,
     Sensor,
@@ -21,6 +22,7 @@ from so3jax.components.base import (
 )
 from so3jax.components.environment import Aerodynamic, GravityGradient, ResidualDipole, SolarPressure
 from so3jax.components.estimators import MEKF, Raw, Truth
+from so3jax.components.filters import SecondOrder
 from so3jax.components.momentum import Magnetorquers, MomentumWarning, Thrusters
 from so3jax.components.navigation import NavAttitude, NavRate
 from so3jax.components.registry import BuildContext, ComponentSpec
@@ -161,6 +163,7 @@ __all__ = [
     "Estimator",
     "Evaluation",
     "Feedback",
+    "Filter",
     "Fixed",
     "Flight",
     "GeometricPD",
@@ -205,6 +208,7 @@ __all__ = [
     "Saturated",
     "Scenario",
     "Scheduled",
+    "SecondOrder",
     "Sensor",
     "Sensors",
     "Signals",

@@ -59,8 +59,8 @@ def test_site_builds_strict_with_generated_tables(site):
 def test_every_registered_component_and_mission_key_is_on_the_fly_page(site):
     html = _page(site, "commands/fly")
     names = _fresh("schema_docs.registered_names()")
-    assert set(names) == {"controller", "sensor", "estimator", "actuator", "momentum", "environment", "reference",
-                          "inertia"}
+    assert set(names) == {"controller", "sensor", "estimator", "actuator", "momentum", "filter", "environment",
+                          "reference", "inertia"}
     for kind, registered in names.items():
         assert registered, kind
         for name in registered:
@@ -68,7 +68,8 @@ def test_every_registered_component_and_mission_key_is_on_the_fly_page(site):
     chosen = {"controller": ("controller.{}.", "gains.{}."), "sensor": ("[sensors.{}]",),
               "estimator": ('estimator.kind = "{}"',), "actuator": ('actuator.kind = "{}"',),
               "reference": ('reference.kind = "{}"',), "inertia": ('inertia.kind = "{}"',),
-              "momentum": ('momentum.kind = "{}"',), "environment": ("[environment.{}]",)}
+              "momentum": ('momentum.kind = "{}"',), "filter": ('filter.kind = "{}"',),
+              "environment": ("[environment.{}]",)}
     for kind, registered in names.items():
         for name in registered:  # how a mission names it
             assert any(pattern.format(name) in html for pattern in chosen[kind]), (kind, name)

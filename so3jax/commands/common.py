@@ -52,6 +52,7 @@ def registered(tunable: bool = False) -> str:
             f"estimators (estimator.kind): {', '.join(components.names('estimator'))}; "
             f"actuators (actuator.kind): {', '.join(components.names('actuator'))}; "
             f"momentum management (momentum.kind): {', '.join(components.names('momentum'))}; "
+            f"structural filters (filter.kind): {', '.join(components.names('filter'))}; "
             f"environment torques ([environment.NAME]): {', '.join(components.names('environment'))}; "
             f"references (reference.kind): {', '.join(components.names('reference'))}; "
             f"inertias (inertia.kind): {', '.join(components.names('inertia'))}.")

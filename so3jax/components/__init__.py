@@ -1,5 +1,5 @@
 """The loop's components: the abstract base of each kind (:mod:`so3jax.components.base`),
-the registry of each kind and the built-in sensors, estimators, actuators and the
+the registry of each kind and the built-in sensors, estimators, actuators, filters and the
 mission's reference and inertia kinds, registered
 when this package is imported (the registry imports no member)."""
 
@@ -7,6 +7,7 @@ from so3jax.components import (  # noqa: F401 (registration)
     actuators,
     environment,
     estimators,
+    filters,
     inertias,
     momentum,
     navigation,

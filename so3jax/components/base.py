@@ -216,3 +216,23 @@ class MomentumManager(abc.ABC):
         """One-line ValueErrors on settings the actuator's capacity makes moot (a threshold
         |h_rel| never reaches: the actuator stores at most ``capacity`` [N m s],
         :meth:`Actuator.momentum_capacity`), before compilation."""
+
+
+class Filter(abc.ABC):
+    """A structural filter at the control tick (docs/model.md §8.8): a linear discrete-time
+    filter on each axis of the commanded torque (``signal = "torque"``, between the
+    controller and the actuator) or of the estimated rate the controller reads
+    (``signal = "rate"``). Its state is carried by the loop from tick to tick."""
+
+    signal: str = "torque"
+
+    @abc.abstractmethod
+    def init(self, batch_shape, dtype):
+        """Its state at tick 0 (the filter at rest), batch axes ``batch_shape`` last."""
+
+    @abc.abstractmethod
+    def apply(self, state, x):
+        """(its state for the next tick, the filtered x (3, *b)) of this tick's input x (3, *b)."""
+
+    def check(self) -> None:
+        """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""

@@ -28,8 +28,8 @@ from so3jax.dynamics.plant import InertiaProfile
 from so3jax.dynamics.reference import Reference
 from so3jax.dynamics.space import EnvironmentTorque
 
-KINDS = ("sensor", "estimator", "actuator", "momentum", "environment", "reference", "inertia")
-BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator,
+KINDS = ("sensor", "estimator", "actuator", "momentum", "filter", "environment", "reference", "inertia")
+BASES = {"sensor": base.Sensor, "estimator": base.Estimator, "actuator": base.Actuator, "filter": base.Filter,
          "momentum": base.MomentumManager, "environment": EnvironmentTorque, "reference": Reference,
          "inertia": InertiaProfile}
 MEASUREMENTS = ("rate", "attitude")  # what a sensor measures; an estimator reads them by these names

@@ -144,7 +144,7 @@ def loop(mission: Mission, values: dict, dtype):
     faults = [dict(f) for f in mission.faults]
     tables = {"sensors": {k: dict(v) for k, v in mission.sensors.items()},
               **{table: {k: (dict(v) if isinstance(v, dict) else v) for k, v in getattr(mission, table).items()}
-                 for table in ("estimator", "actuator", "momentum")}}
+                 for table in ("estimator", "actuator", "momentum", "filter")}}
     for key, value in values.items():
         table, name, param = key.split(".")
         if table == "faults":

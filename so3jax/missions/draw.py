@@ -109,7 +109,7 @@ STRUCTURED = {
     ("disturbance", "noise_std"): "noise_std",
 }
 INERTIA_KEYS = ("scale", "axis_scale", "rotation_deg", "products", "second_moments")
-LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum")
+LOOP_TABLES = ("sensors", "estimator", "actuator", "momentum", "filter")
 SCENARIO_TABLES = ("reference", "inertia")
 # A component parameter whose magnitude its component's check bounds by another of its
 # parameters, element by element: {parameter: limit} (Wheels.check: |Omega_w(0)| <= Omega_max).

@@ -53,6 +53,7 @@ FLIGHT = {
     "estimator": {"kind": "mekf"},
     "actuator": {"kind": "wheels"},
     "momentum": {"kind": "thrusters"},
+    "filter": {"kind": "none"},
     "reference": {"kind": "paper"},
     "controller": {},
     "gains": {},
@@ -66,13 +67,14 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
 
 TOP_KEYS = keys.TOP + ("requirements", "faults")  # [[requirements]] (so3jax.sim.pointing), [[faults]]
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
-MISSION_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "environment", "reference",
+MISSION_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "filter", "environment", "reference",
                                 "controller", "gains", "schedule", "fdir")
 DEFAULT_REFERENCE = {"kind": "paper", "paper": {}}  # described only where another is flown
 DEFAULT_INERTIA = {"kind": "paper"}
 ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
 DEFAULT_ORBIT = {name: keys.KEY[f"orbit.{name}"].default for name in ORBIT_ANGLES}
 DEFAULT_MOMENTUM = {"kind": "none", "none": {}}  # J0, J1, J2 (or J) and tau_J: the Mission's own fields
+DEFAULT_FILTER = {"kind": "none", "none": {}}
 PAPER_PHASES = {"names": tuple(PHASE_NAMES), "start": tuple(keys.KEY["phases.start"].default)}
 
 
@@ -122,6 +124,7 @@ class Mission:
     schedule: dict = dataclasses.field(default_factory=dict)  # {controller: {"by": ..., ["at": (...), "of": ...]}}
     faults: tuple = ()  # [[faults]] as plain dicts (so3jax.missions.faults), docs/model.md §8.7
     fdir: dict = dataclasses.field(default_factory=lambda: dict(fault_list.NO_FDIR))  # what the loop knows of them
+    filter: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_FILTER))  # {"kind": name, name: values}
 
     @property
     def phase_names(self) -> tuple:
@@ -213,7 +216,7 @@ class Mission:
             del d["phases"]
         for name, default in (("inertia", DEFAULT_INERTIA), ("orbit", DEFAULT_ORBIT), ("environment", {}),
                               ("momentum", DEFAULT_MOMENTUM), ("schedule", {}), ("faults", ()),
-                              ("fdir", fault_list.NO_FDIR)):
+                              ("fdir", fault_list.NO_FDIR), ("filter", DEFAULT_FILTER)):
             if to_builtin(getattr(self, name)) == to_builtin(default):
                 del d[name]
         return to_builtin(d)
@@ -227,7 +230,7 @@ def default_tree() -> dict:
 
     tree = {k: v for k, v in FLIGHT.items()}
     tree["sensors"] = {n: values(components.get("sensor", n).params) for n in components.names("sensor")}
-    for kind in ("estimator", "actuator", "momentum", "reference"):
+    for kind in ("estimator", "actuator", "momentum", "filter", "reference"):
         tree[kind] = dict(FLIGHT[kind], **{n: values(components.get(kind, n).params) for n in components.names(kind)})
     tree["inertia"] = dict(FLIGHT["inertia"], kind="paper",
                            **{n: values(components.get("inertia", n).params) for n in components.names("inertia")
@@ -252,8 +255,9 @@ def build_loop(m: Mission, as_array, noise_of: Mission | None = None) -> Loop:
     estimator = components.get("estimator", m.estimator["kind"]).build(m.estimator[m.estimator["kind"]], ctx)
     actuator = components.get("actuator", m.actuator["kind"]).build(m.actuator[m.actuator["kind"]], ctx)
     momentum = components.get("momentum", m.momentum["kind"]).build(m.momentum[m.momentum["kind"]], ctx)
+    structural = components.get("filter", m.filter["kind"]).build(m.filter[m.filter["kind"]], ctx)
     return Loop(Sensors(**slots), estimator, actuator, m.period_steps, momentum,
-                fault_list.model(m.faults, m.fdir, as_array))
+                fault_list.model(m.faults, m.fdir, as_array), structural)
 
 
 def merge_tables(base: dict, over: dict) -> dict:
@@ -393,6 +397,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     momentum = _chosen(full, "momentum", "momentum", base, d.get("momentum"))
     environment = _components("environment", "environment", d.get("environment", {}), {})  # none by default
     reference = _chosen(full, "reference", "reference", base, d.get("reference"))
+    structural = _chosen(full, "filter", "filter", base, d.get("filter"))
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
     _check_wiring(period_steps, sensors, estimator["kind"])
     schedule = schedules.parse(full.get("schedule", {}), controllers)
@@ -424,7 +429,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
                       phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
-                      schedule=schedule, faults=faults, fdir=fdir)
+                      schedule=schedule, faults=faults, fdir=fdir, filter=structural)
     if isinstance(d.get("pointing"), dict) and "window" in d["pointing"]:  # a default window is reported, not refused
         pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
     for name in controllers:

@@ -44,7 +44,7 @@ from so3jax.sim import pointing
 
 DRAFT = "http://json-schema.org/draft-07/schema#"
 SETS = {"sensors": "sensor", "environment": "environment"}  # tables of components, each a table or false
-CHOSEN = ("estimator", "actuator", "momentum", "reference")  # tables of one component chosen by ``kind``
+CHOSEN = ("estimator", "actuator", "momentum", "filter", "reference")  # tables of one component chosen by ``kind``
 # The requirements' values (:func:`so3jax.sim.pointing.parse_requirement`): the keys are
 # pointing.KEYS (a key without an entry here takes any value), the choices its constants.
 REQUIREMENT_VALUES = {

@@ -32,7 +32,7 @@ import numpy as np
 
 from so3jax.components import registry as components
 from so3jax.components.actuators import Ideal, Wheels
-from so3jax.components.base import Actuator, Estimate, Estimator, MomentumManager
+from so3jax.components.base import Actuator, Estimate, Estimator, Filter, MomentumManager
 from so3jax.components.estimators import Truth
 from so3jax.components.faults import Faults
 from so3jax.components.momentum import Thrusters
@@ -65,6 +65,7 @@ class Loop:
     period_steps: int | None = static_field(default=None)
     momentum: MomentumManager | None = None  # beside the actuator (docs/model.md §8.6), or None
     faults: Faults | None = None  # the failures the sampled loop rides through (docs/model.md §8.7), or None
+    filter: Filter | None = None  # a structural filter at the tick (docs/model.md §8.8), or None
 
     @property
     def continuous(self) -> bool:
@@ -87,6 +88,7 @@ class State(NamedTuple):
     held: Any = ()  # the actuator's input held over the current period (sampled wiring), or ()
     manager: Any = ()  # the momentum manager's state, or ()
     managed: Any = ()  # the momentum manager's input held until its next tick, or ()
+    filter: Any = ()  # the structural filter's delays, or ()
 
 
 class Tick(NamedTuple):
@@ -148,6 +150,8 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
     if loop.continuous:
         return state
     zero = jnp.zeros_like(Omega0)
+    if loop.filter is not None:
+        state = state._replace(filter=loop.filter.init(batch_shape, dtype))
     actuator = loop.actuator if loop.faults is None else loop.faults.actuator(loop.actuator, jnp.zeros((), dtype))
     return state._replace(
         sensors=loop.sensors.init(batch_shape, dtype),
@@ -328,8 +332,13 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     estimator, estimate = loop.estimator.update(state.estimator, measured, dc, truth)
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
     h_w = loop.actuator.uncompensated_momentum(state.actuator, estimate.Omega_hat)
-    feedback = Feedback(estimate.R_hat, estimate.Omega_hat, h_w)
+    structural, Omega_read = state.filter, estimate.Omega_hat
+    if loop.filter is not None and loop.filter.signal == "rate":
+        structural, Omega_read = loop.filter.apply(state.filter, estimate.Omega_hat)
+    feedback = Feedback(estimate.R_hat, Omega_read, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
+    if loop.filter is not None and loop.filter.signal == "torque":
+        structural, tau_cmd = loop.filter.apply(state.filter, tau_cmd)
     manager, managed = state.manager, state.managed
     if momentum is not None:
         manager, managed = manage(scenario, loop, state, t, key, j, momentum)
@@ -347,6 +356,7 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
         held=held,
         manager=manager,
         managed=managed,
+        filter=structural,
     )
     bias = loop.sensors.true_bias(state.sensors, state.Omega)
     if faults is not None:
@@ -379,6 +389,11 @@ def check_loop(loop: Loop, inertias: dict) -> None:
             manager = "none" if loop.momentum is None else type(loop.momentum).__name__
             raise ValueError(f"a thruster fault needs thrusters (momentum.kind = 'thrusters'); the loop's momentum "
                              f"manager is {manager}")
+    if loop.filter is not None:
+        if m is None:
+            raise ValueError("a structural filter acts at the control ticks: it needs the sampled loop "
+                             "(control.mode = 'sampled')")
+        loop.filter.check()
     if loop.momentum is not None:
         if loop.actuator.stored_momentum(loop.actuator.init((), jnp.float32)) is None:  # by structure
             raise ValueError(f"momentum management (momentum.kind) needs an actuator that stores momentum "
