@@ -121,8 +121,9 @@ def _cast(x, like, core_ndim):
 
 
 def _opaque(state):
-    """A traced scalar of the state for :func:`so3jax.core._fusion.materialize`."""
-    return state.omega.reshape(-1)[0]
+    """A traced scalar, never NaN (0 or 1), for :func:`so3jax.core._fusion.materialize`:
+    a batch's diverged sample does not reach the others through it."""
+    return jnp.isnan(state.omega.reshape(-1)[0]).astype(state.omega.dtype)
 
 
 def _scalar(x, like):
