@@ -126,6 +126,26 @@ def test_the_back_substitution_solves_the_mass_matrix_in_any_batch():
 DT, STEPS = 0.005, 2000  # 10 s: the modes' periods are 3-8 s
 
 
+@pytest.mark.parametrize("change, message", [
+    (lambda b: b.hub.__class__(_a(0.0), b.hub.inertia, b.hub.r_BcB), "hub mass"),
+    (lambda b: fx.FlexibleBody(b.hub, (_panel(inertia=np.diag([1.0, -1.0, 1.0])),), b.slosh), "symmetric positive"),
+    (lambda b: fx.FlexibleBody(b.hub, (_panel(dcm_HB=np.diag([1.0, 1.0, -1.0])),), b.slosh), "rotation"),
+    (lambda b: fx.FlexibleBody(b.hub, (_panel(k=-1.0),), b.slosh), r"k \[N m/rad\] must be non-negative"),
+    (lambda b: fx.FlexibleBody(b.hub, b.panels, (_slosh(p_hat=(1.0, 1.0, 0.0)),)), "unit vector"),
+    (lambda b: fx.FlexibleBody(b.hub, b.panels, (_slosh(c=np.nan),)), "finite"),
+    (lambda b: fx.FlexibleBody(b.hub, b.panels, (fx.SloshParticle(_a(1.0), _a([0.0, 0.0]), _a(P_HAT), _a(1.0),
+                                                                  _a(0.0)),)), "shape"),
+])
+def test_check_refuses_bad_parameters_in_one_line(change, message):
+    body = _skewed_body()
+    fx.check(body)
+    bad = change(body)
+    bad = bad if isinstance(bad, fx.FlexibleBody) else fx.FlexibleBody(bad, body.panels, body.slosh)
+    with pytest.raises(ValueError, match=message) as error:
+        fx.check(bad)
+    assert "\n" not in str(error.value)
+
+
 def test_without_damping_or_torque_energy_and_momentum_are_conserved():
     body = _skewed_body()
     x0 = _start(body)
@@ -185,9 +205,10 @@ def _combined_inertia(body, theta):
 def test_a_locked_panel_turns_with_the_hub_as_one_rigid_body():
     body = fx.FlexibleBody(_hub(), (_panel(k=80.0, locked=True),))
     torque = _a([0.5, -0.2, 0.3])
-    x0 = fx.initial_state(body, _a([0.1, -0.1, 0.1]), theta=_a([0.3]))
+    x0 = fx.initial_state(body, _a([0.1, -0.1, 0.1]), theta=_a([0.3]), theta_dot=_a([0.2]))  # a rate it ignores
     xs, _, _ = _flight(body, x0, torque)
     assert np.all(np.asarray(xs.theta) == 0.3)
+    assert fx.modes(body).frequency.shape == (0,)  # nothing flexible
     rigid = _rigid_flight(_combined_inertia(body, [0.3]), np.asarray(x0.omega), np.asarray(torque), DT, STEPS)
     gap = np.abs(np.asarray(xs.omega) - rigid).max()
     assert gap < 1e-13 * np.abs(rigid).max(), gap

@@ -22,9 +22,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import integrate, so3
+from so3jax.core import checks, integrate, so3
 from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
+
+_UNIT_TOLERANCE = 1e-9  # a unit vector's or a rotation's rows' departure allowed by check()
 
 
 @pytree_dataclass
@@ -45,7 +47,8 @@ class HingedPanel:
     (s1, s2, s3) [kg m^2]; d: the centre of mass lies at r_HB - d s1 [m]; k [N m/rad], c
     [N m s/rad]: the hinge's spring and damper about theta = 0; r_HB (3,): the hinge point
     from B [m]; dcm_HB (3, 3): rows h1, h2, h3 of the hinge frame in body components, the
-    hinge axis h2 (F.1). locked: the hinge held at its angle (theta_ddot = 0, a rigid part).
+    hinge axis h2 (F.1). locked: the hinge held at its angle (its rate taken as 0, theta_ddot =
+    0: a rigid part of the hub).
     """
 
     mass: jax.Array
@@ -112,6 +115,59 @@ def initial_state(body: FlexibleBody, omega, theta=None, theta_dot=None, rho=Non
     return FlexState(omega, given(theta, n), given(theta_dot, n), given(rho, m), given(rho_dot, m))
 
 
+def _check(name: str, x, shape, positive=False, nonnegative=False):
+    """One-line ValueError unless x has ``shape`` and, where concrete, is finite (positive /
+    non-negative)."""
+    if np.shape(x) != shape:
+        raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
+    v = checks.concrete(x, name)
+    if v is None:
+        return None
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be finite, got {v.tolist()}")
+    if positive and np.any(v <= 0):
+        raise ValueError(f"{name} must be positive, got {v.tolist()}")
+    if nonnegative and np.any(v < 0):
+        raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
+    return v
+
+
+def _check_inertia(name: str, x):
+    v = _check(name, x, (3, 3))
+    if v is not None and (not np.allclose(v, v.T, rtol=1e-12, atol=0) or np.linalg.eigvalsh(v).min() <= 0):
+        raise ValueError(f"{name} must be symmetric positive definite, got {v.tolist()}")
+
+
+def check(body: FlexibleBody) -> None:
+    """One-line ValueErrors for bad parameters, where they are concrete: masses and
+    inertias positive (symmetric positive definite), d, k, c non-negative, dcm_HB a
+    rotation (orthonormal rows, right-handed), p_hat a unit vector, every value finite."""
+    _check("hub mass [kg]", body.hub.mass, (), positive=True)
+    _check_inertia("hub inertia [kg m^2]", body.hub.inertia)
+    _check("hub r_BcB [m]", body.hub.r_BcB, (3,))
+    for i, panel in enumerate(body.panels):
+        name = f"panel {i + 1}"
+        _check(f"{name} mass [kg]", panel.mass, (), positive=True)
+        _check_inertia(f"{name} inertia [kg m^2]", panel.inertia)
+        for field, unit in (("d", "m"), ("k", "N m/rad"), ("c", "N m s/rad")):
+            _check(f"{name} {field} [{unit}]", getattr(panel, field), (), nonnegative=True)
+        _check(f"{name} r_HB [m]", panel.r_HB, (3,))
+        H = _check(f"{name} dcm_HB", panel.dcm_HB, (3, 3))
+        if H is not None and (np.abs(H @ H.T - np.eye(3)).max() > _UNIT_TOLERANCE
+                              or np.linalg.det(H) <= 0):
+            raise ValueError(f"{name} dcm_HB must be a rotation (orthonormal rows h1, h2, h3, h3 = h1 x h2), "
+                             f"got {H.tolist()}")
+    for j, particle in enumerate(body.slosh):
+        name = f"slosh particle {j + 1}"
+        _check(f"{name} mass [kg]", particle.mass, (), positive=True)
+        for field, unit in (("k", "N/m"), ("c", "N s/m")):
+            _check(f"{name} {field} [{unit}]", getattr(particle, field), (), nonnegative=True)
+        _check(f"{name} r_PB [m]", particle.r_PB, (3,))
+        p = _check(f"{name} p_hat", particle.p_hat, (3,))
+        if p is not None and abs(np.linalg.norm(p) - 1.0) > _UNIT_TOLERANCE:
+            raise ValueError(f"{name} p_hat must be a unit vector, got {p.tolist()} (norm {np.linalg.norm(p)})")
+
+
 # --- geometry ----------------------------------------------------------------------------
 
 
@@ -173,7 +229,8 @@ def _parts(body: FlexibleBody, state: FlexState):
     r_c = _cast(hub.r_BcB, omega, 1) + zero
     parts = [(_Part(_scalar(hub.mass, omega), r_c, zero, zero, _cast(hub.inertia, omega, 2), None, None), None)]
     for i, panel in enumerate(body.panels):
-        theta, theta_dot = state.theta[i], state.theta_dot[i]
+        theta = state.theta[i]
+        theta_dot = jnp.zeros_like(theta) if panel.locked else state.theta_dot[i]
         s1, s2, s3 = panel_axes(panel, theta, omega)
         d = _scalar(panel.d, omega)
         r = _cast(panel.r_HB, omega, 1) - d * s1
@@ -292,7 +349,10 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
 def derivative(body: FlexibleBody, state: FlexState, torque=None) -> FlexState:
     """The state's rate (omega_dot, theta_dot, theta_ddot, rho_dot, rho_ddot) (F.10)."""
     acc = accelerations(body, state, torque)
-    return FlexState(acc.omega_dot, state.theta_dot, acc.theta_ddot, state.rho_dot, acc.rho_ddot)
+    theta_rate = [jnp.zeros_like(state.theta[i]) if panel.locked else state.theta_dot[i]
+                  for i, panel in enumerate(body.panels)]
+    theta_rate = jnp.stack(theta_rate) if theta_rate else state.theta_dot
+    return FlexState(acc.omega_dot, theta_rate, acc.theta_ddot, state.rho_dot, acc.rho_ddot)
 
 
 def rk4_step(body: FlexibleBody, state: FlexState, dt, torque=None) -> FlexState:
@@ -387,6 +447,8 @@ def modes(body: FlexibleBody, dtype=None) -> Modes:
     M_rr, M_rf, M_ff = M[np.ix_(rigid, rigid)], M[np.ix_(rigid, free)], M[np.ix_(free, free)]
     M_eff = M_ff - M_rf.T @ jnp.linalg.solve(M_rr, M_rf)
     springs = [p for p in body.panels if not p.locked] + list(body.slosh)
+    if not springs:
+        return Modes(jnp.zeros(0, dtype), jnp.zeros(0, dtype), jnp.zeros((0, 0), dtype))
     k = jnp.stack([jnp.asarray(p.k).astype(dtype) for p in springs])
     c = jnp.stack([jnp.asarray(p.c).astype(dtype) for p in springs])
     L = jnp.linalg.cholesky(M_eff)
