@@ -35,15 +35,18 @@ is skipped and listed as such):
   the default sweep one program per controller; on CPU the sweep's own rule), cold (an
   empty compilation cache) then warm (the cache the cold run filled), each a fresh
   process: the process's wall time and the sweep's own loop time.
-* ``precision`` (e): the same sweep in float32 (a fresh process, its own cache) against
+* ``flight`` (d), first part: a timed slice of the run of 10⁵ flight missions × 4000 s ×
+  PD: the sweep's chunk program (``run_chunk``) on the chunk the policy gives for 10⁵
+  samples (8192 drawn, repeated up to the chunk) over a 20 s horizon, its first call
+  (compilation included) and a second one timed, extrapolated linearly to 400 000 steps
+  (an extrapolation, recorded as such); then XLA's memory analysis of that program at 64
+  samples (bytes per sample, against the policy's assumed figure).
+* ``precision`` (e): the default sweep in float32 (a fresh process, its own cache) against
   the warm float64 run's samples: per-sample relative differences of each controller's
   metrics (median, 99th percentile, largest) and the share of samples whose diverged flag
   changes.
-* ``flight`` (d): ``sweeps/flight.toml`` at 1 024 samples (the same protocol, cold); then
-  a timed slice of the run of 10⁵ flight missions × 4000 s × PD: the sweep's chunk
-  program (``run_chunk``) on the chunk the policy gives for 10⁵ samples over a short
-  horizon, compiled apart, its time extrapolated linearly to 400 000 steps (an
-  extrapolation, recorded as such).
+* ``flight`` (d), second part: ``sweeps/flight.toml`` at its 1 024 samples, cold, as
+  the default sweep's runs.
 
 Every measurement is a JSON line on stdout with its part, the command that reproduces
 it, the device and the JAX version; the record (``--out``, default
@@ -55,6 +58,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import re
@@ -73,6 +77,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if __package__ in (None, ""):  # run as a script: the repository root on the path
     sys.path.insert(0, str(ROOT))
 
+DRAWN = 8192  # samples the 10^5 slice draws (repeated up to its chunk)
 TOLERANCE = 1e-13  # unrolled against unroll 1, relative to each output's largest value
 PARTS = ("kernels", "steps", "sweep", "precision", "flight")
 # (seconds at most, seconds at least to start) per child on one H100/H200; --quick: on 2 CPU cores
@@ -135,6 +140,7 @@ def launches(text: str, n_steps: int) -> dict:
     """Kernel launches per trajectory step of compiled HLO text (the module docstring's method)."""
     comps, entry = _computations(text)
     counts = {"fusion": 0.0, "custom-call": 0.0, "other": 0.0}
+    buffered = [0.0]  # launches inside XLA:GPU command buffers (CUDA graphs: one launch for the whole call)
     other_ops: dict[str, float] = {}
     state = {"iterations": 0.0, "unknown_trip_counts": 0}
     loops = []  # (body launches per iteration, trip count) of each while loop
@@ -142,13 +148,14 @@ def launches(text: str, n_steps: int) -> dict:
     def own_launches(name):
         return sum(1 for op, _ in comps.get(name, ()) if op not in BOOKKEEPING)
 
-    def walk(name, times, depth=0):
+    def walk(name, times, depth=0, buffer=False):
         if depth > 50 or name not in comps:
             return
         for op, rest in comps[name]:
             if op not in BOOKKEEPING:
                 key = op if op in ("fusion", "custom-call") else "other"
                 counts[key] += times
+                buffered[0] += times if buffer else 0.0
                 if key == "other":
                     other_ops[op] = other_ops.get(op, 0.0) + times
             elif op == "while":
@@ -161,19 +168,19 @@ def launches(text: str, n_steps: int) -> dict:
                 loops.append({"body": body, "launches_per_iteration": own_launches(body), "trip_count": n if trip
                               else None, "runs": times})
                 state["iterations"] += times * n
-                walk(body, times * n, depth + 1)
-                walk(cond, times * (n + 1), depth + 1)
+                walk(body, times * n, depth + 1, buffer)
+                walk(cond, times * (n + 1), depth + 1, buffer)
             elif op == "call":
                 m = re.search(r"to_apply=%?([\w.\-]+)", rest)
                 if m:
-                    walk(m.group(1), times, depth + 1)
+                    walk(m.group(1), times, depth + 1, buffer or "command_buffer" in m.group(1))
             elif op == "conditional":
                 found = re.search(r"branch_computations=\{([^}]*)\}", rest)
                 names = re.findall(r"[\w.\-]+", found.group(1)) if found else \
                     re.findall(r"(?:true|false)_computation=%?([\w.\-]+)", rest)
                 names = [n for n in names if n in comps]
                 if names:  # the largest branch
-                    walk(max(names, key=own_launches), times, depth + 1)
+                    walk(max(names, key=own_launches), times, depth + 1, buffer)
 
     walk(entry, 1.0)
     total = sum(counts.values())
@@ -182,6 +189,7 @@ def launches(text: str, n_steps: int) -> dict:
         "fusions_per_step": counts["fusion"] / n_steps,
         "custom_calls_per_step": counts["custom-call"] / n_steps,
         "other_per_step": counts["other"] / n_steps,
+        "in_command_buffers_per_step": buffered[0] / n_steps,
         "other_ops_per_step": {k: v / n_steps for k, v in sorted(other_ops.items())},
         "while_iterations_per_step": state["iterations"] / n_steps,
         "while_loops_without_trip_count": state["unknown_trip_counts"],
@@ -395,22 +403,12 @@ def child_slice(spec: dict) -> None:
     mesh = engine.batch_mesh()
     chunk, per_sample = policy_chunk(config, mesh)
     start = time.perf_counter()
-    samples = draw.draw(config.dispersions, config.leaves, config.seed, chunk, config.max_draws,
+    drawn = min(chunk, DRAWN)  # drawn, then repeated up to the chunk: the time per step does not depend on values
+    samples = draw.draw(config.dispersions, config.leaves, config.seed, drawn, config.max_draws,
                         mission=config.mission)
-    inputs = batched.inputs(samples, np.float64)
+    inputs = jax.tree.map(lambda x: x[np.arange(chunk) % drawn], batched.inputs(samples, np.float64))
     draw_s = time.perf_counter() - start
     gains = jax.tree.map(np.asarray, config.gains["pd"])
-    measured = None
-    if spec.get("measure_bytes"):  # XLA's own figure for the chunk program, at the probe size
-        import functools as ft
-
-        probe = chunks.host_chunk(64, mesh.size)
-        args = jax.tree.map(lambda x: x[:probe], inputs)
-        run = ft.partial(engine.simulate_batch, controller="pd", mission=config.mission, mesh=None)
-        try:
-            measured = chunks.compiled_bytes_per_sample(run, *args, gains, samples=probe)
-        except Exception as err:  # noqa: BLE001 (a backend without memory analysis)
-            measured = f"unavailable: {err}"
     start = time.perf_counter()
     engine.run_chunk(inputs, gains, "pd", config.mission, mesh)
     first_s = time.perf_counter() - start
@@ -420,12 +418,23 @@ def child_slice(spec: dict) -> None:
     n_steps = steps_for_horizon(config.T, config.dt)
     full_steps, full_samples = 400_000, 100_000
     per_chunk = run_s * full_steps / n_steps
-    emit(part="flight", name="slice-1e5", extrapolated=True, chunk=chunk, T=config.T, n_steps=n_steps,
-         draw_s=draw_s, first_call_s=first_s, run_s=run_s, trajectory_steps_per_s=chunk * n_steps / run_s,
-         bytes_per_sample_assumed=per_sample, bytes_per_sample_compiled_probe=measured,
+    emit(part="flight", name="slice-1e5", extrapolated=True, chunk=chunk, samples_drawn=drawn, T=config.T,
+         n_steps=n_steps, draw_s=draw_s, first_call_s_compile_included=first_s, run_s=run_s,
+         trajectory_steps_per_s=chunk * n_steps / run_s, bytes_per_sample_assumed=per_sample,
          extrapolation=f"{full_samples} missions x {full_steps} steps x PD: {-(-full_samples // chunk)} chunk(s) "
-                       f"of {chunk} at {per_chunk:.1f} s each (run_s x {full_steps}/{n_steps}), linear in steps",
+                       f"of {chunk} at {per_chunk:.1f} s each (run_s x {full_steps}/{n_steps}), linear in steps; "
+                       f"{drawn} samples drawn, repeated to the chunk",
          full_run_s_extrapolated=-(-full_samples // chunk) * per_chunk, command=spec["command"])
+    if spec.get("measure_bytes"):  # XLA's own figure for the chunk program, at a probe size (one more compile)
+        probe = chunks.host_chunk(64, mesh.size)
+        args = jax.tree.map(lambda x: x[:probe], inputs)
+        run = functools.partial(engine.simulate_batch, controller="pd", mission=config.mission, mesh=None)
+        try:
+            measured = chunks.compiled_bytes_per_sample(run, *args, gains, samples=probe)
+        except Exception as err:  # a backend without memory analysis
+            measured = f"unavailable: {err}"
+        emit(part="flight", name="bytes-per-sample", probe_samples=probe, bytes_per_sample_compiled=measured,
+             working_bytes_assumed=chunks.WORKING_BYTES, command=spec["command"])
 
 
 # --- the parent ----------------------------------------------------------------------------
@@ -616,26 +625,28 @@ def main(argv=None) -> int:
             if "sweep" in parts:
                 sweep("sweep-cold", "sweep", "sweeps/default.toml", small, "float64", cache, "default-cold")
             sweep("sweep-warm", "sweep", "sweeps/default.toml", small, "float64", cache, "default-warm")
-            if "precision" in parts and "default-warm" in outs:
-                cache32 = work / "cache-f32"
-                cache32.mkdir()
-                sweep("precision", "precision", "sweeps/default.toml", small, "float32", cache32, "default-float32")
-                if "default-float32" in outs:
-                    controllers = ["pd"] if quick else ["pd", "adaptive"]
-                    record.add({"part": "precision", "name": "float32-vs-float64",
-                                "command": f"{me} --parts sweep,precision",
-                                **compare_precision(outs["default-warm"], outs["default-float32"], controllers)})
-        if "flight" in parts:
-            cache = work / "cache-flight"
-            cache.mkdir()
-            sweep("flight", "flight", "sweeps/flight.toml", small, "float64", cache, "flight-1024")
+        flight_cache = work / "cache-flight"
+        flight_cache.mkdir()
+        if "flight" in parts:  # the 10^5 slice before the 1024-sample flight sweep: a goal of its own
             limit = start("slice", "flight: the 1e5 slice")
             if limit:
-                # --quick: the flight sweep's own program (its samples, horizon and chunk: a cache hit)
+                # --quick: the quick flight sweep's program (its horizon, chunk and controller)
                 spec = {"samples": 16 if quick else 100_000, "T": 1.0 if quick else 20.0, "measure_bytes": not quick,
-                        "overrides": ["sweep.chunk=16"] if quick else [],
-                        "command": f"{me} --parts flight"}
-                run_child("slice", spec, limit, record, dict(os.environ, SO3JAX_CACHE_DIR=str(cache)))
+                        "overrides": ["sweep.chunk=16"] if quick else [], "command": f"{me} --parts flight"}
+                run_child("slice", spec, limit, record, dict(os.environ, SO3JAX_CACHE_DIR=str(flight_cache)))
+        if "precision" in parts and "default-warm" in outs:
+            cache32 = work / "cache-f32"
+            cache32.mkdir()
+            sweep("precision", "precision", "sweeps/default.toml", small, "float32", cache32, "default-float32")
+            if "default-float32" in outs:
+                controllers = ["pd"] if quick else ["pd", "adaptive"]
+                record.add({"part": "precision", "name": "float32-vs-float64",
+                            "command": f"{me} --parts sweep,precision",
+                            **compare_precision(outs["default-warm"], outs["default-float32"], controllers)})
+        if "flight" in parts:  # cold (--quick: the slice's program, compiled by the slice)
+            sweep_cache = flight_cache if quick else work / "cache-flight-sweep"
+            sweep_cache.mkdir(exist_ok=True)
+            sweep("flight", "flight", "sweeps/flight.toml", small, "float64", sweep_cache, "flight-1024")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     record.write()

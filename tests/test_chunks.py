@@ -89,6 +89,24 @@ def test_chunk_on_reads_the_devices():
     assert chunks.device_memory(jax.devices("cpu")[0]) is None
 
 
+def test_the_sweep_wiring_on_a_fake_accelerator(monkeypatch):
+    """benchmarks/gpu.py's policy_chunk (the lines docs/gpu-plan.md wires into run_sweep):
+    on the host the sweep's chunk; on a device with 80 GiB free the default sweep's 1024
+    samples in one chunk, at WORKING_BYTES and the traced inputs and outputs a sample."""
+    from benchmarks.gpu import policy_chunk
+    from so3jax.jobs.sweep import load_config
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", sj.InertiaWarning)
+        config = load_config(None, ("T=0.05", 'controllers=["pd"]'))
+    mesh = engine.batch_mesh()
+    assert policy_chunk(config, mesh) == (engine.padded_chunk(config.chunk, mesh.size), None)
+    monkeypatch.setattr(chunks, "device_memory", lambda device: 80 * GIB)
+    chunk, per_sample = policy_chunk(config, mesh)
+    assert chunk == config.samples == 1024
+    assert chunks.WORKING_BYTES + 100 < per_sample < chunks.WORKING_BYTES + 10_000
+
+
 def test_bad_figures_are_refused():
     with pytest.raises(ValueError, match="positive"):
         chunks.chunk_for(GIB, 1000, 0)
