@@ -279,27 +279,26 @@ def child_loops(spec: dict) -> None:
     programs = {}  # one per (wiring, batch, effective unroll): the flight loop's 16 is its 10
     for _, wiring, batch, unroll in jobs:
         programs.setdefault((wiring, batch, effective(wiring, unroll)), None)
-    lowered = {}
-    for key in programs:
+
+    def build(key, low, arg, lower_s):
+        start = time.perf_counter()
+        return low.compile(), arg, lower_s, time.perf_counter() - start
+
+    pool = ThreadPoolExecutor(max(1, min(len(programs), os.cpu_count() or 1)))
+    futures = {}
+    for key in programs:  # each compiles (in the pool) while the next one is traced
         start = time.perf_counter()
         fn, arg = _program(key[0], key[1], n_steps, key[2])
-        lowered[key] = (fn.lower(arg), arg, time.perf_counter() - start)
-    log(f"lowered {len(lowered)} programs")
-
-    def build(key):
-        low, arg, lower_s = lowered[key]
-        start = time.perf_counter()
-        return key, (low.compile(), arg, lower_s, time.perf_counter() - start)
-
-    pool = ThreadPoolExecutor(max(1, min(len(lowered), os.cpu_count() or 1)))
-    futures = {key: pool.submit(build, key) for key in lowered}
+        low = fn.lower(arg)
+        futures[key] = pool.submit(build, key, low, arg, time.perf_counter() - start)
+    log(f"lowered {len(futures)} programs")
     compiled = {}
     base = {}  # (wiring, batch) -> unroll 1's outputs
     command = spec["command"]
     for part, wiring, batch, unroll in jobs:
         key = (wiring, batch, effective(wiring, unroll))
         if key not in compiled:
-            compiled[key] = futures[key].result()[1]
+            compiled[key] = futures[key].result()
         program, arg, lower_s, compile_s = compiled[key]
         if part == "kernels":
             counts = launches(program.as_text(), n_steps)
@@ -480,21 +479,23 @@ class Record:
         tmp.replace(self.path)
 
 
-def run_child(kind: str, spec: dict, limit: float, record: Record, env: dict | None = None) -> bool:
+def run_child(kind: str, spec: dict, limit: float, record: Record, env: dict | None = None) -> int:
     """Run one child (this script, --child KIND), its JSON lines into the record as they come;
-    killed at ``limit`` seconds. True when it finished with status 0."""
+    killed at ``limit`` seconds. The number of its lines (0 where it failed before any)."""
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", kind, "--spec", json.dumps(spec)]
     start = time.perf_counter()
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True, env=env or os.environ.copy(),
                             cwd=ROOT)
     timer = threading.Timer(limit, proc.kill)
     timer.start()
+    lines = 0
     try:
         for line in proc.stdout:
             line = line.strip()
             if line.startswith("{"):
                 try:
                     record.add({**json.loads(line), "child_wall_s": time.perf_counter() - start})
+                    lines += 1
                 except ValueError:
                     pass
         code = proc.wait()
@@ -503,10 +504,11 @@ def run_child(kind: str, spec: dict, limit: float, record: Record, env: dict | N
     wall = time.perf_counter() - start
     if code != 0:
         why = f"killed at its limit of {limit:.0f} s" if wall >= limit - 1 else f"exit status {code}"
+        why += f", after {lines} measurement(s)" if lines else ""
         record.failures.append({"child": kind, "name": spec.get("name"), "why": why, "wall_s": wall})
         record.write()
         log(f"{kind} {spec.get('name', '')}: {why}")
-    return code == 0
+    return lines
 
 
 def compare_precision(f64: Path, f32: Path, controllers) -> dict:
@@ -615,7 +617,7 @@ def main(argv=None) -> int:
                 "command": f"SO3JAX_CACHE_DIR={'<empty>' if not any(cache.iterdir()) else '<filled>'} "
                            f"so3jax sweep {config} --precision {precision} --chunk <policy>{extra}"}
         env = dict(os.environ, SO3JAX_CACHE_DIR=str(cache))
-        if run_child("sweep", spec, limit, record, env):
+        if run_child("sweep", spec, limit, record, env):  # its line: the run and its folder complete
             outs[label] = out
 
     try:
