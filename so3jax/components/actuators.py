@@ -390,10 +390,16 @@ class Wheels(Actuator):
             _check_values("wheel plant_axes", self.plant_axes, shape)
         if self.plant_spin_inertia is not None:
             _check_values("wheel plant_spin_inertia [kg m^2]", self.plant_spin_inertia, (n,), positive=True)
-        if self.has_friction:
-            _check_values("wheel coulomb_friction [N m]", self.coulomb_friction, (n,), nonnegative=True)
-            _check_values("wheel viscous_friction [N m s/rad]", self.viscous_friction, (n,), nonnegative=True)
-            _check_values("wheel friction_speed [rad/s]", self.friction_speed, (n,), positive=True)
+        friction = (self.coulomb_friction, self.viscous_friction, self.friction_speed)
+        for x, name, sign in zip(friction, ("coulomb_friction [N m]", "viscous_friction [N m s/rad]",
+                                            "friction_speed [rad/s]"), ("nonnegative", "nonnegative", "positive")):
+            if x is not None:
+                _check_values(f"wheel {name}", x, (n,), **{sign: True})
+        if any(x is None for x in friction) and not all(x is None for x in friction):
+            raise ValueError("wheel friction needs coulomb_friction, viscous_friction and friction_speed together")
+        for x, name in ((self.stuck, "stuck"), (self.friction_factor, "friction_factor")):
+            if x is not None:
+                _check_values(f"wheel {name}", x, (n,), nonnegative=True)
         speed, limit = _values(self.initial_speed), _values(self.max_speed)
         if speed is not None and limit is not None and np.any(np.abs(speed) > limit):
             i = int(np.argmax(np.abs(speed) > limit))
