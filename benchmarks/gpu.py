@@ -57,7 +57,6 @@ crashes or runs out of time keeps what the others measured. Progress goes to std
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import functools
 import json
 import os
@@ -336,17 +335,11 @@ def child_loops(spec: dict) -> None:
 
 
 def policy_chunk(config, mesh) -> tuple[int, float]:
-    """(the chunk of so3jax.parallel.chunks for this sweep on this mesh, bytes per sample it
-    assumed): what run_sweep computes once the policy is wired in (docs/gpu-plan.md)."""
+    """(the chunk the sweep runs on this mesh, the bytes per sample it assumed: None on the
+    host): :func:`so3jax.jobs.sweep.engine.device_chunk`."""
     from so3jax.jobs.sweep import engine
-    from so3jax.parallel import chunks
 
-    chunk = engine.padded_chunk(config.chunk, mesh.size)
-    if chunks.device_memory(mesh.devices.flat[0]) is None:  # the host: the sweep's own rule
-        return chunks.chunk_on(mesh.devices.flat, 1, config.samples, config.chunk), None
-    io = engine.memory_needed(dataclasses.replace(config, samples=0), chunk, mesh) / chunk
-    per_sample = chunks.WORKING_BYTES + io
-    return chunks.chunk_on(mesh.devices.flat, per_sample, config.samples, config.chunk), per_sample
+    return engine.device_chunk(config, mesh)
 
 
 def _setup_command_jax(precision: str):

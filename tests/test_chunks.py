@@ -90,11 +90,12 @@ def test_chunk_on_reads_the_devices():
 
 
 def test_the_sweep_wiring_on_a_fake_accelerator(monkeypatch):
-    """benchmarks/gpu.py's policy_chunk (the lines docs/gpu-plan.md wires into run_sweep):
-    on the host the sweep's chunk; on a device with 80 GiB free the default sweep's 1024
-    samples in one chunk, at WORKING_BYTES and the traced inputs and outputs a sample."""
-    from benchmarks.gpu import policy_chunk
+    """The chunk run_sweep takes (engine.device_chunk): on the host the sweep's chunk; on a
+    device with 80 GiB free the default sweep's 1024 samples in one chunk, at WORKING_BYTES
+    and the traced inputs and outputs a sample."""
     from so3jax.jobs.sweep import load_config
+
+    policy_chunk = engine.device_chunk
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", sj.InertiaWarning)

@@ -37,7 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--T", type=float, help="horizon [s] (the mission's T)")
     p.add_argument("--controllers", help=controllers_help("the mission's"))
     p.add_argument("--chunk", type=int,
-                   help="samples per batch (at least 8 per device, a multiple of the device count)")
+                   help="samples per batch on the host (at least 8 per device, a multiple of the device count; "
+                        "an accelerator runs the largest batch its memory holds)")
     p.add_argument("--seed", type=int, help="sampling seed")
     p.add_argument(
         "--set",

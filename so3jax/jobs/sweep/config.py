@@ -45,7 +45,8 @@ class SweepConfig:
     ``dispersions`` (and dispersed component ``leaves``), each flown with every controller
     of the mission at its gains, so results pair sample by sample.
 
-    chunk: samples per batch (at least 8 per device, a multiple of the device count);
+    chunk: samples per batch on the host (at least 8 per device, a multiple of the device count;
+    an accelerator runs the largest batch its memory holds);
     max_draws: attempts at a positive definite sample before it is rejected; a sample
     diverged when its state is non-finite or its attitude error exceeds
     divergence_angle_deg [deg]; in a loop with limits, a sample is flagged where a

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import operator
 import shutil
@@ -24,12 +25,12 @@ from so3jax.jobs.sweep.summary import summarize
 from so3jax.missions import batched, draw
 from so3jax.missions.draw import MAX_SAMPLES
 from so3jax.missions.mission import Mission
-from so3jax.parallel import devices, distributed
+from so3jax.parallel import chunks, devices, distributed
 from so3jax.results import runfolder
 from so3jax.results.io import save_npz
 from so3jax.sim import memory
 
-MIN_SHARD = 8  # samples per device and batch, at least
+MIN_SHARD = chunks.MIN_SHARD  # samples per device and batch, at least
 LAYOUTS = ("chunks", "mesh")  # how several processes share a sweep (run_sweep)
 
 
@@ -53,8 +54,21 @@ def batch_mesh(layout: str = "mesh") -> Mesh:
 
 
 def padded_chunk(chunk: int, n_devices: int) -> int:
-    """Samples per chunk: a multiple of the device count, at least MIN_SHARD per device."""
-    return n_devices * max(MIN_SHARD, -(-chunk // n_devices))
+    """Samples per chunk on the host: a multiple of the device count, at least MIN_SHARD per
+    device (:func:`so3jax.parallel.chunks.host_chunk`)."""
+    return chunks.host_chunk(chunk, n_devices)
+
+
+def device_chunk(config: SweepConfig, mesh: Mesh) -> tuple[int, float | None]:
+    """(samples per chunk, the bytes a sample was taken to need, None on the host): on the
+    host the configured chunk, padded (:func:`padded_chunk`); on an accelerator the largest
+    chunk whose samples fit its memory (:func:`so3jax.parallel.chunks.chunk_on`), each
+    needing its chunk program's inputs and outputs and :data:`~so3jax.parallel.chunks.WORKING_BYTES`."""
+    chunk = padded_chunk(config.chunk, mesh.size)
+    if chunks.device_memory(mesh.devices.flat[0]) is None:
+        return chunk, None
+    per_sample = chunks.WORKING_BYTES + memory_needed(dataclasses.replace(config, samples=0), chunk, mesh) / chunk
+    return chunks.chunk_on(mesh.devices.flat, per_sample, config.samples, config.chunk), per_sample
 
 
 def run_chunk(inputs, gains, controller: str, mission: Mission, mesh: Mesh, pointing: bool = False) -> dict:
@@ -83,7 +97,7 @@ def run_sweep(
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {', '.join(LAYOUTS)}, got {layout!r}")
     mesh = batch_mesh(layout)
-    chunk = padded_chunk(config.chunk, mesh.size)
+    chunk = device_chunk(config, mesh)[0]
     budget = check_size(config, chunk, max_memory, mesh)
     settings = dict(config_to_dict(config), mission=config.mission.describe())
     with runfolder.claim(out, "sweep", settings, resume=resume, lock=distributed.writer()) as run:
