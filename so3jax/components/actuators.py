@@ -38,17 +38,7 @@ def _values(x):
 
 def _check_values(name: str, x, shape, positive: bool = False, nonnegative: bool = False) -> None:
     """One-line ValueError unless x is real numbers of ``shape``, finite (positive / non-negative)."""
-    v = checks.concrete(x, name)
-    if np.shape(x) != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
-    if v is None:
-        return
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be finite, got {v.tolist()}")
-    if positive and np.any(v <= 0):
-        raise ValueError(f"{name} must be positive, got {v.tolist()}")
-    if nonnegative and np.any(v < 0):
-        raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
+    checks.values(name, x, shape, positive, nonnegative)
 
 
 # --- stored momentum, ideal and saturated body torques -----------------------------------

@@ -87,6 +87,23 @@ def concrete(value, where: str) -> np.ndarray | None:
     return a
 
 
+def values(where: str, x, shape, positive: bool = False, nonnegative: bool = False) -> np.ndarray | None:
+    """A parameter's values (NumPy, None where traced): one-line ValueError unless x has
+    ``shape`` and, where concrete, is finite (positive / non-negative)."""
+    v = concrete(x, where)
+    if np.shape(x) != shape:
+        raise ValueError(f"{where} must have shape {shape}, got {np.shape(x)}")
+    if v is None:
+        return None
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{where} must be finite, got {v.tolist()}")
+    if positive and np.any(v <= 0):
+        raise ValueError(f"{where} must be positive, got {v.tolist()}")
+    if nonnegative and np.any(v < 0):
+        raise ValueError(f"{where} must be non-negative, got {v.tolist()}")
+    return v
+
+
 def boolean(value, where: str) -> bool:
     """true or false, else ValueError naming ``where``."""
     if not isinstance(value, bool):

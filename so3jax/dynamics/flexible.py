@@ -116,20 +116,9 @@ def initial_state(body: FlexibleBody, omega, theta=None, theta_dot=None, rho=Non
 
 
 def _check(name: str, x, shape, positive=False, nonnegative=False):
-    """One-line ValueError unless x has ``shape`` and, where concrete, is finite (positive /
-    non-negative)."""
-    if np.shape(x) != shape:
-        raise ValueError(f"{name} must have shape {shape}, got {np.shape(x)}")
-    v = checks.concrete(x, name)
-    if v is None:
-        return None
-    if not np.all(np.isfinite(v)):
-        raise ValueError(f"{name} must be finite, got {v.tolist()}")
-    if positive and np.any(v <= 0):
-        raise ValueError(f"{name} must be positive, got {v.tolist()}")
-    if nonnegative and np.any(v < 0):
-        raise ValueError(f"{name} must be non-negative, got {v.tolist()}")
-    return v
+    """:func:`so3jax.core.checks.values`: x's values where concrete, a one-line ValueError
+    unless finite (positive / non-negative) of ``shape``."""
+    return checks.values(name, x, shape, positive, nonnegative)
 
 
 def _check_inertia(name: str, x):
