@@ -1,7 +1,6 @@
 """The rollout: disturbance recipe, in-scan metrics, phases, vmap/grad, divergence."""
 
 import dataclasses
-import functools
 import importlib
 import warnings
 
@@ -15,11 +14,21 @@ from so3jax.core import so3
 from so3jax.sim import metrics
 from so3jax.sim.loop import initial_state
 from so3jax.sim.rollout import disturbance_at, disturbances, observe, rollout, step
+from tests._shared_programs import fast_jit
 from tests.helpers import custom_scenario, sinusoidal_rate
 
 warnings.filterwarnings("ignore", category=sj.InertiaWarning)
 
-SHORT = sj.paper_scenario(T=20.0)
+SHORT_T = 20.0
+SHORT = sj.paper_scenario(T=SHORT_T)
+# The adaptive law on SHORT recording every step: one compiled program, shared by the tests
+# that fly it (the seed is traced).
+ADAPTIVE = (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS)
+
+
+def fly_adaptive(seed, scenario=SHORT):
+    """simulate(scenario, the adaptive law, its paper gains, seed, record_every=1)."""
+    return sj.simulate(scenario, *ADAPTIVE, seed, record_every=1)
 
 
 def test_disturbance_follows_the_fold_in_recipe():
@@ -114,9 +123,8 @@ def test_disturbance_reaches_the_plant():
 
 def test_in_scan_metrics_match_the_recorded_trajectory():
     """With record_every=1 the history holds every step start: recompute docs/model.md §6 from it."""
-    scenario = sj.paper_scenario(T=30.0)
-    controller, gains = sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS
-    r = sj.simulate(scenario, controller, gains, 2, record_every=1)
+    scenario = SHORT
+    r = fly_adaptive(2)
     h, m = r.history, r.metrics
     n = scenario.n_steps
     assert h.t.shape == (n,)
@@ -149,15 +157,14 @@ def test_phases_switch_on_step_boundaries():
 
 
 def test_closed_form_and_integrated_reference_agree():
-    scenario = sj.paper_scenario(T=50.0)
-    rate = scenario.reference.rates[0]
-    integrated = dataclasses.replace(scenario, reference=sj.RateFunction(lambda t: rate + 0.0 * t))
-    a = sj.simulate(scenario, sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 1)
-    b = sj.simulate(integrated, sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 1)
+    rate = SHORT.reference.rates[0]
+    integrated = dataclasses.replace(SHORT, reference=sj.RateFunction(lambda t: rate + 0.0 * t))
+    a = fly_adaptive(1)
+    b = fly_adaptive(1, integrated)
     np.testing.assert_allclose(a.final.R, b.final.R, atol=1e-13)
     np.testing.assert_allclose(a.metrics.rmse, b.metrics.rmse, rtol=1e-10)
     # the paper's R_d(t) = exp(hat(Omega_d) t)
-    np.testing.assert_allclose(b.final.R_d, so3.exp(rate * 50.0), atol=1e-13)
+    np.testing.assert_allclose(b.final.R_d, so3.exp(rate * SHORT_T), atol=1e-13)
 
 
 def test_vmap_over_seeds_and_inertias_matches_single_runs():
@@ -194,15 +201,19 @@ def test_gradient_wrt_log_gains_matches_finite_differences(name, mode):
     cls = type(gains)
     log_g = jnp.log(jnp.array([float(g) for g in gains]))
 
-    @jax.jit
     def cost(lg):
         m = rollout(scenario, controller, cls(*jnp.exp(lg)), 0).metrics
         return m.rmse / 1e-3 + m.effort
 
-    grad = np.asarray((jax.grad if mode == "reverse" else jax.jacfwd)(cost)(log_g))
+    # one compiled program: the derivative with the cost alongside (the central differences
+    # read the cost from it at the shifted points), XLA's backend optimizations off
+    derivative = (jax.grad if mode == "reverse" else jax.jacfwd)(lambda lg: (c := cost(lg), c), has_aux=True)
+    program = fast_jit(derivative, log_g)
+    grad = np.asarray(program(log_g)[0])
     assert np.all(np.isfinite(grad))
     h = 1e-5
-    fd = [(cost(log_g.at[i].add(h)) - cost(log_g.at[i].add(-h))) / (2 * h) for i in range(log_g.size)]
+    at = lambda lg: program(lg)[1]
+    fd = [(at(log_g.at[i].add(h)) - at(log_g.at[i].add(-h))) / (2 * h) for i in range(log_g.size)]
     np.testing.assert_allclose(grad, np.asarray(fd), rtol=1e-4, atol=1e-8 * np.max(np.abs(grad)))
 
 
@@ -237,13 +248,13 @@ def test_divergence_is_reported_not_raised():
     ok = sj.simulate(scenario, sj.geometric_pd(), sj.PAPER_PD_GAINS, 0)  # the same compiled rollout
     assert not bool(ok.metrics.diverged)
     gains = sj.PDGains(jnp.array([0.5714, 5000.0]), jnp.array([25.0, 1e5]))
-    batched = jax.vmap(lambda g: rollout(scenario, sj.geometric_pd(), g, 0).metrics.diverged)(gains)
+    batched = jax.jit(jax.vmap(lambda g: rollout(scenario, sj.geometric_pd(), g, 0).metrics.diverged))(gains)
     assert batched.tolist() == [False, True]
 
 
 def test_observe_matches_the_step_sample():
-    controller, gains = sj.adaptive_backstepping(), jax.tree.map(jnp.asarray, sj.PAPER_ADAPTIVE_GAINS)
-    state = sj.simulate(SHORT, controller, gains, 0).final
+    controller, gains = ADAPTIVE[0], jax.tree.map(jnp.asarray, ADAPTIVE[1])
+    state = fly_adaptive(0).final
     k = jnp.asarray(SHORT.n_steps, jnp.int32)
 
     @jax.jit
@@ -259,11 +270,9 @@ def test_observe_matches_the_step_sample():
 
 def test_float32_follows_the_scenario_dtype():
     with jax.numpy_dtype_promotion("strict"):
-        r = sj.simulate(
-            sj.paper_scenario(T=5.0, dtype="float32"), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0
-        )
+        r = fly_adaptive(0, sj.paper_scenario(T=SHORT_T, dtype="float32"))
     assert r.metrics.rmse.dtype == jnp.float32 and r.final.R.dtype == jnp.float32
-    r64 = sj.simulate(sj.paper_scenario(T=5.0), sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS, 0)
+    r64 = fly_adaptive(0)
     np.testing.assert_allclose(r.metrics.rmse, r64.metrics.rmse, rtol=1e-3)
 
 
@@ -271,11 +280,17 @@ TINY = sj.paper_scenario(T=0.2)  # 20 steps: blocks of 5 (four), or of 3 (seven,
 LAWS = ((sj.geometric_pd(), sj.PAPER_PD_GAINS), (sj.adaptive_backstepping(), sj.PAPER_ADAPTIVE_GAINS))
 
 
-@functools.lru_cache(maxsize=None)
-def _vmapped_rollout(controller, record_every):
-    """jit(vmap(rollout)) over scenarios and seeds, one compilation per controller and block size."""
-    return jax.jit(jax.vmap(lambda s, seed, gains: rollout(s, controller, gains, seed, record_every=record_every),
-                            in_axes=(_tiny_axes(), 0, None)))
+_VMAPPED = {}
+
+
+def _vmapped_rollout(controller, record_every, *args):
+    """jit(vmap(rollout)) over scenarios and seeds at ``args``, one compilation per controller
+    and block size (XLA's backend optimizations off: the batching, not XLA's, is checked)."""
+    if (controller, record_every) not in _VMAPPED:
+        vmapped = jax.vmap(lambda s, seed, gains: rollout(s, controller, gains, seed, record_every=record_every),
+                           in_axes=(_tiny_axes(), 0, None))
+        _VMAPPED[controller, record_every] = fast_jit(vmapped, *args)
+    return _VMAPPED[controller, record_every](*args)
 
 
 def _tiny_axes():
@@ -314,11 +329,11 @@ def test_rollout_batch_equals_vmap_of_rollout(sub_batch, unroll, record_every, m
         monkeypatch.setattr(importlib.import_module("so3jax.sim.rollout"), "CPU_SUB_BATCH", sub_batch)
     for controller, gains in LAWS if unroll == 1 and not sub_batch else LAWS[:1]:
         gains = jax.tree.map(jnp.asarray, gains)
-        native = jax.jit(  # traced here, so under this test's CPU_SUB_BATCH
+        native = fast_jit(  # traced here, so under this test's CPU_SUB_BATCH
             lambda b, s, g: rollout_batch(b, controller, g, s, scenario_axes=axes, record_every=record_every,
-                                          unroll=unroll)
+                                          unroll=unroll), batched, seeds, gains
         )(batched, seeds, gains)
-        vmapped = _vmapped_rollout(controller, record_every)(batched, seeds, gains)
+        vmapped = _vmapped_rollout(controller, record_every, batched, seeds, gains)
         for a, b in zip(jax.tree.leaves(native), jax.tree.leaves(vmapped)):
             assert a.shape == b.shape
             np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-15)
