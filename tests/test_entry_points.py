@@ -29,6 +29,7 @@ import so3jax as sj
 from so3jax.components import registry as components
 from so3jax.controllers import registry
 from so3jax.missions import mission as missions
+from tests._shared_programs import fast_jit
 
 TINY = ["T=0.3", "dt=0.05", "control.period=0.1", "record_every=6"]
 # Each registered component in one loop (estimator, actuator, controller, derivative), the
@@ -43,7 +44,6 @@ MANAGED = {"mrp_feedback": ["momentum.kind='magnetorquers'", "environment.gravit
 SEEDS = jnp.arange(2)  # trajectory i: seed i, loop i (Setup.loops)
 OMEGA0 = jnp.asarray([2e-3, -1e-3, 5e-4])  # a non-zero initial rate: every law has something to do
 RTOL, ATOL = 1e-9, 1e-13
-FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
 
 
 def test_every_registered_component_is_flown():
@@ -103,9 +103,10 @@ def flown(request):
     """(setup, un-jitted rollout at seed 0, the compiled program, its outputs)."""
     setup = Setup(*request.param)
     reference = jax.tree.map(np.asarray, setup.rollout(setup.gains, OMEGA0, 0))
-    # XLA's backend optimizations off: about half the compile time of this large program,
-    # the same values to round-off (what the comparisons allow between differently fused programs)
-    program = jax.jit(setup.transformed).lower(setup.gains, OMEGA0, SEEDS).compile(FAST_COMPILE)
+    # XLA's backend optimizations and fusion emitters off: about a third of the compile time
+    # of this large program, the same values to round-off (what the comparisons allow between
+    # differently fused programs)
+    program = fast_jit(setup.transformed, setup.gains, OMEGA0, SEEDS)
     outputs = jax.tree.map(np.asarray, program(setup.gains, OMEGA0, SEEDS))
     return setup, reference, program, outputs
 
