@@ -168,7 +168,7 @@ def test_margin_goals_read_the_disk_margins_the_margins_command_refines(flight_g
     sample_margins (2000 points and bounded Brent): at least as large (the grid can only miss
     the peak of |S - I/2|) and within 1 %; a phase floor reads 2 atan(alpha / 2)."""
     values, inputs, P = flight_goals
-    _, _, read = values(P[:1], inputs, jacobian=False)
+    _, _, read = values(P, inputs, jacobian=False)  # both starts: the program the derivatives' test ran
     gains = to_gains(values.unravel(jnp.asarray(P[0])))
     refined = design._disks(inputs, gains, values.controller, values.mission, (10.0,))
     for i in values.margins:
