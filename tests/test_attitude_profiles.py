@@ -18,26 +18,9 @@ from scipy.integrate import quad
 from scipy.spatial.transform import Rotation
 
 from so3jax.dynamics import attitude_profiles as refs
+from tests._shared_programs import compiled
 
 N_BATCH = 256  # evaluations run in batches of this many times: one program per reference shape
-# XLA's backend optimizations off: about half the compile time, the same values to round-off
-FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True}
-
-
-def compiled(fn):
-    """fn, jitted and compiled with FAST_COMPILE once per argument structure, shapes and dtypes."""
-    jitted, programs = jax.jit(fn), {}
-
-    def call(*args):
-        leaves, tree = jax.tree.flatten(args)
-        key = (tree, tuple((x.shape, x.dtype, getattr(x, "weak_type", False)) for x in leaves))
-        if key not in programs:
-            programs[key] = jitted.lower(*args).compile(FAST_COMPILE)
-        return programs[key](*args)
-
-    return call
-
-
 @compiled
 def _evaluate(ref, ts):
     return jax.vmap(lambda t: (ref.attitude(t, 0), ref.rate(t, 0), ref.rate_dot(t, 0)))(ts)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from so3jax.dynamics import flexible as fx
+from tests._shared_programs import FAST_COMPILE
 
 # Basilisk's own test geometry: a hinge 0.5 m out along x, the panel outward (h1 = -x), hinging about -z
 DCM_HB = [[-1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, -1.0, 0.0]]
@@ -22,10 +23,6 @@ HUB_INERTIA = [[900.0, 10.0, -5.0], [10.0, 800.0, 8.0], [-5.0, 8.0, 600.0]]
 PANEL_INERTIA = [[100.0, 0.0, 0.0], [0.0, 50.0, 0.0], [0.0, 0.0, 50.0]]
 SKEWED_INERTIA = [[40.0, 3.0, -2.0], [3.0, 25.0, 1.5], [-2.0, 1.5, 30.0]]  # products of inertia in S
 P_HAT = [3.0**-0.5] * 3
-# XLA's backend optimizations, expensive LLVM passes and fusion emitters off: these tests
-# compare values (round-off apart between differently fused programs), a third of the compile time
-FAST_COMPILE = {"xla_backend_optimization_level": 0, "xla_llvm_disable_expensive_passes": True,
-                "xla_cpu_use_fusion_emitters": False}
 DT, STEPS = 0.01, 1000  # every flight: 10 s, the modes' periods 3-8 s
 NO_TORQUE = np.zeros(3)
 
