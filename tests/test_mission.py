@@ -254,7 +254,8 @@ def test_the_mission_keys_are_declared_params_whose_defaults_are_the_flight_miss
         for part in p.name.split("."):
             node = node.get(part) if isinstance(node, dict) else None
         assert node == p.default, p.name
-    assert missions.TOP_KEYS == ("T", "dt", "seed", "controllers", "record_every", "requirements", "faults")
+    assert missions.TOP_KEYS == ("T", "dt", "seed", "controllers", "record_every", "requirements", "faults",
+                                 "appendages", "slosh")
     assert keys.allowed("initial") == ("attitude", "quaternion", "rate")
     with pytest.raises(ValueError, match=r"initial\.rate \(Omega\(0\)\) \[rad/s\] must have shape \(3,\)"):
         missions.load(None, ["initial.rate=[0.0]"])

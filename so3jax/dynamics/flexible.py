@@ -95,6 +95,28 @@ class FlexState(NamedTuple):
     rho_dot: jax.Array
 
 
+class Modal(NamedTuple):
+    """The flexible coordinates a closed loop carries beside the hub's rate
+    (:func:`so3jax.dynamics.plant.flexible_derivative`): theta, theta_dot (N, *b) [rad, rad/s];
+    rho, rho_dot (M, *b) [m, m/s]. Its rate has the same structure."""
+
+    theta: jax.Array
+    theta_dot: jax.Array
+    rho: jax.Array
+    rho_dot: jax.Array
+
+
+def initial_modal(body: FlexibleBody, batch_shape=(), dtype=None, theta=None, rho=None) -> Modal:
+    """The :class:`Modal` coordinates at rest, every leaf (n, *batch_shape): theta (N,) [rad]
+    and rho (M,) [m] where given (shared by the batch), their rates 0."""
+    dtype = jnp.result_type(float) if dtype is None else dtype
+    zeros = lambda n: jnp.zeros((n, *batch_shape), dtype)
+    shared = lambda x, n: jnp.asarray(x, dtype).reshape((n,) + (1,) * len(batch_shape))
+    given = lambda x, n: zeros(n) if x is None else shared(x, n) + zeros(n)
+    n, m = len(body.panels), len(body.slosh)
+    return Modal(given(theta, n), zeros(n), given(rho, m), zeros(m))
+
+
 class Accelerations(NamedTuple):
     """The solution of (F.10): omega_dot (3, *b) [rad/s^2], theta_ddot (N, *b) [rad/s^2],
     rho_ddot (M, *b) [m/s^2], hub_acceleration a_B (3, *b) [m/s^2], the inertial

@@ -14,6 +14,7 @@ with steps of its own (inertia events) also has ``in_step(t, phase, midpoint)``
 from __future__ import annotations
 
 import abc
+import dataclasses
 from collections.abc import Callable
 
 import jax
@@ -23,6 +24,7 @@ import numpy as np
 from so3jax.core import so3
 from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.dynamics import flexible
 
 
 class InertiaProfile(abc.ABC):
@@ -162,3 +164,35 @@ def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
             J_body = J_body + constrained
         Omega_dot = so3.solve_spd(J_body, materialize(rhs, t))
     return Omega_dot, actuator.derivative(state, held, Omega, Omega_dot)
+
+
+def flexible_derivative(actuator, body, J, Omega, modal, state, held, d, t, J_dot=None):
+    """(Omega' [rad/s^2], the actuator state's rate, the modal coordinates' rate) of a hub
+    carrying hinged panels and slosh particles (docs/model.md §8.9, docs/flexible.md): the
+    coupled equations (F.10) of ``body`` (a :class:`~so3jax.dynamics.flexible.FlexibleBody`)
+    with the hub's inertia about B (its centre of mass)
+
+        J_hub = J - J_locked [+ J_constrained]
+
+    (what :func:`derivative` solves with) and the torque on the hub
+
+        L = tau_body + d - Omega x ((J - J_hub) Omega + h_rel) [- J' Omega],
+
+    the wheels' part of the gyroscopic term (the hub's own, -Omega x J_hub Omega, is in
+    (F.10)): without panels and particles, Omega' is :func:`derivative`'s. modal:
+    :class:`~so3jax.dynamics.flexible.Modal` (theta, theta_dot, rho, rho_dot); the other
+    arguments as :func:`derivative`'s."""
+    L = actuator.body_torque(state, held, Omega) + d
+    stored = actuator.stored_momentum(state)
+    J_hub = J
+    if stored is not None:
+        J_hub = J - so3.batch_like(stored.locked_inertia, 2, Omega)
+        constrained = actuator.constrained_inertia(held)
+        if constrained is not None:  # a stuck wheel spins with the body (docs/model.md (8.22))
+            J_hub = J_hub + constrained
+        L = L - so3.cross(Omega, so3.matvec(J - J_hub, Omega) + stored.relative)
+    if J_dot is not None:
+        L = L - so3.matvec(J_dot, Omega)
+    body = dataclasses.replace(body, hub=dataclasses.replace(body.hub, inertia=J_hub))
+    rate = flexible.derivative(body, flexible.FlexState(Omega, *modal), materialize(L, t))
+    return rate.omega, actuator.derivative(state, held, Omega, rate.omega), flexible.Modal(*rate[1:])

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from so3jax.core.pytree import pytree_dataclass, static_field
+from so3jax.dynamics import flexible
 from so3jax.dynamics.disturbance import SinusoidPlusNoise
 from so3jax.dynamics.inertia import check_inertia, check_inertia_profile, concrete_values
 from so3jax.dynamics.orbit import orbital_rate
@@ -38,6 +39,10 @@ class Scenario:
     phase_times: tuple = static_field(default=())
     variable_inertia_term: bool = static_field(default=False)
     environment: Any = None  # so3jax.dynamics.environment.Environment: the orbit and its torques, or None
+    # so3jax.dynamics.flexible.FlexibleBody: hinged panels and slosh particles on the hub, or None (a rigid
+    # body); its hub's inertia is J(t) less the wheels' at each stage (so3jax.dynamics.plant.flexible_derivative)
+    flexible: Any = None
+    flexible_initial: Any = None  # (theta(0) (N,) [rad], rho(0) (M,) [m]) of the flexible body, or None: at rest
 
     @property
     def phase_steps(self) -> tuple:
@@ -110,6 +115,15 @@ def paper_scenario(
     return scenario
 
 
+def check_flexible(body) -> None:
+    """One-line ValueErrors for a flexible body's parameters (:func:`so3jax.dynamics.flexible.check`),
+    where concrete; its hub's inertia is the scenario's J(t), checked with the profile."""
+    if not isinstance(body, flexible.FlexibleBody):
+        raise TypeError(f"scenario.flexible must be a so3jax.dynamics.flexible.FlexibleBody or None, "
+                        f"got {type(body).__name__}")
+    flexible.check(body)
+
+
 def check_scenario(scenario: Scenario, *, batch_last: bool = False) -> None:
     """The checks of docs/model.md §6 that concern the scenario (shapes always, values where
     concrete). batch_last: the leaves carry a trailing batch axis (B or 1)."""
@@ -126,6 +140,8 @@ def check_scenario(scenario: Scenario, *, batch_last: bool = False) -> None:
             expected = f"{shape} or {shape[:-1] + (shape[-1], 'B')}" if batch_last else f"{shape}"
             raise ValueError(f"scenario.{name} must have shape {expected}, got {got}")
     check_inertia_profile(scenario, batch_last=batch_last)
+    if scenario.flexible is not None and not batch_last:  # a batch's: the mission's, checked when parsed
+        check_flexible(scenario.flexible)
     front = (lambda x: np.moveaxis(x, -1, 0)) if batch_last else (lambda x: x)
     R0 = concrete_values(scenario.R0)
     if R0 is not None:

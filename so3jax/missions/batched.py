@@ -102,6 +102,8 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
         ("reference", "reference" not in dispersed_tables  # a constant rate depends on the sample's orbit rate
          and not isinstance(scenarios.reference, PiecewiseConstantRate)),
         ("inertia", "inertia" not in dispersed_tables and m.inertia["kind"] != "paper"),  # the paper's: per sample
+        ("flexible", m.flexible),  # the appendages and slosh: the mission's own, not dispersed
+        ("flexible_initial", m.flexible),
     ) if shared_part]
     axes = 0
     if shared_parts:  # one for the batch: the mission's own

@@ -15,6 +15,7 @@ from so3jax.components.inertias import InertiaContext
 from so3jax.components.references import ReferenceContext, rotation
 from so3jax.core import checks
 from so3jax.dynamics.environment import circular_orbit
+from so3jax.dynamics.flexible import FlexibleBody, HingedPanel, Hub, SloshParticle
 from so3jax.dynamics.orbit import MAX_MEAN_MOTION, MIN_ALTITUDE
 from so3jax.dynamics.plant import ConstantInertia
 from so3jax.dynamics.scenario import Scenario, paper_scenario
@@ -56,7 +57,41 @@ def scenario(mission, params=None, dtype=None) -> Scenario:
         changes["inertia"] = inertia(m, s)
     if orbit_users(m):
         changes["environment"] = environment(m, values["n"], s.R0.dtype)
+    if getattr(m, "flexible", False):  # hinged panels and slosh (docs/model.md §8.9), the mission's own
+        changes["flexible"], changes["flexible_initial"] = flexible(m, s.R0.dtype)
     return dataclasses.replace(s, **changes) if changes else s
+
+
+def flexible(mission, dtype):
+    """(the mission's :class:`~so3jax.dynamics.flexible.FlexibleBody`, (theta(0) (N,) [rad], rho(0)
+    (M,) [m])) of ``[hub]``, ``[[appendages]]`` and ``[[slosh]]`` in ``dtype`` (the hub's inertia a
+    placeholder, J0: each stage's is J(t) less the wheels', so3jax.dynamics.plant.flexible_derivative)."""
+    as_array = lambda x: jnp.asarray(x, dtype)
+    body = flexible_body(mission.hub_mass, mission.appendages, mission.slosh, mission.J0, as_array)
+    theta0 = as_array([a["angle"] for a in mission.appendages]).reshape(-1)
+    rho0 = as_array([p["displacement"] for p in mission.slosh]).reshape(-1)
+    return body, (theta0, rho0)
+
+
+def panel_frame(axis, direction) -> np.ndarray:
+    """The hinge frame's rows (h1, h2, h3) of a panel: h1 = -direction (Basilisk's panel extends
+    along -s1 from the hinge), h2 = axis, h3 = h1 x h2 (docs/flexible.md (F.1))."""
+    h1, h2 = -np.asarray(direction, float), np.asarray(axis, float)
+    return np.stack([h1, h2, np.cross(h1, h2)])
+
+
+def flexible_body(hub_mass, appendages, slosh, J, as_array=np.asarray) -> FlexibleBody:
+    """The :class:`~so3jax.dynamics.FlexibleBody` of parsed ``[[appendages]]`` and
+    ``[[slosh]]`` on a hub of ``hub_mass`` [kg] and inertia J (3, 3) [kg m^2] about its centre of
+    mass, the body origin B (in a flight, J(t) less the wheels' at each stage)."""
+    zero = as_array(np.zeros(3))
+    panels = tuple(HingedPanel(as_array(a["mass"]), as_array(a["inertia"]), as_array(a["distance"]),
+                                        as_array(a["k"]), as_array(a["c"]), as_array(a["hinge"]),
+                                        as_array(panel_frame(a["axis"], a["direction"])))
+                   for a in appendages)
+    particles = tuple(SloshParticle(as_array(p["mass"]), as_array(p["location"]), as_array(p["direction"]),
+                                             as_array(p["k"]), as_array(p["c"])) for p in slosh)
+    return FlexibleBody(Hub(as_array(hub_mass), as_array(J), zero), panels, particles)
 
 
 def orbit_users(mission) -> tuple[str, ...]:

@@ -2,7 +2,9 @@
 :class:`~so3jax.core.params.Param` like the components' parameters: the horizon, step,
 seed, controllers and history stride, and the ``[control]``, ``[inertia]``,
 ``[deployment]``, ``[orbit]``, ``[disturbance]``, ``[initial]``, ``[phases]`` and ``[pointing]`` tables
-(the mission's ``[[requirements]]``: :func:`so3jax.sim.pointing.parse_requirements`). Their
+(the mission's ``[[requirements]]``: :func:`so3jax.sim.pointing.parse_requirements`), and
+the entries of ``[[appendages]]`` and ``[[slosh]]`` (:data:`APPENDAGE_KEYS`, :data:`SLOSH_KEYS`,
+with ``[hub] mass``: docs/model.md §8.9). Their
 defaults are the flight mission's (:data:`so3jax.missions.mission.FLIGHT`); the parser
 (:func:`so3jax.missions.mission.from_dict`) reads every value through :func:`parse`, and
 the documentation's key table reads the declarations.
@@ -109,6 +111,9 @@ KEYS = (
     Param("phases.start", [0.0, PAPER_DEPLOY_TIME, PAPER_DOCK_TIME], "s", shapes=((None,),), low=0.0,
           doc="each phase's start time: 0 first, increasing, whole steps dt (one at or after T is not reached); "
               "the paper's inertia profile and reference switch at the paper's"),
+    Param("hub.mass", None, "kg", low=0.0, low_excluded=True,
+          doc="the hub's mass, with [[appendages]] or [[slosh]] (needed then): the rigid body whose inertia about "
+              "its centre of mass, the body origin B, is the mission's J(t) ([inertia]), wheels included"),
     Param("pointing.window", 60.0, "s", low=0.0,
           doc="window of the relative errors (RPE, RKE) in fly's pointing report (ECSS-E-ST-60-10C)"),
     Param("pointing.levels", [0.95, 0.9973], shapes=((None,),), low=0.0, high=1.0,
@@ -149,3 +154,30 @@ def defaults() -> dict:
             node = node.setdefault(t, {})
         node[last] = p.default
     return tree
+
+
+# docs/model.md §8.9: a [[appendages]] entry, a hinged rigid panel (so3jax.dynamics.flexible.HingedPanel)
+APPENDAGE_KEYS = (
+    Param("mass", None, "kg", low=0.0, low_excluded=True, doc="the panel's mass"),
+    Param("inertia", None, "kg m^2", shapes=((3, 3),),
+          doc="the panel's inertia about its centre of mass, in the panel frame (s1 = -direction, s2 = axis, "
+              "s3 = s1 x s2 at theta = 0)"),
+    Param("hinge", None, "m", shapes=((3,),), doc="the hinge point from the body origin B, body frame"),
+    Param("axis", None, shapes=((3,),), doc="the hinge axis (unit, body frame): theta turns the panel about it"),
+    Param("direction", None, shapes=((3,),),
+          doc="unit vector from the hinge towards the panel's centre of mass at theta = 0, perpendicular to axis"),
+    Param("distance", None, "m", low=0.0, doc="the panel's centre of mass from the hinge (along direction)"),
+    Param("k", None, "N m/rad", low=0.0, doc="the hinge's torsional spring (about theta = 0)"),
+    Param("c", 0.0, "N m s/rad", low=0.0, doc="the hinge's damper"),
+    Param("angle", 0.0, "rad", doc="the hinge angle theta(0) (its rate 0)"),
+)
+
+# docs/model.md §8.9: a [[slosh]] entry, a spring-mass-damper particle (so3jax.dynamics.flexible.SloshParticle)
+SLOSH_KEYS = (
+    Param("mass", None, "kg", low=0.0, low_excluded=True, doc="the particle's mass"),
+    Param("location", None, "m", shapes=((3,),), doc="its rest location from the body origin B, body frame"),
+    Param("direction", None, shapes=((3,),), doc="the unit direction it moves along, body frame"),
+    Param("k", None, "N/m", low=0.0, doc="the spring (about rest)"),
+    Param("c", 0.0, "N s/m", low=0.0, doc="the damper"),
+    Param("displacement", 0.0, "m", doc="its displacement rho(0) along direction (its rate 0)"),
+)

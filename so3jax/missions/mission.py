@@ -30,6 +30,8 @@ from so3jax.components.sensors import Sensors
 from so3jax.controllers import registry
 from so3jax.controllers.scheduled import Scheduled
 from so3jax.core import checks
+from so3jax.core.params import parse_params
+from so3jax.dynamics import flexible as flexible_dynamics
 from so3jax.dynamics.inertia import check_inertia
 from so3jax.dynamics.paper import PAPER_J0, PHASE_NAMES
 from so3jax.dynamics.scenario import Scenario, check_scenario, steps_for_horizon
@@ -65,7 +67,8 @@ PAPER = dict(FLIGHT, control={"mode": "continuous"}, sensors={}, estimator={"kin
              actuator={"kind": "ideal"}, momentum={"kind": "none"},
              inertia=dict(FLIGHT["inertia"], J0={"nominal": keys.matrix(PAPER_J0)}))
 
-TOP_KEYS = keys.TOP + ("requirements", "faults")  # [[requirements]] (so3jax.sim.pointing), [[faults]]
+# [[requirements]] (so3jax.sim.pointing), [[faults]], [[appendages]] and [[slosh]] (docs/model.md §8.9)
+TOP_KEYS = keys.TOP + ("requirements", "faults", "appendages", "slosh")
 POINTING = {"window": keys.KEY["pointing.window"].default, "levels": tuple(keys.KEY["pointing.levels"].default)}
 MISSION_TABLES = keys.TABLES + ("sensors", "estimator", "actuator", "momentum", "filter", "environment", "reference",
                                 "controller", "gains", "schedule", "fdir")
@@ -75,6 +78,7 @@ ORBIT_ANGLES = ("inclination", "raan", "argument_of_latitude", "earth_angle")
 DEFAULT_ORBIT = {name: keys.KEY[f"orbit.{name}"].default for name in ORBIT_ANGLES}
 DEFAULT_MOMENTUM = {"kind": "none", "none": {}}  # J0, J1, J2 (or J) and tau_J: the Mission's own fields
 DEFAULT_FILTER = {"kind": "none", "none": {}}
+UNIT_TOLERANCE = 1e-9  # a unit vector's departure allowed ([[appendages]], [[slosh]])
 PAPER_PHASES = {"names": tuple(PHASE_NAMES), "start": tuple(keys.KEY["phases.start"].default)}
 
 
@@ -125,6 +129,14 @@ class Mission:
     faults: tuple = ()  # [[faults]] as plain dicts (so3jax.missions.faults), docs/model.md §8.7
     fdir: dict = dataclasses.field(default_factory=lambda: dict(fault_list.NO_FDIR))  # what the loop knows of them
     filter: dict = dataclasses.field(default_factory=lambda: dict(DEFAULT_FILTER))  # {"kind": name, name: values}
+    hub_mass: float | None = None  # [hub] mass [kg], with appendages or slosh
+    appendages: tuple = ()  # [[appendages]] as plain dicts (keys.APPENDAGE_KEYS), docs/model.md §8.9
+    slosh: tuple = ()  # [[slosh]] as plain dicts (keys.SLOSH_KEYS)
+
+    @property
+    def flexible(self) -> bool:
+        """Whether the hub carries hinged panels or slosh particles (docs/model.md §8.9)."""
+        return bool(self.appendages or self.slosh)
 
     @property
     def phase_names(self) -> tuple:
@@ -216,7 +228,8 @@ class Mission:
             del d["phases"]
         for name, default in (("inertia", DEFAULT_INERTIA), ("orbit", DEFAULT_ORBIT), ("environment", {}),
                               ("momentum", DEFAULT_MOMENTUM), ("schedule", {}), ("faults", ()),
-                              ("fdir", fault_list.NO_FDIR), ("filter", DEFAULT_FILTER)):
+                              ("fdir", fault_list.NO_FDIR), ("filter", DEFAULT_FILTER), ("hub_mass", None),
+                              ("appendages", ()), ("slosh", ())):
             if to_builtin(getattr(self, name)) == to_builtin(default):
                 del d[name]
         return to_builtin(d)
@@ -408,6 +421,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     if wheels is not None:
         _check_friction_step(wheels, dt, faults)
 
+    hub_mass, appendages, slosh = _flexible(d, full)
+
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
     gains_table = checks.table(full, "gains", registry.names())
@@ -429,7 +444,8 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
                       disturbance, initial, sensors, estimator, actuator, options, gains,
                       _pointing(checks.table(full, "pointing", keys.allowed("pointing"))), reference=reference,
                       phases=phases, inertia=inertia, orbit=orbit, environment=environment, momentum=momentum,
-                      schedule=schedule, faults=faults, fdir=fdir, filter=structural)
+                      schedule=schedule, faults=faults, fdir=fdir, filter=structural, hub_mass=hub_mass,
+                      appendages=appendages, slosh=slosh)
     if isinstance(d.get("pointing"), dict) and "window" in d["pointing"]:  # a default window is reported, not refused
         pointing.check_recorded(mission.pointing["window"], "pointing.window", mission.recording)
     for name in controllers:
@@ -476,6 +492,62 @@ def _phases(table, dt: float, paper_inertia: bool, reference: str) -> dict:
             raise ValueError(f"phases.start: {' and '.join(needs)} switch at the paper's phases {list(paper)} s; "
                              "other phases need another")
     return {"names": names, "start": start}
+
+
+def _entries(entries, name: str, params: tuple) -> tuple:
+    """The entries of an array of tables ``[[name]]``, each checked against ``params`` (every key
+    with a None default required), as plain dicts; one-line ValueError naming ``name[i]``."""
+    if not isinstance(entries, (list, tuple)):
+        raise ValueError(f"{name} must be a list of tables ([[{name}]]), got {checks.short(entries)}")
+    out = []
+    for i, entry in enumerate(entries):
+        where = f"{name}[{i}]"
+        if not isinstance(entry, dict):
+            raise ValueError(f"{where} must be a table, got {checks.short(entry)}")
+        values = parse_params(params, entry, where)
+        missing = [p for p in params if values[p.name] is None]
+        if missing:
+            p = missing[0]
+            raise ValueError(f"{where}.{p.name}{f' [{p.unit}]' if p.unit else ''} is required ({p.doc})")
+        out.append(values)
+    return tuple(out)
+
+
+def _unit(v, where: str) -> None:
+    if abs(np.linalg.norm(v) - 1.0) > UNIT_TOLERANCE:
+        raise ValueError(f"{where} must be a unit vector, got {checks.short(np.asarray(v).tolist())} "
+                         f"(norm {np.linalg.norm(v):.12g})")
+
+
+def _flexible(d: dict, full: dict):
+    """(hub mass [kg] or None, [[appendages]], [[slosh]]) (docs/model.md §8.9), checked: unit axes and
+    directions, a panel's direction perpendicular to its axis, positive definite inertias, the
+    hub's mass given where they are (and only there); one-line ValueErrors naming the key."""
+    appendages = _entries(d.get("appendages", []), "appendages", keys.APPENDAGE_KEYS)
+    slosh = _entries(d.get("slosh", []), "slosh", keys.SLOSH_KEYS)
+    hub = checks.table(full, "hub", keys.allowed("hub"))
+    mass = keys.parse("hub.mass", hub["mass"]) if "mass" in hub else None
+    if not (appendages or slosh):
+        if mass is not None:
+            raise ValueError("hub.mass [kg] is read only with [[appendages]] or [[slosh]] (a rigid body's mass does "
+                             "not turn it): give them or leave hub.mass out")
+        return None, (), ()
+    if mass is None:
+        raise ValueError("[[appendages]] and [[slosh]] need the hub's mass: give hub.mass [kg] (the rigid body whose "
+                         "inertia about B is the mission's J(t))")
+    for i, a in enumerate(appendages):
+        where = f"appendages[{i}]"
+        _unit(a["axis"], f"{where}.axis")
+        _unit(a["direction"], f"{where}.direction")
+        if abs(float(np.dot(a["axis"], a["direction"]))) > UNIT_TOLERANCE:
+            raise ValueError(f"{where}.direction must be perpendicular to {where}.axis, got axis . direction = "
+                             f"{float(np.dot(a['axis'], a['direction'])):.6g}")
+        check_inertia(f"{where}.inertia", a["inertia"], warn=False)
+    for j, p in enumerate(slosh):
+        _unit(p["direction"], f"slosh[{j}].direction")
+    # the rest (finite values, non-negative distances and springs) as the model reads them
+    flexible_dynamics.check(build.flexible_body(mass, appendages, slosh, np.eye(3)))
+    return mass, appendages, slosh
 
 
 def _pointing(table: dict) -> dict:

@@ -314,6 +314,18 @@ def faults() -> dict:
             "description": "failures the loop rides through (docs/model.md §8.7), each a time and one target"}
 
 
+def flexible_entries(name: str) -> dict:
+    """``[[appendages]]`` (hinged rigid panels) or ``[[slosh]]`` (spring-mass-damper particles) on
+    the hub (docs/model.md §8.9): each entry's keys (:data:`so3jax.missions.keys.APPENDAGE_KEYS`,
+    :data:`~so3jax.missions.keys.SLOSH_KEYS`), those without a default required."""
+    params = keys.APPENDAGE_KEYS if name == "appendages" else keys.SLOSH_KEYS
+    entry = {**params_table(params), "required": [p.name for p in params if p.default is None]}
+    what = ("hinged rigid panels on torsional springs" if name == "appendages"
+            else "propellant slosh: spring-mass-damper particles")
+    return {"type": "array", "items": entry,
+            "description": f"{what} on the hub (docs/model.md §8.9), with hub.mass"}
+
+
 def fdir() -> dict:
     """``[fdir]``: what the loop knows of a wheel that fails off, and when."""
     return table({"detection": {"enum": list(fault_list.DETECTIONS), "default": "never",
@@ -334,6 +346,8 @@ def _mission_value(name: str) -> dict:
         return faults()
     if name == "fdir":
         return fdir()
+    if name in ("appendages", "slosh"):
+        return flexible_entries(name)
     if name == "inertia":
         return _inertia()
     if name in keys.TABLES:

@@ -42,7 +42,7 @@ from so3jax.core import _trig, so3
 from so3jax.core.integrate import OnSO3, rk4_step
 from so3jax.core.pytree import pytree_dataclass, static_field
 from so3jax.core.so3 import broadcast
-from so3jax.dynamics import plant, stepped
+from so3jax.dynamics import flexible, plant, stepped
 from so3jax.dynamics.inertia import concrete_values
 from so3jax.dynamics.plant import inertia_rate, stage_inertia
 from so3jax.dynamics.scenario import Scenario
@@ -89,6 +89,7 @@ class State(NamedTuple):
     manager: Any = ()  # the momentum manager's state, or ()
     managed: Any = ()  # the momentum manager's input held until its next tick, or ()
     filter: Any = ()  # the structural filter's delays, or ()
+    flexible: Any = ()  # the flexible body's so3jax.dynamics.flexible.Modal (theta, theta_dot, rho, rho_dot), or ()
 
 
 class Tick(NamedTuple):
@@ -144,6 +145,9 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
     controller_state = jax.tree.map(lambda x: broadcast(x, x.ndim, batch_shape), controller.init(gains))
     R0, Omega0 = broadcast(scenario.R0, 2, batch_shape), broadcast(scenario.Omega0, 1, batch_shape)
     state = State(R0, Omega0, controller_state, R_d, loop.actuator.init(batch_shape, dtype))
+    if scenario.flexible is not None:
+        theta0, rho0 = (None, None) if scenario.flexible_initial is None else scenario.flexible_initial
+        state = state._replace(flexible=flexible.initial_modal(scenario.flexible, batch_shape, dtype, theta0, rho0))
     if loop.momentum is not None:
         manager, managed = loop.momentum.init(batch_shape, dtype)
         state = state._replace(manager=manager, managed=managed)
@@ -166,7 +170,8 @@ def initial_state(scenario: Scenario, controller: Controller, gains, batch_shape
 def _integrated(state: State, with_controller: bool) -> State:
     """The continuous part of the state, rotations marked for the SO(3) integrator."""
     R_d = OnSO3(state.R_d) if isinstance(state.R_d, jax.Array) else ()
-    return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator)
+    return State(OnSO3(state.R), state.Omega, state.controller if with_controller else (), R_d, state.actuator,
+                 flexible=state.flexible)
 
 
 def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None, managed=()):
@@ -193,11 +198,17 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None,
             if scenario.variable_inertia_term
             else None
         )
-        Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held,
-                                                   external_torque(scenario, loop, d, managed, t, x.R.R, J), t, J_dot,
-                                                   terms.J_inv)
+        external = external_torque(scenario, loop, d, managed, t, x.R.R, J)
+        modal_dot = ()
+        if scenario.flexible is None:
+            Omega_dot, actuator_dot = plant.derivative(loop.actuator, J, Omega, x.actuator, held, external, t, J_dot,
+                                                       terms.J_inv)
+        else:  # hinged panels and slosh on the hub (docs/model.md §8.9)
+            Omega_dot, actuator_dot, modal_dot = plant.flexible_derivative(
+                loop.actuator, scenario.flexible, J, Omega, x.flexible, x.actuator, held, external, t, J_dot)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
-        return State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot), (held, wanted)
+        return (State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot, flexible=modal_dot),
+                (held, wanted))
 
     return field
 
@@ -275,6 +286,7 @@ def step(scenario: Scenario, controller: Controller, gains, d, state: State, k, 
         controller=x.controller if continuous else state.controller,
         R_d=x.R_d.R if isinstance(x.R_d, OnSO3) else state.R_d,
         actuator=x.actuator,
+        flexible=x.flexible,
     )
     atan2 = jnp.arctan2 if constants is None else _trig.atan2  # a batch of per-trajectory scenarios: vectorized
     return new, p, sample(state, loop.actuator.delivered(state.actuator, held, state.Omega), wanted, atan2)

@@ -75,6 +75,7 @@ class History(NamedTuple):
     covariance: Any = None  # (M, 6, 6) the filter's P after the update (a filter in the sampled wiring), or None
     disturbance: Any = None  # (M, 3) N m, the disturbance torque d_k of the recorded step
     managed: Any = None  # the momentum manager's held input (magnetorquers: dipole (M, 3) A m^2), or None
+    flexible: Any = None  # the flexible body's Modal (theta, theta_dot (M, N), rho, rho_dot (M, N_slosh)), or None
 
 
 class Result(NamedTuple):
@@ -240,7 +241,8 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
                            _or_none(state.actuator),
                            actuators.momentum(loop.actuator, state.actuator, state.Omega),
                            disturbance=disturbance_at(scenario, key, k),
-                           managed=None if loop.momentum is None else manage(scenario, loop, state, seen.t, key, k)[1])
+                           managed=None if loop.momentum is None else manage(scenario, loop, state, seen.t, key, k)[1],
+                           flexible=_or_none(state.flexible))
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
@@ -315,6 +317,7 @@ def _flight_record(scenario: Scenario, loop: Loop, state: State, out, k, key) ->
         state.controller, out.tau_cmd, _or_none(state.actuator),
         actuators.momentum(loop.actuator, state.actuator, state.Omega), est.R_hat, est.Omega_hat, out.bias,
         est.bias_hat, est.std, _or_none(est.covariance), disturbance_at(scenario, key, k),
+        flexible=_or_none(state.flexible),
     )
 
 
