@@ -299,6 +299,15 @@ def mission_table(base: str = "flight") -> str:
     return _table(_HEADER, rows)
 
 
+def entries_table(name: str) -> str:
+    """The keys of an ``[[appendages]]`` or ``[[slosh]]`` entry (:data:`so3jax.missions.keys.APPENDAGE_KEYS`,
+    :data:`~so3jax.missions.keys.SLOSH_KEYS`); a ``—`` default: required."""
+    from so3jax.missions import keys
+
+    params = {"appendages": keys.APPENDAGE_KEYS, "slosh": keys.SLOSH_KEYS}[name]
+    return _table(_HEADER, _param_rows(params, ""))
+
+
 def mission_keys() -> tuple:
     """The keys :func:`mission_table` lists."""
     from so3jax.missions import keys
@@ -565,6 +574,8 @@ def render(what: str, args: tuple = ()) -> str:
         "filters": lambda: components_table("filter", *rest),
         "environment": lambda: components_table("environment", *rest),
         "controllers": lambda: controllers_table(*rest),
+        "appendages": lambda: entries_table("appendages"),
+        "slosh": lambda: entries_table("slosh"),
         "tune": tune_table,
         "sweep": sweep_table,
         "distributions": distributions_table,

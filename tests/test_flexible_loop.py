@@ -16,6 +16,7 @@ from so3jax import commands as cli
 from so3jax.components import actuators
 from so3jax.dynamics import flexible as fx
 from so3jax.dynamics import plant
+from so3jax.jobs.fly import trajectory_arrays
 from so3jax.missions import mission as missions
 from so3jax.sim.rollout import rollout
 from tests._shared_programs import compiled, fast_jit
@@ -114,6 +115,9 @@ def test_the_open_loop_flies_the_flexible_bodys_own_rk4_steps(open_loop_flight):
         (result.final.flexible.theta, final.theta), (result.final.flexible.rho, final.rho))]
     assert max(errors) < 1e-12, errors
     assert np.ptp(np.asarray(h.flexible.theta)) > 0.05 and np.ptp(np.asarray(h.flexible.rho)) > 0.01  # it moves
+    arrays = trajectory_arrays({"open_loop": result}, T)  # fly's trajectory.npz
+    np.testing.assert_array_equal(arrays["open_loop/hinge_angle"], np.asarray(h.flexible.theta))
+    assert arrays["open_loop/slosh_rate"].shape == (scenario.n_steps, 1)
 
 
 def test_without_panels_and_particles_the_hub_moves_as_the_rigid_plant():

@@ -239,7 +239,8 @@ def trajectory_arrays(results: dict, t_final: float) -> dict:
     an estimate (continuous: the law reads the true state) stores the truth as R_hat,
     Omega_hat and zero biases, and a zero covariance without a filter; wheel_speed is
     (M, 0) without wheels, wheel_momentum zeros; momentum_management: the momentum
-    manager's held input, where one is flown."""
+    manager's held input, where one is flown; hinge_angle, hinge_rate (M, N) [rad, rad/s] and
+    slosh_displacement, slosh_rate (M, N_slosh) [m, m/s] where the hub carries appendages or slosh."""
     arrays = {}
     for name, r in results.items():
         final = r.final
@@ -256,6 +257,9 @@ def trajectory_arrays(results: dict, t_final: float) -> dict:
                   "wheel_momentum": h.momentum}
         if h.managed is not None:  # a momentum manager's held input (thrusters: torque; magnetorquers: dipole)
             values["momentum_management"] = h.managed
+        if h.flexible is not None:  # [[appendages]] and [[slosh]] (docs/model.md §8.9): (M, N) and (M, N_slosh)
+            values.update(hinge_angle=h.flexible.theta, hinge_rate=h.flexible.theta_dot,
+                          slosh_displacement=h.flexible.rho, slosh_rate=h.flexible.rho_dot)
         arrays.update({f"{name}/{k}": np.asarray(v) for k, v in values.items()})
     return arrays
 
