@@ -49,6 +49,9 @@ def check(mission) -> None:
     if m.environment:
         names = ", ".join(f"environment.{name}" for name in m.environment)
         _refuse(f"environment torques ({names})", "leave [environment] out")
+    if getattr(m, "flexible", False):
+        _refuse("hinged appendages or slosh ([[appendages]], [[slosh]])", "leave them out (the crosscheck's hub is "
+                "rigid; tests/test_flexible.py compares the flexible body with Basilisk's effectors)")
     if m.momentum["kind"] != "none":
         _refuse(f"momentum management (momentum.kind = \"{m.momentum['kind']}\")", "momentum.kind = \"none\"")
     _faults(m)
