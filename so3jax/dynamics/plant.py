@@ -2,7 +2,9 @@
 
 The plant owns the rigid body: :func:`derivative` gives Omega' from J(t), the torque the
 actuator puts on the body, the disturbance and the momentum the actuator stores
-(:mod:`so3jax.components.actuators`), and the actuator's state rate given Omega'.
+(:mod:`so3jax.components.actuators`), and the actuator's state rate given Omega';
+:func:`flexible_derivative` the same for a hub carrying hinged panels and slosh particles
+(docs/model.md §8.9, :mod:`so3jax.dynamics.flexible`), with their modal coordinates' rate.
 
 An inertia profile is a pytree with ``__call__(t, phase) -> J (3, 3)`` [kg m^2]:
 ``phase`` is the index of the mission phase that holds at the start of the current

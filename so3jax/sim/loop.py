@@ -8,7 +8,9 @@ A :class:`Loop` holds the sensors, the estimator, the actuator and the control p
 the plant (inertia), reference and disturbance come from the :class:`~so3jax.dynamics.scenario.Scenario`,
 the law from a :class:`~so3jax.controllers.Controller`. Each component owns a field of
 :class:`State`. The plant (:func:`so3jax.dynamics.plant.derivative`) integrates the rigid body
-and the actuator's state under the actuator's input; one :func:`step` serves two wirings:
+and the actuator's state under the actuator's input (with the scenario's ``flexible`` body,
+:func:`so3jax.dynamics.plant.flexible_derivative`: the hub, its panels and slosh particles,
+their modal coordinates in the state, docs/model.md §8.9); one :func:`step` serves two wirings:
 
 * sampled (``period_steps=m``, docs/model.md §8.1): at every m-th step a :func:`tick` runs
   sensors -> estimator -> controller -> actuator once (the controller's state by its
