@@ -72,7 +72,7 @@ def _crosscheck_into(args, mission) -> int:
         reports, differences, _ = crosscheck.crosscheck(mission, args.precision)
         out = {**reports, "units": crosscheck.UNITS, "config": config}
         arrays = ("differences.npz", {f"{name}/{field}": value for name, d in differences.items()
-                                      for field, value in d._asdict().items()})
+                                      for field, value in d._asdict().items() if value is not None})
         table, draw = crosscheck.format_table(reports), lambda: crosscheck.write_figures(args.out, mission, differences)
     write_json(args.out / "crosscheck.json", out)
     save_npz(args.out / arrays[0], **arrays[1])

@@ -9,8 +9,11 @@ so3jax's sampled loop. A wheel fault acts at so3jax's tick: the effector's motor
 limit of that wheel scaled (a wheel failed off zeroes its command), its friction
 coefficients scaled, and rwMotorTorque's availability message drops a wheel detected
 failed. The wheels' bearing friction is the effector's Coulomb and viscous model with its
-limit-cycle speed (Stribeck off). Basilisk is imported here only (the
-``basilisk`` extra)."""
+limit-cycle speed (Stribeck off). A mission's hinged panels and slosh particles
+(``[[appendages]]``, ``[[slosh]]``: docs/model.md §8.9) are hingedRigidBodyStateEffector and
+linearSpringMassDamper on the hub of the mission's mass, its inertia J(t) as for the rigid hub
+(the wheels' spin inertia included: the balanced wheels' effector subtracts it, (8.26)).
+Basilisk is imported here only (the ``basilisk`` extra)."""
 
 from __future__ import annotations
 
@@ -24,6 +27,7 @@ from scipy.spatial.transform import Rotation
 from so3jax.components.actuators import FRICTION_KEYS
 from so3jax.dynamics.orbit import MU_EARTH
 from so3jax.missions import faults as fault_list
+from so3jax.missions.build import panel_frame
 
 INSTALL = 'pip install -e ".[basilisk]"'
 
@@ -38,7 +42,9 @@ class Flown(NamedTuple):
     Omega (M, 3) [rad/s], wheel_speed (M, N) [rad/s] relative to the body, torque (M, 3)
     mrpFeedback's command [N m], simpleNav's estimate R_hat (M, 3, 3) and Omega_hat (M, 3)
     [rad/s], the reference it tracked R_d (M, 3, 3) desired body to inertial (inertial3D's, or
-    hillPoint's frame turned by attTrackingError's sigma_R0R); wall [s]: building and flying."""
+    hillPoint's frame turned by attTrackingError's sigma_R0R); wall [s]: building and flying;
+    with [[appendages]] and [[slosh]], hinge_angle (M, N) [rad] (hingedRigidBodyOutMsg's theta)
+    and slosh_displacement (M, N_slosh) [m] (linearSpringMassDamper's rho state), else None."""
 
     t: np.ndarray
     R: np.ndarray
@@ -49,6 +55,8 @@ class Flown(NamedTuple):
     Omega_hat: np.ndarray
     R_d: np.ndarray
     wall: float
+    hinge_angle: np.ndarray | None = None
+    slosh_displacement: np.ndarray | None = None
 
 
 def require():
@@ -56,8 +64,16 @@ def require():
     try:
         from Basilisk.architecture import bskLogging, messaging
         from Basilisk.fswAlgorithms import attTrackingError, hillPoint, inertial3D, mrpFeedback, rwMotorTorque
-        from Basilisk.simulation import extForceTorque, reactionWheelStateEffector, simpleNav, spacecraft
+        from Basilisk.simulation import (
+            extForceTorque,
+            hingedRigidBodyStateEffector,
+            linearSpringMassDamper,
+            reactionWheelStateEffector,
+            simpleNav,
+            spacecraft,
+        )
         from Basilisk.utilities import SimulationBaseClass, macros, simIncludeGravBody, simIncludeRW
+        from Basilisk.utilities.pythonVariableLogger import PythonVariableLogger
     except ImportError:
         raise ValueError(f"Basilisk is not installed: {INSTALL}") from None
     return dict(bskLogging=bskLogging, messaging=messaging, attTrackingError=attTrackingError, inertial3D=inertial3D,
@@ -65,7 +81,9 @@ def require():
                 extForceTorque=extForceTorque,
                 reactionWheelStateEffector=reactionWheelStateEffector, simpleNav=simpleNav,
                 spacecraft=spacecraft, SimulationBaseClass=SimulationBaseClass, macros=macros,
-                simIncludeRW=simIncludeRW, simIncludeGravBody=simIncludeGravBody)
+                simIncludeRW=simIncludeRW, simIncludeGravBody=simIncludeGravBody,
+                hingedRigidBodyStateEffector=hingedRigidBodyStateEffector,
+                linearSpringMassDamper=linearSpringMassDamper, PythonVariableLogger=PythonVariableLogger)
 
 
 def reference_attitude(mission) -> np.ndarray:
@@ -183,6 +201,35 @@ def navigation_errors(mission) -> tuple[list, list]:
     return P.tolist(), bounds.tolist()
 
 
+def appendages(bsk, mission, sc, sim) -> tuple[list, list]:
+    """The mission's panels as hingedRigidBodyStateEffector and its slosh particles as
+    linearSpringMassDamper on ``sc`` (in the dynamics task, after the hub: their messages hold
+    the state at each time), at their initial angle and displacement, at rest: (panels,
+    particles). A panel's hinge frame (h1, h2, h3) = (-direction, axis, h1 x h2), its centre
+    of mass at hinge + distance direction (Basilisk's r_HB_B - d s1); a particle at location +
+    rho direction (docs/flexible.md (F.1), (F.3))."""
+    column = lambda v: [[float(x)] for x in np.asarray(v, float)]
+    panels, particles = [], []
+    for a in mission.appendages:
+        panel = bsk["hingedRigidBodyStateEffector"].HingedRigidBodyStateEffector()
+        panel.mass, panel.d = float(a["mass"]), float(a["distance"])
+        panel.k, panel.c = float(a["k"]), float(a["c"])  # one value each: representable.check
+        panel.IPntS_S = np.asarray(a["inertia"], float).tolist()
+        panel.r_HB_B, panel.dcm_HB = column(a["hinge"]), panel_frame(a["axis"], a["direction"]).tolist()
+        panel.thetaInit, panel.thetaDotInit = float(a["angle"]), 0.0
+        panels.append(panel)
+    for p in mission.slosh:
+        particle = bsk["linearSpringMassDamper"].LinearSpringMassDamper()
+        particle.massInit, particle.k, particle.c = float(p["mass"]), float(p["k"]), float(p["c"])  # massInit: a state
+        particle.r_PB_B, particle.pHat_B = column(p["location"]), column(p["direction"])
+        particle.rhoInit, particle.rhoDotInit = float(p["displacement"]), 0.0
+        particles.append(particle)
+    for effector in (*panels, *particles):
+        sc.addStateEffector(effector)
+        sim.AddModelToTask("dynamicsTask", effector)
+    return panels, particles
+
+
 def fly(mission, name: str, seed: int | None = None) -> Flown:
     """Controller ``name`` (mrp_feedback) on ``mission`` (checked by
     :func:`so3jax.jobs.crosscheck.representable.check`), flown over T; seed: simpleNav's
@@ -202,7 +249,9 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     values = mission.actuator.get("wheels", {})
     sc = bsk["spacecraft"].Spacecraft()
     sc.ModelTag = "spacecraft"
-    sc.hub.mHub = 1.0  # [kg]: translation flown only on an orbit (the centre of mass at B: it does not turn the body)
+    flexible = bool(getattr(mission, "flexible", False))
+    # [kg]: translation flown only on an orbit (the hub's centre of mass at B: it does not turn a rigid body)
+    sc.hub.mHub = float(mission.hub_mass) if flexible else 1.0
     lvlh = mission.reference["kind"] == "lvlh"
     if lvlh:  # the orbit frame: the hub on so3jax's circle, under a point-mass Earth at N's origin
         r0, v0 = orbit_state(mission)
@@ -214,6 +263,7 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     sc.hub.sigma_BNInit = _column(Rotation.from_rotvec(mission.initial["attitude"]).as_mrp())
     sc.hub.omega_BN_BInit = _column(mission.initial["rate"])
     sim.AddModelToTask("dynamicsTask", sc)
+    panels, particles = appendages(bsk, mission, sc, sim) if flexible else ([], [])
 
     if wheels:
         axes = np.asarray(values["axes"], float)  # (N, 3) rows
@@ -331,6 +381,13 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     if wheels:
         speed_log = effector.rwSpeedOutMsg.recorder(period_ns)
         logs.append(speed_log)
+    angle_logs = [panel.hingedRigidBodyOutMsg.recorder(period_ns) for panel in panels]
+    logs += angle_logs
+    if particles:  # a particle has no output message: its rho state read at each tick (registered at initialization)
+        names = [p.nameOfRhoState for p in particles]
+        rho = lambda _: [sc.dynManager.getStateObject(name).getState()[0][0] for name in names]
+        rho_log = bsk["PythonVariableLogger"]({"rho": rho}, period_ns)
+        logs.append(rho_log)
     for log in logs:
         sim.AddModelToTask("softwareTask", log)
 
@@ -360,5 +417,10 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     R_d = Rotation.from_mrp(np.asarray(reference_log.sigma_RN, float)).as_matrix()  # R0 (the module's frame) to N
     if lvlh:  # D = H turned by sigma_R0R: [N D] = [N H][H D]
         R_d = R_d @ Rotation.from_mrp(error.sigma_R0R).as_matrix().T
+    hinge = np.stack([np.asarray(log.theta, float) for log in angle_logs], axis=1) if flexible and panels else None
+    slosh = np.asarray(rho_log.rho, float).reshape(len(t), len(particles)) if particles else None
+    if flexible:
+        hinge = np.zeros((len(t), 0)) if hinge is None else hinge
+        slosh = np.zeros((len(t), 0)) if slosh is None else slosh
     return Flown(t, R, np.asarray(state_log.omega_BN_B, float), speeds, np.asarray(torque_log.torqueRequestBody, float),
-                 R_hat, np.asarray(nav_log.omega_BN_B, float), R_d, time.perf_counter() - start)
+                 R_hat, np.asarray(nav_log.omega_BN_B, float), R_d, time.perf_counter() - start, hinge, slosh)

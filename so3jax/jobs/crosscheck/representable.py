@@ -50,8 +50,7 @@ def check(mission) -> None:
         names = ", ".join(f"environment.{name}" for name in m.environment)
         _refuse(f"environment torques ({names})", "leave [environment] out")
     if getattr(m, "flexible", False):
-        _refuse("hinged appendages or slosh ([[appendages]], [[slosh]])", "leave them out (the crosscheck's hub is "
-                "rigid; tests/test_flexible.py compares the flexible body with Basilisk's effectors)")
+        _flexible(m)
     if m.momentum["kind"] != "none":
         _refuse(f"momentum management (momentum.kind = \"{m.momentum['kind']}\")", "momentum.kind = \"none\"")
     _faults(m)
@@ -79,6 +78,22 @@ def _navigation(m) -> None:
     kind = m.estimator["kind"]
     if kind not in ("truth", "raw") or (kind == "truth") != (not m.sensors):
         _refuse(f"estimator.kind = \"{kind}\"" + (" with sensors" if kind == "truth" else ""), remedy)
+
+
+def _flexible(m) -> None:
+    """Hinged panels and slosh particles (docs/model.md §8.9) as hingedRigidBodyStateEffector
+    and linearSpringMassDamper: each with one spring and one damper, in inertial pointing
+    (hillPoint reads the hub's point B, which moves about the centre of mass with them)."""
+    for kind, entries in (("appendages", m.appendages), ("slosh", m.slosh)):
+        for i, entry in enumerate(entries):
+            for key in ("k", "c"):
+                if np.ndim(entry[key]):
+                    _refuse(f"{kind}[{i}].{key} per phase", "its effector holds one spring and one damper: "
+                            f"give {kind}[{i}].{key} one value")
+    if m.reference["kind"] == "lvlh":
+        _refuse("the orbit frame (reference.kind = \"lvlh\") with [[appendages]] or [[slosh]]",
+                "hillPoint reads the orbit of the hub's point B, which the panels and particles move about the "
+                "centre of mass: an inertial reference (reference.kind = \"inertial\")")
 
 
 def _faults(m) -> None:
