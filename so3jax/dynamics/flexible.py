@@ -16,6 +16,7 @@ the hub's reference point B.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -77,11 +78,25 @@ class SloshParticle:
 
 @pytree_dataclass
 class FlexibleBody:
-    """The hub with its panels and slosh particles (tuples, possibly empty)."""
+    """The hub with its panels and slosh particles (tuples, possibly empty). phases: 0, or P
+    where every panel's and particle's k and c carry a leading axis of one value per mission
+    phase (P, *b) (docs/model.md §8.9): :func:`at_phase` picks a phase's body, which the
+    functions below take."""
 
     hub: Hub
     panels: tuple = ()
     slosh: tuple = ()
+    phases: int = static_field(default=0)
+
+
+def at_phase(body: FlexibleBody, phase) -> FlexibleBody:
+    """The body of phase ``phase`` (an index, possibly traced): each panel's and particle's
+    k and c that phase's value where they are given per phase (``body.phases``); the body
+    itself otherwise."""
+    if not body.phases:
+        return body
+    pick = lambda part: dataclasses.replace(part, k=jnp.asarray(part.k)[phase], c=jnp.asarray(part.c)[phase])
+    return FlexibleBody(body.hub, tuple(map(pick, body.panels)), tuple(map(pick, body.slosh)))
 
 
 class FlexState(NamedTuple):
@@ -152,7 +167,9 @@ def _check_inertia(name: str, x):
 def check(body: FlexibleBody) -> None:
     """One-line ValueErrors for bad parameters, where they are concrete: masses and
     inertias positive (symmetric positive definite), d, k, c non-negative, dcm_HB a
-    rotation (orthonormal rows, right-handed), p_hat a unit vector, every value finite."""
+    rotation (orthonormal rows, right-handed), p_hat a unit vector, every value finite; k and
+    c (P,) of one value per phase where ``body.phases`` is P."""
+    modal = (body.phases,) if body.phases else ()
     _check("hub mass [kg]", body.hub.mass, (), positive=True)
     _check_inertia("hub inertia [kg m^2]", body.hub.inertia)
     _check("hub r_BcB [m]", body.hub.r_BcB, (3,))
@@ -161,7 +178,8 @@ def check(body: FlexibleBody) -> None:
         _check(f"{name} mass [kg]", panel.mass, (), positive=True)
         _check_inertia(f"{name} inertia [kg m^2]", panel.inertia)
         for field, unit in (("d", "m"), ("k", "N m/rad"), ("c", "N m s/rad")):
-            _check(f"{name} {field} [{unit}]", getattr(panel, field), (), nonnegative=True)
+            _check(f"{name} {field} [{unit}]", getattr(panel, field), () if field == "d" else modal,
+                   nonnegative=True)
         _check(f"{name} r_HB [m]", panel.r_HB, (3,))
         H = _check(f"{name} dcm_HB", panel.dcm_HB, (3, 3))
         if H is not None and (np.abs(H @ H.T - np.eye(3)).max() > _UNIT_TOLERANCE
@@ -172,7 +190,7 @@ def check(body: FlexibleBody) -> None:
         name = f"slosh particle {j + 1}"
         _check(f"{name} mass [kg]", particle.mass, (), positive=True)
         for field, unit in (("k", "N/m"), ("c", "N s/m")):
-            _check(f"{name} {field} [{unit}]", getattr(particle, field), (), nonnegative=True)
+            _check(f"{name} {field} [{unit}]", getattr(particle, field), modal, nonnegative=True)
         _check(f"{name} r_PB [m]", particle.r_PB, (3,))
         p = _check(f"{name} p_hat", particle.p_hat, (3,))
         if p is not None and abs(np.linalg.norm(p) - 1.0) > _UNIT_TOLERANCE:
@@ -446,7 +464,10 @@ class Modes(NamedTuple):
 def modes(body: FlexibleBody, dtype=None) -> Modes:
     """The linearization about rest (omega = 0, theta = 0, rho = 0): K phi = w^2 M_eff phi with
     the rigid-body modes condensed out of the mass matrix (F.17)-(F.19); damping ratios
-    zeta_r = phi_r^T C phi_r / (2 w_r) (F.20)."""
+    zeta_r = phi_r^T C phi_r / (2 w_r) (F.20). A body with per-phase springs: each phase's,
+    ``modes(at_phase(body, p))``."""
+    if body.phases:
+        raise ValueError(f"modes: the body's springs are given per phase ({body.phases}): pass at_phase(body, p)")
     if dtype is None:
         dtype = jnp.asarray(body.hub.inertia).dtype
         dtype = dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.zeros(()).dtype

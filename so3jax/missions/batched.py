@@ -22,32 +22,36 @@ import numpy as np
 from so3jax.core import so3
 from so3jax.dynamics.reference import PiecewiseConstantRate
 from so3jax.missions import build
-from so3jax.missions.draw import PARAM_SHAPES, SCENARIO_TABLES, RolloutParams, Samples
+from so3jax.missions.draw import FLEXIBLE_TABLES, PARAM_SHAPES, SCENARIO_TABLES, RolloutParams, Samples
 from so3jax.missions.mission import Mission, build_loop
 from so3jax.sim import memory
 from so3jax.sim.rollout import rollout_batch
 
 
 def scenario_values(mission: Mission, values: dict) -> Mission:
-    """The mission with its reference's and inertia's dispersed parameters {key: value}
-    replaced (traceable: only :func:`so3jax.missions.build.scenario` reads the result); the
-    mission itself without any."""
+    """The mission with its reference's, inertia's and flexible body's (appendages.I.k, ...)
+    dispersed parameters {key: value} replaced (traceable: only
+    :func:`so3jax.missions.build.scenario` reads the result); the mission itself without any."""
     if not values:
         return mission
     tables = {}
     for key, value in values.items():
         table, kind, param = key.split(".")
+        if table in FLEXIBLE_TABLES:  # an appendage's or slosh particle's spring or damper, [[table]] entry kind
+            entries = tables.setdefault(table, [dict(e) for e in getattr(mission, table)])
+            entries[int(kind)][param] = value
+            continue
         chosen = tables.setdefault(table, {**getattr(mission, table), kind: dict(getattr(mission, table)[kind])})
         if (kind, param) == ("events", "targets"):
             param = "scales" if jnp.ndim(value) == 1 else "matrices"
         chosen[kind][param] = value
-    return dataclasses.replace(mission, **tables)
+    return dataclasses.replace(mission, **{k: tuple(v) if k in FLEXIBLE_TABLES else v for k, v in tables.items()})
 
 
 def split(values: dict) -> tuple[dict, dict]:
-    """({reference and inertia leaf: value}, {component leaf: value}) of a sample's dispersed
-    values: the first for :func:`scenario_values`, the second for :func:`loop`."""
-    own = {k: v for k, v in values.items() if k.split(".")[0] in SCENARIO_TABLES}
+    """({reference, inertia and flexible body leaf: value}, {component leaf: value}) of a
+    sample's dispersed values: the first for :func:`scenario_values`, the second for :func:`loop`."""
+    own = {k: v for k, v in values.items() if k.split(".")[0] in SCENARIO_TABLES + FLEXIBLE_TABLES}
     return own, {k: v for k, v in values.items() if k not in own}
 
 
@@ -102,7 +106,8 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
         ("reference", "reference" not in dispersed_tables  # a constant rate depends on the sample's orbit rate
          and not isinstance(scenarios.reference, PiecewiseConstantRate)),
         ("inertia", "inertia" not in dispersed_tables and m.inertia["kind"] != "paper"),  # the paper's: per sample
-        ("flexible", m.flexible),  # the appendages and slosh: the mission's own, not dispersed
+        # the appendages and slosh: the mission's own, unless their springs or dampers are dispersed
+        ("flexible", m.flexible and not dispersed_tables & set(FLEXIBLE_TABLES)),
         ("flexible_initial", m.flexible),
     ) if shared_part]
     axes = 0

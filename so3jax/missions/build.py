@@ -67,7 +67,8 @@ def flexible(mission, dtype):
     (M,) [m])) of ``[hub]``, ``[[appendages]]`` and ``[[slosh]]`` in ``dtype`` (the hub's inertia a
     placeholder, J0: each stage's is J(t) less the wheels', so3jax.dynamics.plant.flexible_derivative)."""
     as_array = lambda x: jnp.asarray(x, dtype)
-    body = flexible_body(mission.hub_mass, mission.appendages, mission.slosh, mission.J0, as_array)
+    body = flexible_body(mission.hub_mass, mission.appendages, mission.slosh, mission.J0, as_array,
+                         phases=len(mission.phase_names))
     theta0 = as_array([a["angle"] for a in mission.appendages]).reshape(-1)
     rho0 = as_array([p["displacement"] for p in mission.slosh]).reshape(-1)
     return body, (theta0, rho0)
@@ -80,18 +81,23 @@ def panel_frame(axis, direction) -> np.ndarray:
     return np.stack([h1, h2, np.cross(h1, h2)])
 
 
-def flexible_body(hub_mass, appendages, slosh, J, as_array=np.asarray) -> FlexibleBody:
+def flexible_body(hub_mass, appendages, slosh, J, as_array=np.asarray, phases: int = 0) -> FlexibleBody:
     """The :class:`~so3jax.dynamics.FlexibleBody` of parsed ``[[appendages]]`` and
     ``[[slosh]]`` on a hub of ``hub_mass`` [kg] and inertia J (3, 3) [kg m^2] about its centre of
-    mass, the body origin B (in a flight, J(t) less the wheels' at each stage)."""
+    mass, the body origin B (in a flight, J(t) less the wheels' at each stage). phases: the
+    mission's number of phases; where any k or c is a list (one value per phase), every k and c
+    is given per phase ((phases,), a number repeated: FlexibleBody.phases), else each one value."""
+    per_phase = any(np.ndim(e[f]) for e in (*appendages, *slosh) for f in ("k", "c"))
+    modal = (lambda x: jnp.broadcast_to(as_array(x), (phases,))) if per_phase else as_array
     zero = as_array(np.zeros(3))
     panels = tuple(HingedPanel(as_array(a["mass"]), as_array(a["inertia"]), as_array(a["distance"]),
-                                        as_array(a["k"]), as_array(a["c"]), as_array(a["hinge"]),
+                                        modal(a["k"]), modal(a["c"]), as_array(a["hinge"]),
                                         as_array(panel_frame(a["axis"], a["direction"])))
                    for a in appendages)
     particles = tuple(SloshParticle(as_array(p["mass"]), as_array(p["location"]), as_array(p["direction"]),
-                                             as_array(p["k"]), as_array(p["c"])) for p in slosh)
-    return FlexibleBody(Hub(as_array(hub_mass), as_array(J), zero), panels, particles)
+                                             modal(p["k"]), modal(p["c"])) for p in slosh)
+    return FlexibleBody(Hub(as_array(hub_mass), as_array(J), zero), panels, particles,
+                        phases=phases if per_phase else 0)
 
 
 def orbit_users(mission) -> tuple[str, ...]:

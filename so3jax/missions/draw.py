@@ -42,7 +42,10 @@ dispersed, not what the filter assumes. A fault's values (``faults.I.time``, ``.
 ``.factor``, ``.wheel``, ``.step``, I the 0-based ``[[faults]]`` entry: :data:`FAULT_LEAVES`)
 are leaves of each sample's loop as a component's parameters are; a sample whose
 star-tracker outage ends at or before its time is rejected, and so is one whose wheels
-failed off leave the others spanning less than 3-D where the loop drops them.
+failed off leave the others spanning less than 3-D where the loop drops them. The springs
+and dampers of the mission's hinged panels and slosh particles (``appendages.I.k``, ``.c``,
+``slosh.J.k``, ``.c``: :data:`FLEXIBLE_LEAVES`, docs/model.md §8.9) are leaves of each
+sample's scenario; one given per phase draws each phase's value on its own.
 
 The dispersed quantities' sampler (:func:`draw_samples`): sample k's values depend only on
 (seed, k): its random words are ``jax.random.bits(fold_in(key(seed), k), (L,), uint32)``
@@ -137,6 +140,11 @@ FAULT_LEAVES = {"wheel": {"time": (0.0, math.inf, False), "factor": (0.0, 1.0, T
                 "thruster": {"time": (0.0, math.inf, False)}}
 FRICTION_FACTOR = {"friction": (0.0, math.inf, False)}  # a friction fault's factor: >= 0 (8.23)
 FAULT_UNITS = {"time": "s", "end": "s", "factor": "-", "step": "rad/s", "wheel": "-"}  # samples.csv's units
+# The flexible body's dispersible values (docs/model.md §8.9): an [[appendages]] entry's or a
+# [[slosh]] entry's spring and damper, appendages.I.k or slosh.J.c (I, J 0-based), each sample's
+# scenario built with its values (so3jax.missions.batched.scenario_values): {table: {parameter: unit}}.
+FLEXIBLE_LEAVES = {"appendages": {"k": "N m/rad", "c": "N m s/rad"}, "slosh": {"k": "N/m", "c": "N s/m"}}
+FLEXIBLE_TABLES = tuple(FLEXIBLE_LEAVES)
 # Why a sample is rejected (never simulated), in the order its checks are read: {check: reason}.
 REJECTED = {
     "draws": "no positive definite inertia and positive tau_J within sweep.max_draws draws",
@@ -436,12 +444,15 @@ def parse(table: dict, mission: Mission) -> tuple[Dispersions, tuple[Leaf, ...]]
             leaves.append(_scenario_leaf(path, value, where, mission))
         elif path[0] == "faults":
             leaves.append(_fault_leaf(path, value, where, mission))
+        elif path[0] in FLEXIBLE_TABLES:
+            leaves.append(_flexible_leaf(path, value, where, mission))
         else:
             raise ValueError(f"{where} cannot be dispersed: dispersible are inertia.J0/J1/J2, deployment.tau_J, "
                              f"orbit.n, {_scenario_parameters(mission)}, disturbance.amplitude/frequency/noise_std, "
                              "initial.attitude/rate, seed, the numeric parameters of the mission's sensors, "
-                             "estimator, actuator and momentum management, and its faults' "
-                             "(faults.I.time/end/factor/wheel/step, I the 0-based [[faults]] entry)")
+                             "estimator, actuator and momentum management, its faults' "
+                             "(faults.I.time/end/factor/wheel/step, I the 0-based [[faults]] entry) and its "
+                             "appendages' and slosh particles' springs and dampers (appendages.I.k/c, slosh.J.k/c)")
     if mission.constant_inertia:  # J(t) = J0 throughout; J1, J2 follow it undispersed
         fields["J1"] = InertiaDispersion(nominal=None, scale=Fixed(1.0))
         fields["J2"] = InertiaDispersion(nominal=_matrix(mission.J0))
@@ -527,6 +538,27 @@ def _fault_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
     leaf = _checked_leaf(f"faults.{int(path[1])}.{param}", value, where, np.asarray(fault[param], np.float64),
                          low, high, strict=False)
     return dataclasses.replace(leaf, high=float(np.nextafter(high, -np.inf))) if high_excluded else leaf
+
+
+def _flexible_leaf(path: tuple, value, where: str, mission: Mission) -> Leaf:
+    """A spring or damper of one of the mission's ``[[appendages]]`` or ``[[slosh]]`` entries
+    (:data:`FLEXIBLE_LEAVES`): ``appendages.I.k``, I the entry's 0-based index; one value, or one
+    per phase as the mission gives it (each element drawn on its own), >= 0."""
+    table = path[0]
+    if len(path) != 3:
+        raise ValueError(f"{where} must name an entry's value, e.g. dispersions.{table}.0.k "
+                         f"(the 0-based [[{table}]] entry)")
+    entries = getattr(mission, table)
+    n = len(entries)
+    if not path[1].isdigit() or int(path[1]) >= n:
+        raise ValueError(f"{where}: the mission has no {table} entry {path[1]!r} "
+                         + (f"(its [[{table}]] entries are 0 to {n - 1})" if n else f"(it states no [[{table}]])"))
+    param = path[2]
+    if param not in FLEXIBLE_LEAVES[table]:
+        raise ValueError(f"{where}: an entry of [[{table}]] disperses {', '.join(FLEXIBLE_LEAVES[table])}, "
+                         f"not {param!r}")
+    current = np.asarray(entries[int(path[1])][param], np.float64)
+    return _checked_leaf(f"{table}.{int(path[1])}.{param}", value, where, current, 0.0, math.inf, strict=False)
 
 
 def _flown(mission: Mission, key: str):

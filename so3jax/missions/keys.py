@@ -167,8 +167,10 @@ APPENDAGE_KEYS = (
     Param("direction", None, shapes=((3,),),
           doc="unit vector from the hinge towards the panel's centre of mass at theta = 0, perpendicular to axis"),
     Param("distance", None, "m", low=0.0, doc="the panel's centre of mass from the hinge (along direction)"),
-    Param("k", None, "N m/rad", low=0.0, doc="the hinge's torsional spring (about theta = 0)"),
-    Param("c", 0.0, "N m s/rad", low=0.0, doc="the hinge's damper"),
+    Param("k", None, "N m/rad", shapes=((), (None,)), low=0.0,
+          doc="the hinge's torsional spring (about theta = 0): one value, or one per phase ([phases])"),
+    Param("c", 0.0, "N m s/rad", shapes=((), (None,)), low=0.0,
+          doc="the hinge's damper: one value, or one per phase ([phases])"),
     Param("angle", 0.0, "rad", doc="the hinge angle theta(0) (its rate 0)"),
 )
 
@@ -177,7 +179,8 @@ SLOSH_KEYS = (
     Param("mass", None, "kg", low=0.0, low_excluded=True, doc="the particle's mass"),
     Param("location", None, "m", shapes=((3,),), doc="its rest location from the body origin B, body frame"),
     Param("direction", None, shapes=((3,),), doc="the unit direction it moves along, body frame"),
-    Param("k", None, "N/m", low=0.0, doc="the spring (about rest)"),
-    Param("c", 0.0, "N s/m", low=0.0, doc="the damper"),
+    Param("k", None, "N/m", shapes=((), (None,)), low=0.0,
+          doc="the spring (about rest): one value, or one per phase ([phases])"),
+    Param("c", 0.0, "N s/m", shapes=((), (None,)), low=0.0, doc="the damper: one value, or one per phase ([phases])"),
     Param("displacement", 0.0, "m", doc="its displacement rho(0) along direction (its rate 0)"),
 )

@@ -421,7 +421,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     if wheels is not None:
         _check_friction_step(wheels, dt, faults)
 
-    hub_mass, appendages, slosh = _flexible(d, full)
+    hub_mass, appendages, slosh = _flexible(d, full, phases["names"])
 
     options_table = checks.table(full, "controller", registry.names())
     options = {name: registry.parse_options(name, options_table.get(name, {})) for name in registry.names()}
@@ -519,12 +519,20 @@ def _unit(v, where: str) -> None:
                          f"(norm {np.linalg.norm(v):.12g})")
 
 
-def _flexible(d: dict, full: dict):
+def _flexible(d: dict, full: dict, phase_names: tuple = ()):
     """(hub mass [kg] or None, [[appendages]], [[slosh]]) (docs/model.md §8.9), checked: unit axes and
     directions, a panel's direction perpendicular to its axis, positive definite inertias, the
-    hub's mass given where they are (and only there); one-line ValueErrors naming the key."""
+    hub's mass given where they are (and only there), a k or c given as a list one value per
+    phase (``phase_names``); one-line ValueErrors naming the key."""
     appendages = _entries(d.get("appendages", []), "appendages", keys.APPENDAGE_KEYS)
     slosh = _entries(d.get("slosh", []), "slosh", keys.SLOSH_KEYS)
+    for name, entries in (("appendages", appendages), ("slosh", slosh)):
+        for i, entry in enumerate(entries):
+            for field in ("k", "c"):
+                n = np.size(entry[field]) if np.ndim(entry[field]) else None
+                if n is not None and n != len(phase_names):
+                    raise ValueError(f"{name}[{i}].{field} has {n} value{'s' * (n != 1)}: give one number, or one "
+                                     f"per phase ({len(phase_names)}: {', '.join(phase_names)})")
     hub = checks.table(full, "hub", keys.allowed("hub"))
     mass = keys.parse("hub.mass", hub["mass"]) if "mass" in hub else None
     if not (appendages or slosh):
@@ -546,7 +554,7 @@ def _flexible(d: dict, full: dict):
     for j, p in enumerate(slosh):
         _unit(p["direction"], f"slosh[{j}].direction")
     # the rest (finite values, non-negative distances and springs) as the model reads them
-    flexible_dynamics.check(build.flexible_body(mass, appendages, slosh, np.eye(3)))
+    flexible_dynamics.check(build.flexible_body(mass, appendages, slosh, np.eye(3), phases=len(phase_names)))
     return mass, appendages, slosh
 
 

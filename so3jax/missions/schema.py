@@ -466,6 +466,7 @@ def _dispersions() -> dict:
     out = _tables(tree, "what varies from sample to sample: the mission's leaves, each a number (fixed) or a "
                   "distribution")
     out["properties"]["faults"] = _fault_dispersions()
+    out["properties"].update({name: _flexible_dispersions(name) for name in draw.FLEXIBLE_LEAVES})
     return out
 
 
@@ -478,6 +479,18 @@ def _fault_dispersions() -> dict:
                   "the values of the mission's [[faults]] entry of this 0-based index")
     return {"type": "object", "description": "the mission's faults' times, outage ends, degraded wheels' factors "
             "and gyro bias steps, by the 0-based index of their [[faults]] entry",
+            "patternProperties": {"^[0-9]+$": entry}, "additionalProperties": False}
+
+
+def _flexible_dispersions(name: str) -> dict:
+    """``appendages.I`` or ``slosh.J``: the spring and damper of the mission's ``[[name]]``
+    entry of that 0-based index, each a distribution (:data:`so3jax.missions.draw.FLEXIBLE_LEAVES`)."""
+    params = {p.name: p for p in (keys.APPENDAGE_KEYS if name == "appendages" else keys.SLOSH_KEYS)}
+    entry = table({p: distribution(True, describe(params[p].doc, params[p].unit)) for p in draw.FLEXIBLE_LEAVES[name]},
+                  f"the values of the mission's [[{name}]] entry of this 0-based index")
+    what = "hinged panels'" if name == "appendages" else "slosh particles'"
+    return {"type": "object", "description": f"the mission's {what} springs and dampers (docs/model.md §8.9), by "
+            f"the 0-based index of their [[{name}]] entry; one given per phase draws each phase's value on its own",
             "patternProperties": {"^[0-9]+$": entry}, "additionalProperties": False}
 
 

@@ -207,7 +207,8 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None,
                                                        terms.J_inv)
         else:  # hinged panels and slosh on the hub (docs/model.md §8.9)
             Omega_dot, actuator_dot, modal_dot = plant.flexible_derivative(
-                loop.actuator, scenario.flexible, J, Omega, x.flexible, x.actuator, held, external, t, J_dot)
+                loop.actuator, flexible.at_phase(scenario.flexible, phase), J, Omega, x.flexible, x.actuator, held,
+                external, t, J_dot)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
         return (State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot, flexible=modal_dot),
                 (held, wanted))

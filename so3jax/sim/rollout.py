@@ -387,8 +387,8 @@ def rollout_batch(
         except ValueError as err:
             raise ValueError(f"{arg}_axes must be 0, None or a prefix of {arg}'s tree "
                              f"(0 or None per subtree): {err}") from None
-        for (path, leaf), ax in zip(jax.tree_util.tree_flatten_with_path(tree)[0],
-                                          jax.tree.leaves(leaf_axes, is_leaf=lambda x: x is None)):
+        paths, treedef = jax.tree_util.tree_flatten_with_path(tree)
+        for (path, leaf), ax in zip(paths, treedef.flatten_up_to(leaf_axes)):  # a None field: no leaf, no axis
             if ax == 0 and (jnp.ndim(leaf) == 0 or jnp.shape(leaf)[0] != seeds.shape[0]):
                 raise ValueError(
                     f"{arg}{jax.tree_util.keystr(path)} must have a leading batch axis of size {seeds.shape[0]} "

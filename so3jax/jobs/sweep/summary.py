@@ -124,6 +124,8 @@ def column_units(config: SweepConfig, names) -> dict:
             out[name] = "-"  # scales of the inertia at the event
         elif key is not None and key.startswith("faults."):
             out[name] = draw.FAULT_UNITS[key.split(".")[2]]
+        elif key is not None and key.split(".")[0] in draw.FLEXIBLE_LEAVES:  # appendages.I.k, slosh.J.c, ...
+            out[name] = draw.FLEXIBLE_LEAVES[key.split(".")[0]][key.split(".")[2]]
         elif key is not None:
             table, component, param = key.split(".")
             kind = "sensor" if table == "sensors" else table
