@@ -171,3 +171,16 @@ def test_a_walk_that_differs_is_told_apart(monkeypatch):
     reports, _ = statistics.crosscheck(mission, 8)
     assert not reports["mrp_feedback"]["agree"]
     assert reports["mrp_feedback"]["quantities"]["attitude_knowledge"]["p"] < 1e-3
+
+
+def test_a_quantity_neither_side_draws_agrees():
+    """Without nav_rate the rate knowledge is 0 in every run of both sides: t = 0, p = 1 (not
+    Welch's NaN, which would fail the verdict), the other quantities' tests as before."""
+    from so3jax.jobs.crosscheck import statistics
+
+    ours = [{"attitude_knowledge": 1e-5 * (1 + 0.1 * i), "rate_knowledge": 0.0, "pointing": 0.2 + 1e-3 * i}
+            for i in range(4)]
+    theirs = [{**r, "attitude_knowledge": r["attitude_knowledge"] * 1.01} for r in ours]
+    result = statistics.compare(ours, theirs)
+    assert (result["rate_knowledge"]["t"], result["rate_knowledge"]["p"]) == (0.0, 1.0)
+    assert 0 < result["attitude_knowledge"]["p"] < 1 and result["pointing"]["p"] == 1.0

@@ -23,10 +23,11 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("crosscheck", help="fly a mission in so3jax and in Basilisk and compare them",
                               description="A mission flown by so3jax's loop and by Basilisk's own modules "
                               "(spacecraft hub, reactionWheelStateEffector, rwMotorTorque, simpleNav, inertial3D or "
-                              "hillPoint, attTrackingError, mrpFeedback), compared at every recorded control tick "
-                              "(with navigation errors: as distributions over runs): a table, crosscheck.json, "
-                              "differences.npz (runs.npz) and crosscheck.png. Needs the basilisk extra: "
-                              f"{basilisk.INSTALL}.")
+                              "hillPoint, attTrackingError, mrpFeedback; hingedRigidBodyStateEffector and "
+                              "linearSpringMassDamper for [[appendages]] and [[slosh]]), compared at every recorded "
+                              "control tick (with navigation errors: as distributions over runs): a table, "
+                              "crosscheck.json, differences.npz (runs.npz) and crosscheck.png. Needs the basilisk "
+                              f"extra: {basilisk.INSTALL}.")
     p.add_argument("simulator", choices=SIMULATORS, help="the simulator to compare with")
     p.add_argument("mission", type=Path, help="mission file (TOML), e.g. missions/crosscheck.toml")
     p.add_argument("--T", type=float, help="horizon [s] (default: the mission's)")

@@ -75,9 +75,12 @@ def compare(so3jax_runs: list[dict], basilisk_runs: list[dict]) -> dict:
         a = np.array([r[q] for r in so3jax_runs])
         b = np.array([r[q] for r in basilisk_runs])
         test = stats.ttest_ind(a, b, equal_var=False)
+        t, p = float(test.statistic), float(test.pvalue)
+        if np.ptp(a) == 0 and np.ptp(b) == 0 and a[0] == b[0]:  # one constant on both sides (a walk neither flies)
+            t, p = 0.0, 1.0
         out[q] = {"so3jax_mean": float(a.mean()), "so3jax_std_error": float(a.std(ddof=1) / np.sqrt(len(a))),
                   "basilisk_mean": float(b.mean()), "basilisk_std_error": float(b.std(ddof=1) / np.sqrt(len(b))),
-                  "t": float(test.statistic), "p": float(test.pvalue)}
+                  "t": t, "p": p}
     return out
 
 
