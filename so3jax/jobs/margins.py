@@ -5,6 +5,12 @@ Each controller's loop is flown noise-free and disturbance-free to each time ask
 (:func:`so3jax.sim.margins.nominal_state`), linearized over one control period there, broken
 at the actuator input (:func:`so3jax.sim.margins.linearize`), and its classical and disk
 margins taken (:func:`~so3jax.sim.margins.loop_at_a_time`, :func:`~so3jax.sim.margins.disk_margin`).
+
+A mission with ``[[appendages]]`` or ``[[slosh]]``: at each time the report names the free
+hub's structural modes (:func:`~so3jax.sim.margins.structural_modes`, the hub's inertia J(t)
+of that time), the margins' frequency grid resolves their resonances
+(:func:`~so3jax.sim.margins.resolving_omegas`), and the figures mark them. A mission without
+them: the report as before, no key added.
 """
 
 from __future__ import annotations
@@ -61,13 +67,22 @@ class Margins(NamedTuple):
     disk: margins.DiskMargins  # disk margins per axis and for all axes at once
 
 
+def structural_modes(mission, t: float, dtype: str = "float64") -> tuple | None:
+    """The mission's structural modes at t [s] (:func:`so3jax.sim.margins.structural_modes`),
+    None without appendages and slosh."""
+    return margins.structural_modes(mission.scenario(dtype), t)
+
+
 def at(mission, name: str, t: float, dtype: str = "float64") -> Margins:
-    """(Linearization, LoopMargins, DiskMargins) of controller ``name``'s loop at t [s]."""
+    """(Linearization, LoopMargins, DiskMargins) of controller ``name``'s loop at t [s]; with
+    structural modes, on a frequency grid resolving their resonances (:func:`so3jax.sim.margins.resolving_omegas`)."""
     scenario, loop = mission.scenario(dtype), mission.loop(dtype)
     controller, gains = mission.controller(name)
     state = margins.nominal_state(scenario, loop, controller, gains, t)
     lin = margins.linearize(scenario, loop, controller, gains, state, margins.tick_index(scenario, loop, t))
-    return Margins(lin, margins.loop_at_a_time(lin), margins.disk_margin(lin))
+    modes = margins.structural_modes(scenario, t)
+    omegas = margins.resolving_omegas(lin.period, modes) if modes else None
+    return Margins(lin, margins.loop_at_a_time(lin, omegas), margins.disk_margin(lin, omegas))
 
 
 def run(mission, times, dtype: str = "float64") -> tuple[dict, dict, float]:
@@ -79,8 +94,11 @@ def run(mission, times, dtype: str = "float64") -> tuple[dict, dict, float]:
         for t in times:
             lin, classical, disk = at(mission, name, t, dtype)
             lins[t] = lin
-            rows.append({"t": t, "phase": phase_of(mission, t), "loop_at_a_time": classical.to_dict(),
-                         "disk": disk.to_dict()})
+            row = {"t": t, "phase": phase_of(mission, t)}
+            modes = structural_modes(mission, t, dtype)
+            if modes is not None:  # only with appendages or slosh: a rigid mission's report is as it was
+                row["modes"] = [mode.to_dict() for mode in modes]
+            rows.append({**row, "loop_at_a_time": classical.to_dict(), "disk": disk.to_dict()})
         reports[name] = {"stable": all(r["loop_at_a_time"]["stable"] for r in rows), "times": rows}
         linearizations[name] = lins
     return reports, linearizations, time.perf_counter() - start
@@ -91,9 +109,16 @@ def _db(x, infinite: str = "inf") -> str:
     return infinite if x is None else f"{x:+.1f}"
 
 
+def format_modes(modes: list) -> str:
+    """One line naming a time's structural modes (a report's ``modes``): frequency [Hz] and damping ratio."""
+    named = ", ".join(f"{m['frequency_hz']:.3g} Hz ζ {m['damping_ratio']:.3g}" for m in modes)
+    return f"  structural modes: {named or 'none'}"
+
+
 def format_table(reports: dict) -> str:
     """Per controller and time: each axis's gain margins [dB], phase margin [deg], delay margin
-    [s] and disk margin, and the multi-loop disk margin."""
+    [s] and disk margin, and the multi-loop disk margin; with appendages or slosh, a line
+    naming the structural modes."""
     lines = []
     for name, report in reports.items():
         for row in report["times"]:
@@ -101,6 +126,8 @@ def format_table(reports: dict) -> str:
             head = f"{name}, t = {row['t']:g} s ({row['phase']})"
             if not classical["stable"]:
                 lines.append(f"{head}: closed loop UNSTABLE (spectral radius {classical['spectral_radius']:.6f})")
+                if "modes" in row:
+                    lines.append(format_modes(row["modes"]))
                 continue
             binds = ": an actuator limit binds here (its channel is open)" if classical["at_limit"] else ""
             lines.append(head + binds)
@@ -116,6 +143,8 @@ def format_table(reports: dict) -> str:
             m = disk["multiloop"]
             lines.append(f"  all axes at once (disk, a lower bound): alpha = {m['alpha']:.3f}, "
                          f"+-{m['gain_margin_upper_db']:.1f} dB, +-{m['phase_margin_deg']:.1f} deg")
+            if "modes" in row:
+                lines.append(format_modes(row["modes"]))
     return "\n".join(lines)
 
 
@@ -156,19 +185,41 @@ def disk_boundary(alpha: float, count: int = 361) -> tuple[np.ndarray, np.ndarra
     return _phase_deg(L), 20 * np.log10(np.abs(L))
 
 
-def _bode(name: str, lins: dict):
+def _grid(lin, modes) -> np.ndarray:
+    """The figures' frequencies [rad/s]: 800 log-spaced up to the Nyquist frequency, with points
+    resolving each structural mode's resonance (:func:`so3jax.sim.margins.resolving_omegas`)."""
+    return margins.resolving_omegas(lin.period, modes, count=800)
+
+
+def _mark_modes(ax, modes, label: bool):
+    """A thin dotted vertical line at each structural mode's frequency [rad/s], labelled in Hz."""
+    for omega, zeta in modes:
+        ax.axvline(omega, color="0.35", ls=":", lw=0.8)
+        if label:
+            ax.text(omega, 0.98, f" {omega / (2 * np.pi):.3g} Hz, ζ {zeta:.2g}", transform=ax.get_xaxis_transform(),
+                    rotation=90, va="top", ha="right", fontsize=7, color="0.25")
+
+
+def _bode(name: str, lins: dict, modes: dict | None = None):
     """Each axis's loop L_i (the other axes closed) at each time, a column per axis, the 0 dB
-    and -180 deg lines marked (phase in [-360, 0) deg)."""
+    and -180 deg lines marked (phase in [-360, 0) deg); modes {t: ((omega_r, zeta_r), ...)}:
+    each structural mode's frequency a dotted line, labelled on the gain, the grid resolving
+    its resonance."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
 
+    modes = modes or {}
     fig = Figure(figsize=(13, 6.5))
     axes = fig.subplots(2, 3, sharex=True, sharey="row")
     for t, lin in lins.items():
-        omegas = margins.default_omegas(lin.period, count=800)
+        omegas = _grid(lin, modes.get(t, ()))
         L = margins.axis_response(lin, omegas)
         for i in range(3):
             axes[0, i].semilogx(omegas, 20 * np.log10(np.abs(L[:, i])), label=f"t = {t:g} s")
             axes[1, i].semilogx(omegas, _phase_deg(L[:, i]))
+    marked = sorted({tuple(m) for ms in modes.values() for m in ms})
+    for i in range(3):
+        _mark_modes(axes[0, i], marked, label=True)
+        _mark_modes(axes[1, i], marked, label=False)
     for i in range(3):
         axes[0, i].axhline(0.0, color="k", lw=0.8)
         axes[1, i].axhline(-180.0, color="k", lw=0.8)
@@ -180,19 +231,22 @@ def _bode(name: str, lins: dict):
     axes[1, 0].set_ylabel("arg L_i [deg]")
     axes[0, 0].legend(fontsize=7)
     fig.suptitle(f"{name}: each axis's loop at the actuator input, the other axes closed "
-                 "(up to the Nyquist frequency)")
+                 "(up to the Nyquist frequency" + ("; dotted: the structural modes)" if marked else ")"))
     return fig
 
 
-def _nichols(name: str, lins: dict):
+def _nichols(name: str, lins: dict, modes: dict | None = None):
     """Each axis's loop L_i (the other axes closed) at each time on the Nichols chart: gain
     [dB] against phase [deg] in [-360, 0), a panel per axis, the critical point (-180 deg,
     0 dB), the +-6 dB / +-30 deg rectangle around it and the balanced disk covering +-6 dB;
     each crossing of -180 deg marked (its gain is minus a gain margin), the gain range wide
-    enough to hold them (within +-120 dB); up to just below the Nyquist frequency."""
+    enough to hold them (within +-120 dB); up to just below the Nyquist frequency. modes
+    {t: ((omega_r, zeta_r), ...)}: the loop's point at each structural mode's frequency marked
+    (a cross, labelled in Hz), the grid resolving its resonance."""
     from matplotlib.figure import Figure  # here: matplotlib only when drawing
     from matplotlib.patches import Rectangle
 
+    modes = modes or {}
     fig = Figure(figsize=(13, 5.5))
     axes = fig.subplots(1, 3, sharex=True, sharey=True)
     alpha = margins.alpha_of_db(EXCLUSION_DB)
@@ -200,13 +254,20 @@ def _nichols(name: str, lins: dict):
     low, high = -40.0, 40.0
     for t, lin in lins.items():
         # below the Nyquist frequency: there L is real, a curve drawn to it jumps to 0 or -180 deg
-        L = margins.axis_response(lin, margins.default_omegas(lin.period, count=800)[:-1])
+        L = margins.axis_response(lin, _grid(lin, modes.get(t, ()))[:-1])
+        at_modes = [(omega, margins.axis_response(lin, [omega])[0]) for omega, _ in modes.get(t, ())
+                    if omega < np.pi / lin.period]
         for i in range(3):
             phase, gain = nichols_curve(L[:, i])
             (line,) = axes[i].plot(phase, gain, label=f"t = {t:g} s")
             crossings = phase_crossings(phase, gain)
             axes[i].plot(np.full(len(crossings), -180.0), crossings, "o", ms=4, color=line.get_color())
             low, high = (crossings - 10.0).min(initial=low), (crossings + 10.0).max(initial=high)
+            for omega, L_r in at_modes:
+                x, y = _phase_deg(L_r[i]), 20 * np.log10(np.abs(L_r[i]))
+                axes[i].plot([x], [y], "x", ms=6, mew=1.2, color=line.get_color())
+                axes[i].annotate(f"{omega / (2 * np.pi):.3g} Hz", (x, y), textcoords="offset points", xytext=(4, 4),
+                                 fontsize=7, color=line.get_color())
     for i, ax in enumerate(axes):
         ax.add_patch(Rectangle((-180.0 - EXCLUSION_DEG, -EXCLUSION_DB), 2 * EXCLUSION_DEG, 2 * EXCLUSION_DB,
                                facecolor="tab:red", alpha=0.15, edgecolor="none",
@@ -232,17 +293,33 @@ def _nichols(name: str, lins: dict):
     return fig
 
 
-def figures(linearizations: dict) -> dict:
+# The units of the keys a report's ``modes`` adds (only with appendages or slosh).
+MODE_UNITS = {"frequency_hz": "Hz", "damping_ratio": "-"}
+
+
+def report_modes(reports: dict) -> dict:
+    """{controller: {t: ((omega_r [rad/s], zeta_r), ...)}} of the reports' ``modes`` (empty where none)."""
+    return {name: {row["t"]: tuple((m["frequency"], m["damping_ratio"]) for m in row["modes"])
+                   for row in report["times"] if row.get("modes")}
+            for name, report in reports.items()}
+
+
+def figures(linearizations: dict, modes: dict | None = None) -> dict:
     """{file name: figure}: per controller, the Bode plot (``bode_NAME.png``) and the Nichols
-    chart (``nichols_NAME.png``) of each axis's loop L_i (the other axes closed) at each time."""
-    out = {}
+    chart (``nichols_NAME.png``) of each axis's loop L_i (the other axes closed) at each time;
+    modes: {controller: {t: ((omega_r, zeta_r), ...)}} (:func:`report_modes`), each structural
+    mode marked and its resonance resolved."""
+    out, modes = {}, modes or {}
     for name, lins in linearizations.items():
-        out[f"bode_{name}.png"] = _bode(name, lins)
-        out[f"nichols_{name}.png"] = _nichols(name, lins)
+        out[f"bode_{name}.png"] = _bode(name, lins, modes.get(name))
+        out[f"nichols_{name}.png"] = _nichols(name, lins, modes.get(name))
     return out
 
 
 def write(out: Path, reports: dict, linearizations: dict, config: dict, with_figures: bool) -> list:
     """margins.json (the reports and the mission as flown) and the figures; the figures' paths."""
-    io.write_json(Path(out) / "margins.json", {**reports, "units": margins.UNITS, "config": config})
-    return io.save_figures(out, figures(linearizations)) if with_figures else []
+    modes = report_modes(reports)
+    flexible = any("modes" in row for report in reports.values() for row in report["times"])
+    units = {**margins.UNITS, **MODE_UNITS} if flexible else margins.UNITS
+    io.write_json(Path(out) / "margins.json", {**reports, "units": units, "config": config})
+    return io.save_figures(out, figures(linearizations, modes)) if with_figures else []

@@ -41,6 +41,15 @@ The closed loop w = y is stable when every mode of A + BC that the loop moves li
 the unit circle, to NEUTRAL_GROWTH (:class:`Modes`); the modes it cannot move (a constant
 gyro bias, the total angular momentum, a wheel's null-space speed: |z| = 1) are reported
 apart. The margins of an unstable closed loop are not computed.
+
+A mission with hinged panels or slosh particles (``Scenario.flexible``) carries their
+coordinates in the State's ``flexible`` leaf, so they are coordinates of x like any other
+(labels '.flexible.theta[i]', '.flexible.theta_dot[i]', '.flexible.rho[j]', ...): with the
+command disconnected (B w = 0), the modes of A are the free hub's structural modes,
+z = exp(s Delta_c) with s = -zeta omega +- i omega sqrt(1 - zeta^2) of
+:func:`so3jax.dynamics.flexible.modes` (to the plant's RK4 step: (omega dt)^4 / 120 relative;
+tests/test_flexible_margins.py). :func:`structural_modes` names them at a time (the hub's
+inertia J(t)), and :func:`resolving_omegas` adds their resonances to a frequency grid.
 """
 
 from __future__ import annotations
@@ -57,7 +66,9 @@ from scipy import linalg, optimize
 
 from so3jax.components.sensors import Sensors
 from so3jax.controllers.base import Controller
+from so3jax.dynamics import flexible
 from so3jax.dynamics.scenario import Scenario
+from so3jax.sim import loop as loops
 from so3jax.sim.loop import Loop, State, initial_state, step, tick
 
 NOISE_PARAMETERS = ("arw", "rrw", "sigma")  # a sensor's noise levels (gyro sigma_v, sigma_u; star tracker sigma)
@@ -484,6 +495,72 @@ def default_omegas(period: float, count: int = 2000, decades: float = 6.0) -> np
     """``count`` frequencies [rad/s] log-spaced over ``decades`` up to the Nyquist frequency pi / Delta_c."""
     top = math.log10(math.pi / period)
     return np.logspace(top - decades, top, count)
+
+
+# The points added about each structural mode's frequency omega_r by resolving_omegas: omega_r (1 + u) for
+# u = +-zeta_r times these (its half-power band is omega_r (1 +- zeta_r), the peak 1 / (2 zeta_r) there) ...
+MODE_BAND = (0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+# ... and for u = +- these (the mode as the loop moves it, closed about the other axes; an undamped mode)
+MODE_SPREAD = (1e-4, 1e-3, 3e-3, 0.01, 0.02, 0.05, 0.1)
+
+
+class StructuralMode(NamedTuple):
+    """A structural mode of the free hub with its appendages and slosh at rest (docs/flexible.md
+    (F.17)-(F.20)): frequency omega_r [rad/s] and damping ratio zeta_r [-]."""
+
+    frequency: float  # omega_r [rad/s]
+    damping_ratio: float  # zeta_r [-]
+
+    @property
+    def frequency_hz(self) -> float:
+        """omega_r / 2 pi [Hz]."""
+        return self.frequency / (2.0 * math.pi)
+
+    def to_dict(self) -> dict:
+        return _json({"frequency_hz": self.frequency_hz, "frequency": self.frequency,
+                      "damping_ratio": self.damping_ratio})
+
+
+def structural_modes(scenario: Scenario, t: float) -> tuple | None:
+    """The :class:`StructuralMode` s of the scenario's flexible body at t [s], by ascending
+    frequency (:func:`so3jax.dynamics.flexible.modes`): the free hub of the loop's inertia at
+    t, J(t) of the step starting at t (wheels locked: the hub carries them), its panels' and
+    particles' k and c those of the phase holding at t where they are given per phase
+    (``flexible.at_phase``). None for a scenario without appendages or slosh."""
+    body = scenario.flexible
+    if body is None:
+        return None
+    dtype = scenario.R0.dtype
+    k = int(round(t / scenario.dt))
+    p = loops.phase(scenario, jnp.asarray(k, jnp.int32))
+    J = loops.inertia(scenario, jnp.asarray(t, dtype), p)
+    at_phase = getattr(flexible, "at_phase", None)
+    if at_phase is not None:
+        body = at_phase(body, int(p))
+    body = dataclasses.replace(body, hub=dataclasses.replace(body.hub, inertia=jnp.asarray(J, dtype)))
+    modes = flexible.modes(body, dtype)
+    return tuple(StructuralMode(float(w), float(z)) for w, z in zip(np.asarray(modes.frequency, np.float64),
+                                                                     np.asarray(modes.damping_ratio, np.float64)))
+
+
+def resolving_omegas(period: float, modes=(), count: int = 2000, decades: float = 6.0) -> np.ndarray:
+    """:func:`default_omegas` with points about each structural mode (:class:`StructuralMode`,
+    or (omega_r, zeta_r) pairs) below the Nyquist frequency: omega_r itself and omega_r (1 + u)
+    for u = +-zeta_r MODE_BAND (its half-power band omega_r (1 +- zeta_r), where a lightly
+    damped mode's peak of height 1 / (2 zeta_r) lies, narrower than the log grid's spacing) and
+    u = +-MODE_SPREAD (the resonance as the loop shifts it). Sorted, the log grid's own points
+    kept: without modes, :func:`default_omegas`."""
+    omegas = default_omegas(period, count, decades)
+    if not modes:
+        return omegas
+    band = np.asarray(MODE_BAND)
+    added = []
+    for omega, zeta in modes:
+        u = np.concatenate([[0.0], zeta * band, -zeta * band, MODE_SPREAD, -np.asarray(MODE_SPREAD)])
+        added.append(omega * (1.0 + u))
+    added = np.concatenate(added)
+    added = added[(added > omegas[0]) & (added < omegas[-1] * (1.0 - 1e-9))]
+    return np.unique(np.concatenate([omegas, added]))
 
 
 def _resolvent(A, B, C, omegas, period):
