@@ -201,6 +201,28 @@ def navigation_errors(mission) -> tuple[list, list]:
     return P.tolist(), bounds.tolist()
 
 
+def springs(mission) -> tuple[list, list]:
+    """Each panel's, then each particle's (k, c) in the phase holding at step 0, and [(K,
+    [(k, c)])] at the first step K of each later phase in (0, n_steps) where any is given per
+    phase (so3jax's loop switches them at the phase's step: so3jax.sim.loop.phase)."""
+    entries = (*mission.appendages, *mission.slosh)
+    value = lambda e, f, p: float(np.asarray(e[f], float).reshape(-1)[p] if np.ndim(e[f]) else e[f])
+    at = lambda p: [(value(e, "k", p), value(e, "c", p)) for e in entries]
+    if not any(np.ndim(e[f]) for e in entries for f in ("k", "c")):
+        return at(0), []
+    scenario = mission.scenario("float64")
+    starts = scenario.phase_steps
+    phase = lambda k: sum(k >= K for K in starts)
+    return at(phase(0)), [(K, at(phase(K))) for K in sorted(set(starts)) if 0 < K < scenario.n_steps]
+
+
+def set_springs(panels: list, particles: list, values: list) -> None:
+    """Each effector's spring k and damper c (values: springs()'s, panels first): read at
+    each derivative, so from the next step on where set between runs."""
+    for effector, (k, c) in zip((*panels, *particles), values):
+        effector.k, effector.c = k, c
+
+
 def appendages(bsk, mission, sc, sim) -> tuple[list, list]:
     """The mission's panels as hingedRigidBodyStateEffector and its slosh particles as
     linearSpringMassDamper on ``sc`` (in the dynamics task, after the hub: their messages hold
@@ -213,17 +235,17 @@ def appendages(bsk, mission, sc, sim) -> tuple[list, list]:
     for a in mission.appendages:
         panel = bsk["hingedRigidBodyStateEffector"].HingedRigidBodyStateEffector()
         panel.mass, panel.d = float(a["mass"]), float(a["distance"])
-        panel.k, panel.c = float(a["k"]), float(a["c"])  # one value each: representable.check
         panel.IPntS_S = np.asarray(a["inertia"], float).tolist()
         panel.r_HB_B, panel.dcm_HB = column(a["hinge"]), panel_frame(a["axis"], a["direction"]).tolist()
         panel.thetaInit, panel.thetaDotInit = float(a["angle"]), 0.0
         panels.append(panel)
     for p in mission.slosh:
         particle = bsk["linearSpringMassDamper"].LinearSpringMassDamper()
-        particle.massInit, particle.k, particle.c = float(p["mass"]), float(p["k"]), float(p["c"])  # massInit: a state
+        particle.massInit = float(p["mass"])  # its mass is a state
         particle.r_PB_B, particle.pHat_B = column(p["location"]), column(p["direction"])
         particle.rhoInit, particle.rhoDotInit = float(p["displacement"]), 0.0
         particles.append(particle)
+    set_springs(panels, particles, springs(mission)[0])
     for effector in (*panels, *particles):
         sc.addStateEffector(effector)
         sim.AddModelToTask("dynamicsTask", effector)
@@ -396,6 +418,9 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
         sc.updateSCMassProps(float(t))  # from the next step on; the hub alone would keep the old one a step longer
 
     events += [(macros.sec2nano(t), lambda t=t, J_after=J_after: step(t, J_after)) for t, J_after in steps]
+    if flexible:  # a spring per phase: from the phase's first step on, as its inertia step
+        events += [(K * dt_ns, lambda values=values: set_springs(panels, particles, values))
+                   for K, values in springs(mission)[1]]
     stop = macros.sec2nano(mission.T) - period_ns  # the ticks so3jax records: 0 .. T - period
     events.sort(key=lambda event: event[0])  # stable: an inertia step after a fault at the same time
     for _, action in (e for e in events if e[0] <= 0):  # a fault at tick 0: before anything runs

@@ -82,14 +82,9 @@ def _navigation(m) -> None:
 
 def _flexible(m) -> None:
     """Hinged panels and slosh particles (docs/model.md §8.9) as hingedRigidBodyStateEffector
-    and linearSpringMassDamper: each with one spring and one damper, in inertial pointing
-    (hillPoint reads the hub's point B, which moves about the centre of mass with them)."""
-    for kind, entries in (("appendages", m.appendages), ("slosh", m.slosh)):
-        for i, entry in enumerate(entries):
-            for key in ("k", "c"):
-                if np.ndim(entry[key]):
-                    _refuse(f"{kind}[{i}].{key} per phase", "its effector holds one spring and one damper: "
-                            f"give {kind}[{i}].{key} one value")
+    and linearSpringMassDamper (their springs and dampers per phase set between runs), in
+    inertial pointing (hillPoint reads the hub's point B, which moves about the centre of mass
+    with them)."""
     if m.reference["kind"] == "lvlh":
         _refuse("the orbit frame (reference.kind = \"lvlh\") with [[appendages]] or [[slosh]]",
                 "hillPoint reads the orbit of the hub's point B, which the panels and particles move about the "
