@@ -1,5 +1,5 @@
 """The margins see the structural modes (so3jax.sim.margins, so3jax.jobs.margins, docs/flexible.md
-(F.21)-(F.22), docs/commands/margins.md): the one-period map linearized with the modal
+(F.21), (F.24), docs/commands/margins.md): the one-period map linearized with the modal
 coordinates in, its free modes (the command disconnected: A alone) at the closed forms of a
 hinged panel and a slosh particle on a free hub, as flexible.modes has them; the report names
 the modes at each time (JSON, table, units), a rigid mission's report has no such key; the
@@ -49,14 +49,14 @@ def panel_inertia(J_z=HUB_J[2][2], hub_mass=HUB_MASS + M_SLOSH, r=R, d=D, m=M_PA
 
 
 def slosh_mass(m_p=M_SLOSH, rest=HUB_MASS + M_PANEL):
-    """The particle's effective mass on its line through the rest's centre of mass (F.22):
+    """The particle's effective mass on its line through the rest's centre of mass (F.24):
     the reduced mass m_p M / (m_p + M), M the hub's with the panel."""
     return m_p * rest / (m_p + rest)
 
 
 def closed_forms(panel_k, panel_c, slosh_k, slosh_c):
     """[(omega [rad/s], zeta)] of the panel and the particle, ascending: omega^2 = k / I_eff,
-    zeta = c / (2 sqrt(k I_eff)) (and the same with the particle's effective mass)."""
+    zeta = c / (2 sqrt(k I_eff)) (F.21), and the same with the particle's effective mass (F.24)."""
     out = [(math.sqrt(k / m), c / (2 * math.sqrt(k * m)))
            for k, c, m in ((panel_k, panel_c, panel_inertia()), (slosh_k, slosh_c, slosh_mass()))]
     return sorted(out)
