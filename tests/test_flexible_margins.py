@@ -251,3 +251,24 @@ def test_a_lightly_damped_panel_lowers_the_margins_and_a_notch_recovers_them(rig
     assert row["disk"]["axes"][2]["frequency"] == pytest.approx(OMEGA_STIFF, rel=0.2)  # the resonance sets it
     assert z_flex < z_rigid - 0.15 and all_flex < all_rigid - 0.15, (z_rigid, z_flex)
     assert z_notch > z_flex + 0.1 and all_notch > all_flex + 0.05, (z_flex, z_notch, all_flex, all_notch)
+
+
+def test_the_modes_follow_the_inertia_timeline():
+    """On the flight mission's timeline (capture J0, deployment towards 2 J0, docked J2 from
+    2600 s: missions/flight.toml) the modes at t are flexible.modes on the hub of J(t)."""
+    mission = missions.from_dict({"T": 3000.0, "hub": {"mass": HUB_MASS},
+                                  "appendages": [{**PANEL, "k": SOFT["panel_k"], "c": SOFT["panel_c"]}]})
+    scenario = mission.scenario()
+    body = scenario.flexible
+    J0 = np.asarray(mission.J0)
+    J2 = np.asarray(mission.J2)
+    found = {}
+    for t, J in ((0.0, J0), (2900.0, J2)):
+        hub = body.hub.__class__(body.hub.mass, J, body.hub.r_BcB)
+        expected = fx.modes(body.__class__(hub, body.panels, body.slosh))
+        (mode,) = mg.structural_modes(scenario, t)
+        assert mode.frequency == pytest.approx(float(expected.frequency[0]), rel=1e-13), t
+        assert mode.damping_ratio == pytest.approx(float(expected.damping_ratio[0]), rel=1e-13), t
+        found[t] = mode.frequency
+    (deploying,) = mg.structural_modes(scenario, 1500.0)
+    assert found[0.0] != found[2900.0] and deploying.frequency not in found.values()

@@ -19,7 +19,8 @@ def register(subparsers) -> None:
                               "automatic differentiation about its noise-free flight, broken at the actuator "
                               "input: per-axis gain, phase and delay margins (the other axes closed), disk "
                               "margins per axis and for all axes at once; margins.json, a table, and Bode and "
-                              "Nichols figures.",
+                              "Nichols figures. With [[appendages]] or [[slosh]], the structural modes at each time "
+                              "(frequency, damping ratio), marked on the figures.",
                               epilog=registered())
     p.add_argument("mission", nargs="?", type=Path,
                    help="mission file (TOML) with a sampled loop; default: the flight mission (missions/flight.toml)")
