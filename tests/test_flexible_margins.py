@@ -150,13 +150,16 @@ def test_the_linearization_carries_the_modal_states(soft):
 
 def test_the_open_loops_modes_are_the_closed_forms(soft):
     """The free modes of the one-period map (A: the command disconnected) at the closed forms:
-    |s| = omega to the plant's RK4 step ((omega dt)^4 / 120 < 1e-9), the damping ratio
-    -Re s / |s| flexible.modes'."""
-    _, _, lin = soft
+    |s| = omega to the plant's RK4 step (its phase lag (omega dt)^4 / 120 < 1e-9, exactly),
+    the damping ratio -Re s / |s| flexible.modes'."""
+    mission, _, lin = soft
     s = _free_modes(lin)
     expected = np.array(closed_forms(**SOFT))
     assert len(s) == 2, s
     np.testing.assert_allclose(np.abs(s), expected[:, 0], rtol=1e-8)
+    # what is left is RK4's phase lag per step, arg R(i x) = x (1 - x^4 / 120 + ...), x = omega dt
+    x = expected[:, 0] * mission.dt
+    np.testing.assert_allclose(np.abs(s) / expected[:, 0] - 1, -(x**4) / 120, rtol=0, atol=1e-12)
     np.testing.assert_allclose(-s.real / np.abs(s), expected[:, 1], rtol=1e-6)
     assert np.all(expected[:, 1] > 1e-3)  # damped: c > 0
 
