@@ -275,3 +275,29 @@ def test_the_modes_follow_the_inertia_timeline():
         found[t] = mode.frequency
     (deploying,) = mg.structural_modes(scenario, 1500.0)
     assert found[0.0] != found[2900.0] and deploying.frequency not in found.values()
+
+
+def test_a_sweep_resolves_each_sample_s_own_modes():
+    """A sweep's margins take each sample's on a grid through its own structural modes: the
+    panel's and the particle's k and c drawn per sample, each sample's grid holds the
+    frequencies of (F.21), (F.24) with its values (the modes of its mission written out and
+    built alone), which differ between the samples."""
+    from so3jax.jobs.sweep import margins as sweep_margins
+    from so3jax.missions import batched, draw
+
+    m = flexible(**SOFT)
+    scale = {"dist": "uniform", "low": 0.5, "high": 2.0, "relative": "scale"}
+    parsed, leaves = draw.parse({"appendages": {"0": {"k": scale, "c": scale}},
+                                 "slosh": {"0": {"k": scale}}}, m)
+    samples = draw.draw(parsed, leaves, 0, 2, 20, mission=m)
+    inputs = batched.inputs(samples, np.float64)
+    grids = []
+    for i in range(2):
+        grid = sweep_margins._resolving(m, inputs, i, 0.0)
+        values = {name: float(samples.leaves[f"{name}.0.k"][i]) for name in ("appendages", "slosh")}
+        c = float(samples.leaves["appendages.0.c"][i])
+        for omega, zeta in closed_forms(values["appendages"], c, values["slosh"], SOFT["slosh_c"]):
+            assert np.min(np.abs(grid / omega - 1.0)) < 1e-12
+            assert np.min(np.abs(grid / (omega * (1.0 + zeta * mg.MODE_BAND[0])) - 1.0)) < 1e-12
+        grids.append(grid)
+    assert not np.array_equal(grids[0], grids[1])

@@ -525,8 +525,8 @@ def structural_modes(scenario: Scenario, t: float) -> tuple | None:
     """The :class:`StructuralMode` s of the scenario's flexible body at t [s], by ascending
     frequency (:func:`so3jax.dynamics.flexible.modes`): the free hub of the loop's inertia at
     t, J(t) of the step starting at t (wheels locked: the hub carries them), its panels' and
-    particles' k and c those of the phase holding at t where they are given per phase
-    (``flexible.at_phase``). None for a scenario without appendages or slosh."""
+    particles' k and c those of the phase holding at t (:func:`so3jax.dynamics.flexible.at_phase`).
+    None for a scenario without appendages or slosh."""
     body = scenario.flexible
     if body is None:
         return None
@@ -534,9 +534,7 @@ def structural_modes(scenario: Scenario, t: float) -> tuple | None:
     k = int(round(t / scenario.dt))
     p = loops.phase(scenario, jnp.asarray(k, jnp.int32))
     J = loops.inertia(scenario, jnp.asarray(t, dtype), p)
-    at_phase = getattr(flexible, "at_phase", None)
-    if at_phase is not None:
-        body = at_phase(body, int(p))
+    body = flexible.at_phase(body, int(p))
     body = dataclasses.replace(body, hub=dataclasses.replace(body.hub, inertia=jnp.asarray(J, dtype)))
     modes = flexible.modes(body, dtype)
     return tuple(StructuralMode(float(w), float(z)) for w, z in zip(np.asarray(modes.frequency, np.float64),

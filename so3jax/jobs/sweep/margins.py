@@ -101,24 +101,33 @@ def linearize(inputs, gains, states, j, *, controller, mission: Mission, kinds):
     return jax.vmap(one)(params, leaves, states)
 
 
-def _judge(lin: margins.Linearization) -> dict:
-    """One point's margins (NaN where the closed loop is unstable or not finite)."""
+def _judge(lin: margins.Linearization, omegas=None) -> dict:
+    """One point's margins (NaN where the closed loop is unstable or not finite) on the
+    frequency grid ``omegas`` [rad/s] (None: :func:`so3jax.sim.margins.default_omegas`)."""
     nan3 = np.full(AXES, np.nan)
     out = {"stable": False, "at_limit": lin.at_limit, "spectral_radius": np.nan, "disk_alpha": np.nan,
            "disk_db": np.nan, "disk_phase_deg": np.nan, **{name: nan3 for name in PER_AXIS}}
     if not all(np.isfinite(x).all() for x in (lin.A, lin.B, lin.C)):
         return out  # a flight gone non-finite: no linearization
-    classical = margins.loop_at_a_time(lin)
+    classical = margins.loop_at_a_time(lin, omegas)
     out["stable"], out["spectral_radius"] = classical.stable, classical.spectral_radius
     if not classical.stable:
         return out
-    disks = margins.disk_margin(lin)
+    disks = margins.disk_margin(lin, omegas)
     disk = disks.multiloop
     out.update(disk_alpha=disk.alpha, disk_db=disk.gain_margin_upper_db, disk_phase_deg=disk.phase_margin_deg)
     for name in PER_AXIS[:-1]:
         out[name] = np.array([getattr(axis, name) for axis in classical.axes])
     out["disk_axis_alpha"] = np.array([axis.alpha for axis in disks.axes])
     return out
+
+
+def _resolving(mission: Mission, inputs, i: int, t: float) -> np.ndarray:
+    """Sample i's frequency grid at t [s]: the default grid with points about each of its
+    structural modes (its own J(t), k and c; :func:`so3jax.sim.margins.resolving_omegas`)."""
+    params, values = jax.tree.map(lambda x: x[i], inputs)
+    scenario, _ = _sample(mission, params, values, params.J0.dtype)
+    return margins.resolving_omegas(float(mission.period), margins.structural_modes(scenario, t))
 
 
 def shared_kinds(states, n_samples: int, t: float) -> tuple:
@@ -175,9 +184,10 @@ def sample_margins(inputs, gains, *, controller, mission: Mission, times) -> dic
         A, B, C, at_limit = map(np.asarray, linearize(inputs, gains, here, jnp.asarray(ticks[k], jnp.int32),
                                                       controller=controller, mission=mission, kinds=kinds))
         for i in range(n_samples):
+            omegas = _resolving(mission, inputs, i, times[k]) if mission.flexible else None
             lin = margins.Linearization(np.asarray(A[i], np.float64), np.asarray(B[i], np.float64),
                                         np.asarray(C[i], np.float64), float(mission.period), (), bool(at_limit[i]))
-            rows[i][k] = _judge(lin)
+            rows[i][k] = _judge(lin, omegas)
     return {name: np.array([[row[name] for row in sample] for sample in rows], bool if name in ("stable", "at_limit")
                            else np.float64) for name in SCALARS + PER_AXIS}
 
