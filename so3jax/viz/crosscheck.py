@@ -14,7 +14,7 @@ FLOOR = 1e-20  # an exact agreement (0) drawn at this level on the log scale
 
 def differences_figure(mission, differences: dict, quantities) -> Figure:
     """differences: {controller: Differences}; quantities: ((field, unit), ...)."""
-    fig = Figure(figsize=(10, 8))
+    fig = Figure(figsize=(10, 1.4 * len(quantities) + 1.5))
     axes = fig.subplots(len(quantities), 1, sharex=True)
     for ax, (q, unit) in zip(axes, quantities):
         for name, d in differences.items():
@@ -24,6 +24,7 @@ def differences_figure(mission, differences: dict, quantities) -> Figure:
         ax.grid(True, which="major", alpha=0.3)
     axes[0].legend(fontsize=8)
     axes[-1].set_xlabel("t [s]")
+    fig.align_ylabels(axes)
     axes[0].set_title(f"|so3jax - Basilisk| at each recorded tick ({mission.T:g} s, control period "
                       f"{mission.period:g} s, dt = {mission.dt:g} s)")
     return fig
