@@ -234,5 +234,10 @@ class Filter(abc.ABC):
     def apply(self, state, x):
         """(its state for the next tick, the filtered x (3, *b)) of this tick's input x (3, *b)."""
 
+    def at_phase(self, phase) -> Filter:
+        """The filter flown in mission phase ``phase`` (an index, possibly traced): itself, unless
+        its parameters are given per phase."""
+        return self
+
     def check(self) -> None:
         """One-line ValueErrors on bad parameters, before compilation (values read only where concrete)."""

@@ -82,7 +82,7 @@ def samples_bytes(leaves: tuple, n_samples: int, dtype) -> int:
 
 
 def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every: int | None = None,
-                   estimator=None, pointing: bool = False) -> dict:
+                   estimator=None, pointing: bool = False, filter=None) -> dict:  # noqa: A002
     """{metric: values} of a batch of samples of ``mission`` (hashable by its fingerprint: a
     static argument of jit) flown by ``controller`` at ``gains``: the docs/model.md §6 metrics, and the
     flight metrics of a sampled loop. inputs = (RolloutParams, {dispersed component
@@ -91,7 +91,8 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     rollouts); with dispersed component parameters, each sample flies its own loop (the
     components' parameters with a batch axis). record_every: the rollouts' checkpoint blocks [steps] (reverse-mode
     memory; the horizon's steps: none). estimator: {parameter: value} of the mission's
-    estimator that every sample shares (the noise levels the filter assumes, tuned).
+    estimator that every sample shares (the noise levels the filter assumes, tuned); filter:
+    {parameter: value} of the mission's structural filter that every sample shares (tuned).
     pointing: also the attitude errors at the start of every block of ``record_every``
     steps, ``pointing_performance`` e_P and, where the loop estimates the attitude,
     ``pointing_knowledge`` e_K ((batch, M, 3) rad, :func:`pointing_errors`).
@@ -99,6 +100,7 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
     params, leaves = inputs
     m, dtype = mission, params.J0.dtype
     shared = {f"estimator.{m.estimator['kind']}.{k}": v for k, v in (estimator or {}).items()}
+    shared.update({f"filter.{m.filter['kind']}.{k}": v for k, v in (filter or {}).items()})
     own, leaves = split(leaves)
     scenarios = jax.vmap(lambda p, v: build.scenario(scenario_values(m, v), p))(params, own)  # own: its own
     dispersed_tables = {k.split(".")[0] for k in own}

@@ -412,6 +412,7 @@ def from_dict(d: dict, base: dict = FLIGHT) -> Mission:
     reference = _chosen(full, "reference", "reference", base, d.get("reference"))
     structural = _chosen(full, "filter", "filter", base, d.get("filter"))
     phases = _phases(full["phases"], dt, inertia["kind"] == "paper" and not constant, reference["kind"])
+    _filter_phases(structural, phases["names"])
     _check_wiring(period_steps, sensors, estimator["kind"])
     schedule = schedules.parse(full.get("schedule", {}), controllers)
     fdir = fault_list.parse_fdir(d.get("fdir"))
@@ -556,6 +557,16 @@ def _flexible(d: dict, full: dict, phase_names: tuple = ()):
     # the rest (finite values, non-negative distances and springs) as the model reads them
     flexible_dynamics.check(build.flexible_body(mass, appendages, slosh, np.eye(3), phases=len(phase_names)))
     return mass, appendages, slosh
+
+
+def _filter_phases(structural: dict, phase_names: tuple) -> None:
+    """[filter.NAME]: a parameter given as a list has one value per phase (docs/model.md §8.8)."""
+    values = structural.get(structural["kind"]) or {}
+    for name, value in values.items():
+        n = np.size(value) if np.ndim(value) and not isinstance(value, str) else None
+        if n is not None and n != len(phase_names):
+            raise ValueError(f"filter.{structural['kind']}.{name} has {n} value{'s' * (n != 1)}: give one number, or "
+                             f"one per phase ({len(phase_names)}: {', '.join(phase_names)})")
 
 
 def _pointing(table: dict) -> dict:

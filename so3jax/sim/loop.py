@@ -348,12 +348,13 @@ def tick(scenario: Scenario, loop: Loop, controller: Controller, gains, key, sta
     wanted = desired(scenario, t, p, state.R_d, state.Omega)
     h_w = loop.actuator.uncompensated_momentum(state.actuator, estimate.Omega_hat)
     structural, Omega_read = state.filter, estimate.Omega_hat
-    if loop.filter is not None and loop.filter.signal == "rate":
-        structural, Omega_read = loop.filter.apply(state.filter, estimate.Omega_hat)
+    shaping = None if loop.filter is None else loop.filter.at_phase(p)  # the phase's section (per-phase parameters)
+    if shaping is not None and shaping.signal == "rate":
+        structural, Omega_read = shaping.apply(state.filter, estimate.Omega_hat)
     feedback = Feedback(estimate.R_hat, Omega_read, h_w)
     tau_cmd, controller_dot = controller.torque(gains, state.controller, feedback, wanted, t)
-    if loop.filter is not None and loop.filter.signal == "torque":
-        structural, tau_cmd = loop.filter.apply(state.filter, tau_cmd)
+    if shaping is not None and shaping.signal == "torque":
+        structural, tau_cmd = shaping.apply(state.filter, tau_cmd)
     manager, managed = state.manager, state.managed
     if momentum is not None:
         manager, managed = manage(scenario, loop, state, t, key, j, momentum)

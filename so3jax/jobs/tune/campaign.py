@@ -82,7 +82,9 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     dtype = problem.scenario.R0.dtype
     initial = resolve_gains(config.controller, config.initial_gains, dtype, config.diagonal_gamma, config.mission)
     initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype)
-                                       for n in config.estimator})
+                                       for n in config.estimator},
+                             {n: jnp.asarray(getattr(problem.loop.filter, n), dtype) for n in config.filter},
+                             0.5 / config.mission.period)
     n_train = config.train.samples or problem.train.seed.shape[0]
     mode = config.cost.mode
     mission = mission_of(problem)

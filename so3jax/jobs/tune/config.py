@@ -12,13 +12,15 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 
+from so3jax.components import filters
 from so3jax.components import registry as components
 from so3jax.controllers import registry
 from so3jax.controllers.gains import Nonnegative, gain_domain
 from so3jax.core import checks
-from so3jax.jobs.tune.gains import CONTROLLERS, diagonals, resolve_gains
+from so3jax.jobs.tune.gains import CONTROLLERS, NYQUIST_SHARE, diagonals, resolve_gains
 from so3jax.jobs.tune.goals import MAX_DB, formed_before, parse_goals
 from so3jax.missions import batched, draw
 from so3jax.missions import config as cfg
@@ -130,6 +132,7 @@ class TuneConfig:
     # the sweep's [dispersions] syntax: a fresh batch of dispersed missions per iteration
     dispersions: dict | None = None
     estimator: tuple = ()  # parameters of the mission's estimator tuned beside the gains (its assumed noise levels)
+    filter: tuple = ()  # parameters of the mission's structural filter tuned beside the gains (frequency, ...)
     constraints: Constraints | None = None  # [tune.constraints]: penalties on the sampled loop's margins; None: none
     goals: tuple = ()  # [[tune.goals]]: a design campaign's goals (docs/model.md §16.6); none: the cost above
     starts: int = 1  # initial gains run together: the given ones, then draws log-uniform within the bounds
@@ -178,13 +181,14 @@ def _build(cls, table: dict, prefix: str, **extra):
             value = _build(SECTIONS[key], value, f"{prefix}{key}.")
         elif key in CONSTRAINTS and cls is Constraints:
             value = _build(CONSTRAINTS[key], value, f"{prefix}{key}.")
-        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "at", "goals", "fixed"):
+        elif isinstance(value, list) and key in ("seeds", "inertia_scales", "estimator", "filter", "at", "goals",
+                                                 "fixed"):
             value = tuple(value)
         elif key in ("seeds", "inertia_scales"):
             raise ValueError(f"config key '{prefix}{key}' must be a non-empty list of numbers, "
                              f"got {checks.short(value)}")
-        elif key == "estimator":
-            raise ValueError(f"config key '{prefix}{key}' must be a list of the estimator's parameters, "
+        elif key in ("estimator", "filter") and cls is TuneConfig:
+            raise ValueError(f"config key '{prefix}{key}' must be a list of the {key}'s parameters, "
                              f"got {checks.short(value)}")
         values[key] = value
     return cls(**values, **extra)
@@ -296,6 +300,7 @@ def validate(config: TuneConfig) -> None:
         raise ValueError(f"a campaign's mission must be a so3jax Mission, got {got}")  # noqa: TRY004
     _check_dispersions(config)
     _check_estimator(config)
+    _check_filter(config)
     _check_constraints(config)
     _check_design(config)
     held_out = set(config.train.seeds) & set(config.validation.seeds)
@@ -405,7 +410,9 @@ def _check_constraints(config: TuneConfig) -> None:
                      (config.dispersions is not None, f"[{TUNE}.dispersions] (its nominal flights are the fixed "
                       "training scenarios')"),
                      (bool(config.estimator), f"{_key('estimator')} (the loop is linearized with the mission's "
-                      "estimator)")):
+                      "estimator)"),
+                     (bool(config.filter), f"{_key('filter')} (the loop is linearized with the mission's "
+                      "filter)")):
         if key:
             raise ValueError(f"config key {_key(where)!r} cannot be combined with {why}")
     mission = config.mission
@@ -450,7 +457,8 @@ def _check_design(config: TuneConfig) -> None:
         if refused:
             raise ValueError(f"config key {_key('goals')!r} needs {why}")
     for given, key in ((config.method != "gradient", "method"), (config.constraints is not None, "constraints"),
-                       (bool(config.estimator), "estimator"), (config.cost != CostConfig(), "cost"),
+                       (bool(config.estimator), "estimator"), (bool(config.filter), "filter"),
+                       (config.cost != CostConfig(), "cost"),
                        (config.objective != "mean", "objective")):
         if given:
             raise ValueError(f"config key {_key(key)!r} cannot be combined with [[{TUNE}.goals]]: a design campaign "
@@ -512,6 +520,45 @@ def _check_estimator(config: TuneConfig) -> None:
                              "must start positive")
 
 
+def tunable_filter(mission) -> tuple:
+    """The parameters of the mission's structural filter that can be tuned (positive reals,
+    each one number or one per phase): frequency, zeta_pole and a notch's zeta_zero."""
+    kind = mission.filter["kind"]
+    return tuple(p.name for p in components.get("filter", kind).params if p.name in filters.TUNABLE)
+
+
+def _check_filter(config: TuneConfig) -> None:
+    """tune.filter: distinct tunable parameters of the mission's structural filter, each
+    positive as the loop builds it (their logarithms are tuned); the frequency below
+    NYQUIST_SHARE of the Nyquist frequency 1 / (2 Delta_c) (the tuner holds it there)."""
+    names = config.filter
+    if not names:
+        return
+    where = _key("filter")
+    kind = config.mission.filter["kind"]
+    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
+        raise ValueError(f"config key {where!r} must list distinct parameter names, got {checks.short(list(names))}")
+    if kind == "none":
+        raise ValueError(f"config key {where!r}: the mission has no structural filter (filter.kind = \"none\"); "
+                         "give it one ([filter] kind = \"notch\" or \"lowpass\") or leave tune.filter out")
+    tunable = tunable_filter(config.mission)
+    for name in names:
+        if name not in tunable:
+            raise ValueError(f"config key {where!r}: the mission's filter {kind!r} has no tunable parameter "
+                             f"{name!r} (tunable: {', '.join(tunable)})")
+    structural = config.mission.loop(jnp.result_type(float)).filter
+    for name in names:
+        if not np.all(np.asarray(getattr(structural, name)) > 0.0):
+            raise ValueError(f"config key {where!r}: {name} is 0 in the mission; its logarithm is tuned, so it "
+                             "must start positive")
+    high = NYQUIST_SHARE * 0.5 / config.mission.period
+    if "frequency" in names and np.any(np.asarray(structural.frequency) >= high):
+        raise ValueError(f"config key {where!r}: filter.{kind}.frequency = "
+                         f"{float(np.max(structural.frequency)):g} Hz must start below {high:g} Hz, "
+                         f"{NYQUIST_SHARE:g} of the Nyquist frequency {0.5 / config.mission.period:g} Hz of the "
+                         "control period, where a tuned frequency is held")
+
+
 def tune_table(config: TuneConfig) -> dict:
     """The ``[tune]`` table of a config, every field (defaults included) but those of a
     feature the campaign does not use (no dispersions: their table and sample counts; the
@@ -526,6 +573,8 @@ def tune_table(config: TuneConfig) -> dict:
         del table["objective"], table["alpha"]
     if not config.estimator:
         del table["estimator"]
+    if not config.filter:
+        del table["filter"]
     if config.constraints is None:
         del table["constraints"]
     if not config.goals:

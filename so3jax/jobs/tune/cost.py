@@ -10,7 +10,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from so3jax.jobs.tune.gains import split, to_gains
+from so3jax.jobs.tune.gains import parts, to_gains
 from so3jax.missions import batched
 from so3jax.parallel import devices
 from so3jax.sim.gradients import batch_metrics, value_and_grad
@@ -83,21 +83,25 @@ def _metrics(scenario, controller, gains, batch, record_every, mesh, loop, missi
     """Per-scenario metrics, the batch split over the devices of mesh (None: one device;
     :func:`so3jax.parallel.devices.split`): batch_metrics through ``loop``, or with ``mission`` (a
     :class:`~so3jax.missions.mission.Mission`) the dispersed missions of a DispersedBatch.
-    ``gains``: the law's, or tuned parameters with the estimator's (:func:`with_estimator`),
-    which then replace the loop's estimator parameters."""
+    ``gains``: the law's, or tuned parameters with the estimator's and the structural
+    filter's (:func:`with_estimator`), which then replace the loop's estimator and filter
+    parameters."""
     if mission is not None:
         def missions(gains, batch):
-            gains, believed = split(gains)
+            gains, tuned = parts(gains)
             m = batched.sample_metrics((batch.params, batch.leaves), gains, controller=controller, mission=mission,
-                                       record_every=record_every, estimator=believed)
+                                       record_every=record_every, estimator=tuned["estimator"],
+                                       filter=tuned["filter"])
             return Metrics(**{k: m[k] for k in Metrics._fields})
 
         return devices.split(missions, mesh, batched=(False, True))(gains, batch)
 
     def run(scenario, gains, batch, loop):
-        gains, believed = split(gains)
-        if believed:
-            loop = dataclasses.replace(loop, estimator=dataclasses.replace(loop.estimator, **believed))
+        gains, tuned = parts(gains)
+        if tuned["estimator"]:
+            loop = dataclasses.replace(loop, estimator=dataclasses.replace(loop.estimator, **tuned["estimator"]))
+        if tuned["filter"]:
+            loop = dataclasses.replace(loop, filter=dataclasses.replace(loop.filter, **tuned["filter"]))
         return batch_metrics(scenario, controller, gains, batch, record_every=record_every, loop=loop)
 
     return devices.split(run, mesh, batched=(False, False, True, False))(scenario, gains, batch, loop)

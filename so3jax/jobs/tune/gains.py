@@ -5,6 +5,8 @@ for a nonnegative gain), and gains as tables and columns."""
 from __future__ import annotations
 
 import collections
+import dataclasses
+import math
 
 import jax.numpy as jnp
 import numpy as np
@@ -75,11 +77,22 @@ def resolve_gains(controller: str, spec, dtype, diagonal_gamma=False, mission=No
     return gains
 
 
-def _fieldwise(gains, positive, nonnegative):
+@dataclasses.dataclass(frozen=True)
+class Below:
+    """The domain of a positive parameter held below ``high`` (a tuned filter's frequency
+    below the Nyquist frequency of the control period): p = log g, clipped at log high."""
+
+    high: float
+
+
+def _fieldwise(gains, positive, nonnegative, below):
     """nonnegative(value, scale) on each gain its type declares Nonnegative(scale)
-    (controllers.gains.gain_domain), positive(value) on every other (a positive gain)."""
+    (controllers.gains.gain_domain), below(value, log high) on one it declares Below(high),
+    positive(value) on every other (a positive gain)."""
     def one(name, value):
         domain = gain_domain(gains, name)
+        if isinstance(domain, Below):
+            return below(value, math.log(domain.high))
         return nonnegative(value, domain.scale) if isinstance(domain, Nonnegative) else positive(value)
 
     return type(gains)(**{name: one(name, value) for name, value in gains._asdict().items()})
@@ -87,62 +100,94 @@ def _fieldwise(gains, positive, nonnegative):
 
 def to_params(gains):
     """The tuned parameters: p = log g of a positive gain, p = g / scale of a nonnegative one."""
-    return _fieldwise(gains, jnp.log, lambda g, scale: g / scale)
+    return _fieldwise(gains, jnp.log, lambda g, scale: g / scale, lambda g, _: jnp.log(g))
 
 
 def to_gains(params):
-    """g = exp p, or scale max(p, 0) for a nonnegative gain."""
-    return _fieldwise(params, jnp.exp, lambda p, scale: scale * jnp.maximum(p, 0.0))
+    """g = exp p, or scale max(p, 0) for a nonnegative gain, or exp min(p, log high) below high."""
+    return _fieldwise(params, jnp.exp, lambda p, scale: scale * jnp.maximum(p, 0.0),
+                      lambda p, log_high: jnp.exp(jnp.minimum(p, log_high)))
 
 
 def project(params):
     """Parameters on their domain: a nonnegative gain's p clipped at 0 after each step
-    (projected gradient), so that a gain at 0 keeps a derivative that can move it."""
-    return _fieldwise(params, lambda p: p, lambda p, scale: jnp.maximum(p, 0.0))
+    (projected gradient), so that a gain at 0 keeps a derivative that can move it; a
+    parameter below high clipped at log high."""
+    return _fieldwise(params, lambda p: p, lambda p, scale: jnp.maximum(p, 0.0),
+                      lambda p, log_high: jnp.minimum(p, log_high))
 
 
-# --- the estimator's assumed noise levels, tuned beside the gains --------------------------
+# --- loop parameters tuned beside the gains: the estimator's assumed noise levels, the filter's -----------
 
 ESTIMATOR = "estimator_"  # the prefix of an estimator parameter among the tuned ones
-_TUNED: dict = {}  # (gains type, estimator names) -> the NamedTuple type of both
+FILTER = "filter_"  # the prefix of a structural filter's parameter among the tuned ones
+PARTS = {"estimator": ESTIMATOR, "filter": FILTER}  # the loop's tuned components and their prefixes
+NYQUIST_SHARE = 0.99  # a tuned filter frequency is held below this share of the Nyquist frequency
+_TUNED: dict = {}  # (gains type, tuned field names, their domains) -> the NamedTuple type of all
 
 
-def with_estimator(gains, values: dict):
-    """The tuned parameters: the law's gains and the estimator's parameters {name: value}
-    (each positive, e.g. the noise levels the filter assumes) as one NamedTuple, fields
-    ``estimator_NAME`` after the gains', so that the optimizer, the history and the
-    checkpoints treat them as gains; the gains themselves where values is empty."""
-    if not values:
+def with_estimator(gains, values: dict, filter: dict | None = None, nyquist: float | None = None):  # noqa: A002
+    """The tuned parameters: the law's gains, the estimator's parameters {name: value}
+    (each positive, e.g. the noise levels the filter assumes) and the structural filter's
+    ``filter`` {name: value} (frequency [Hz], zeta_zero, zeta_pole; each positive, one value
+    per phase where the mission gives them per phase) as one NamedTuple, fields
+    ``estimator_NAME`` then ``filter_NAME`` after the gains', so that the optimizer, the
+    history and the checkpoints treat them as gains (in log space); the gains themselves
+    where there are none. nyquist: the Nyquist frequency 1 / (2 Delta_c) [Hz] of the control
+    period, below whose NYQUIST_SHARE a tuned frequency is held (:class:`Below`)."""
+    filter = filter or {}  # noqa: A001
+    if not values and not filter:
         return gains
     base = type(gains)
-    key = (base, tuple(values))
+    names = tuple(ESTIMATOR + n for n in values) + tuple(FILTER + n for n in filter)
+    domains = dict(getattr(base, "domains", {}))
+    if "frequency" in filter:
+        if nyquist is None:
+            raise ValueError("a tuned filter frequency needs the Nyquist frequency of the control period")
+        domains[FILTER + "frequency"] = Below(NYQUIST_SHARE * float(nyquist))
+    key = (base, names, tuple(sorted(domains.items(), key=lambda kv: kv[0])))
     if key not in _TUNED:
-        fields = base._fields + tuple(ESTIMATOR + n for n in values)
-        tuned = collections.namedtuple(f"{base.__name__}AndEstimator", fields)
-        tuned.domains, tuned.law_gains = getattr(base, "domains", {}), base
+        suffix = "And".join(part.capitalize() for part, prefix in PARTS.items()
+                            if any(n.startswith(prefix) for n in names))
+        tuned = collections.namedtuple(f"{base.__name__}And{suffix}", base._fields + names)
+        tuned.domains, tuned.law_gains = domains, base
         _TUNED[key] = tuned
-    return _TUNED[key](*gains, *values.values())
+    return _TUNED[key](*gains, *values.values(), *filter.values())
+
+
+def parts(tuned) -> tuple:
+    """(the law's gains, {component: {parameter: value}}) of tuned parameters: the
+    estimator's and the filter's (:data:`PARTS`), each {} where none is tuned."""
+    base = getattr(type(tuned), "law_gains", None)
+    if base is None:
+        return tuned, {part: {} for part in PARTS}
+    n = len(base._fields)
+    out = {part: {} for part in PARTS}
+    for field, value in zip(tuned._fields[n:], tuned[n:]):
+        part = next(p for p, prefix in PARTS.items() if field.startswith(prefix))
+        out[part][field[len(PARTS[part]):]] = value
+    return base(*tuned[:n]), out
 
 
 def split(tuned) -> tuple:
     """(the law's gains, {estimator parameter: value}) of tuned parameters."""
-    base = getattr(type(tuned), "law_gains", None)
-    if base is None:
-        return tuned, {}
-    n = len(base._fields)
-    return base(*tuned[:n]), {f[len(ESTIMATOR):]: v for f, v in zip(tuned._fields[n:], tuned[n:])}
+    gains, tuned_parts = parts(tuned)
+    return gains, tuned_parts["estimator"]
 
 
 def gains_table(gains) -> dict:
-    """{gain: value} of the law's gains (an estimator's tuned parameters left out)."""
-    return {name: np.asarray(value).tolist() for name, value in split(gains)[0]._asdict().items()}
+    """{gain: value} of the law's gains (an estimator's or filter's tuned parameters left out)."""
+    return {name: np.asarray(value).tolist() for name, value in parts(gains)[0]._asdict().items()}
 
 
 def tables(tuned) -> dict:
-    """{"gains": the law's gains, "estimator": its tuned parameters (where any)}."""
-    believed = split(tuned)[1]
-    estimator = {"estimator": {k: float(v) for k, v in believed.items()}} if believed else {}
-    return {"gains": gains_table(tuned), **estimator}
+    """{"gains": the law's gains, "estimator": its tuned parameters, "filter": the structural
+    filter's (each where any; a filter parameter given per phase a list)}."""
+    tuned_parts = parts(tuned)[1]
+    estimator = {"estimator": {k: float(v) for k, v in tuned_parts["estimator"].items()}}
+    structural = {"filter": {k: np.asarray(v).tolist() for k, v in tuned_parts["filter"].items()}}
+    return {"gains": gains_table(tuned), **(estimator if tuned_parts["estimator"] else {}),
+            **(structural if tuned_parts["filter"] else {})}
 
 
 def gain_columns(gains) -> dict:

@@ -125,7 +125,8 @@ def markdown_table(reports: list[dict]) -> str:
         if "budget" in report:
             entries.insert(0, (f"budget ({report['budget']['controller']})", report["budget"]))
         for label, entry in entries:
-            shown = {**entry["gains"], **entry.get("estimator", {})}
+            shown = {**entry["gains"], **entry.get("estimator", {}),
+                     **{f"filter_{k}": v for k, v in entry.get("filter", {}).items()}}
             gains = ", ".join(f"{k}={gain_text(v)}" for k, v in shown.items())
             controller = report["budget"]["controller"] if label.startswith("budget") else report["controller"]
             lines.append(
