@@ -18,6 +18,7 @@ from so3jax.jobs.tune.config import parse_config
 from so3jax.jobs.tune.cost import CostRefs, cost_and_grad
 from so3jax.jobs.tune.gains import NYQUIST_SHARE, parts, project, tables, to_gains, to_params, with_estimator
 from so3jax.jobs.tune.problem import build_problem
+from so3jax.missions import batched, draw
 from so3jax.missions import mission as missions
 from so3jax.sim import loop as loops
 from so3jax.sim.rollout import simulate
@@ -163,3 +164,29 @@ def test_a_per_phase_filter_of_equal_values_flies_bit_for_bit_as_the_number():
     early, late = t <= 1.0, t > 1.0 + PERIOD
     np.testing.assert_array_equal(np.asarray(switched.history.Omega)[early], np.asarray(scalar.history.Omega)[early])
     assert not np.allclose(np.asarray(switched.history.Omega)[late], np.asarray(scalar.history.Omega)[late])
+
+
+def test_dispersed_missions_fly_the_tuned_filter():
+    """sample_metrics(filter=...) equals the mission written with those values (T = 1 s)."""
+    short = {**MISSION, "T": 1.0}
+    mission = missions.from_dict(short, missions.FLIGHT)
+    written = missions.from_dict({**short, "filter": {"kind": "notch", "notch": {**NOTCH, "frequency": 1.3}}},
+                                 missions.FLIGHT)
+    parsed, leaves = draw.parse({"seed": "random", "filter.notch.zeta_pole": 0.5}, mission)
+    inputs = batched.inputs(draw.draw(parsed, leaves, 0, 2, 20), jnp.float64)
+    gains = PDGains(jnp.asarray(2.0), jnp.asarray(3.0))
+    run = lambda m, **kw: batched.sample_metrics(inputs, gains, controller=m.controller("pd")[0], mission=m, **kw)
+    tuned = run(mission, filter={"frequency": jnp.asarray(1.3)})
+    np.testing.assert_allclose(tuned["rmse"], run(written)["rmse"], rtol=1e-12)
+    assert not np.allclose(tuned["rmse"], run(mission)["rmse"], rtol=1e-6)
+
+
+def test_a_per_phase_filter_is_tuned_one_value_per_phase(tmp_path):
+    per_phase = {"kind": "notch", "notch": {**NOTCH, "frequency": [0.8, 0.8, 1.2]}}
+    config = _campaign(per_phase, filter=["frequency"], optimizer={"learning_rate": 0.2})
+    report = tune(config, tmp_path / "run", progress=False)
+    assert report["initial"]["filter"]["frequency"] == pytest.approx([0.8, 0.8, 1.2], rel=1e-12)
+    tuned = report["tuned"]["filter"]["frequency"]
+    assert len(tuned) == 3 and all(abs(t - f) > 1e-6 for t, f in zip(tuned, [0.8, 0.8, 1.2]))
+    header = (tmp_path / "run" / "history.csv").read_text().splitlines()[0].split(",")
+    assert {"filter_frequency_0", "filter_frequency_1", "filter_frequency_2"} <= set(header)

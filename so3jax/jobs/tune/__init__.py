@@ -23,7 +23,10 @@ every iteration. A ``[tune.constraints]`` table adds a penalty on the sampled lo
 margin below a floor (:mod:`so3jax.jobs.tune.constraints`).
 ``estimator = [names]`` tunes positive parameters of the mission's estimator (the noise
 levels the MEKF assumes) beside the gains, in log space too
-(:func:`so3jax.jobs.tune.gains.with_estimator`).
+(:func:`so3jax.jobs.tune.gains.with_estimator`); ``filter = [names]`` the mission's structural
+filter's frequency and damping ratios by the same mechanism (``filter_NAME``, one value per
+phase where the mission gives them per phase, the frequency held below 0.99 of the Nyquist
+frequency).
 
 A run folder holds ``checkpoint.npz`` (rewritten atomically after every iteration, so
 an interrupted run loses at most one iteration and ``--resume`` continues to the same
