@@ -84,7 +84,7 @@ def _tune(config: TuneConfig, out: Path, resume: bool, progress: bool) -> dict:
     initial = with_estimator(initial, {n: jnp.asarray(getattr(problem.loop.estimator, n), dtype)
                                        for n in config.estimator},
                              {n: jnp.asarray(getattr(problem.loop.filter, n), dtype) for n in config.filter},
-                             0.5 / config.mission.period)
+                             0.5 / config.mission.period if config.filter else None)  # a filter: a sampled loop
     n_train = config.train.samples or problem.train.seed.shape[0]
     mode = config.cost.mode
     mission = mission_of(problem)
