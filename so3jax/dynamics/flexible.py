@@ -347,32 +347,236 @@ def _system(body: FlexibleBody, state: FlexState, torque=None) -> _System:
     return _System(A, B, D, f_v, f_w, columns)
 
 
+# Per-component arithmetic: a vector is a tuple of 3 batch arrays (*b), a matrix a tuple of
+# 3 rows. :func:`accelerations` works on these rather than on (3, *b) and (3, 3, *b) arrays:
+# XLA:CPU fuses each 3x3 product built of stacks and slices into every consumer of each of
+# its elements (recomputing sines, cross products and products of products), which made the
+# flexible plant ~100x the rigid one per step in a batch; on components every value is one
+# elementwise operation on the batch, computed once.
+
+
+def _vec(x, like):
+    """(3,) or (3, *b) parameter -> 3 components broadcasting against like's batch."""
+    x = _cast(x, like, 1)
+    return (x[0], x[1], x[2])
+
+
+def _mat(x, like):
+    x = _cast(x, like, 2)
+    return tuple((x[i, 0], x[i, 1], x[i, 2]) for i in range(3))
+
+
+def _v_add(a, b):
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
+
+
+def _v_sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+def _v_scale(s, a):
+    return (s * a[0], s * a[1], s * a[2])
+
+
+def _v_cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _v_dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _m_vec(m, v):
+    """M v."""
+    return tuple(m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2] for i in range(3))
+
+
+def _m_tvec(m, v):
+    """M^T v."""
+    return tuple(m[0][i] * v[0] + m[1][i] * v[1] + m[2][i] * v[2] for i in range(3))
+
+
+def _m_add(a, b):
+    return tuple(tuple(a[i][j] + b[i][j] for j in range(3)) for i in range(3))
+
+
+def _m_outer(a, b, s):
+    """s a b^T."""
+    return tuple(tuple(s * a[i] * b[j] for j in range(3)) for i in range(3))
+
+
+def _m_sub_outer(m, a, b, s):
+    """M - a b^T s."""
+    return tuple(tuple(m[i][j] - a[i] * b[j] * s for j in range(3)) for i in range(3))
+
+
+def _once(tree, one, like):
+    """tree (of batch arrays broadcasting against ``like`` (*b)) unchanged in value, computed
+    once: its leaves stacked into one array behind one fusion boundary
+    (:func:`so3jax.core._fusion.materialize`), so that XLA:CPU computes them in one kernel
+    and each consumer reads them rather than recomputing them."""
+    leaves, treedef = jax.tree.flatten(tree)
+    if not leaves:
+        return tree
+    stacked = materialize(jnp.stack([jnp.broadcast_to(x, like.shape) for x in leaves]), one)
+    return jax.tree.unflatten(treedef, list(stacked))
+
+
+def _sym_inverse(m):
+    """The adjugate's entries and 1 / det of a symmetric M (its upper triangle), as
+    :func:`so3jax.core.so3.inv_spd`."""
+    a, d, e = m[0][0], m[0][1], m[0][2]
+    bb, f, c = m[1][1], m[1][2], m[2][2]
+    c00 = bb * c - f * f
+    c01 = e * f - d * c
+    c02 = d * f - e * bb
+    c11 = a * c - e * e
+    c12 = d * e - a * f
+    c22 = a * bb - d * d
+    inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
+    return ((c00, c01, c02), (c01, c11, c12), (c02, c12, c22)), inv_det
+
+
+def _component_parts(body: FlexibleBody, state: FlexState, one):
+    """:func:`_parts` per component: (mass, r, r_dot, r_ddot, inertia, omega_rel, alpha_rel)
+    and (e, w, spring, locked) or None."""
+    omega = state.omega
+    om = (omega[0], omega[1], omega[2])
+    zero = jnp.zeros_like(omega[0])
+    trig = _once([(jnp.cos(state.theta[i]), jnp.sin(state.theta[i])) for i in range(len(body.panels))], one, zero)
+    hub = body.hub
+    r_c = _v_add(_vec(hub.r_BcB, omega), (zero, zero, zero))
+    zv = (zero, zero, zero)
+    parts = [((_scalar(hub.mass, omega), r_c, zv, zv, _mat(hub.inertia, omega), None, None), None)]
+    for i, panel in enumerate(body.panels):
+        theta = state.theta[i]
+        theta_dot = jnp.zeros_like(theta) if panel.locked else state.theta_dot[i]
+        h1, h2, h3 = _mat(panel.dcm_HB, omega)
+        ct, st = trig[i]
+        s1 = _v_sub(_v_scale(ct, h1), _v_scale(st, h3))
+        s2 = _v_add(h2, zv)
+        s3 = _v_add(_v_scale(st, h1), _v_scale(ct, h3))
+        d = _scalar(panel.d, omega)
+        r = _v_sub(_vec(panel.r_HB, omega), _v_scale(d, s1))
+        r_dot = _v_scale(d * theta_dot, s3)
+        r_ddot = _v_scale(d * theta_dot**2, s1)
+        w_rel = _v_scale(theta_dot, s2)
+        alpha_rel = _v_scale(theta_dot, _v_cross(om, s2))
+        spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
+        I_S = _mat(panel.inertia, omega)
+        S = (s1, s2, s3)
+        T = [tuple(I_S[a][0] * S[0][j] + I_S[a][1] * S[1][j] + I_S[a][2] * S[2][j] for j in range(3))
+             for a in range(3)]  # I_S S
+        inertia = tuple(tuple(S[0][i_] * T[0][j] + S[1][i_] * T[1][j] + S[2][i_] * T[2][j] for j in range(3))
+                        for i_ in range(3))  # S^T I_S S (F.4)
+        parts.append(((_scalar(panel.mass, omega), r, r_dot, r_ddot, inertia, w_rel, alpha_rel),
+                      (_v_scale(d, s3), s2, spring, panel.locked)))
+    for j, particle in enumerate(body.slosh):
+        rho, rho_dot = state.rho[j], state.rho_dot[j]
+        p = _v_add(_vec(particle.p_hat, omega), zv)
+        r = _v_add(_vec(particle.r_PB, omega), _v_scale(rho, p))
+        spring = -_scalar(particle.k, omega) * rho - _scalar(particle.c, omega) * rho_dot
+        parts.append(((_scalar(particle.mass, omega), r, _v_scale(rho_dot, p), zv, None, None, None),
+                      (p, None, spring, False)))
+    return parts
+
+
 def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
     """Solve (F.10) for (omega_dot, theta_ddot, rho_ddot, a_B) by eliminating the flexible
     coordinates, then the translation (F.11)-(F.13), as Basilisk's back-substitution does.
     torque: L (3, *b) [N m] on the hub (a couple), None for none."""
-    A, B, D, f_v, f_w, columns = _system(body, state, torque)
-    locks = [locked for *_, locked in columns]
-    # computed once, not within each of their consumers (XLA:CPU would, and compile slowly)
-    A, B, D, f_v, f_w, values = materialize((A, B, D, f_v, f_w, [c[:4] for c in columns]), _opaque(state))
-    columns = [(*v, locked) for v, locked in zip(values, locks)]
+    omega = state.omega
+    om = (omega[0], omega[1], omega[2])
+    one = _opaque(state)
+    zero = jnp.zeros_like(omega[0])
+    parts = _component_parts(body, state, one)
+    locks = [None if c is None else c[3] for _, c in parts]
+    masses = [part[0] for part, _ in parts]
+    fixed = [(part[1:], None if c is None else c[:3]) for part, c in parts]
+    local = []  # per part: a_rem, g, and per coordinate r x e, I w
+    for m, (part, coordinate) in zip(masses, fixed):
+        r, r_dot, r_ddot, inertia, omega_rel, alpha_rel = part
+        a_rem = _v_add(_v_add(_v_cross(om, _v_cross(om, r)), _v_scale(2.0, _v_cross(om, r_dot))), r_ddot)
+        g = None
+        if inertia is not None:
+            omega_p = om if omega_rel is None else _v_add(om, omega_rel)
+            g = _v_cross(omega_p, _m_vec(inertia, omega_p))
+            if alpha_rel is not None:
+                g = _v_add(g, _m_vec(inertia, alpha_rel))
+        extra = None
+        if coordinate is not None:
+            e, w, _ = coordinate
+            extra = (_v_cross(r, e), None if w is None else _m_vec(inertia, w))
+        local.append((a_rem, g, extra))
+    A_s = zero  # A = (sum of masses) 1 before the elimination
+    B = D = None
+    f_v = (zero, zero, zero)
+    if torque is None:
+        f_w = (zero, zero, zero)
+    else:
+        L = jnp.asarray(torque).astype(omega.dtype)
+        f_w = (L[0] + zero, L[1] + zero, L[2] + zero)
+    columns = []
+    for m, (part, coordinate), (a_rem, g, extra), locked in zip(masses, fixed, local, locks):
+        r, inertia = part[0], part[3]
+        # B -= m r~ ; D += m r~^T r~ (+ I) with r~^T r~ = |r|^2 1 - r r^T
+        r2 = _v_dot(r, r)
+        mr = _v_scale(m, r)
+        B_p = ((zero, mr[2], -mr[1]), (-mr[2], zero, mr[0]), (mr[1], -mr[0], zero))
+        I_B = tuple(tuple((m * r2 if i == j else zero) - mr[i] * r[j] for j in range(3)) for i in range(3))
+        if inertia is not None:
+            I_B = _m_add(I_B, inertia)
+        A_s = A_s + m
+        B = B_p if B is None else _m_add(B, B_p)
+        D = I_B if D is None else _m_add(D, I_B)
+        f_v = _v_sub(f_v, _v_scale(m, a_rem))
+        moment = _v_cross(mr, a_rem)
+        if g is not None:
+            moment = _v_add(moment, g)
+        f_w = _v_sub(f_w, moment)
+        if coordinate is not None:
+            e, w, spring = coordinate
+            r_x_e, Iw = extra
+            cv = _v_scale(m, e)
+            cw = _v_scale(m, r_x_e)
+            m_f = m * _v_dot(e, e)
+            f = spring - m * _v_dot(e, a_rem)
+            if w is not None:
+                cw = _v_add(cw, Iw)
+                m_f = m_f + _v_dot(w, Iw)
+                f = f - _v_dot(w, g)
+            columns.append((cv, cw, m_f, f, locked))
+    A = tuple(tuple(A_s if i == j else zero for j in range(3)) for i in range(3))
+    # the blocks computed once, in one kernel, not within each of their consumers (XLA:CPU
+    # would, recomputing products of products in every element; so too the sines above and
+    # omega_dot below: each further such layer costs a kernel more than it saves)
+    A, B, D, f_v, f_w, values = _once((A, B, D, f_v, f_w, [c[:4] for c in columns]), one, zero)
+    columns = [(*v, c[4]) for v, c in zip(values, columns)]
     for cv, cw, m_f, f, locked in columns:
         if locked:
             continue
-        A = A - so3.outer(cv, cv) / m_f
-        B = B - so3.outer(cv, cw) / m_f
-        D = D - so3.outer(cw, cw) / m_f
-        f_v = f_v - cv * (f / m_f)
-        f_w = f_w - cw * (f / m_f)
-    A_inv = so3.inv_spd(A)
-    X = so3.matmul_compact(A_inv, B)  # A^{-1} B
-    omega_dot = so3.solve_spd(D - so3.rmatmul(B, X), f_w - so3.rmatvec(X, f_v))
-    a_B = so3.matvec(A_inv, f_v - so3.matvec(B, omega_dot))
-    q_ddot = [jnp.zeros_like(f) if locked else (f - so3.dot(cv, a_B) - so3.dot(cw, omega_dot)) / m_f
+        inv_m = 1.0 / m_f
+        A = _m_sub_outer(A, cv, cv, inv_m)
+        B = _m_sub_outer(B, cv, cw, inv_m)
+        D = _m_sub_outer(D, cw, cw, inv_m)
+        f_v = _v_sub(f_v, _v_scale(f * inv_m, cv))
+        f_w = _v_sub(f_w, _v_scale(f * inv_m, cw))
+    adj, inv_det = _sym_inverse(A)
+    A_inv = tuple(tuple(adj[i][j] * inv_det for j in range(3)) for i in range(3))
+    X = tuple(tuple(A_inv[i][0] * B[0][j] + A_inv[i][1] * B[1][j] + A_inv[i][2] * B[2][j] for j in range(3))
+              for i in range(3))  # A^{-1} B
+    S = tuple(tuple(D[i][j] - (B[0][i] * X[0][j] + B[1][i] * X[1][j] + B[2][i] * X[2][j]) for j in range(3))
+              for i in range(3))  # D - B^T X
+    rhs = _v_sub(f_w, _m_tvec(X, f_v))
+    adj, inv_det = _sym_inverse(S)
+    omega_dot = _once(tuple(v * inv_det for v in _m_vec(adj, rhs)), one, zero)
+    a_B = _m_vec(A_inv, _v_sub(f_v, _m_vec(B, omega_dot)))
+    q_ddot = [jnp.zeros_like(f) if locked else (f - _v_dot(cv, a_B) - _v_dot(cw, omega_dot)) / m_f
               for cv, cw, m_f, f, locked in columns]
     n = len(body.panels)
     stack = lambda xs, like: jnp.stack(xs) if xs else jnp.zeros((0,) + like.shape[1:], like.dtype)
-    return Accelerations(omega_dot, stack(q_ddot[:n], state.theta), stack(q_ddot[n:], state.rho), a_B)
+    return Accelerations(jnp.stack(omega_dot), stack(q_ddot[:n], state.theta), stack(q_ddot[n:], state.rho),
+                         jnp.stack(a_B))
 
 
 def derivative(body: FlexibleBody, state: FlexState, torque=None) -> FlexState:
