@@ -186,6 +186,8 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None,
     manager's held input; its torque and the environment's are external torques of the
     stage's attitude (docs/model.md §8.6)."""
     calls = iter(stepped.STAGE_OF_CALL)
+    # the flexible body of the step's phase, picked once for the four stages
+    body = None if scenario.flexible is None else flexible.at_phase(scenario.flexible, phase)
 
     def field(t, x: State):
         Omega = x.Omega
@@ -207,8 +209,7 @@ def _field(scenario: Scenario, loop: Loop, phase, d, law, midpoint, stages=None,
                                                        terms.J_inv)
         else:  # hinged panels and slosh on the hub (docs/model.md §8.9)
             Omega_dot, actuator_dot, modal_dot = plant.flexible_derivative(
-                loop.actuator, flexible.at_phase(scenario.flexible, phase), J, Omega, x.flexible, x.actuator, held,
-                external, t, J_dot)
+                loop.actuator, body, J, Omega, x.flexible, x.actuator, held, external, t, J_dot)
         R_d_rate = OnSO3(wanted.Omega_d) if isinstance(x.R_d, OnSO3) else ()
         return (State(OnSO3(Omega), Omega_dot, controller_dot, R_d_rate, actuator_dot, flexible=modal_dot),
                 (held, wanted))
