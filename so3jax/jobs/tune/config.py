@@ -498,26 +498,29 @@ def tunable_estimator(mission) -> tuple:
                  if p.shapes == ((),) and p.low >= 0.0 and not (p.integer or p.boolean or p.choices))
 
 
-def _check_estimator(config: TuneConfig) -> None:
-    """tune.estimator: distinct tunable parameters of the mission's estimator, each positive
-    as the loop builds it (their logarithms are tuned)."""
-    names = config.estimator
-    if not names:
-        return
-    where = _key("estimator")
-    kind = config.mission.estimator["kind"]
-    tunable = tunable_estimator(config.mission)
+def _check_tuned(table: str, names, kind: str, tunable: tuple, built) -> None:
+    """tune.estimator or tune.filter (``table``): distinct names among the component's
+    ``tunable`` parameters, each positive (every element) in the component the loop
+    ``built``, since their logarithms are tuned."""
+    where = _key(table)
     if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
         raise ValueError(f"config key {where!r} must list distinct parameter names, got {checks.short(list(names))}")
     for name in names:
         if name not in tunable:
-            raise ValueError(f"config key {where!r}: the mission's estimator {kind!r} has no tunable parameter "
+            raise ValueError(f"config key {where!r}: the mission's {table} {kind!r} has no tunable parameter "
                              f"{name!r} (tunable: {', '.join(tunable) or 'none'})")
-    estimator = config.mission.loop(jnp.result_type(float)).estimator
     for name in names:
-        if not float(getattr(estimator, name)) > 0.0:
+        if not np.all(np.asarray(getattr(built, name)) > 0.0):
             raise ValueError(f"config key {where!r}: {name} is 0 in the mission; its logarithm is tuned, so it "
                              "must start positive")
+
+
+def _check_estimator(config: TuneConfig) -> None:
+    """tune.estimator: distinct tunable parameters of the mission's estimator, each positive
+    as the loop builds it (their logarithms are tuned)."""
+    if config.estimator:
+        _check_tuned("estimator", config.estimator, config.mission.estimator["kind"],
+                     tunable_estimator(config.mission), config.mission.loop(jnp.result_type(float)).estimator)
 
 
 def tunable_filter(mission) -> tuple:
@@ -536,21 +539,11 @@ def _check_filter(config: TuneConfig) -> None:
         return
     where = _key("filter")
     kind = config.mission.filter["kind"]
-    if not all(isinstance(n, str) for n in names) or len(set(names)) != len(names):
-        raise ValueError(f"config key {where!r} must list distinct parameter names, got {checks.short(list(names))}")
     if kind == "none":
         raise ValueError(f"config key {where!r}: the mission has no structural filter (filter.kind = \"none\"); "
                          "give it one ([filter] kind = \"notch\" or \"lowpass\") or leave tune.filter out")
-    tunable = tunable_filter(config.mission)
-    for name in names:
-        if name not in tunable:
-            raise ValueError(f"config key {where!r}: the mission's filter {kind!r} has no tunable parameter "
-                             f"{name!r} (tunable: {', '.join(tunable)})")
     structural = config.mission.loop(jnp.result_type(float)).filter
-    for name in names:
-        if not np.all(np.asarray(getattr(structural, name)) > 0.0):
-            raise ValueError(f"config key {where!r}: {name} is 0 in the mission; its logarithm is tuned, so it "
-                             "must start positive")
+    _check_tuned("filter", names, kind, tunable_filter(config.mission), structural)
     high = NYQUIST_SHARE * 0.5 / config.mission.period
     if "frequency" in names and np.any(np.asarray(structural.frequency) >= high):
         raise ValueError(f"config key {where!r}: filter.{kind}.frequency = "
