@@ -112,10 +112,12 @@ def outer(a, b):
     return a[:, None] * b[None, :]
 
 
-def _adjugate(m):
-    """The adjugate's entries (c00, c01, c02, c11, c12, c22) of a symmetric M (3, 3, ...) and 1 / det M."""
-    a, d, e = m[0, 0], m[0, 1], m[0, 2]
-    bb, f, c = m[1, 1], m[1, 2], m[2, 2]
+def adjugate(m):
+    """The adjugate's entries (c00, c01, c02, c11, c12, c22) of a symmetric M (3, 3, ...), or
+    of its rows as nested tuples, and 1 / det M."""
+    at = (lambda i, j: m[i][j]) if isinstance(m, tuple) else (lambda i, j: m[i, j])
+    a, d, e = at(0, 0), at(0, 1), at(0, 2)
+    bb, f, c = at(1, 1), at(1, 2), at(2, 2)
     c00 = bb * c - f * f
     c01 = e * f - d * c
     c02 = d * f - e * bb
@@ -127,14 +129,14 @@ def _adjugate(m):
 
 def solve_spd(m, b):
     """M^{-1} b for a symmetric positive definite M (3, 3, ...) by its adjugate."""
-    (c00, c01, c02, c11, c12, c22), inv_det = _adjugate(m)
+    (c00, c01, c02, c11, c12, c22), inv_det = adjugate(m)
     x, y, z = b[0], b[1], b[2]
     return jnp.stack([c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z]) * inv_det
 
 
 def inv_spd(m):
     """M^{-1} (3, 3, ...) of a symmetric positive definite M by its adjugate."""
-    (c00, c01, c02, c11, c12, c22), inv_det = _adjugate(m)
+    (c00, c01, c02, c11, c12, c22), inv_det = adjugate(m)
     return jnp.stack([jnp.stack([c00, c01, c02]), jnp.stack([c01, c11, c12]), jnp.stack([c02, c12, c22])]) * inv_det
 
 

@@ -423,17 +423,8 @@ def _once(tree, one, like):
 
 
 def _sym_inverse(m):
-    """The adjugate's entries and 1 / det of a symmetric M (its upper triangle), as
-    :func:`so3jax.core.so3.inv_spd`."""
-    a, d, e = m[0][0], m[0][1], m[0][2]
-    bb, f, c = m[1][1], m[1][2], m[2][2]
-    c00 = bb * c - f * f
-    c01 = e * f - d * c
-    c02 = d * f - e * bb
-    c11 = a * c - e * e
-    c12 = d * e - a * f
-    c22 = a * bb - d * d
-    inv_det = 1.0 / (a * c00 + d * c01 + e * c02)
+    """The adjugate of a symmetric M (rows as tuples) as rows, and 1 / det M (:func:`so3jax.core.so3.adjugate`)."""
+    (c00, c01, c02, c11, c12, c22), inv_det = so3.adjugate(m)
     return ((c00, c01, c02), (c01, c11, c12), (c02, c12, c22)), inv_det
 
 
