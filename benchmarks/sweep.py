@@ -48,6 +48,12 @@ gives the ratio of the rates per round (``dispersed_over_undispersed``):
     python benchmarks/sweep.py --config sweeps/flight.toml --devices 2 --T 100 --samples 256 --chunk 128 \
         --rounds 3 --undispersed
 
+--rigid likewise times the same sweep without its appendages and slosh (``[[appendages]]``, ``[[slosh]]``,
+``[hub]`` and their dispersions left out: the rigid body), and gives ``flexible_over_rigid``:
+
+    python benchmarks/sweep.py --config sweeps/flexible.toml --devices 2 --T 100 --samples 256 --chunk 128 \
+        --rounds 3 --rigid
+
 --faultless also times, right after each run and on the same samples, the same sweep without
 its faults (``[[faults]]`` and their dispersions left out: every sample flying the mission's
 loop without the faults' program), and gives the ratio of the rates per round
@@ -120,7 +126,9 @@ def _child(spec: dict) -> list:
     drawn = draw.draw(config.dispersions, config.leaves, config.seed, n, config.max_draws, mission=config.mission)
     params, leaves = batched.inputs(drawn, np.float64)  # leaves: the dispersed component parameters
     key = config.mission
-    without_faults = dataclasses.replace(key, faults=()) if spec.get("faultless") else None  # its samples: the same
+    # the same samples flown without a part of the mission: (option, what is left out, the leaves' prefixes)
+    without = {"faultless": (dict(faults=()), ("faults.",)),
+               "rigid": (dict(appendages=(), slosh=(), hub_mass=None), ("appendages.", "slosh."))}
     use_numba = spec.get("numba", False) and jax.process_count() == 1 and not leaves  # Numba flies the paper's loop
     if use_numba:  # the parent raised NUMBA_NUM_THREADS to at least the device count
         import numba
@@ -178,14 +186,18 @@ def _child(spec: dict) -> list:
             wall_u = time.perf_counter() - start_u
             head_to_head |= {"undispersed_wall_s": wall_u, "undispersed_trajectory_steps_per_s": n * n_steps / wall_u,
                              "dispersed_over_undispersed": wall_u / wall}  # the ratio of the rates
-        if spec.get("faultless") and config.mission.faults and jax.process_count() == 1:
-            faultless = {k: v for k, v in leaves.items() if not k.startswith("faults.")}
-            run(0, chunk, leaves=faultless, rmse={}, key=without_faults)  # compile, not timed
-            start_f = time.perf_counter()
-            run(0, n, leaves=faultless, rmse={}, key=without_faults)
-            wall_f = time.perf_counter() - start_f
-            head_to_head |= {"faultless_wall_s": wall_f, "faultless_trajectory_steps_per_s": n * n_steps / wall_f,
-                             "faulted_over_faultless": wall_f / wall}  # the ratio of the rates
+        for option, (left_out, prefixes) in without.items():
+            lighter = dataclasses.replace(key, **left_out)
+            if not spec.get(option) or lighter == key or jax.process_count() > 1:
+                continue
+            kept = {k: v for k, v in leaves.items() if not k.startswith(prefixes)}
+            run(0, chunk, leaves=kept, rmse={}, key=lighter)  # compile, not timed
+            start_w = time.perf_counter()
+            run(0, n, leaves=kept, rmse={}, key=lighter)
+            wall_w = time.perf_counter() - start_w
+            ratio = {"faultless": "faulted_over_faultless", "rigid": "flexible_over_rigid"}[option]
+            head_to_head |= {f"{option}_wall_s": wall_w, f"{option}_trajectory_steps_per_s": n * n_steps / wall_w,
+                             ratio: wall_w / wall}  # the ratio of the rates
         if spec.get("flops"):
             flops = _step_flops(config, controller, params)
             head_to_head |= {"flops_per_trajectory_step": flops, "flops_per_s": flops * n * n_steps / wall,
@@ -336,6 +348,9 @@ def main() -> None:
     parser.add_argument("--faultless", action="store_true",
                         help="also time each run's samples without the sweep's faults (the mission's loop without "
                              "them), right after it")
+    parser.add_argument("--rigid", action="store_true",
+                        help="also time each run's samples without the mission's appendages and slosh (the rigid "
+                             "body), right after it")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -354,7 +369,8 @@ def main() -> None:
                 spec = {"T": args.T, "samples": args.samples, "chunk": args.chunk, "config": args.config,
                         "overrides": args.overrides,
                         "controllers": args.controllers.split(","), "numba": args.numba,
-                        "flops": args.flops, "undispersed": args.undispersed, "faultless": args.faultless}
+                        "flops": args.flops, "undispersed": args.undispersed, "faultless": args.faultless,
+                        "rigid": args.rigid}
                 runs += [{**run, "name": name} for run in _run_children(spec, processes, devices, layout, args.hog)]
     finally:
         if hog is not None:
