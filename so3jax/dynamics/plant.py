@@ -160,12 +160,16 @@ def derivative(actuator, J, Omega, state, held, d, t, J_dot=None, J_inv=None):
         rhs = torque + d - so3.cross(Omega, so3.matvec(J, Omega) + stored.relative)
         if J_dot is not None:
             rhs = rhs - so3.matvec(J_dot, Omega)
-        J_body = J - so3.batch_like(stored.locked_inertia, 2, Omega)
-        constrained = actuator.constrained_inertia(held)
-        if constrained is not None:  # a stuck wheel spins with the body (docs/model.md (8.22))
-            J_body = J_body + constrained
-        Omega_dot = so3.solve_spd(J_body, materialize(rhs, t))
+        Omega_dot = so3.solve_spd(_body_inertia(actuator, J, stored, held, Omega), materialize(rhs, t))
     return Omega_dot, actuator.derivative(state, held, Omega, Omega_dot)
+
+
+def _body_inertia(actuator, J, stored, held, Omega):
+    """J - J_locked [+ J_constrained]: the inertia the body's rate sees with the actuator's
+    wheels spinning freely relative to it, a stuck wheel spinning with it (docs/model.md (8.22))."""
+    J_body = J - so3.batch_like(stored.locked_inertia, 2, Omega)
+    constrained = actuator.constrained_inertia(held)
+    return J_body if constrained is None else J_body + constrained
 
 
 def flexible_derivative(actuator, body, J, Omega, modal, state, held, d, t, J_dot=None):
@@ -188,10 +192,7 @@ def flexible_derivative(actuator, body, J, Omega, modal, state, held, d, t, J_do
     stored = actuator.stored_momentum(state)
     J_hub = J
     if stored is not None:
-        J_hub = J - so3.batch_like(stored.locked_inertia, 2, Omega)
-        constrained = actuator.constrained_inertia(held)
-        if constrained is not None:  # a stuck wheel spins with the body (docs/model.md (8.22))
-            J_hub = J_hub + constrained
+        J_hub = _body_inertia(actuator, J, stored, held, Omega)
         L = L - so3.cross(Omega, so3.matvec(J - J_hub, Omega) + stored.relative)
     if J_dot is not None:
         L = L - so3.matvec(J_dot, Omega)
