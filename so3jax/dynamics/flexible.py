@@ -17,6 +17,7 @@ the hub's reference point B.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -428,17 +429,35 @@ def _sym_inverse(m):
     return ((c00, c01, c02), (c01, c11, c12), (c02, c12, c22)), inv_det
 
 
-def _component_parts(body: FlexibleBody, state: FlexState, one):
-    """:func:`_parts` per component: (mass, r, r_dot, r_ddot, inertia, omega_rel, alpha_rel)
-    and (e, w, spring, locked) or None."""
+class _Geometry(NamedTuple):
+    """One panel or particle per component at a state: mass [kg], r (its centre of mass from
+    B), r_dot (its rate relative to B), r_ddot (its relative acceleration at zero generalized
+    accelerations), e (its coordinate's partial velocity); a panel's frame (s1, s2, s3), its
+    rates in that frame omega_S = (omega . s_a) + theta_dot e2 and inertia I_S; spring [N m or
+    N] (F.9); m_f its diagonal entry of (F.10); locked."""
+
+    mass: jax.Array
+    r: tuple
+    r_dot: tuple
+    r_ddot: tuple | None
+    e: tuple
+    frame: tuple | None
+    omega_S: tuple | None
+    theta_dot: jax.Array | None
+    inertia: tuple | None
+    spring: jax.Array
+    m_f: jax.Array
+    locked: bool
+
+
+def _geometry(body: FlexibleBody, state: FlexState, one):
+    """Each panel's and particle's :class:`_Geometry` (F.1)-(F.5), the panels' sines computed once."""
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
     zero = jnp.zeros_like(omega[0])
-    trig = _once([(jnp.cos(state.theta[i]), jnp.sin(state.theta[i])) for i in range(len(body.panels))], one, zero)
-    hub = body.hub
-    r_c = _v_add(_vec(hub.r_BcB, omega), (zero, zero, zero))
     zv = (zero, zero, zero)
-    parts = [((_scalar(hub.mass, omega), r_c, zv, zv, _mat(hub.inertia, omega), None, None), None)]
+    trig = _once([(jnp.cos(state.theta[i]), jnp.sin(state.theta[i])) for i in range(len(body.panels))], one, zero)
+    out = []
     for i, panel in enumerate(body.panels):
         theta = state.theta[i]
         theta_dot = jnp.zeros_like(theta) if panel.locked else state.theta_dot[i]
@@ -447,29 +466,45 @@ def _component_parts(body: FlexibleBody, state: FlexState, one):
         s1 = _v_sub(_v_scale(ct, h1), _v_scale(st, h3))
         s2 = _v_add(h2, zv)
         s3 = _v_add(_v_scale(st, h1), _v_scale(ct, h3))
-        d = _scalar(panel.d, omega)
-        r = _v_sub(_vec(panel.r_HB, omega), _v_scale(d, s1))
-        r_dot = _v_scale(d * theta_dot, s3)
-        r_ddot = _v_scale(d * theta_dot**2, s1)
-        w_rel = _v_scale(theta_dot, s2)
-        alpha_rel = _v_scale(theta_dot, _v_cross(om, s2))
-        spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
+        m, d = _scalar(panel.mass, omega), _scalar(panel.d, omega)
         I_S = _mat(panel.inertia, omega)
-        S = (s1, s2, s3)
-        T = [tuple(I_S[a][0] * S[0][j] + I_S[a][1] * S[1][j] + I_S[a][2] * S[2][j] for j in range(3))
-             for a in range(3)]  # I_S S
-        inertia = tuple(tuple(S[0][i_] * T[0][j] + S[1][i_] * T[1][j] + S[2][i_] * T[2][j] for j in range(3))
-                        for i_ in range(3))  # S^T I_S S (F.4)
-        parts.append(((_scalar(panel.mass, omega), r, r_dot, r_ddot, inertia, w_rel, alpha_rel),
-                      (_v_scale(d, s3), s2, spring, panel.locked)))
+        r = _v_sub(_vec(panel.r_HB, omega), _v_scale(d, s1))
+        # omega in the panel frame from its components along h1, h3 (s = M2(theta) h)
+        a1, a3 = _v_dot(om, h1), _v_dot(om, h3)
+        omega_S = (ct * a1 - st * a3, _v_dot(om, h2) + theta_dot, st * a1 + ct * a3)
+        spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
+        out.append(_Geometry(m, r, _v_scale(d * theta_dot, s3), _v_scale(d * theta_dot**2, s1), _v_scale(d, s3),
+                             (s1, s2, s3), omega_S, theta_dot, I_S, spring, m * d * d + I_S[1][1], panel.locked))
     for j, particle in enumerate(body.slosh):
         rho, rho_dot = state.rho[j], state.rho_dot[j]
+        m = _scalar(particle.mass, omega)
         p = _v_add(_vec(particle.p_hat, omega), zv)
         r = _v_add(_vec(particle.r_PB, omega), _v_scale(rho, p))
         spring = -_scalar(particle.k, omega) * rho - _scalar(particle.c, omega) * rho_dot
-        parts.append(((_scalar(particle.mass, omega), r, _v_scale(rho_dot, p), zv, None, None, None),
-                      (p, None, spring, False)))
-    return parts
+        out.append(_Geometry(m, r, _v_scale(rho_dot, p), None, p, None, None, None, None, spring, m + zero, False))
+    return out
+
+
+def _panel_torque(part: _Geometry, omega):
+    """A panel's inertia torque about its centre of mass at zero generalized accelerations
+    (F.7) in its own frame: g_S = Omega x I_S Omega + theta_dot I_S (S (omega x s2)), Omega
+    = omega_S + theta_dot e2 and S (omega x s2) = (-omega . s3, 0, omega . s1)."""
+    W = part.omega_S
+    I_S = part.inertia
+    IW = _m_vec(I_S, W)
+    spin = _v_add(_v_scale(-W[2], (I_S[0][0], I_S[1][0], I_S[2][0])), _v_scale(W[0], (I_S[0][2], I_S[1][2], I_S[2][2])))
+    return _v_add(_v_cross(W, IW), _v_scale(part.theta_dot, spin))
+
+
+def _columns(part: _Geometry):
+    """(c_v, c_omega) of a flexible coordinate (F.10): m e and m r x e (+ I_S^B s2 for a panel)."""
+    cv = _v_scale(part.mass, part.e)
+    cw = _v_scale(part.mass, _v_cross(part.r, part.e))
+    if part.frame is not None:
+        I_S = part.inertia
+        cw = _v_add(cw, _v_add(_v_add(_v_scale(I_S[0][1], part.frame[0]), _v_scale(I_S[1][1], part.frame[1])),
+                               _v_scale(I_S[2][1], part.frame[2])))
+    return cv, cw
 
 
 def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
@@ -480,69 +515,66 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     om = (omega[0], omega[1], omega[2])
     one = _opaque(state)
     zero = jnp.zeros_like(omega[0])
-    parts = _component_parts(body, state, one)
-    locks = [None if c is None else c[3] for _, c in parts]
-    masses = [part[0] for part, _ in parts]
-    fixed = [(part[1:], None if c is None else c[:3]) for part, c in parts]
-    local = []  # per part: a_rem, g, and per coordinate r x e, I w
-    for m, (part, coordinate) in zip(masses, fixed):
-        r, r_dot, r_ddot, inertia, omega_rel, alpha_rel = part
-        a_rem = _v_add(_v_add(_v_cross(om, _v_cross(om, r)), _v_scale(2.0, _v_cross(om, r_dot))), r_ddot)
-        g = None
-        if inertia is not None:
-            omega_p = om if omega_rel is None else _v_add(om, omega_rel)
-            g = _v_cross(omega_p, _m_vec(inertia, omega_p))
-            if alpha_rel is not None:
-                g = _v_add(g, _m_vec(inertia, alpha_rel))
-        extra = None
-        if coordinate is not None:
-            e, w, _ = coordinate
-            extra = (_v_cross(r, e), None if w is None else _m_vec(inertia, w))
-        local.append((a_rem, g, extra))
-    A_s = zero  # A = (sum of masses) 1 before the elimination
-    B = D = None
-    f_v = (zero, zero, zero)
-    if torque is None:
-        f_w = (zero, zero, zero)
-    else:
-        L = jnp.asarray(torque).astype(omega.dtype)
-        f_w = (L[0] + zero, L[1] + zero, L[2] + zero)
-    columns = []
-    for m, (part, coordinate), (a_rem, g, extra), locked in zip(masses, fixed, local, locks):
-        r, inertia = part[0], part[3]
-        # B -= m r~ ; D += m r~^T r~ (+ I) with r~^T r~ = |r|^2 1 - r r^T
-        r2 = _v_dot(r, r)
-        mr = _v_scale(m, r)
-        B_p = ((zero, mr[2], -mr[1]), (-mr[2], zero, mr[0]), (mr[1], -mr[0], zero))
-        I_B = tuple(tuple((m * r2 if i == j else zero) - mr[i] * r[j] for j in range(3)) for i in range(3))
-        if inertia is not None:
-            I_B = _m_add(I_B, inertia)
-        A_s = A_s + m
-        B = B_p if B is None else _m_add(B, B_p)
-        D = I_B if D is None else _m_add(D, I_B)
-        f_v = _v_sub(f_v, _v_scale(m, a_rem))
-        moment = _v_cross(mr, a_rem)
-        if g is not None:
-            moment = _v_add(moment, g)
+    zv = (zero, zero, zero)
+    hub = body.hub
+    m_h, r_h, J = _scalar(hub.mass, omega), _v_add(_vec(hub.r_BcB, omega), zv), _mat(hub.inertia, omega)
+    parts = _geometry(body, state, one)
+    w2 = _v_dot(om, om)
+    # the mass moment c = sum m r and its rate (B = -c~, F.10)
+    c_m = functools.reduce(_v_add, [_v_scale(p.mass, p.r) for p in parts], _v_scale(m_h, r_h))
+    c_dot = functools.reduce(_v_add, [_v_scale(p.mass, p.r_dot) for p in parts], zv)
+    # D = J + sum m (|r|^2 1 - r r^T) + I_S^B, upper triangle
+    D = [[J[i][j] + m_h * ((_v_dot(r_h, r_h) if i == j else zero) - r_h[i] * r_h[j]) for j in range(i, 3)]
+         for i in range(3)]
+    for p in parts:
+        r2 = _v_dot(p.r, p.r)
+        for i in range(3):
+            for j in range(i, 3):
+                D[i][j - i] = D[i][j - i] + p.mass * ((r2 if i == j else zero) - p.r[i] * p.r[j])
+        if p.frame is not None:  # S^T I_S S (F.4)
+            S, I_S = p.frame, p.inertia
+            T = [tuple(I_S[a][0] * S[0][j] + I_S[a][1] * S[1][j] + I_S[a][2] * S[2][j] for j in range(3))
+                 for a in range(3)]
+            for i in range(3):
+                for j in range(i, 3):
+                    D[i][j - i] = D[i][j - i] + (S[0][i] * T[0][j] + S[1][i] * T[1][j] + S[2][i] * T[2][j])
+    # f_v = -sum m a_r with a_r = omega (omega . r) - |omega|^2 r + 2 omega x r' + r'' (F.6)
+    f_v = _v_add(_v_sub(_v_scale(_v_dot(om, c_m), om), _v_scale(w2, c_m)), _v_scale(2.0, _v_cross(om, c_dot)))
+    for p in parts:
+        if p.r_ddot is not None:
+            f_v = _v_add(f_v, _v_scale(p.mass, p.r_ddot))
+    f_v = _v_scale(-1.0, f_v)
+    # f_omega = L - sum (m r x a_r + g) (F.10), m r x a_r = m [(omega . r) r x omega
+    # + 2 ((r . r') omega - (r . omega) r') + r x r'']
+    f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
+    f_w = _v_sub(f_w, _v_add(_v_scale(m_h * _v_dot(om, r_h), _v_cross(r_h, om)), _v_cross(om, _m_vec(J, om))))
+    forces = []
+    for p in parts:
+        w_r = _v_dot(om, p.r)
+        moment = _v_add(_v_scale(w_r, _v_cross(p.r, om)),
+                        _v_scale(2.0, _v_sub(_v_scale(_v_dot(p.r, p.r_dot), om), _v_scale(w_r, p.r_dot))))
+        # the coordinate's force (F.10): Q - m e . a_r (- s2 . g), e . (omega x r') = e . r'' = 0
+        f = p.spring - p.mass * (_v_dot(p.e, om) * w_r - w2 * _v_dot(p.e, p.r))
+        if p.frame is not None:
+            moment = _v_add(moment, _v_cross(p.r, p.r_ddot))
+            g_S = _panel_torque(p, om)
+            f = f - g_S[1]
+            moment = _v_add(_v_scale(p.mass, moment), _v_add(_v_add(_v_scale(g_S[0], p.frame[0]),
+                                                                    _v_scale(g_S[1], p.frame[1])),
+                                                             _v_scale(g_S[2], p.frame[2])))
+        else:
+            moment = _v_scale(p.mass, moment)
         f_w = _v_sub(f_w, moment)
-        if coordinate is not None:
-            e, w, spring = coordinate
-            r_x_e, Iw = extra
-            cv = _v_scale(m, e)
-            cw = _v_scale(m, r_x_e)
-            m_f = m * _v_dot(e, e)
-            f = spring - m * _v_dot(e, a_rem)
-            if w is not None:
-                cw = _v_add(cw, Iw)
-                m_f = m_f + _v_dot(w, Iw)
-                f = f - _v_dot(w, g)
-            columns.append((cv, cw, m_f, f, locked))
+        forces.append(f)
+    # the blocks' costly entries computed once, in one kernel each, not within each of their
+    # consumers (XLA:CPU would, recomputing products of products in every element; so too the
+    # sines above and omega_dot below)
+    D, f_v, f_w, forces = _once((D, f_v, f_w, forces), one, zero)
+    D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
+    B = ((zero, c_m[2], -c_m[1]), (-c_m[2], zero, c_m[0]), (c_m[1], -c_m[0], zero))
+    A_s = functools.reduce(lambda a, p: a + p.mass, parts, m_h) + zero
     A = tuple(tuple(A_s if i == j else zero for j in range(3)) for i in range(3))
-    # the blocks computed once, in one kernel, not within each of their consumers (XLA:CPU
-    # would, recomputing products of products in every element; so too the sines above and
-    # omega_dot below: each further such layer costs a kernel more than it saves)
-    A, B, D, f_v, f_w, values = _once((A, B, D, f_v, f_w, [c[:4] for c in columns]), one, zero)
-    columns = [(*v, c[4]) for v, c in zip(values, columns)]
+    columns = [(*_columns(p), p.m_f, f, p.locked) for p, f in zip(parts, forces)]
     for cv, cw, m_f, f, locked in columns:
         if locked:
             continue
