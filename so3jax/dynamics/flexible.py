@@ -18,16 +18,18 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from so3jax.core import checks, integrate, so3
+from so3jax.core import _trig, checks, integrate, so3
 from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
 
+_FUSED_OPERANDS = 8  # XLA:CPU fuses a concatenate of this many operands at most
 _UNIT_TOLERANCE = 1e-9  # a unit vector's or a rotation's rows' departure allowed by check()
 
 
@@ -411,7 +413,7 @@ def _m_sub_outer(m, a, b, s):
     return tuple(tuple(m[i][j] - a[i] * b[j] * s for j in range(3)) for i in range(3))
 
 
-def _once(tree, one, like):
+def _once(tree, one, like, apart=False):
     """tree (of batch arrays broadcasting against ``like`` (*b)) unchanged in value, computed
     once: its leaves stacked into one array behind one fusion boundary
     (:func:`so3jax.core._fusion.materialize`), so that XLA:CPU computes them in one kernel
@@ -419,8 +421,11 @@ def _once(tree, one, like):
     leaves, treedef = jax.tree.flatten(tree)
     if not leaves:
         return tree
-    stacked = materialize(jnp.stack([jnp.broadcast_to(x, like.shape) for x in leaves]), one)
-    return jax.tree.unflatten(treedef, list(stacked))
+    rows = [jnp.broadcast_to(x, like.shape) for x in leaves]
+    if apart:  # XLA:CPU fuses a concatenate of at most 8 operands, each element choosing its operand
+        rows += [jnp.zeros_like(like)] * max(0, _FUSED_OPERANDS + 1 - len(rows))
+    stacked = materialize(jnp.stack(rows), one)
+    return jax.tree.unflatten(treedef, list(stacked[: len(leaves)]))
 
 
 def _sym_inverse(m):
@@ -448,15 +453,65 @@ class _Geometry(NamedTuple):
     spring: jax.Array
     m_f: jax.Array
     locked: bool
+    trig: tuple | None = None
 
 
-def _geometry(body: FlexibleBody, state: FlexState, one):
-    """Each panel's and particle's :class:`_Geometry` (F.1)-(F.5), the panels' sines computed once."""
+_MONOMIALS = ("c", "s", "cc", "cs", "ss")  # of a panel's cos(theta), sin(theta), beside 1
+
+
+def _poly_mul(p, q):
+    """The product of two linear forms in (1, cos theta, sin theta), coefficients (a0, ac, as)
+    (None: 0), as {monomial: coefficient} over 1 and _MONOMIALS."""
+    out = {}
+    for (i, a), (j, b) in ((x, y) for x in enumerate(p) for y in enumerate(q)):
+        if a is not None and b is not None:
+            key = ("1", "c", "s")[i] if j == 0 else ("1", "c", "s")[j] if i == 0 else \
+                {(1, 1): "cc", (1, 2): "cs", (2, 1): "cs", (2, 2): "ss"}[(i, j)]
+            out[key] = a * b if key not in out else out[key] + a * b
+    return out
+
+
+def _poly_add(p, q, scale=1.0):
+    """p + scale q of two {monomial: coefficient}."""
+    out = dict(p)
+    for k, v in q.items():
+        out[k] = scale * v if k not in out else out[k] + scale * v
+    return out
+
+
+def _panel_inertia(panel: HingedPanel, like):
+    """A panel's inertia about B, m (|r|^2 1 - r r^T) + S^T I_S S (F.4), as its upper
+    triangle's entries {monomial: coefficient}, quadratic in (cos theta, sin theta):
+    r = r_HB - d s1, s1 = c h1 - s h3, s2 = h2, s3 = s h1 + c h3 (F.1)."""
+    h1, h2, h3 = _mat(panel.dcm_HB, like)
+    m, d = _scalar(panel.mass, like), _scalar(panel.d, like)
+    I_S = _mat(panel.inertia, like)
+    r_HB = _vec(panel.r_HB, like)
+    r = [(r_HB[i], -d * h1[i], d * h3[i]) for i in range(3)]
+    frame = [[(None, h1[i], -h3[i]) for i in range(3)], [(h2[i], None, None) for i in range(3)],
+             [(None, h3[i], h1[i]) for i in range(3)]]
+    r2 = functools.reduce(_poly_add, [_poly_mul(r[k], r[k]) for k in range(3)])
+    out = {}
+    for i in range(3):
+        for j in range(i, 3):
+            entry = _poly_add(r2, _poly_mul(r[i], r[j]), -1.0) if i == j else _poly_add({}, _poly_mul(r[i], r[j]), -1.0)
+            entry = {k: m * v for k, v in entry.items()}
+            for a in range(3):
+                for b in range(3):
+                    entry = _poly_add(entry, {k: I_S[a][b] * v for k, v in _poly_mul(frame[a][i], frame[b][j]).items()})
+            out[(i, j)] = entry
+    return out
+
+
+def _geometry(body: FlexibleBody, state: FlexState):
+    """Each panel's and particle's :class:`_Geometry` (F.1)-(F.5)."""
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
     zero = jnp.zeros_like(omega[0])
     zv = (zero, zero, zero)
-    trig = _once([(jnp.cos(state.theta[i]), jnp.sin(state.theta[i])) for i in range(len(body.panels))], one, zero)
+    # the sines by vectorizable arithmetic (so3jax.core._trig): XLA:CPU's are a call per element
+    sin, cos = _trig.sincos(state.theta) if body.panels else ((), ())
+    trig = [(cos[i], sin[i]) for i in range(len(body.panels))]
     out = []
     for i, panel in enumerate(body.panels):
         theta = state.theta[i]
@@ -474,7 +529,8 @@ def _geometry(body: FlexibleBody, state: FlexState, one):
         omega_S = (ct * a1 - st * a3, _v_dot(om, h2) + theta_dot, st * a1 + ct * a3)
         spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
         out.append(_Geometry(m, r, _v_scale(d * theta_dot, s3), _v_scale(d * theta_dot**2, s1), _v_scale(d, s3),
-                             (s1, s2, s3), omega_S, theta_dot, I_S, spring, m * d * d + I_S[1][1], panel.locked))
+                             (s1, s2, s3), omega_S, theta_dot, I_S, spring, m * d * d + I_S[1][1], panel.locked,
+                             (ct, st)))
     for j, particle in enumerate(body.slosh):
         rho, rho_dot = state.rho[j], state.rho_dot[j]
         m = _scalar(particle.mass, omega)
@@ -518,7 +574,7 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     zv = (zero, zero, zero)
     hub = body.hub
     m_h, r_h, J = _scalar(hub.mass, omega), _v_add(_vec(hub.r_BcB, omega), zv), _mat(hub.inertia, omega)
-    parts = _geometry(body, state, one)
+    parts = _geometry(body, state)
     w2 = _v_dot(om, om)
     # the mass moment c = sum m r and its rate (B = -c~, F.10)
     c_m = functools.reduce(_v_add, [_v_scale(p.mass, p.r) for p in parts], _v_scale(m_h, r_h))
@@ -526,18 +582,18 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     # D = J + sum m (|r|^2 1 - r r^T) + I_S^B, upper triangle
     D = [[J[i][j] + m_h * ((_v_dot(r_h, r_h) if i == j else zero) - r_h[i] * r_h[j]) for j in range(i, 3)]
          for i in range(3)]
-    for p in parts:
+    for p, panel in itertools.zip_longest(parts, body.panels):
+        if panel is not None:  # a polynomial in (cos theta, sin theta) of constant coefficients
+            ct, st = p.trig
+            phi = {"c": ct, "s": st, "cc": ct * ct, "cs": ct * st, "ss": st * st}
+            for (i, j), entry in _panel_inertia(panel, omega).items():
+                terms = [entry[k] * phi[k] for k in _MONOMIALS if k in entry]
+                D[i][j - i] = functools.reduce(jnp.add, terms, D[i][j - i] + entry.get("1", 0.0))
+            continue
         r2 = _v_dot(p.r, p.r)
         for i in range(3):
             for j in range(i, 3):
                 D[i][j - i] = D[i][j - i] + p.mass * ((r2 if i == j else zero) - p.r[i] * p.r[j])
-        if p.frame is not None:  # S^T I_S S (F.4)
-            S, I_S = p.frame, p.inertia
-            T = [tuple(I_S[a][0] * S[0][j] + I_S[a][1] * S[1][j] + I_S[a][2] * S[2][j] for j in range(3))
-                 for a in range(3)]
-            for i in range(3):
-                for j in range(i, 3):
-                    D[i][j - i] = D[i][j - i] + (S[0][i] * T[0][j] + S[1][i] * T[1][j] + S[2][i] * T[2][j])
     # f_v = -sum m a_r with a_r = omega (omega . r) - |omega|^2 r + 2 omega x r' + r'' (F.6)
     f_v = _v_add(_v_sub(_v_scale(_v_dot(om, c_m), om), _v_scale(w2, c_m)), _v_scale(2.0, _v_cross(om, c_dot)))
     for p in parts:
@@ -549,6 +605,9 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
     f_w = _v_sub(f_w, _v_add(_v_scale(m_h * _v_dot(om, r_h), _v_cross(r_h, om)), _v_cross(om, _m_vec(J, om))))
     forces = []
+    torques = [_panel_torque(p, om) for p in parts if p.frame is not None]
+    torques = _once(torques, one, zero, apart=True)
+    torques = iter(torques)
     for p in parts:
         w_r = _v_dot(om, p.r)
         moment = _v_add(_v_scale(w_r, _v_cross(p.r, om)),
@@ -557,7 +616,7 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
         f = p.spring - p.mass * (_v_dot(p.e, om) * w_r - w2 * _v_dot(p.e, p.r))
         if p.frame is not None:
             moment = _v_add(moment, _v_cross(p.r, p.r_ddot))
-            g_S = _panel_torque(p, om)
+            g_S = next(torques)
             f = f - g_S[1]
             moment = _v_add(_v_scale(p.mass, moment), _v_add(_v_add(_v_scale(g_S[0], p.frame[0]),
                                                                     _v_scale(g_S[1], p.frame[1])),
