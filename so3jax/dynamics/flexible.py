@@ -394,25 +394,6 @@ def _m_vec(m, v):
     return tuple(m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2] for i in range(3))
 
 
-def _m_tvec(m, v):
-    """M^T v."""
-    return tuple(m[0][i] * v[0] + m[1][i] * v[1] + m[2][i] * v[2] for i in range(3))
-
-
-def _m_add(a, b):
-    return tuple(tuple(a[i][j] + b[i][j] for j in range(3)) for i in range(3))
-
-
-def _m_outer(a, b, s):
-    """s a b^T."""
-    return tuple(tuple(s * a[i] * b[j] for j in range(3)) for i in range(3))
-
-
-def _m_sub_outer(m, a, b, s):
-    """M - a b^T s."""
-    return tuple(tuple(m[i][j] - a[i] * b[j] * s for j in range(3)) for i in range(3))
-
-
 def _once(tree, one, like, apart=False):
     """tree (of batch arrays broadcasting against ``like`` (*b)) unchanged in value, computed
     once: its leaves stacked into one array behind one fusion boundary
@@ -544,12 +525,14 @@ def _geometry(body: FlexibleBody, state: FlexState):
 def _panel_torque(part: _Geometry, omega):
     """A panel's inertia torque about its centre of mass at zero generalized accelerations
     (F.7) in its own frame: g_S = Omega x I_S Omega + theta_dot I_S (S (omega x s2)), Omega
-    = omega_S + theta_dot e2 and S (omega x s2) = (-omega . s3, 0, omega . s1)."""
+    = omega_S + theta_dot e2 and S (omega x s2) = (-omega . s3, 0, omega . s1); and the part of
+    it that the panel turning with the hub has, omega' x I_S omega' with omega' = S omega."""
     W = part.omega_S
     I_S = part.inertia
     IW = _m_vec(I_S, W)
     spin = _v_add(_v_scale(-W[2], (I_S[0][0], I_S[1][0], I_S[2][0])), _v_scale(W[0], (I_S[0][2], I_S[1][2], I_S[2][2])))
-    return _v_add(_v_cross(W, IW), _v_scale(part.theta_dot, spin))
+    rigid = (W[0], W[1] - part.theta_dot, W[2])  # omega_S without the hinge's rate
+    return _v_add(_v_cross(W, IW), _v_scale(part.theta_dot, spin)), _v_cross(rigid, _m_vec(I_S, rigid))
 
 
 def _columns(part: _Geometry):
@@ -564,9 +547,10 @@ def _columns(part: _Geometry):
 
 
 def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
-    """Solve (F.10) for (omega_dot, theta_ddot, rho_ddot, a_B) by eliminating the flexible
-    coordinates, then the translation (F.11)-(F.13), as Basilisk's back-substitution does.
-    torque: L (3, *b) [N m] on the hub (a couple), None for none."""
+    """Solve (F.10) for (omega_dot, theta_ddot, rho_ddot, a_B): its blocks at the state, then
+    the translation eliminated, the flexible coordinates, omega_dot and back-substitution
+    (:func:`_solve`; the same solution as (F.11)-(F.13)'s order). torque: L (3, *b) [N m] on
+    the hub (a couple), None for none."""
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
     one = _opaque(state)
@@ -600,61 +584,89 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
         if p.r_ddot is not None:
             f_v = _v_add(f_v, _v_scale(p.mass, p.r_ddot))
     f_v = _v_scale(-1.0, f_v)
-    # f_omega = L - sum (m r x a_r + g) (F.10), m r x a_r = m [(omega . r) r x omega
-    # + 2 ((r . r') omega - (r . omega) r') + r x r'']
-    f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
-    f_w = _v_sub(f_w, _v_add(_v_scale(m_h * _v_dot(om, r_h), _v_cross(r_h, om)), _v_cross(om, _m_vec(J, om))))
-    forces = []
-    torques = [_panel_torque(p, om) for p in parts if p.frame is not None]
-    torques = _once(torques, one, zero, apart=True)
-    torques = iter(torques)
+    # each coordinate's force (F.10): Q - m e . a_r (- s2 . g_S for a panel), e . (omega x r') = e . r'' = 0
+    forces, relative = [], []
     for p in parts:
-        w_r = _v_dot(om, p.r)
-        moment = _v_add(_v_scale(w_r, _v_cross(p.r, om)),
-                        _v_scale(2.0, _v_sub(_v_scale(_v_dot(p.r, p.r_dot), om), _v_scale(w_r, p.r_dot))))
-        # the coordinate's force (F.10): Q - m e . a_r (- s2 . g), e . (omega x r') = e . r'' = 0
-        f = p.spring - p.mass * (_v_dot(p.e, om) * w_r - w2 * _v_dot(p.e, p.r))
+        f = p.spring - p.mass * (_v_dot(p.e, om) * _v_dot(om, p.r) - w2 * _v_dot(p.e, p.r))
         if p.frame is not None:
-            moment = _v_add(moment, _v_cross(p.r, p.r_ddot))
-            g_S = next(torques)
+            g_S, gyro = _panel_torque(p, om)
             f = f - g_S[1]
-            moment = _v_add(_v_scale(p.mass, moment), _v_add(_v_add(_v_scale(g_S[0], p.frame[0]),
-                                                                    _v_scale(g_S[1], p.frame[1])),
-                                                             _v_scale(g_S[2], p.frame[2])))
+            relative.append(_v_sub(g_S, gyro))
+        forces.append(f)
+    D, f_v, forces, relative = _once((D, f_v, forces, relative), one, zero)
+    relative = iter(relative)
+    # f_omega = L - sum (m r x a_r + g) (F.10) = L - omega x D omega - sum m [2 ((r . r') omega
+    # - (r . omega) r') + r x r''] - sum S^T (g_S - omega_S x I_S omega_S): the terms in
+    # omega omega of the particles (m (omega . r) r x omega), the hub and the panels
+    # (omega x I omega) make up omega x D omega
+    f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
+    f_w = _v_sub(f_w, _v_cross(om, _m_vec(tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3)),
+                                          om)))
+    for p in parts:
+        moment = _v_scale(2.0, _v_sub(_v_scale(_v_dot(p.r, p.r_dot), om), _v_scale(_v_dot(om, p.r), p.r_dot)))
+        if p.frame is not None:
+            moment = _v_scale(p.mass, _v_add(moment, _v_cross(p.r, p.r_ddot)))
+            g = next(relative)
+            moment = _v_add(moment, _v_add(_v_add(_v_scale(g[0], p.frame[0]), _v_scale(g[1], p.frame[1])),
+                                           _v_scale(g[2], p.frame[2])))
         else:
             moment = _v_scale(p.mass, moment)
         f_w = _v_sub(f_w, moment)
-        forces.append(f)
     # the blocks' costly entries computed once, in one kernel each, not within each of their
-    # consumers (XLA:CPU would, recomputing products of products in every element; so too the
-    # sines above and omega_dot below)
-    D, f_v, f_w, forces = _once((D, f_v, f_w, forces), one, zero)
+    # consumers (XLA:CPU would, recomputing products of products in every element; so too
+    # omega_dot below)
+    f_w = _once(f_w, one, zero, apart=True)
     D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
-    B = ((zero, c_m[2], -c_m[1]), (-c_m[2], zero, c_m[0]), (c_m[1], -c_m[0], zero))
-    A_s = functools.reduce(lambda a, p: a + p.mass, parts, m_h) + zero
-    A = tuple(tuple(A_s if i == j else zero for j in range(3)) for i in range(3))
-    columns = [(*_columns(p), p.m_f, f, p.locked) for p, f in zip(parts, forces)]
-    for cv, cw, m_f, f, locked in columns:
-        if locked:
+    return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
+
+def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Accelerations:
+    """(F.10) from its blocks: the translation eliminated first (A = m 1, B = -c~ with c the
+    mass moment: the hub block D - (|c|^2 1 - c c^T) / m about the centre of mass, the
+    columns c_omega - c x c_v / m), then each flexible coordinate in turn (the symmetric
+    system's Gaussian elimination onto the 3x3 hub block), omega_dot by the adjugate, and
+    back-substitution for q_ddot and a_B = (f_v + c x omega_dot - sum c_v q_ddot) / m."""
+    m_tot = functools.reduce(lambda a, p: a + p.mass, parts, m_h)
+    inv_m = 1.0 / m_tot
+    c2 = _v_dot(c_m, c_m)
+    S = [[D[i][j] - ((c2 if i == j else zero) - c_m[i] * c_m[j]) * inv_m for j in range(3)] for i in range(3)]
+    rhs = _v_sub(f_w, _v_scale(inv_m, _v_cross(c_m, f_v)))
+    coords = []  # per coordinate: c_v, its column and force about the centre of mass, m_f
+    for p, f in zip(parts, forces):
+        if p.locked:
+            coords.append(None)
             continue
-        inv_m = 1.0 / m_f
-        A = _m_sub_outer(A, cv, cv, inv_m)
-        B = _m_sub_outer(B, cv, cw, inv_m)
-        D = _m_sub_outer(D, cw, cw, inv_m)
-        f_v = _v_sub(f_v, _v_scale(f * inv_m, cv))
-        f_w = _v_sub(f_w, _v_scale(f * inv_m, cw))
-    adj, inv_det = _sym_inverse(A)
-    A_inv = tuple(tuple(adj[i][j] * inv_det for j in range(3)) for i in range(3))
-    X = tuple(tuple(A_inv[i][0] * B[0][j] + A_inv[i][1] * B[1][j] + A_inv[i][2] * B[2][j] for j in range(3))
-              for i in range(3))  # A^{-1} B
-    S = tuple(tuple(D[i][j] - (B[0][i] * X[0][j] + B[1][i] * X[1][j] + B[2][i] * X[2][j]) for j in range(3))
-              for i in range(3))  # D - B^T X
-    rhs = _v_sub(f_w, _m_tvec(X, f_v))
-    adj, inv_det = _sym_inverse(S)
+        cv, cw = _columns(p)
+        coords.append([cv, _v_sub(cw, _v_scale(inv_m, _v_cross(c_m, cv))), f - _v_dot(cv, f_v) * inv_m, p.m_f])
+    free = [k for k, c in enumerate(coords) if c is not None]
+    M = {(a, b): (coords[a][3] if a == b else 0.0) - _v_dot(coords[a][0], coords[b][0]) * inv_m
+         for a in free for b in free}
+    C = {a: coords[a][1] for a in free}
+    F = {a: coords[a][2] for a in free}
+    pivots = []  # per eliminated coordinate: 1 / pivot, column, force, its row's remaining entries
+    for n_, k in enumerate(free):
+        p_k = M[(k, k)]
+        inv_p = 1.0 / p_k
+        rest = free[n_ + 1:]
+        pivots.append((k, inv_p, C[k], F[k], {j: M[(k, j)] for j in rest}))
+        S = [[S[i][j] - C[k][i] * C[k][j] * inv_p for j in range(3)] for i in range(3)]
+        rhs = _v_sub(rhs, _v_scale(F[k] * inv_p, C[k]))
+        for j in rest:
+            l_j = M[(j, k)] * inv_p
+            C[j] = _v_sub(C[j], _v_scale(l_j, C[k]))
+            F[j] = F[j] - l_j * F[k]
+            for i in rest:
+                M[(j, i)] = M[(j, i)] - l_j * M[(k, i)]
+    # the hub block and its right-hand side computed once, then omega_dot once
+    U, rhs = _once(([[S[i][j] for j in range(i, 3)] for i in range(3)], rhs), one, zero)
+    S = [[U[min(i, j)][abs(j - i)] for j in range(3)] for i in range(3)]
+    adj, inv_det = _sym_inverse(tuple(tuple(row) for row in S))
     omega_dot = _once(tuple(v * inv_det for v in _m_vec(adj, rhs)), one, zero)
-    a_B = _m_vec(A_inv, _v_sub(f_v, _m_vec(B, omega_dot)))
-    q_ddot = [jnp.zeros_like(f) if locked else (f - _v_dot(cv, a_B) - _v_dot(cw, omega_dot)) / m_f
-              for cv, cw, m_f, f, locked in columns]
+    q = {}
+    for k, inv_p, C_k, F_k, row in reversed(pivots):
+        q[k] = (F_k - _v_dot(C_k, omega_dot) - sum((row[j] * q[j] for j in row), zero)) * inv_p
+    q_ddot = [q.get(k, jnp.zeros_like(zero)) for k in range(len(parts))]
+    moved = functools.reduce(_v_add, [_v_scale(q_ddot[k], coords[k][0]) for k in free], (zero, zero, zero))
+    a_B = _v_scale(inv_m, _v_add(_v_sub(f_v, moved), _v_cross(c_m, omega_dot)))
     n = len(body.panels)
     stack = lambda xs, like: jnp.stack(xs) if xs else jnp.zeros((0,) + like.shape[1:], like.dtype)
     return Accelerations(jnp.stack(omega_dot), stack(q_ddot[:n], state.theta), stack(q_ddot[n:], state.rho),
