@@ -29,7 +29,6 @@ from so3jax.core import _trig, checks, integrate, so3
 from so3jax.core._fusion import materialize
 from so3jax.core.pytree import pytree_dataclass, static_field
 
-_FUSED_OPERANDS = 8  # XLA:CPU fuses a concatenate of this many operands at most
 _UNIT_TOLERANCE = 1e-9  # a unit vector's or a rotation's rows' departure allowed by check()
 
 
@@ -394,7 +393,7 @@ def _m_vec(m, v):
     return tuple(m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2] for i in range(3))
 
 
-def _once(tree, one, like, apart=False):
+def _once(tree, one, like):
     """tree (of batch arrays broadcasting against ``like`` (*b)) unchanged in value, computed
     once: its leaves stacked into one array behind one fusion boundary
     (:func:`so3jax.core._fusion.materialize`), so that XLA:CPU computes them in one kernel
@@ -402,11 +401,8 @@ def _once(tree, one, like, apart=False):
     leaves, treedef = jax.tree.flatten(tree)
     if not leaves:
         return tree
-    rows = [jnp.broadcast_to(x, like.shape) for x in leaves]
-    if apart:  # XLA:CPU fuses a concatenate of at most 8 operands, each element choosing its operand
-        rows += [jnp.zeros_like(like)] * max(0, _FUSED_OPERANDS + 1 - len(rows))
-    stacked = materialize(jnp.stack(rows), one)
-    return jax.tree.unflatten(treedef, list(stacked[: len(leaves)]))
+    stacked = materialize(jnp.stack([jnp.broadcast_to(x, like.shape) for x in leaves]), one)
+    return jax.tree.unflatten(treedef, list(stacked))
 
 
 def _sym_inverse(m):
@@ -593,6 +589,8 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
             f = f - g_S[1]
             relative.append(_v_sub(g_S, gyro))
         forces.append(f)
+    # computed once, each in its own kernel, not within each of their consumers (XLA:CPU would,
+    # recomputing products of products in every element; so too the hub block below)
     D, f_v, forces, relative = _once((D, f_v, forces, relative), one, zero)
     relative = iter(relative)
     # f_omega = L - sum (m r x a_r + g) (F.10) = L - omega x D omega - sum m [2 ((r . r') omega
@@ -612,10 +610,6 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
         else:
             moment = _v_scale(p.mass, moment)
         f_w = _v_sub(f_w, moment)
-    # the blocks' costly entries computed once, in one kernel each, not within each of their
-    # consumers (XLA:CPU would, recomputing products of products in every element; so too
-    # omega_dot below)
-    f_w = _once(f_w, one, zero, apart=True)
     D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
     return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
 
