@@ -518,17 +518,22 @@ def _geometry(body: FlexibleBody, state: FlexState):
     return out
 
 
-def _panel_torque(part: _Geometry, omega):
+def _panel_torque(part: _Geometry):
     """A panel's inertia torque about its centre of mass at zero generalized accelerations
-    (F.7) in its own frame: g_S = Omega x I_S Omega + theta_dot I_S (S (omega x s2)), Omega
-    = omega_S + theta_dot e2 and S (omega x s2) = (-omega . s3, 0, omega . s1); and the part of
-    it that the panel turning with the hub has, omega' x I_S omega' with omega' = S omega."""
-    W = part.omega_S
-    I_S = part.inertia
-    IW = _m_vec(I_S, W)
+    (F.7) in its own frame, g_S = Omega x I_S Omega + theta_dot I_S (S (omega x s2)) with
+    Omega = omega' + theta_dot e2, omega' = S omega and S (omega x s2) = (-omega'_3, 0,
+    omega'_1): (its s2 component, g_S - omega' x I_S omega' = theta_dot (e2 x I_S omega'
+    + omega' x I_S e2 + I_S S (omega x s2)) + theta_dot^2 e2 x I_S e2, the part that the
+    panel's own rate makes)."""
+    W, I_S, rate = part.omega_S, part.inertia, part.theta_dot
+    rigid = (W[0], W[1] - rate, W[2])
     spin = _v_add(_v_scale(-W[2], (I_S[0][0], I_S[1][0], I_S[2][0])), _v_scale(W[0], (I_S[0][2], I_S[1][2], I_S[2][2])))
-    rigid = (W[0], W[1] - part.theta_dot, W[2])  # omega_S without the hinge's rate
-    return _v_add(_v_cross(W, IW), _v_scale(part.theta_dot, spin)), _v_cross(rigid, _m_vec(I_S, rigid))
+    I_e2 = (I_S[0][1], I_S[1][1], I_S[2][1])
+    IW = [sum((I_S[i][j] * W[j] for j in range(1, 3)), I_S[i][0] * W[0]) for i in (0, 2)]
+    along = W[2] * IW[0] - W[0] * IW[1] + rate * spin[1]  # (Omega x I_S Omega)_2 + theta_dot spin_2
+    Iw = [sum((I_S[i][j] * rigid[j] for j in range(1, 3)), I_S[i][0] * rigid[0]) for i in (0, 2)]
+    turn = _v_add(_v_add((Iw[1], 0.0, -Iw[0]), _v_cross(rigid, I_e2)), spin)
+    return along, _v_add(_v_scale(rate, turn), _v_scale(rate * rate, (I_e2[2], 0.0, -I_e2[0])))
 
 
 def _columns(part: _Geometry):
@@ -585,9 +590,9 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     for p in parts:
         f = p.spring - p.mass * (_v_dot(p.e, om) * _v_dot(om, p.r) - w2 * _v_dot(p.e, p.r))
         if p.frame is not None:
-            g_S, gyro = _panel_torque(p, om)
-            f = f - g_S[1]
-            relative.append(_v_sub(g_S, gyro))
+            along, own = _panel_torque(p)
+            f = f - along
+            relative.append(own)
         forces.append(f)
     # computed once, each in its own kernel, not within each of their consumers (XLA:CPU would,
     # recomputing products of products in every element; so too the hub block below)
