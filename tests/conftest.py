@@ -1,6 +1,13 @@
-"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing),
-in-process with JAX's own XLA settings, as a library user gets them (``so3jax`` child
-processes, the pinned paper metrics among them, run with the command's, configure_xla).
+"""Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing).
+
+In-process programs compile with XLA's backend optimizations and expensive LLVM passes off
+(``jax_disable_most_optimizations``): about a third less of the compile time that dominates the
+suite, the same values to round-off. A test marked ``optimized`` runs with JAX's default
+settings, as a library user gets them: a bit-for-bit comparison of two differently built
+programs (which XLA's optimizations make agree), a comparison with XLA's own functions, and the
+goals' derivatives (XLA's simplifications drop a NaN tangent at a frequency off the peak from
+jnp.max's derivative, the tangent times the 0/1 indicator of the maximum). So do the ``so3jax``
+child processes, the pinned paper metrics among them (the command's configure_xla).
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
 folder made fresh for each test process (so a run never reads executables from an
@@ -25,6 +32,8 @@ import pytest
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+FEWEST_OPTIMIZATIONS = {"now": True}  # jax_disable_most_optimizations, as last set here
+jax.config.update("jax_disable_most_optimizations", True)
 
 SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
 atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
@@ -58,6 +67,24 @@ def release_compiled_programs():
     if _memory_maps() > MAPS_BEFORE_RELEASE:
         jax.clear_caches()
         gc.collect()
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    """XLA's default optimizations for a test marked ``optimized`` (and the module fixtures its
+    setup builds), the fewest for the others. The setting is not part of JAX's in-memory cache
+    keys, so those caches are cleared where it changes (the persistent cache's keys hold it)."""
+    fewest = item.get_closest_marker("optimized") is None
+    if fewest != FEWEST_OPTIMIZATIONS["now"]:
+        jax.clear_caches()
+        jax.config.update("jax_disable_most_optimizations", fewest)
+        FEWEST_OPTIMIZATIONS["now"] = fewest
+
+
+@pytest.fixture
+def same_xla_optimizations() -> dict:
+    """The environment a child process reads to compile with this test's XLA optimizations."""
+    return {"JAX_DISABLE_MOST_OPTIMIZATIONS": "1" if FEWEST_OPTIMIZATIONS["now"] else "0"}
 
 
 @pytest.fixture

@@ -74,6 +74,7 @@ def erfinv_inputs():
                            sign * 10.0 ** -rng.uniform(0, 320, n), specials])  # fmt: skip
 
 
+@pytest.mark.optimized  # XLA's erf_inv as a user's program computes it
 def test_erfinv_matches_xla():
     x = erfinv_inputs()
     expected = np.asarray(jax.jit(jax.lax.erf_inv)(x))
@@ -82,6 +83,7 @@ def test_erfinv_matches_xla():
     assert np.isinf(got[np.abs(x) == 1]).all()
 
 
+@pytest.mark.optimized  # XLA's erf_inv as a user's program computes it
 def test_chunked_erfinv_matches_xla():
     """The vectorized passes fill_eta uses give the same values, the rare branches included."""
     x = erfinv_inputs()
@@ -101,6 +103,7 @@ def test_paper_eta_matches_jax(seed):
     assert_ulp_close(got, eta)
 
 
+@pytest.mark.optimized  # XLA's erf_inv as a user's program computes it
 def test_fill_eta_matches_paper_noise_batch():
     """Chunks of 256 steps and a ragged last one; 3 x 6000 draws, about 18 of them |u| > 0.999."""
     seeds, n, chunk = [0, 3], 3000, 256

@@ -72,6 +72,7 @@ def test_noise_is_jax_random_normal(dtype):
     np.testing.assert_array_equal(noise(rbg, 5, dtype), jax.random.normal(jax.random.fold_in(rbg, 5), (3,), dtype))
 
 
+@pytest.mark.optimized  # XLA's erf_inv as a user's program computes it
 def test_erf_inv_matches_xla_and_scipy():
     """so3jax.core._erfinv.erf_inv (no scalar log calls) against jax.lax.erf_inv (<= 2 ulp) over
     (-1, 1) and into each tail branch (w >= 6.25, w >= 16), and scipy.special.erfinv."""
