@@ -550,8 +550,8 @@ def _columns(part: _Geometry):
 def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
     """Solve (F.10) for (omega_dot, theta_ddot, rho_ddot, a_B): its blocks at the state, then
     the translation eliminated, the flexible coordinates, omega_dot and back-substitution
-    (:func:`_solve`; the same solution as (F.11)-(F.13)'s order). torque: L (3, *b) [N m] on
-    the hub (a couple), None for none."""
+    (:func:`_solve`: (F.11)-(F.13)'s solution, the translation eliminated first). torque: L
+    (3, *b) [N m] on the hub (a couple), None for none."""
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
     one = _opaque(state)
