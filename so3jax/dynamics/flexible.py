@@ -536,15 +536,22 @@ def _panel_torque(part: _Geometry):
     return along, _v_add(_v_scale(rate, turn), _v_scale(rate * rate, (I_e2[2], 0.0, -I_e2[0])))
 
 
-def _columns(part: _Geometry):
-    """(c_v, c_omega) of a flexible coordinate (F.10): m e and m r x e (+ I_S^B s2 for a panel)."""
+def _columns(part: _Geometry, panel: HingedPanel | None, like):
+    """(c_v, c_omega) of a flexible coordinate (F.10): m e and m r x e (+ I_S^B s2 for a panel).
+    A panel's (e = d s3, r = r_HB - d s1): m d ((r_HB . s2) s1 + (d - r_HB . s1) s2) + I_S s2 in
+    its frame, turned onto the hinge frame's constant axes (s = M2(theta) h, F.1)."""
     cv = _v_scale(part.mass, part.e)
-    cw = _v_scale(part.mass, _v_cross(part.r, part.e))
-    if part.frame is not None:
-        I_S = part.inertia
-        cw = _v_add(cw, _v_add(_v_add(_v_scale(I_S[0][1], part.frame[0]), _v_scale(I_S[1][1], part.frame[1])),
-                               _v_scale(I_S[2][1], part.frame[2])))
-    return cv, cw
+    if panel is None:
+        return cv, _v_scale(part.mass, _v_cross(part.r, part.e))
+    h1, h2, h3 = _mat(panel.dcm_HB, like)
+    r_HB = _vec(panel.r_HB, like)
+    I_S, ct, st = part.inertia, *part.trig
+    md = part.mass * _scalar(panel.d, like)
+    k1 = md * _v_dot(r_HB, h2) + I_S[0][1]
+    k2 = md * (_scalar(panel.d, like) - (ct * _v_dot(r_HB, h1) - st * _v_dot(r_HB, h3))) + I_S[1][1]
+    k3 = I_S[2][1]
+    u1, u3 = ct * k1 + st * k3, ct * k3 - st * k1
+    return cv, tuple(u1 * h1[i] + k2 * h2[i] + u3 * h3[i] for i in range(3))
 
 
 def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelerations:
@@ -567,6 +574,7 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     # D = J + sum m (|r|^2 1 - r r^T) + I_S^B, upper triangle
     D = [[J[i][j] + m_h * ((_v_dot(r_h, r_h) if i == j else zero) - r_h[i] * r_h[j]) for j in range(i, 3)]
          for i in range(3)]
+    slosh = zip(body.slosh, state.rho)
     for p, panel in itertools.zip_longest(parts, body.panels):
         if panel is not None:  # a polynomial in (cos theta, sin theta) of constant coefficients
             ct, st = p.trig
@@ -575,29 +583,57 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
                 terms = [entry[k] * phi[k] for k in _MONOMIALS if k in entry]
                 D[i][j - i] = functools.reduce(jnp.add, terms, D[i][j - i] + entry.get("1", 0.0))
             continue
-        r2 = _v_dot(p.r, p.r)
+        particle, rho = next(slosh)
+        # a particle's m (|r|^2 1 - r r^T) with r = r_PB + rho p_hat (F.3): a quadratic in rho
+        a, b = _vec(particle.r_PB, omega), _vec(particle.p_hat, omega)
         for i in range(3):
             for j in range(i, 3):
-                D[i][j - i] = D[i][j - i] + p.mass * ((r2 if i == j else zero) - p.r[i] * p.r[j])
+                eye = 1.0 if i == j else 0.0
+                c0 = p.mass * (eye * _v_dot(a, a) - a[i] * a[j])
+                c1 = p.mass * (eye * 2.0 * _v_dot(a, b) - a[i] * b[j] - b[i] * a[j])
+                c2 = p.mass * (eye * _v_dot(b, b) - b[i] * b[j])
+                D[i][j - i] = D[i][j - i] + c0 + rho * (c1 + rho * c2)
     # f_v = -sum m a_r with a_r = omega (omega . r) - |omega|^2 r + 2 omega x r' + r'' (F.6)
     f_v = _v_add(_v_sub(_v_scale(_v_dot(om, c_m), om), _v_scale(w2, c_m)), _v_scale(2.0, _v_cross(om, c_dot)))
     for p in parts:
         if p.r_ddot is not None:
             f_v = _v_add(f_v, _v_scale(p.mass, p.r_ddot))
     f_v = _v_scale(-1.0, f_v)
-    # each coordinate's force (F.10): Q - m e . a_r (- s2 . g_S for a panel), e . (omega x r') = e . r'' = 0
-    forces, relative = [], []
-    for p in parts:
-        f = p.spring - p.mass * (_v_dot(p.e, om) * _v_dot(om, p.r) - w2 * _v_dot(p.e, p.r))
-        if p.frame is not None:
-            along, own = _panel_torque(p)
-            f = f - along
-            relative.append(own)
+    # each coordinate's force (F.10): Q - m e . a_r (- s2 . g_S for a panel), e . (omega x r') = e . r'' = 0;
+    # and the moments of f_omega below as sigma omega + sum (scalar) (axis): a particle's
+    # m [2 ((r . r') omega - (r . omega) r')] along omega and p_hat, with r' = rho_dot p_hat; a
+    # panel's, with r' = d theta_dot s3, r'' = d theta_dot^2 s1, r x r'' = d theta_dot^2 (rho_3 s2
+    # - rho_2 s3) where rho_a = r_HB . s_a, plus S^T (g_S - omega_S x I_S omega_S),
+    # along omega and s1, s2, s3
+    forces, sigma, turned, axes = [], zero, [], []
+    rho_dot = iter(state.rho_dot)
+    for p, panel in itertools.zip_longest(parts, body.panels):
+        w_r = _v_dot(om, p.r)
+        if panel is not None:  # e = d s3: e . omega = d omega_S3, e . r = d rho_3
+            ct, st = p.trig
+            h1, h2, h3 = _mat(panel.dcm_HB, omega)
+            r_HB = _vec(panel.r_HB, omega)
+            q1, q2, q3 = _v_dot(r_HB, h1), _v_dot(r_HB, h2), _v_dot(r_HB, h3)
+            rho3 = st * q1 + ct * q3
+            d = _scalar(panel.d, omega)
+            along, g = _panel_torque(p)
+            f = p.spring - p.mass * d * (p.omega_S[2] * w_r - w2 * rho3) - along
+            md_rate = p.mass * d * p.theta_dot
+            sigma = sigma + 2.0 * md_rate * rho3
+            k2 = g[1] + md_rate * p.theta_dot * rho3
+            k3 = g[2] - md_rate * (2.0 * w_r + p.theta_dot * q2)
+            turned += [g[0], k2, k3]
+            axes += list(p.frame)
+        else:
+            f = p.spring - p.mass * (_v_dot(p.e, om) * w_r - w2 * _v_dot(p.e, p.r))
+            twice = 2.0 * p.mass * next(rho_dot)
+            sigma = sigma + twice * _v_dot(p.r, p.e)
+            turned.append(-twice * w_r)
+            axes.append(p.e)
         forces.append(f)
     # computed once, each in its own kernel, not within each of their consumers (XLA:CPU would,
     # recomputing products of products in every element; so too the hub block below)
-    D, f_v, forces, relative = _once((D, f_v, forces, relative), one, zero)
-    relative = iter(relative)
+    D, f_v, forces, sigma, turned = _once((D, f_v, forces, sigma, turned), one, zero)
     # f_omega = L - sum (m r x a_r + g) (F.10) = L - omega x D omega - sum m [2 ((r . r') omega
     # - (r . omega) r') + r x r''] - sum S^T (g_S - omega_S x I_S omega_S): the terms in
     # omega omega of the particles (m (omega . r) r x omega), the hub and the panels
@@ -605,16 +641,9 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
     f_w = _v_sub(f_w, _v_cross(om, _m_vec(tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3)),
                                           om)))
-    for p in parts:
-        moment = _v_scale(2.0, _v_sub(_v_scale(_v_dot(p.r, p.r_dot), om), _v_scale(_v_dot(om, p.r), p.r_dot)))
-        if p.frame is not None:
-            moment = _v_scale(p.mass, _v_add(moment, _v_cross(p.r, p.r_ddot)))
-            g = next(relative)
-            moment = _v_add(moment, _v_add(_v_add(_v_scale(g[0], p.frame[0]), _v_scale(g[1], p.frame[1])),
-                                           _v_scale(g[2], p.frame[2])))
-        else:
-            moment = _v_scale(p.mass, moment)
-        f_w = _v_sub(f_w, moment)
+    f_w = _v_sub(f_w, _v_scale(sigma, om))
+    for k, axis in zip(turned, axes):
+        f_w = _v_sub(f_w, _v_scale(k, axis))
     D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
     return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
 
@@ -630,11 +659,11 @@ def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Acce
     S = [[D[i][j] - ((c2 if i == j else zero) - c_m[i] * c_m[j]) * inv_m for j in range(3)] for i in range(3)]
     rhs = _v_sub(f_w, _v_scale(inv_m, _v_cross(c_m, f_v)))
     coords = []  # per coordinate: c_v, its column and force about the centre of mass, m_f
-    for p, f in zip(parts, forces):
+    for p, f, panel in itertools.zip_longest(parts, forces, body.panels):
         if p.locked:
             coords.append(None)
             continue
-        cv, cw = _columns(p)
+        cv, cw = _columns(p, panel, state.omega)
         coords.append([cv, _v_sub(cw, _v_scale(inv_m, _v_cross(c_m, cv))), f - _v_dot(cv, f_v) * inv_m, p.m_f])
     free = [k for k, c in enumerate(coords) if c is not None]
     M = {(a, b): (coords[a][3] if a == b else 0.0) - _v_dot(coords[a][0], coords[b][0]) * inv_m
