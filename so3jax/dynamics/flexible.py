@@ -647,6 +647,27 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
     return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
 
+def _e_dot(body: FlexibleBody, parts, a: int, b: int):
+    """m_a m_b e_a . e_b of two flexible coordinates (F.10): a panel's e = d s3 = d (sin theta h1
+    + cos theta h3) of unit s3 (F.1), a particle's e = p_hat (F.3), constant."""
+    n = len(body.panels)
+    pa, pb = parts[a], parts[b]
+    like = pa.mass
+    if a < n and b >= n:
+        a, b, pa, pb = b, a, pb, pa
+    if a >= n and b >= n:  # two particles: constant
+        return pa.mass * pb.mass * _v_dot(pa.e, pb.e)
+    panel = body.panels[b]
+    md = pb.mass * _scalar(panel.d, like)
+    if a == b:
+        return md * md
+    if a >= n:  # a particle and a panel
+        h1, _, h3 = _mat(panel.dcm_HB, like)
+        ct, st = pb.trig
+        return pa.mass * md * (st * _v_dot(h1, pa.e) + ct * _v_dot(h3, pa.e))
+    return pa.mass * pb.mass * _v_dot(pa.e, pb.e)
+
+
 def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Accelerations:
     """(F.10) from its blocks: the translation eliminated first (A = m 1, B = -c~ with c the
     mass moment: the hub block D - (|c|^2 1 - c c^T) / m about the centre of mass, the
@@ -666,8 +687,7 @@ def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Acce
         cv, cw = _columns(p, panel, state.omega)
         coords.append([cv, _v_sub(cw, _v_scale(inv_m, _v_cross(c_m, cv))), f - _v_dot(cv, f_v) * inv_m, p.m_f])
     free = [k for k, c in enumerate(coords) if c is not None]
-    M = {(a, b): (coords[a][3] if a == b else 0.0) - _v_dot(coords[a][0], coords[b][0]) * inv_m
-         for a in free for b in free}
+    M = {(a, b): (coords[a][3] if a == b else 0.0) - _e_dot(body, parts, a, b) * inv_m for a in free for b in free}
     C = {a: coords[a][1] for a in free}
     F = {a: coords[a][2] for a in free}
     pivots = []  # per eliminated coordinate: 1 / pivot, column, force, its row's remaining entries
