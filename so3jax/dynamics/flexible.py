@@ -638,14 +638,14 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     # - (r . omega) r') + r x r''] - sum S^T (g_S - omega_S x I_S omega_S): the terms in
     # omega omega of the particles (m (omega . r) r x omega), the hub and the panels
     # (omega x I omega) make up omega x D omega
+    D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))  # the whole symmetric D
     f_w = zv if torque is None else tuple(jnp.asarray(torque).astype(omega.dtype)[i] + zero for i in range(3))
-    f_w = _v_sub(f_w, _v_cross(om, _m_vec(tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3)),
-                                          om)))
+    f_w = _v_sub(f_w, _v_cross(om, _m_vec(D, om)))
     f_w = _v_sub(f_w, _v_scale(sigma, om))
     for k, axis in zip(turned, axes):
         f_w = _v_sub(f_w, _v_scale(k, axis))
-    D = tuple(tuple(D[min(i, j)][abs(j - i)] for j in range(3)) for i in range(3))
     return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
+
 
 def _e_dot(body: FlexibleBody, parts, a: int, b: int):
     """m_a m_b e_a . e_b of two flexible coordinates (F.10): a panel's e = d s3 = d (sin theta h1
