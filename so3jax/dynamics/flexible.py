@@ -559,10 +559,13 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     the translation eliminated, the flexible coordinates, omega_dot and back-substitution
     (:func:`_solve`: (F.11)-(F.13)'s solution, the translation eliminated first). torque: L
     (3, *b) [N m] on the hub (a couple), None for none."""
+    one = _opaque(state)
+    zero = jnp.zeros_like(state.omega[0])
+    # the stage's state computed once (an RK4 stage's x + c dt k), not in each of its consumers
+    rows = materialize([list(x) for x in state], one)
+    state = FlexState(*(jnp.stack(r) if r else x for r, x in zip(rows, state)))
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
-    one = _opaque(state)
-    zero = jnp.zeros_like(omega[0])
     zv = (zero, zero, zero)
     hub = body.hub
     m_h, r_h, J = _scalar(hub.mass, omega), _v_add(_vec(hub.r_BcB, omega), zv), _mat(hub.inertia, omega)
