@@ -550,8 +550,7 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     one = _opaque(state)
     zero = jnp.zeros_like(state.omega[0])
     # the stage's state (an RK4 stage's x + c dt k) computed once, not in each of its consumers
-    rows = materialize([list(x) for x in state], one)
-    state = FlexState(*(jnp.stack(r) if r else x for r, x in zip(rows, state)))
+    state = FlexState(*materialize(tuple(state), one))
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
     zv = (zero, zero, zero)
