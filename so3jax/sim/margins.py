@@ -483,9 +483,16 @@ def disk_alpha(A, B, C, period: float, omegas):
     X = jnp.linalg.solve(M, jnp.broadcast_to(B.astype(complex_dtype), (z.shape[0], n, q)))
     D = C.astype(complex_dtype) @ X + 0.5 * jnp.eye(q, dtype=complex_dtype)  # S - I/2, (n_omega, q, q)
     gram = jnp.conj(jnp.swapaxes(D, -1, -2)) @ D
-    peak = jnp.sqrt(jnp.max(jnp.linalg.eigvalsh(gram)[:, -1]))
-    axes = jnp.max(jnp.abs(jnp.diagonal(D, axis1=1, axis2=2)), axis=0)
+    peak = jnp.sqrt(_grid_max(jnp.linalg.eigvalsh(gram)[:, -1]))
+    axes = _grid_max(jnp.abs(jnp.diagonal(D, axis1=1, axis2=2)))
     return 1.0 / peak, 1.0 / axes
+
+
+def _grid_max(x):
+    """The maximum over the grid (axis 0) of x, differentiated at the maximum's frequency alone:
+    jnp.max's derivative is every point's tangent times its 0/1 indicator, NaN wherever one is."""
+    k = jnp.argmax(jax.lax.stop_gradient(x), axis=0)
+    return jnp.take_along_axis(x, k[None], axis=0)[0]
 
 
 # --- frequency responses -----------------------------------------------------------------
