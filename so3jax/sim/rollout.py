@@ -246,6 +246,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
+        carry = _batched_from_start(carry, (scenario, gains, key, loop))
         # The block-start states are emitted by the scan, their torque and desired signals
         # derived after it: derived inside, they change XLA:CPU's fusion of the step, and
         # with it the last bits of the paper's results.
@@ -279,6 +280,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
     carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
              metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape), flight_metrics.init(dtype, key.shape))
+    carry = _batched_from_start(carry, (scenario, gains, key, loop))
     (final, _, acc, flight), history = jax.lax.scan(lambda c, _: run_block(c), carry, None, length=n_blocks)
     return Result(
         metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R),
@@ -286,6 +288,21 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         final,
         flight_metrics.finalize(flight, jnp.asarray(m * scenario.dt, dtype)),
     )
+
+
+def _batched_from_start(carry, inputs):
+    """The rollout's initial carry, unchanged, its leaves (the step counter's aside) made to
+    depend on every array of ``inputs`` by select(p, x, x), which XLA folds to x: under
+    jax.vmap, each is then batched from the start wherever an input is, and the scans' batching
+    rule finds the carry's batch axes in one pass over the step's equations instead of a pass per
+    promotion and level of nesting (the flight loop's vmapped trace: 4 passes to 1)."""
+    arrays = [jax.random.key_data(x) if jnp.issubdtype(x.dtype, jax.dtypes.prng_key) else x
+              for x in jax.tree.leaves(inputs) if isinstance(x, jax.Array) and x.size]
+    if not arrays:
+        return carry
+    p = jnp.any(jnp.concatenate([jnp.ravel(x)[:1].astype(bool) for x in arrays]))
+    same = lambda tree: jax.tree.map(lambda x: jnp.where(p, x, x), tree)
+    return (same(carry[0]), carry[1], *same(carry[2:]))
 
 
 def _tick_sample(loop: Loop, before: State, after: State, out, t) -> flight_metrics.TickSample:
