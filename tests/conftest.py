@@ -1,13 +1,14 @@
 """Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing).
 
-In-process programs compile with XLA's backend optimizations and expensive LLVM passes off
-(``jax_disable_most_optimizations``): about a third less of the compile time that dominates the
-suite, the same values to round-off. A test marked ``optimized`` runs with JAX's default
-settings, as a library user gets them: a bit-for-bit comparison of two differently built
-programs (which XLA's optimizations make agree), a comparison with XLA's own functions, and the
-goals' derivatives (XLA's simplifications drop a NaN tangent at a frequency off the peak from
-jnp.max's derivative, the tangent times the 0/1 indicator of the maximum). So do the ``so3jax``
-child processes, the pinned paper metrics among them (the command's configure_xla).
+Programs compile with XLA's backend optimizations, its expensive LLVM passes and its CPU fusion
+emitters off (``jax_disable_most_optimizations``, ``--xla_cpu_use_fusion_emitters=false`` in
+XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit): about half the compile
+time that dominates the suite, the same values to round-off. A test marked ``optimized`` runs in
+a fresh interpreter with the settings the suite was started with (JAX's defaults, as a user's
+program compiles): the marked tests of a file in one such process, their reports read back
+through pytest's own serialization. Those are the bit-for-bit comparisons of two differently
+built programs (which XLA's default pipeline makes agree), comparisons with XLA's own functions,
+an identification exact to round-off, and the pinned paper metrics.
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
 folder made fresh for each test process (so a run never reads executables from an
@@ -23,17 +24,26 @@ unbounded: no eviction scan at each of their thousands of writes.
 import atexit
 import gc
 import importlib
+import json
 import os
 import shutil
+import subprocess
+import sys
 import tempfile
 
 import jax
 import pytest
 
+# The settings the suite was started with, which a test marked ``optimized`` runs under.
+FEWEST = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
+OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs marked tests
+if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
+    os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in FEWEST})
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+    os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
-FEWEST_OPTIMIZATIONS = {"now": True}  # jax_disable_most_optimizations, as last set here
-jax.config.update("jax_disable_most_optimizations", True)
+jax.config.update("jax_disable_most_optimizations", not OPTIMIZED)
 
 SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
 atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
@@ -69,22 +79,57 @@ def release_compiled_programs():
         gc.collect()
 
 
+REPORTS = "SO3JAX_TEST_REPORTS"  # the file an optimized process writes its reports to
+_optimized_reports: dict = {}  # test file -> {nodeid: [TestReport]} of its marked tests
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    """In an optimized process, each report is also written for the process that started it."""
+    report = yield
+    if OPTIMIZED and os.environ.get(REPORTS):
+        with open(os.environ[REPORTS], "a") as f:
+            f.write(json.dumps(item.config.hook.pytest_report_to_serializable(config=item.config, report=report))
+                    + "\n")
+    return report
+
+
+def _run_optimized(item) -> dict:
+    """{nodeid: [reports]} of the marked tests of item's file, run in one fresh interpreter with
+    the settings the suite was started with."""
+    marked = [i.nodeid for i in item.session.items if i.path == item.path and i.get_closest_marker("optimized")]
+    env = {k: v for k, v in os.environ.items() if k not in FEWEST}
+    env.update({k: v for k, v in json.loads(os.environ["SO3JAX_TEST_STARTED_WITH"]).items() if v is not None})
+    with tempfile.TemporaryDirectory() as tmp:
+        env.update(SO3JAX_TEST_OPTIMIZED="1", **{REPORTS: os.path.join(tmp, "reports.jsonl")})
+        proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
+                               *marked], cwd=item.config.rootpath, env=env, capture_output=True,
+                              text=True, timeout=1800)
+        lines = open(env[REPORTS]).read().splitlines() if os.path.exists(env[REPORTS]) else []
+    reports = {}
+    for line in lines:
+        report = item.config.hook.pytest_report_from_serializable(config=item.config, data=json.loads(line))
+        reports.setdefault(report.nodeid, []).append(report)
+    tail = f"the optimized process (exit {proc.returncode}) gave no report:\n{(proc.stdout + proc.stderr)[-5000:]}"
+    for nodeid in marked:
+        if not any(r.when == "teardown" for r in reports.get(nodeid, [])):
+            reports[nodeid] = [pytest.TestReport(nodeid, item.location, {}, "failed", tail, "call")]
+    return reports
+
+
 @pytest.hookimpl(tryfirst=True)
-def pytest_runtest_setup(item):
-    """XLA's default optimizations for a test marked ``optimized`` (and the module fixtures its
-    setup builds), the fewest for the others. The setting is not part of JAX's in-memory cache
-    keys, so those caches are cleared where it changes (the persistent cache's keys hold it)."""
-    fewest = item.get_closest_marker("optimized") is None
-    if fewest != FEWEST_OPTIMIZATIONS["now"]:
-        jax.clear_caches()
-        jax.config.update("jax_disable_most_optimizations", fewest)
-        FEWEST_OPTIMIZATIONS["now"] = fewest
-
-
-@pytest.fixture
-def same_xla_optimizations() -> dict:
-    """The environment a child process reads to compile with this test's XLA optimizations."""
-    return {"JAX_DISABLE_MOST_OPTIMIZATIONS": "1" if FEWEST_OPTIMIZATIONS["now"] else "0"}
+def pytest_runtest_protocol(item, nextitem):
+    """A test marked ``optimized`` is run (with its file's other marked tests) in a fresh
+    interpreter with the settings the suite was started with; its reports are logged here."""
+    if OPTIMIZED or item.get_closest_marker("optimized") is None:
+        return None
+    if item.path not in _optimized_reports:
+        _optimized_reports[item.path] = _run_optimized(item)
+    item.ihook.pytest_runtest_logstart(nodeid=item.nodeid, location=item.location)
+    for report in _optimized_reports[item.path][item.nodeid]:
+        item.ihook.pytest_runtest_logreport(report=report)
+    item.ihook.pytest_runtest_logfinish(nodeid=item.nodeid, location=item.location)
+    return True
 
 
 @pytest.fixture

@@ -233,8 +233,7 @@ def test_a_flight_sweep_flies_each_sample_s_drawn_values(flight_sweep):
         assert t["pd_time_at_torque_limit"][i] > 0  # the limits bind: the dispersed limits matter
 
 
-def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight_sweep, tmp_path,
-                                                                          same_xla_optimizations):
+def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight_sweep, tmp_path):
     """The same flight sweep over 4 forced host devices, in chunks of 32 (8 per device, the
     samples padded): in a subprocess (XLA flags must precede JAX) compiling with this process's
     optimizations. Each sample's loop is built per trajectory inside the batched program: the
@@ -250,7 +249,7 @@ def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight
              "d = json.loads(sys.argv[1]); d['sweep']['chunk'] = 32; "
              "sweep.run_sweep(sweep.config_from_dict(d), pathlib.Path(sys.argv[2]), progress=False); "
              "print(jax.device_count())")
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", **same_xla_optimizations)
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=4")
     proc = subprocess.run([sys.executable, "-c", child, json.dumps(FLIGHT_SWEEP), str(tmp_path / "out")], env=env,
                           capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -44,6 +44,7 @@ def _platform() -> dict:
     return {"jax": jax.__version__, "jaxlib": jaxlib.__version__, "machine": platform.machine(), "isa": isa}
 
 
+@pytest.mark.optimized  # the command as a user runs it
 @pytest.mark.parametrize("seed", [0, 7])
 def test_paper_json_is_pinned(tmp_path, seed):
     """`so3jax paper --json` gives the recorded metrics to the last digit (seeds 0 and 7) on

@@ -42,6 +42,7 @@ def test_disturbance_follows_the_fold_in_recipe():
 
 
 
+@pytest.mark.optimized  # XLA's erf_inv as a user's program computes it
 @pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
 def test_noise_is_jax_random_normal(dtype):
     """so3jax's written-out draw = jax.random.normal(fold_in(key, k), (3,)): every bit in
