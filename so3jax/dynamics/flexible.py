@@ -393,6 +393,18 @@ def _m_vec(m, v):
     return tuple(m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2] for i in range(3))
 
 
+def _once(tree, one, like):
+    """tree (of batch arrays broadcasting against ``like`` (*b)) unchanged in value, computed
+    once: its leaves stacked into one array behind one fusion boundary
+    (:func:`so3jax.core._fusion.materialize`), so that XLA:CPU computes them in one kernel
+    and each consumer reads them rather than recomputing them."""
+    leaves, treedef = jax.tree.flatten(tree)
+    if not leaves:
+        return tree
+    stacked = materialize(jnp.stack([jnp.broadcast_to(x, like.shape) for x in leaves]), one)
+    return jax.tree.unflatten(treedef, list(stacked))
+
+
 def _sym_inverse(m):
     """The adjugate of a symmetric M (rows as tuples) as rows, and 1 / det M (:func:`so3jax.core.so3.adjugate`)."""
     (c00, c01, c02, c11, c12, c22), inv_det = so3.adjugate(m)
@@ -547,12 +559,10 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     the translation eliminated, the flexible coordinates, omega_dot and back-substitution
     (:func:`_solve`: (F.11)-(F.13)'s solution, the translation eliminated first). torque: L
     (3, *b) [N m] on the hub (a couple), None for none."""
-    one = _opaque(state)
-    zero = jnp.zeros_like(state.omega[0])
-    # the stage's state (an RK4 stage's x + c dt k) computed once, not in each of its consumers
-    state = FlexState(*materialize(tuple(state), one))
     omega = state.omega
     om = (omega[0], omega[1], omega[2])
+    one = _opaque(state)
+    zero = jnp.zeros_like(omega[0])
     zv = (zero, zero, zero)
     hub = body.hub
     m_h, r_h, J = _scalar(hub.mass, omega), _v_add(_vec(hub.r_BcB, omega), zv), _mat(hub.inertia, omega)
@@ -621,6 +631,9 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
             turned.append(-twice * w_r)
             axes.append(p.e)
         forces.append(f)
+    # computed once, each in its own kernel, not within each of their consumers (XLA:CPU would,
+    # recomputing products of products in every element; so too the hub block below)
+    D, f_v, forces, sigma, turned = _once((D, f_v, forces, sigma, turned), one, zero)
     # f_omega = L - sum (m r x a_r + g) (F.10) = L - omega x D omega - sum m [2 ((r . r') omega
     # - (r . omega) r') + r x r''] - sum S^T (g_S - omega_S x I_S omega_S): the terms in
     # omega omega of the particles (m (omega . r) r x omega), the hub and the panels
@@ -691,13 +704,11 @@ def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Acce
             F[j] = F[j] - l_j * F[k]
             for i in rest:
                 M[(j, i)] = M[(j, i)] - l_j * M[(k, i)]
-    S = [[S[min(i, j)][max(i, j)] for j in range(3)] for i in range(3)]  # the upper triangle, mirrored
+    # the hub block and its right-hand side computed once, then omega_dot once
+    U, rhs = _once(([[S[i][j] for j in range(i, 3)] for i in range(3)], rhs), one, zero)
+    S = [[U[min(i, j)][abs(j - i)] for j in range(3)] for i in range(3)]
     adj, inv_det = _sym_inverse(tuple(tuple(row) for row in S))
-    # omega_dot computed once, each component in its own kernel, not within each of its
-    # consumers: XLA:CPU would recompute the hub block's elimination in every one. Fusion
-    # boundaries cost a kernel each; at a batch of 64 per device fewer, larger kernels with
-    # some recomputation run faster than a boundary at every shared value
-    omega_dot = materialize(tuple(v * inv_det for v in _m_vec(adj, rhs)), one)
+    omega_dot = _once(tuple(v * inv_det for v in _m_vec(adj, rhs)), one, zero)
     q = {}
     for k, inv_p, C_k, F_k, row in reversed(pivots):
         q[k] = (F_k - _v_dot(C_k, omega_dot) - sum((row[j] * q[j] for j in row), zero)) * inv_p
