@@ -416,7 +416,8 @@ class _Geometry(NamedTuple):
     B), r_dot (its rate relative to B), r_ddot (its relative acceleration at zero generalized
     accelerations), e (its coordinate's partial velocity); a panel's frame (s1, s2, s3), its
     rates in that frame omega_S = (omega . s_a) + theta_dot e2 and inertia I_S; spring [N m or
-    N] (F.9); m_f its diagonal entry of (F.10); locked."""
+    N] (F.9); m_f its diagonal entry of (F.10); locked; a panel's cos and sin theta (trig), hinge
+    frame (h1, h2, h3), hinge point's components along it (r_HB . h_a) [m] and d [m] (F.1)."""
 
     mass: jax.Array
     r: tuple
@@ -431,6 +432,9 @@ class _Geometry(NamedTuple):
     m_f: jax.Array
     locked: bool
     trig: tuple | None = None
+    hinge: tuple | None = None
+    hinge_point: tuple | None = None
+    d: jax.Array | None = None
 
 
 _MONOMIALS = ("c", "s", "cc", "cs", "ss")  # of a panel's cos(theta), sin(theta), beside 1
@@ -500,14 +504,15 @@ def _geometry(body: FlexibleBody, state: FlexState):
         s3 = _v_add(_v_scale(st, h1), _v_scale(ct, h3))
         m, d = _scalar(panel.mass, omega), _scalar(panel.d, omega)
         I_S = _mat(panel.inertia, omega)
-        r = _v_sub(_vec(panel.r_HB, omega), _v_scale(d, s1))
+        r_HB = _vec(panel.r_HB, omega)
+        r = _v_sub(r_HB, _v_scale(d, s1))
         # omega in the panel frame from its components along h1, h3 (s = M2(theta) h)
         a1, a3 = _v_dot(om, h1), _v_dot(om, h3)
         omega_S = (ct * a1 - st * a3, _v_dot(om, h2) + theta_dot, st * a1 + ct * a3)
         spring = -_scalar(panel.k, omega) * theta - _scalar(panel.c, omega) * theta_dot
         out.append(_Geometry(m, r, _v_scale(d * theta_dot, s3), _v_scale(d * theta_dot**2, s1), _v_scale(d, s3),
                              (s1, s2, s3), omega_S, theta_dot, I_S, spring, m * d * d + I_S[1][1], panel.locked,
-                             (ct, st)))
+                             (ct, st), (h1, h2, h3), (_v_dot(r_HB, h1), _v_dot(r_HB, h2), _v_dot(r_HB, h3)), d))
     for j, particle in enumerate(body.slosh):
         rho, rho_dot = state.rho[j], state.rho_dot[j]
         m = _scalar(particle.mass, omega)
@@ -536,19 +541,18 @@ def _panel_torque(part: _Geometry):
     return along, _v_add(_v_scale(rate, turn), _v_scale(rate * rate, (I_e2[2], 0.0, -I_e2[0])))
 
 
-def _columns(part: _Geometry, panel: HingedPanel | None, like):
+def _columns(part: _Geometry):
     """(c_v, c_omega) of a flexible coordinate (F.10): m e and m r x e (+ I_S^B s2 for a panel).
     A panel's (e = d s3, r = r_HB - d s1): m d ((r_HB . s2) s1 + (d - r_HB . s1) s2) + I_S s2 in
     its frame, turned onto the hinge frame's constant axes (s = M2(theta) h, F.1)."""
     cv = _v_scale(part.mass, part.e)
-    if panel is None:
+    if part.hinge is None:
         return cv, _v_scale(part.mass, _v_cross(part.r, part.e))
-    h1, h2, h3 = _mat(panel.dcm_HB, like)
-    r_HB = _vec(panel.r_HB, like)
+    (h1, h2, h3), (q1, q2, q3) = part.hinge, part.hinge_point
     I_S, ct, st = part.inertia, *part.trig
-    md = part.mass * _scalar(panel.d, like)
-    k1 = md * _v_dot(r_HB, h2) + I_S[0][1]
-    k2 = md * (_scalar(panel.d, like) - (ct * _v_dot(r_HB, h1) - st * _v_dot(r_HB, h3))) + I_S[1][1]
+    md = part.mass * part.d
+    k1 = md * q2 + I_S[0][1]
+    k2 = md * (part.d - (ct * q1 - st * q3)) + I_S[1][1]
     k3 = I_S[2][1]
     u1, u3 = ct * k1 + st * k3, ct * k3 - st * k1
     return cv, tuple(u1 * h1[i] + k2 * h2[i] + u3 * h3[i] for i in range(3))
@@ -607,15 +611,11 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     # along omega and s1, s2, s3
     forces, sigma, turned, axes = [], zero, [], []
     rho_dot = iter(state.rho_dot)
-    for p, panel in itertools.zip_longest(parts, body.panels):
+    for p in parts:
         w_r = _v_dot(om, p.r)
-        if panel is not None:  # e = d s3: e . omega = d omega_S3, e . r = d rho_3
-            ct, st = p.trig
-            h1, h2, h3 = _mat(panel.dcm_HB, omega)
-            r_HB = _vec(panel.r_HB, omega)
-            q1, q2, q3 = _v_dot(r_HB, h1), _v_dot(r_HB, h2), _v_dot(r_HB, h3)
+        if p.hinge is not None:  # a panel, e = d s3: e . omega = d omega_S3, e . r = d rho_3
+            (ct, st), (q1, q2, q3), d = p.trig, p.hinge_point, p.d
             rho3 = st * q1 + ct * q3
-            d = _scalar(panel.d, omega)
             along, g = _panel_torque(p)
             f = p.spring - p.mass * d * (p.omega_S[2] * w_r - w2 * rho3) - along
             md_rate = p.mass * d * p.theta_dot
@@ -647,23 +647,19 @@ def accelerations(body: FlexibleBody, state: FlexState, torque=None) -> Accelera
     return _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero)
 
 
-def _e_dot(body: FlexibleBody, parts, a: int, b: int):
-    """m_a m_b e_a . e_b of two flexible coordinates (F.10): a panel's e = d s3 = d (sin theta h1
-    + cos theta h3) of unit s3 (F.1), a particle's e = p_hat (F.3), constant."""
-    n = len(body.panels)
-    pa, pb = parts[a], parts[b]
-    like = pa.mass
-    if a < n and b >= n:
-        a, b, pa, pb = b, a, pb, pa
-    if a >= n and b >= n:  # two particles: constant
+def _e_dot(pa: _Geometry, pb: _Geometry, same: bool):
+    """m_a m_b e_a . e_b of two flexible coordinates (F.10) (same: one coordinate twice): a
+    panel's e = d s3 = d (sin theta h1 + cos theta h3) of unit s3 (F.1), a particle's e = p_hat
+    (F.3), constant."""
+    if pa.hinge is not None and pb.hinge is None:
+        pa, pb = pb, pa
+    if pb.hinge is None:  # two particles: constant
         return pa.mass * pb.mass * _v_dot(pa.e, pb.e)
-    panel = body.panels[b]
-    md = pb.mass * _scalar(panel.d, like)
-    if a == b:
+    md = pb.mass * pb.d
+    if same:
         return md * md
-    if a >= n:  # a particle and a panel
-        h1, _, h3 = _mat(panel.dcm_HB, like)
-        ct, st = pb.trig
+    if pa.hinge is None:  # a particle and a panel
+        (h1, _, h3), (ct, st) = pb.hinge, pb.trig
         return pa.mass * md * (st * _v_dot(h1, pa.e) + ct * _v_dot(h3, pa.e))
     return pa.mass * pb.mass * _v_dot(pa.e, pb.e)
 
@@ -680,14 +676,15 @@ def _solve(body, state, parts, m_h, c_m, D, f_v, f_w, forces, one, zero) -> Acce
     S = [[D[i][j] - ((c2 if i == j else zero) - c_m[i] * c_m[j]) * inv_m for j in range(3)] for i in range(3)]
     rhs = _v_sub(f_w, _v_scale(inv_m, _v_cross(c_m, f_v)))
     coords = []  # per coordinate: c_v, its column and force about the centre of mass, m_f
-    for p, f, panel in itertools.zip_longest(parts, forces, body.panels):
+    for p, f in zip(parts, forces):
         if p.locked:
             coords.append(None)
             continue
-        cv, cw = _columns(p, panel, state.omega)
+        cv, cw = _columns(p)
         coords.append([cv, _v_sub(cw, _v_scale(inv_m, _v_cross(c_m, cv))), f - _v_dot(cv, f_v) * inv_m, p.m_f])
     free = [k for k, c in enumerate(coords) if c is not None]
-    M = {(a, b): (coords[a][3] if a == b else 0.0) - _e_dot(body, parts, a, b) * inv_m for a in free for b in free}
+    M = {(a, b): (coords[a][3] if a == b else 0.0) - _e_dot(parts[a], parts[b], a == b) * inv_m
+         for a in free for b in free}
     C = {a: coords[a][1] for a in free}
     F = {a: coords[a][2] for a in free}
     pivots = []  # per eliminated coordinate: 1 / pivot, column, force, its row's remaining entries
