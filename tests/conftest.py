@@ -26,6 +26,7 @@ import gc
 import importlib
 import json
 import os
+import pathlib
 import shutil
 import subprocess
 import sys
@@ -34,11 +35,11 @@ import tempfile
 import jax
 import pytest
 
-# The settings the suite was started with, which a test marked ``optimized`` runs under.
-FEWEST = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
+# What the suite changes in the environment; a test marked ``optimized`` runs with them as started.
+SETTINGS = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
 OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs marked tests
 if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
-    os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in FEWEST})
+    os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in SETTINGS})
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
@@ -98,14 +99,15 @@ def _run_optimized(item) -> dict:
     """{nodeid: [reports]} of the marked tests of item's file, run in one fresh interpreter with
     the settings the suite was started with."""
     marked = [i.nodeid for i in item.session.items if i.path == item.path and i.get_closest_marker("optimized")]
-    env = {k: v for k, v in os.environ.items() if k not in FEWEST}
+    env = {k: v for k, v in os.environ.items() if k not in SETTINGS}
     env.update({k: v for k, v in json.loads(os.environ["SO3JAX_TEST_STARTED_WITH"]).items() if v is not None})
     with tempfile.TemporaryDirectory() as tmp:
         env.update(SO3JAX_TEST_OPTIMIZED="1", **{REPORTS: os.path.join(tmp, "reports.jsonl")})
         proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
                                *marked], cwd=item.config.rootpath, env=env, capture_output=True,
                               text=True, timeout=1800)
-        lines = open(env[REPORTS]).read().splitlines() if os.path.exists(env[REPORTS]) else []
+        written = pathlib.Path(env[REPORTS])
+        lines = written.read_text().splitlines() if written.exists() else []
     reports = {}
     for line in lines:
         report = item.config.hook.pytest_report_from_serializable(config=item.config, data=json.loads(line))
