@@ -11,10 +11,12 @@ built programs (which XLA's default pipeline makes agree), comparisons with XLA'
 an identification exact to round-off, and the pinned paper metrics.
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
-folder made fresh for each test process (so a run never reads executables from an
-earlier one), and the ``so3jax`` child processes the tests start share one of their own
-inside it (SO3JAX_CACHE_DIR, which the command line reads): two children that compile the
-same program (``so3jax paper`` with two seeds, say) compile it once. The children's is
+folder made fresh for each run (so a run never reads executables from an earlier one) and
+shared by its test processes (xdist's workers, the optimized processes): a program that
+test files on both workers compile is compiled once. The ``so3jax`` child processes the
+tests start share one of their own inside it (SO3JAX_CACHE_DIR, which the command line
+reads): two children that compile the same program (``so3jax paper`` with two seeds, say)
+compile it once. A child that sets XLA_FLAGS (a count of host devices) adds to the suite's. The children's is
 apart because the command line bounds its cache where ``filelock`` is installed, and a
 bounded cache (JAX's eviction, which reads every entry's access time at each write) must
 not be written by processes that keep no access times. The test processes' own caches are
@@ -46,8 +48,10 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_disable_most_optimizations", not OPTIMIZED)
 
-SESSION_CACHE = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
-atexit.register(shutil.rmtree, SESSION_CACHE, ignore_errors=True)
+if "SO3JAX_TEST_CACHE" not in os.environ:  # made once per run: xdist's workers inherit it
+    os.environ["SO3JAX_TEST_CACHE"] = tempfile.mkdtemp(prefix="so3jax-test-xla-cache-")
+    atexit.register(shutil.rmtree, os.environ["SO3JAX_TEST_CACHE"], ignore_errors=True)
+SESSION_CACHE = os.environ["SO3JAX_TEST_CACHE"]
 jax.config.update("jax_compilation_cache_dir", SESSION_CACHE)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

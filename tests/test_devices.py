@@ -52,7 +52,7 @@ print(json.dumps({
 
 
 def test_a_batch_split_over_three_devices_has_the_values_and_gradients_of_the_whole():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=3")
+    env = dict(os.environ, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=3")
     proc = subprocess.run([sys.executable, "-c", THREE_DEVICES], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])

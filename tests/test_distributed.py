@@ -33,7 +33,8 @@ def _port() -> int:
 
 
 def _start(args, cwd, devices=1, **popen):
-    env = {**os.environ, "SO3JAX_CACHE_DIR": "", "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"}
+    env = {**os.environ, "SO3JAX_CACHE_DIR": "",
+           "XLA_FLAGS": f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count={devices}"}
     return subprocess.Popen([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, **popen)
 

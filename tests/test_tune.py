@@ -299,7 +299,8 @@ def test_two_host_devices_tune_to_the_gains_of_one(tmp_path):
     import sys
 
     t = table(iterations=3, train={"seeds": list(range(8))}, validation={"seeds": [10, 11, 12]})
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    env = {**os.environ, "XLA_FLAGS": f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=2",
+           "JAX_PLATFORMS": "cpu"}
     child = subprocess.Popen(
         [sys.executable, "-c", TWO_DEVICE_RUN, json.dumps(t)], env=env, stdout=subprocess.PIPE, text=True
     )
