@@ -16,11 +16,12 @@ shared by its test processes (xdist's workers, the optimized processes): a progr
 test files on both workers compile is compiled once. The ``so3jax`` child processes the
 tests start share one of their own inside it (SO3JAX_CACHE_DIR, which the command line
 reads): two children that compile the same program (``so3jax paper`` with two seeds, say)
-compile it once. A child that sets XLA_FLAGS (a count of host devices) adds to the suite's. The children's is
-apart because the command line bounds its cache where ``filelock`` is installed, and a
-bounded cache (JAX's eviction, which reads every entry's access time at each write) must
-not be written by processes that keep no access times. The test processes' own caches are
-unbounded: no eviction scan at each of their thousands of writes.
+compile it once; a child that forces host devices adds them to the suite's XLA_FLAGS
+(tests/_host_devices.py). The children's is apart because the command line bounds its
+cache where ``filelock`` is installed, and a bounded cache (JAX's eviction, which reads
+every entry's access time at each write) must not be written by processes that keep no
+access times. The test processes' cache is unbounded: no eviction scan at each of their
+thousands of writes.
 """
 
 import atexit

@@ -5,7 +5,6 @@ several-device cases run in a child process with 3 forced host devices (the devi
 is fixed when JAX starts)."""
 
 import json
-import os
 import subprocess
 import sys
 
@@ -15,6 +14,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
 from so3jax.parallel import devices
+from tests._host_devices import host_devices_env
 
 THREE_DEVICES = r"""
 import json
@@ -52,7 +52,7 @@ print(json.dumps({
 
 
 def test_a_batch_split_over_three_devices_has_the_values_and_gradients_of_the_whole():
-    env = dict(os.environ, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=3")
+    env = host_devices_env(3)
     proc = subprocess.run([sys.executable, "-c", THREE_DEVICES], env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     r = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -12,6 +12,7 @@ import pytest
 
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.missions import batched, draw, mission
+from tests._host_devices import host_devices_env
 
 ROOT = Path(__file__).resolve().parents[1]
 LEAVES = {
@@ -240,7 +241,6 @@ def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight
     values equal the one-device run's to round-off, 1e-12 relative, and 1e-16 absolute for the
     round-off-sized ones (the orthogonality error, the MEKF's arcsecond-level attitude error)."""
     import json
-    import os
     import subprocess
     import sys
 
@@ -249,7 +249,7 @@ def test_a_flight_sweep_s_samples_do_not_depend_on_the_devices_and_chunks(flight
              "d = json.loads(sys.argv[1]); d['sweep']['chunk'] = 32; "
              "sweep.run_sweep(sweep.config_from_dict(d), pathlib.Path(sys.argv[2]), progress=False); "
              "print(jax.device_count())")
-    env = dict(os.environ, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=4")
+    env = host_devices_env(4)
     proc = subprocess.run([sys.executable, "-c", child, json.dumps(FLIGHT_SWEEP), str(tmp_path / "out")], env=env,
                           capture_output=True, text=True, timeout=600, check=False)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 from so3jax.parallel import distributed
+from tests._host_devices import host_devices_env
 
 SWEEP = ("sweep", "--samples", "24", "--T", "100", "--chunk", "8", "--set", "dt=0.5")
 LIMIT_S = 400
@@ -33,8 +34,7 @@ def _port() -> int:
 
 
 def _start(args, cwd, devices=1, **popen):
-    env = {**os.environ, "SO3JAX_CACHE_DIR": "",
-           "XLA_FLAGS": f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count={devices}"}
+    env = host_devices_env(devices, SO3JAX_CACHE_DIR="")
     return subprocess.Popen([sys.executable, "-m", "so3jax.commands", *args], cwd=cwd, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, **popen)
 

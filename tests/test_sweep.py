@@ -8,7 +8,6 @@ import csv
 import dataclasses
 import io
 import json
-import os
 import subprocess
 import sys
 import warnings
@@ -22,6 +21,7 @@ import so3jax as sj
 from so3jax.jobs import sweep
 from so3jax.jobs.sweep import engine  # run_sweep's chunk loop: where it finds run_chunk and save_npz
 from so3jax.missions import build, distributions, draw
+from tests._host_devices import host_devices_env
 
 ROOT = Path(__file__).resolve().parents[1]
 # The paper's own inertias dispersed by the matrix form (tests/data/sweep_reference_samples.csv records them)
@@ -234,7 +234,7 @@ def test_outputs(reference):
 def test_same_results_whatever_the_chunk_size_and_device_count(reference, tmp_path):
     """4 forced host devices with 10 samples per device, against 1 device with 8 (equal to
     round-off): in a subprocess (XLA flags must precede JAX), through the command line."""
-    env = dict(os.environ, XLA_FLAGS=f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=4")
+    env = host_devices_env(4)
     args = [sys.executable, "-m", "so3jax.commands", "sweep", *[f"--set={s}" for s in SETTINGS], "--chunk", "40",
             "--controllers", "pd"]
     proc = subprocess.run([*args, "--out", str(tmp_path)], check=False, cwd=tmp_path, env=env, capture_output=True,

@@ -23,6 +23,7 @@ from so3jax import commands as cli
 from so3jax.jobs import tune
 from so3jax.jobs.tune import campaign  # the optimizer loop: where it finds cost_and_grad and population_costs
 from so3jax.sim.metrics import Metrics
+from tests._host_devices import host_devices_env
 
 ROOT = Path(__file__).parents[1]
 BASE = {  # the paper's mission (the default) at T = 20 s, and the campaign
@@ -294,13 +295,11 @@ print(json.dumps({"devices": problem.mesh.size, "tuned": report["tuned"],
 def test_two_host_devices_tune_to_the_gains_of_one(tmp_path):
     """A batch of 8 split over 2 host devices (a child process: the device count is fixed
     when JAX starts) gives the one-device run's gains, at one compilation of the step."""
-    import os
     import subprocess
     import sys
 
     t = table(iterations=3, train={"seeds": list(range(8))}, validation={"seeds": [10, 11, 12]})
-    env = {**os.environ, "XLA_FLAGS": f"{os.environ['XLA_FLAGS']} --xla_force_host_platform_device_count=2",
-           "JAX_PLATFORMS": "cpu"}
+    env = host_devices_env(2, JAX_PLATFORMS="cpu")
     child = subprocess.Popen(
         [sys.executable, "-c", TWO_DEVICE_RUN, json.dumps(t)], env=env, stdout=subprocess.PIPE, text=True
     )
