@@ -9,7 +9,9 @@ state at each block start (the histories), and each block is ``jax.checkpoint``-
 reverse-mode memory grows like N / record_every + record_every rather than N. Each step
 inside a block is checkpointed as well (the backward pass stores one loop state per step,
 not the RK4 stages' intermediates), and in the sampled wiring a block keeps its noise
-draws (:data:`so3jax.dynamics.disturbance.NOISE`) instead of drawing them again.
+draws (:data:`so3jax.dynamics.disturbance.NOISE`) instead of drawing them again. The
+initial carry is seeded with the tangents its derivative reaches
+(:func:`so3jax.core.tangents.seed`): a derivative is traced in one pass per scan.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import numpy as np
 from so3jax.components import actuators
 from so3jax.controllers.base import Controller, Feedback, tracking_error
 from so3jax.controllers.gains import check_gains
-from so3jax.core import so3
+from so3jax.core import so3, tangents
 from so3jax.core.so3 import broadcast
 from so3jax.dynamics import stepped
 from so3jax.dynamics.disturbance import NOISE
@@ -205,33 +207,74 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
     # per-call overhead is then paid once per block), unless that array would be big.
     draw_ahead = 3 * block * math.prod(key.shape) <= _MAX_DRAWN_AHEAD
 
-    def advance(state, k, acc, d, take_step):
-        d = disturbance_at(scenario, key, k) if d is None else jnp.stack(d)  # None: not drawn ahead (too large)
-        new, phase, sample = take_step(d, state, k)
-        finite = jnp.isfinite(so3.sum_leading(new.R, 2) + so3.sum_leading(new.Omega))
-        new_acc = metrics.update(acc, phase, sample, finite)
-        if masked:
-            live = k < n
-            new, new_acc = jax.tree.map(lambda a, b: jnp.where(live, a, b), (new, new_acc), (state, acc))
-        return new, k + 1, new_acc
+    m = loop.period_steps
+    ticks = None if loop.continuous else block // m
 
-    def draw(k0):
-        return disturbances(scenario, key, k0, block) if draw_ahead else None
+    def blocks(scenario, gains, key, loop):
+        """The outer scan's body, one block of steps, of these inputs (also what
+        :func:`so3jax.core.tangents.seed` reads: explicit, not closed over)."""
 
-    constants = stepped.constants(scenario) if key.ndim else None  # per-trajectory scenarios of a native batch
-    take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants, key)
-    # Each step is checkpointed inside its block: a backward pass stores the loop state at
-    # each step of a block and recomputes the step, rather than storing the RK4 stages'
-    # intermediates (a much smaller program to compile; no effect without differentiation).
-    @functools.partial(jax.checkpoint, prevent_cse=False)
-    def one_step(carry, d):
-        return advance(*carry, d, take_step), None
+        def advance(state, k, acc, d, take_step):
+            d = disturbance_at(scenario, key, k) if d is None else jnp.stack(d)  # None: not drawn ahead (too large)
+            new, phase, sample = take_step(d, state, k)
+            finite = jnp.isfinite(so3.sum_leading(new.R, 2) + so3.sum_leading(new.Omega))
+            new_acc = metrics.update(acc, phase, sample, finite)
+            if masked:
+                live = k < n
+                new, new_acc = jax.tree.map(lambda a, b: jnp.where(live, a, b), (new, new_acc), (state, acc))
+            return new, k + 1, new_acc
+
+        def draw(k0):
+            return disturbances(scenario, key, k0, block) if draw_ahead else None
+
+        constants = stepped.constants(scenario) if key.ndim else None  # per-trajectory scenarios of a native batch
+        take_step = lambda d, state, k: step(scenario, controller, gains, d, state, k, loop, constants, key)
+
+        # Each step is checkpointed inside its block: a backward pass stores the loop state at
+        # each step of a block and recomputes the step, rather than storing the RK4 stages'
+        # intermediates (a much smaller program to compile; no effect without differentiation).
+        @functools.partial(jax.checkpoint, prevent_cse=False)
+        def one_step(carry, d):
+            return advance(*carry, d, take_step), None
+
+        if loop.continuous:
+
+            @functools.partial(jax.checkpoint, prevent_cse=False)
+            def run_block(carry):
+                return jax.lax.scan(one_step, carry, draw(carry[1]), length=block, unroll=min(unroll, block))[0]
+
+            return run_block
+
+        def one_tick(carry, ds):
+            state, k, acc, flight = carry
+            new, out = tick(scenario, loop, controller, gains, key, state, k // m)
+            sample = _tick_sample(loop, state, new, out, time(scenario, k))
+            record = _flight_record(scenario, loop, state, out, k, key)._replace(managed=_or_none(new.managed))
+            share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
+            flight = flight_metrics.update(flight, sample, k < n, share)
+            if masked:
+                new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
+            new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
+            return (new, k, acc, flight), record
+
+        @functools.partial(jax.checkpoint, prevent_cse=False, policy=_SAVE_NOISE)
+        def run_block(carry):
+            ds = draw(carry[1])
+            ds = None if ds is None else tuple(x.reshape((ticks, m) + x.shape[1:]) for x in ds)
+            if ticks == 1:  # one period per block (reverse mode): no loop over the block's ticks
+                return one_tick(carry, None if ds is None else tuple(x[0] for x in ds))
+            carry, records = jax.lax.scan(one_tick, carry, ds, length=ticks)
+            return carry, jax.tree.map(lambda x: x[0], records)
+
+        return run_block
+
+    inputs = (scenario, gains, key, loop)
+    run_block = blocks(*inputs)
+    # the carries the derivative reaches, given their tangents before the scan: its
+    # derivative is traced in one pass (so3jax.core.tangents)
+    one_pass = (lambda c, x: blocks(*x)(c)) if loop.continuous else (lambda c, x: blocks(*x)(c)[0])
 
     if loop.continuous:
-
-        @functools.partial(jax.checkpoint, prevent_cse=False)
-        def run_block(carry):
-            return jax.lax.scan(one_step, carry, draw(carry[1]), length=block, unroll=min(unroll, block))[0]
 
         def record(carry):
             state, k = carry[0], carry[1]
@@ -246,7 +289,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
-        carry = _batched_from_start(carry, (scenario, gains, key, loop))
+        carry = tangents.seed(one_pass, _batched_from_start(carry, inputs), inputs)
         # The block-start states are emitted by the scan, their torque and desired signals
         # derived after it: derived inside, they change XLA:CPU's fusion of the step, and
         # with it the last bits of the paper's results.
@@ -254,33 +297,9 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
         history = jax.vmap(record)(starts)
         return Result(metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R), history, final)
 
-    m = loop.period_steps
-    ticks = block // m
-
-    def one_tick(carry, ds):
-        state, k, acc, flight = carry
-        new, out = tick(scenario, loop, controller, gains, key, state, k // m)
-        sample = _tick_sample(loop, state, new, out, time(scenario, k))
-        record = _flight_record(scenario, loop, state, out, k, key)._replace(managed=_or_none(new.managed))
-        share = None if not masked else jnp.clip((n - k) / m, 0, 1)  # of a last period that overruns N
-        flight = flight_metrics.update(flight, sample, k < n, share)
-        if masked:
-            new = jax.tree.map(lambda a, b: jnp.where(k < n, a, b), new, state)
-        new, k, acc = jax.lax.scan(one_step, (new, k, acc), ds, length=m, unroll=min(unroll, m))[0]
-        return (new, k, acc, flight), record
-
-    @functools.partial(jax.checkpoint, prevent_cse=False, policy=_SAVE_NOISE)
-    def run_block(carry):
-        ds = draw(carry[1])
-        ds = None if ds is None else tuple(x.reshape((ticks, m) + x.shape[1:]) for x in ds)
-        if ticks == 1:  # one period per block (reverse mode): no loop over the block's ticks
-            return one_tick(carry, None if ds is None else tuple(x[0] for x in ds))
-        carry, records = jax.lax.scan(one_tick, carry, ds, length=ticks)
-        return carry, jax.tree.map(lambda x: x[0], records)
-
     carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
              metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape), flight_metrics.init(dtype, key.shape))
-    carry = _batched_from_start(carry, (scenario, gains, key, loop))
+    carry = tangents.seed(one_pass, _batched_from_start(carry, inputs), inputs)
     (final, _, acc, flight), history = jax.lax.scan(lambda c, _: run_block(c), carry, None, length=n_blocks)
     return Result(
         metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R),
