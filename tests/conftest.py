@@ -1,9 +1,9 @@
 """Tests run in float64 with strict dtype promotion (no silent float32 <-> float64 mixing).
 
-Programs compile with XLA's backend optimizations, its expensive LLVM passes, its CPU fusion
-emitters and its while loops' optimizations off (``jax_disable_most_optimizations``,
-FAST_XLA_FLAGS in XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit):
-about half the compile time that dominates the suite, the same values to round-off. A test marked ``optimized`` runs in
+Programs compile with XLA's backend optimizations, its expensive LLVM passes and its CPU fusion
+emitters off (``jax_disable_most_optimizations``, ``--xla_cpu_use_fusion_emitters=false`` in
+XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit): about half the compile
+time that dominates the suite, the same values to round-off. A test marked ``optimized`` runs in
 a fresh interpreter with the settings the suite was started with (JAX's defaults, as a user's
 program compiles): the marked tests of a file in one such process, their reports read back
 through pytest's own serialization. Those are the bit-for-bit comparisons of two differently
@@ -38,16 +38,12 @@ import tempfile
 import jax
 import pytest
 
-# XLA:CPU's fusion emitters and its while loops' optimizations (hoisting and sinking invariants,
-# simplifying loops) off: each is compile time, none changes a value.
-FAST_XLA_FLAGS = ("--xla_cpu_use_fusion_emitters=false --xla_disable_hlo_passes=while-loop-invariant-code-motion,"
-                  "while-loop-constant-sinking,small-while-loop-hoisting,simplify-while-loops")
 # What the suite changes in the environment; a test marked ``optimized`` runs with them as started.
 SETTINGS = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
 OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs marked tests
 if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
     os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in SETTINGS})
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {FAST_XLA_FLAGS}".strip()
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
