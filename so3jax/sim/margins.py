@@ -62,7 +62,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import linalg, optimize
 
 from so3jax.components.sensors import Sensors
 from so3jax.controllers.base import Controller
@@ -632,6 +631,8 @@ class _Modal:
     def __init__(self, lin: Linearization):
         self.lin = lin
         self.closed = _closed_loop(lin)
+        from scipy import linalg  # SciPy where it is used: the command line starts without it
+
         z, left, right = linalg.eig(self.closed, left=True, right=True)
         uv = np.sum(left.conj() * right, axis=0)
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -753,6 +754,8 @@ def _loop(g):
 
 def _roots(fn, omegas, values):
     """The zeros of fn(omega) between grid points where ``values`` changes sign (brentq)."""
+    from scipy import optimize
+
     out = []
     for k in np.nonzero(np.sign(values[:-1]) * np.sign(values[1:]) < 0)[0]:
         out.append(optimize.brentq(fn, omegas[k], omegas[k + 1], xtol=1e-15 * omegas[k], rtol=4 * np.finfo(float).eps,
@@ -878,6 +881,8 @@ class DiskMargins:
 def _peak(fn, omegas, values):
     """(max over omega of fn, where): the largest of its ``values`` on the grid refined between its
     neighbours (bounded Brent)."""
+    from scipy import optimize
+
     k = int(np.argmax(values))
     lo, hi = omegas[max(k - 1, 0)], omegas[min(k + 1, len(omegas) - 1)]
     if hi > lo:

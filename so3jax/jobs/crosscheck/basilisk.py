@@ -22,7 +22,6 @@ import time
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from so3jax.components.actuators import FRICTION_KEYS
 from so3jax.dynamics.orbit import MU_EARTH
@@ -107,6 +106,8 @@ def hill_offset_mrp(mission) -> list:
     """attTrackingError's sigma_R0R for reference.lvlh: R0 = hillPoint's H, R = the desired
     body frame D. R_d(t) = L(t) exp(hat(offset)) gives [HD] = LVLH_FROM_HILL^T exp(hat(offset)),
     and Basilisk's sigma of a DCM [HD] is SciPy's MRP of its transpose [DH]."""
+    from scipy.spatial.transform import Rotation  # SciPy where it is used: the command line starts without it
+
     offset = Rotation.from_rotvec(np.asarray(mission.reference["lvlh"]["offset"], float)).as_matrix()
     return [float(x) for x in Rotation.from_matrix(offset.T @ LVLH_FROM_HILL).as_mrp()]
 
@@ -256,6 +257,8 @@ def fly(mission, name: str, seed: int | None = None) -> Flown:
     """Controller ``name`` (mrp_feedback) on ``mission`` (checked by
     :func:`so3jax.jobs.crosscheck.representable.check`), flown over T; seed: simpleNav's
     RNGSeed (default: the mission's)."""
+    from scipy.spatial.transform import Rotation
+
     bsk = require()
     start = time.perf_counter()
     macros, messaging = bsk["macros"], bsk["messaging"]

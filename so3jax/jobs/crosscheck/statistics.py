@@ -18,8 +18,6 @@ import time
 import warnings
 
 import numpy as np
-from scipy import stats
-from scipy.spatial.transform import Rotation
 
 from so3jax.dynamics.inertia import InertiaWarning
 from so3jax.jobs.crosscheck import basilisk
@@ -32,6 +30,8 @@ UNITS = {q: unit for q, unit in QUANTITIES} | {"wall_time_s": "s"}
 
 def angle(A, B) -> np.ndarray:
     """|log(A^T B)| (M,) [rad] of rotations A, B (M, 3, 3)."""
+    from scipy.spatial.transform import Rotation  # SciPy where it is used: the command line starts without it
+
     return np.linalg.norm(Rotation.from_matrix(np.einsum("mji,mjk->mik", A, B)).as_rotvec(), axis=1)
 
 
@@ -70,6 +70,8 @@ def _basilisk_runs(mission, name: str, runs: int) -> list[dict]:
 
 def compare(so3jax_runs: list[dict], basilisk_runs: list[dict]) -> dict:
     """Per quantity: each side's mean and standard error, Welch's t and its two-sided p."""
+    from scipy import stats
+
     out = {}
     for q, _ in QUANTITIES:
         a = np.array([r[q] for r in so3jax_runs])

@@ -18,7 +18,6 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy import linalg
 
 from so3jax.jobs.sweep import margins as sweep_margins
 from so3jax.jobs.tune.gains import to_gains
@@ -106,6 +105,8 @@ class GoalValues:
         moves, d|z| = Re(conj(z) u^H dM v / (u^H v)) / |z| for its mode z (u, v: left and right
         eigenvectors of M = A + BC), d_closed: dM/dp (n, n, P)."""
         modes = margins.closed_loop_modes(lin)
+        from scipy import linalg  # SciPy where it is used: the command line starts without it
+
         z, left, right = linalg.eig(lin.A + lin.B @ lin.C, left=True, right=True)
         k = int(np.argmax(np.where(modes.moved, np.abs(z), -np.inf)))
         u, v = left[:, k], right[:, k]
