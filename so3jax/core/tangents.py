@@ -58,7 +58,8 @@ def dependence(closed, ins) -> list[bool]:
 
 
 def _fixpoint(body, consts, carry, xs, num_carry):
-    """(carry's final marks, the ys' marks) of a loop body ``(consts, carry, xs) -> (carry, ys)``."""
+    """(carry's final marks, the ys' marks) of a loop body ``(consts, carry, xs) -> (carry, ys)``
+    applied until no carry is marked anew."""
     while True:
         out = body(consts + carry + xs)
         new = [a or b for a, b in zip(carry, out[:num_carry])]
@@ -110,12 +111,7 @@ def _seed_jvp(body, primals, tangents):
     aval = lambda x: jax.ShapeDtypeStruct(jnp.shape(x), jnp.result_type(x))
     closed = jax.make_jaxpr(body)(jax.tree.map(aval, carry), jax.tree.map(aval, inputs))
     marks = [not isinstance(t, SymbolicZero) for t in t_leaves]
-    while True:
-        out = dependence(closed, marks + given)
-        new = [a or b for a, b in zip(marks, out)]
-        if new == marks:
-            break
-        marks = new
+    marks = _fixpoint(lambda x: dependence(closed, x), [], marks, given, len(marks))[0]
     sums = [jnp.sum(t) for t in t_leaves + t_ins
             if not isinstance(t, SymbolicZero) and jnp.issubdtype(t.dtype, jnp.inexact)]
     if not sums:

@@ -270,9 +270,12 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
     inputs = (scenario, gains, key, loop)
     run_block = blocks(*inputs)
-    # the carries the derivative reaches, given their tangents before the scan: its
-    # derivative is traced in one pass (so3jax.core.tangents)
     one_pass = (lambda c, x: blocks(*x)(c)) if loop.continuous else (lambda c, x: blocks(*x)(c)[0])
+
+    def from_start(carry):
+        """The initial carry batched wherever an input is, and given the tangents its derivative
+        reaches (so3jax.core.tangents): the scans' derivative and batching traced in one pass."""
+        return tangents.seed(one_pass, _batched_from_start(carry, inputs), inputs)
 
     if loop.continuous:
 
@@ -289,7 +292,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
         carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
                  metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape))
-        carry = tangents.seed(one_pass, _batched_from_start(carry, inputs), inputs)
+        carry = from_start(carry)
         # The block-start states are emitted by the scan, their torque and desired signals
         # derived after it: derived inside, they change XLA:CPU's fusion of the step, and
         # with it the last bits of the paper's results.
@@ -299,7 +302,7 @@ def _rollout(scenario, controller, gains, seed, *, loop=PAPER_LOOP, record_every
 
     carry = (initial_state(scenario, controller, gains, key.shape, loop), jnp.zeros((), jnp.int32),
              metrics.init(len(scenario.phase_steps) + 1, dtype, key.shape), flight_metrics.init(dtype, key.shape))
-    carry = tangents.seed(one_pass, _batched_from_start(carry, inputs), inputs)
+    carry = from_start(carry)
     (final, _, acc, flight), history = jax.lax.scan(lambda c, _: run_block(c), carry, None, length=n_blocks)
     return Result(
         metrics.finalize(acc, scenario.steps_per_phase, scenario.dt, final.R),
