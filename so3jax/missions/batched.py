@@ -117,12 +117,31 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
         nominal = build.scenario(m, dtype=dtype)
         scenarios = dataclasses.replace(scenarios, **{name: getattr(nominal, name) for name in shared_parts})
         axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
+        if m.flexible and "flexible" not in shared_parts:
+            body, body_axes = _own_springs(nominal.flexible, scenarios.flexible)
+            scenarios = dataclasses.replace(scenarios, flexible=body)
+            axes = dataclasses.replace(axes, flexible=body_axes)
     if leaves:  # each sample's loop: its components' parameters with a batch axis
         loops, loop_axes = jax.vmap(lambda values: loop(m, {**shared, **values}, dtype))(leaves), 0
     else:
         loops, loop_axes = (loop(m, shared, dtype) if shared else m.loop(dtype)), None
     return _results(rollout_batch(scenarios, controller, gains, params.seed, scenario_axes=axes, loop=loops,
                                   loop_axes=loop_axes, record_every=record_every), pointing)
+
+
+def _own_springs(nominal, bodies):
+    """(body, its vmap axes): the mission's flexible body ``nominal`` with each sample's springs
+    and dampers (k, c) from ``bodies`` (batch axis 0), the only leaves a sweep disperses
+    (:data:`~so3jax.missions.draw.FLEXIBLE_LEAVES`); the rest shared by the batch, so that the
+    body's geometry is computed once per stage, not per sample."""
+    def springs(parts, own):
+        return tuple(dataclasses.replace(x, k=y.k, c=y.c) for x, y in zip(parts, own))
+
+    body = dataclasses.replace(nominal, panels=springs(nominal.panels, bodies.panels),
+                               slosh=springs(nominal.slosh, bodies.slosh))
+    shared = jax.tree.map(lambda _: None, nominal)
+    return body, dataclasses.replace(shared, panels=tuple(dataclasses.replace(x, k=0, c=0) for x in shared.panels),
+                                     slosh=tuple(dataclasses.replace(x, k=0, c=0) for x in shared.slosh))
 
 
 def _results(result, pointing: bool = False) -> dict:
