@@ -46,6 +46,17 @@ def test_derivatives_are_cosine_and_minus_sine():
     np.testing.assert_allclose(dc, -np.sin(x), rtol=0, atol=1e-15)
 
 
+def test_near_zero_within_two_ulp_of_numpy_within_and_beyond_a_quarter_turn():
+    """The kernels alone where every element is within +-0.78 rad, sincos where one is not."""
+    near = jax.jit(_trig.sincos_near_zero)
+    rng = np.random.default_rng(2)
+    within = np.concatenate([rng.uniform(-0.78, 0.78, 5000), [0.0, -0.0, 0.7799999999999999, 5e-324, 1e-300]])
+    for x in (within, np.concatenate([within, [0.8, -3.0, 1e6, 8e5]])):
+        s, c = near(jnp.asarray(x))
+        assert _ulps(s, np.sin(x)).max() <= 2.0 and _ulps(c, np.cos(x)).max() <= 2.0
+        assert np.mean(np.asarray(s) == np.sin(x)) > 0.5
+
+
 @pytest.mark.parametrize("dtype", [jnp.float32])
 def test_other_dtypes_are_the_library_functions(dtype):
     x = jnp.linspace(-3.0, 3.0, 7, dtype=dtype)

@@ -19,6 +19,7 @@ reference, disturbance and attitude error). Other dtypes, and sine arguments bey
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 from so3jax.core._erfinv import horner  # coefficients highest degree first
@@ -64,6 +65,19 @@ def sincos(x):
     in_range = jnp.abs(x) < _LIMIT  # else (or not finite): the library's
     reduced = lambda x: _reduced(jnp.where(in_range, x, 0.0))
     return small_angle_branch(in_range, reduced, lambda x: (jnp.sin(x), jnp.cos(x)), x)
+
+
+_QUARTER = 0.78  # < pi/4: |x| * 2/pi rounds to n = 0, where the reduction leaves x as it is
+
+
+def sincos_near_zero(x):
+    """:func:`sincos` for angles that stay within about +-pi/4 (a hinge's deflection): on CPU,
+    when every element is within _QUARTER, the kernels alone (no reduction: the same values)."""
+    x = jnp.asarray(x)
+    if x.dtype != jnp.float64:
+        return jnp.sin(x), jnp.cos(x)
+    within = lambda x: jax.lax.cond(jnp.all(jnp.abs(x) < _QUARTER), _kernels, sincos, x)
+    return jax.lax.platform_dependent(x, cpu=within, default=sincos)
 
 
 def sin(x):

@@ -491,7 +491,7 @@ def _geometry(body: FlexibleBody, state: FlexState):
     zero = jnp.zeros_like(omega[0])
     zv = (zero, zero, zero)
     # the sines by vectorizable arithmetic (so3jax.core._trig): XLA:CPU's are a call per element
-    sin, cos = _trig.sincos(state.theta) if body.panels else ((), ())
+    sin, cos = _trig.sincos_near_zero(state.theta) if body.panels else ((), ())
     trig = [(cos[i], sin[i]) for i in range(len(body.panels))]
     out = []
     for i, panel in enumerate(body.panels):
