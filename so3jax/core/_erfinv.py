@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from so3jax.core.inline import inline
+
 # log1p(z) = z - z^2/2 + z^3 P(z)/Q(z) for |z| < sqrt(2) - 1 (XLA's, after Cephes); highest degree first
 LOG1P_SMALL = 0.41421356237309504880
 LOG1P_P = (
@@ -98,6 +100,7 @@ def _log1p(z):
     return jax.lax.select(jnp.abs(z) < LOG1P_SMALL, small, _log(z + 1.0))
 
 
+@inline
 def erf_inv(x):
     """Inverse error function of float64 x, |x| < 1 (Giles' algorithm, as XLA computes it)."""
     z = x * -x

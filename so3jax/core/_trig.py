@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from so3jax.core._erfinv import horner  # coefficients highest degree first
+from so3jax.core.inline import inline
 from so3jax.core.so3 import small_angle_branch
 
 _TWO_OVER_PI = 6.36619772367581382433e-01
@@ -57,6 +58,7 @@ def _reduced(x):
     return sin, cos
 
 
+@inline
 def sincos(x):
     """(sin x, cos x) elementwise [x in rad]; vectorizable arithmetic in float64."""
     x = jnp.asarray(x)
@@ -70,6 +72,7 @@ def sincos(x):
 _QUARTER = 0.78  # < pi/4: |x| * 2/pi rounds to n = 0, where the reduction leaves x as it is
 
 
+@inline
 def sincos_near_zero(x):
     """:func:`sincos` for angles that stay within about +-pi/4 (a hinge's deflection): on CPU,
     when every element is within _QUARTER, the kernels alone (no reduction: the same values)."""
@@ -115,6 +118,7 @@ def _atan_nonnegative(a):
     return jnp.where(ranges[0], hi - ((tail - lo) - x), x - tail)
 
 
+@inline
 def atan2(y, x):
     """atan2(y, x) in [0, pi] for y >= 0 [rad], elementwise; vectorizable arithmetic in float64."""
     y, x = jnp.asarray(y), jnp.asarray(x)

@@ -19,6 +19,8 @@ import math
 import jax
 import jax.numpy as jnp
 
+from so3jax.core.inline import inline
+
 # Below these squared angles the Taylor series used are exact to float64 round-off
 # (first omitted term < 1e-17 relative).
 _SMALL_ANGLE2 = 1e-3
@@ -35,36 +37,43 @@ _NEAR_PI_COS = -0.99
 # --- vectors and matrices -----------------------------------------------------
 
 
+@inline
 def cross(a, b):
     """a x b for (3, ...) arrays."""
     return jnp.stack([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
+@inline
 def dot(a, b):
     """a . b for (3, ...) arrays."""
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
+@inline
 def matvec(m, v):
     """M v for M (3, 3, ...), v (3, ...)."""
     return m[:, 0] * v[0] + m[:, 1] * v[1] + m[:, 2] * v[2]
 
 
+@inline
 def rmatvec(m, v):
     """M^T v for M (3, 3, ...), v (3, ...)."""
     return m[0] * v[0] + m[1] * v[1] + m[2] * v[2]
 
 
+@inline
 def matmul(a, b):
     """A B for (3, 3, ...) arrays."""
     return jnp.stack([matvec(a, b[:, j]) for j in range(3)], axis=1)
 
 
+@inline
 def rmatmul(a, b):
     """A^T B for (3, 3, ...) arrays."""
     return jnp.stack([rmatvec(a, b[:, j]) for j in range(3)], axis=1)
 
 
+@inline
 def matmul_compact(a, b):
     """a b for (3, 3, ...) arrays as one broadcast product and one sum over the shared
     axis: the values of :func:`matmul` in a few operations where it writes 27 products out,
@@ -83,10 +92,12 @@ def sum_leading(x, n: int = 1):
     return total
 
 
+@inline
 def transpose(m):
     return jnp.swapaxes(m, 0, 1)
 
 
+@inline
 def eye_like(v):
     """Identity (3, 3, ...) with the batch shape and dtype of a (3, ...) array."""
     eye = jnp.eye(3, dtype=v.dtype).reshape((3, 3) + (1,) * (v.ndim - 1))
@@ -107,11 +118,13 @@ def batch_like(x, core_ndim, like):
     return x.reshape(x.shape + (1,) * (like.ndim - 1 - (x.ndim - core_ndim)))
 
 
+@inline
 def outer(a, b):
     """a b^T for (3, ...) arrays."""
     return a[:, None] * b[None, :]
 
 
+@inline
 def adjugate(m):
     """The adjugate's entries (c00, c01, c02, c11, c12, c22) of a symmetric M (3, 3, ...), or
     of its rows as nested tuples, and 1 / det M."""
@@ -127,6 +140,7 @@ def adjugate(m):
     return (c00, c01, c02, c11, c12, c22), 1.0 / (a * c00 + d * c01 + e * c02)
 
 
+@inline
 def solve_spd(m, b):
     """M^{-1} b for a symmetric positive definite M (3, 3, ...) by its adjugate."""
     (c00, c01, c02, c11, c12, c22), inv_det = adjugate(m)
@@ -134,6 +148,7 @@ def solve_spd(m, b):
     return jnp.stack([c00 * x + c01 * y + c02 * z, c01 * x + c11 * y + c12 * z, c02 * x + c12 * y + c22 * z]) * inv_det
 
 
+@inline
 def inv_spd(m):
     """M^{-1} (3, 3, ...) of a symmetric positive definite M by its adjugate."""
     (c00, c01, c02, c11, c12, c22), inv_det = adjugate(m)
@@ -146,6 +161,7 @@ def safe_sqrt(x):
     return jnp.where(pos, jnp.sqrt(jnp.where(pos, x, 1.0)), 0.0)
 
 
+@inline
 def safe_norm(v):
     """|v| with a zero (not NaN) gradient at v = 0."""
     return safe_sqrt(dot(v, v))
@@ -154,6 +170,7 @@ def safe_norm(v):
 # --- the Lie algebra ------------------------------------------------------------
 
 
+@inline
 def hat(v):
     """Skew matrix of v: hat(a) b = a x b. (3, ...) -> (3, 3, ...)."""
     x, y, z = v[0], v[1], v[2]
@@ -161,16 +178,19 @@ def hat(v):
     return jnp.stack([jnp.stack([o, -z, y]), jnp.stack([z, o, -x]), jnp.stack([-y, x, o])])
 
 
+@inline
 def vee(m):
     """Inverse of hat on skew matrices. (3, 3, ...) -> (3, ...)."""
     return jnp.stack([m[2, 1], m[0, 2], m[1, 0]])
 
 
+@inline
 def skew_vee(m):
     """vee of the skew part, (M - M^T)^vee / 2 (docs/model.md §3.1: e_R for M = R_e)."""
     return 0.5 * jnp.stack([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]])
 
 
+@inline
 def trace(m):
     return m[0, 0] + m[1, 1] + m[2, 2]
 
@@ -210,6 +230,7 @@ def _exp_coefficients(theta2, sin=jnp.sin, select=False):
     return small_angle_branch(small, _exp_series, trigonometric, theta2, select)
 
 
+@inline(static_argnames=("sin", "select"))
 def expm1(v, sin=jnp.sin, select=False):
     """exp(hat(v)) - I = a hat(v) + b (v v^T - theta^2 I), accurate for small |v| (docs/model.md (9.1)).
     sin: the sine used beyond the series (``so3jax.core._trig.sin``: vectorized in float64);
@@ -219,6 +240,7 @@ def expm1(v, sin=jnp.sin, select=False):
     return a * hat(v) + b * (outer(v, v) - theta2 * eye_like(v))
 
 
+@inline(static_argnames=("select",))
 def exp(v, select=False):
     """Rotation matrix exp(hat(v)) of a rotation vector v [rad]. select: see :func:`small_angle_branch`."""
     return eye_like(v) + expm1(v, select=select)
@@ -246,6 +268,7 @@ def _arctan_angle(s, c, atan2=jnp.arctan2):
     return atan2(safe_norm(s), c)
 
 
+@inline(static_argnames=("atan2",))
 def angle(r, atan2=jnp.arctan2):
     """Rotation angle |log(R)^vee| in [0, pi] [rad]: atan2(|s|, c), or |s| times the
     series for theta / sin(theta) below 10 degrees (no arctangent when all are small).
@@ -255,6 +278,7 @@ def angle(r, atan2=jnp.arctan2):
                               lambda _: _arctan_angle(s, c, atan2), r)
 
 
+@inline(static_argnames=("select",))
 def log(r, select=False):
     """Rotation vector log(R)^vee, |log| = theta in [0, pi].
 
@@ -294,6 +318,7 @@ def _first_max_indicator(v):
     return jnp.stack([first, second, ~(first | second)])
 
 
+@inline
 def jr_inv_coefficient(theta2):
     """gamma(theta) = 1/theta^2 - cot(theta/2) / (2 theta) of J_r^{-1} (docs/model.md §3.2).
 
@@ -313,6 +338,7 @@ def jr_inv_coefficient(theta2):
     return small_angle_branch(small, series, closed_form, theta2)
 
 
+@inline
 def jr_inv_apply(e, w):
     """J_r^{-1}(e) w = w + e x w / 2 + gamma(|e|) e x (e x w)  (docs/model.md §3.2)."""
     theta2 = dot(e, e)
@@ -320,6 +346,7 @@ def jr_inv_apply(e, w):
     return w + 0.5 * cross(e, w) + gamma * (e * dot(e, w) - theta2 * w)
 
 
+@inline
 def jr_inv(e):
     """J_r^{-1}(e) as a (3, 3, ...) matrix."""
     h = hat(e)
@@ -334,6 +361,7 @@ def project_to_so3(m):
     return u @ jnp.diag(jnp.stack([jnp.ones_like(d), jnp.ones_like(d), d])) @ vt
 
 
+@inline
 def orthogonality_error(r):
     """|R^T R - I|_F."""
     g = rmatmul(r, r) - eye_like(r[0])
