@@ -12,8 +12,6 @@ from __future__ import annotations
 import jax
 import numpy as np
 
-from so3jax.core.inline import inline
-
 _ROTATIONS = ((13, 15, 26, 6), (17, 29, 16, 24))
 _PARITY = np.uint32(0x1BD11BDA)
 
@@ -22,7 +20,9 @@ def _rotate_left(x, d: int):
     return jax.lax.shift_left(x, np.uint32(d)) | jax.lax.shift_right_logical(x, np.uint32(32 - d))
 
 
-@inline
+# jitted, not inlined: one equation that the caller's derivatives and batching pass as a whole; its
+# words are integers, so the call XLA inlines computes the same values
+@jax.jit
 def threefry2x32(k1, k2, x1, x2):
     """The two uint32 output words of Threefry-2x32 of counters (x1, x2) under key (k1, k2);
     arguments uint32 arrays of one shape."""
