@@ -4,9 +4,9 @@ copied into the caller's program at every call (``jax.jit(inline=True)``).
 JAX caches a jitted function's jaxpr by its arguments' shapes and dtypes; with
 ``inline=True`` each call copies that jaxpr into the program being traced. The program is
 the one the helper's own operations would make (the same compiled code and values), and a
-loop that calls a helper many times (each RK4 stage's rotations, each sensor's noise) runs
-its Python once: tracing the flight loop costs about 40 % less, its forward derivative
-about 30 % less. Static arguments (flags, functions) are named in ``static_argnames``.
+loop that calls a helper many times (each RK4 stage's rotations) runs its Python once
+(docs/performance.md, "Helpers traced once"). Static arguments (flags, functions) are
+named in ``static_argnames``.
 """
 
 from __future__ import annotations

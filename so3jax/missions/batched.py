@@ -117,7 +117,7 @@ def sample_metrics(inputs, gains, *, controller, mission: Mission, record_every:
         nominal = build.scenario(m, dtype=dtype)
         scenarios = dataclasses.replace(scenarios, **{name: getattr(nominal, name) for name in shared_parts})
         axes = dataclasses.replace(jax.tree.map(lambda _: 0, scenarios), **dict.fromkeys(shared_parts))
-        if m.flexible and "flexible" not in shared_parts:
+        if m.flexible and "flexible" not in shared_parts:  # (flexible_initial is always shared)
             body, body_axes = _own_springs(nominal.flexible, scenarios.flexible)
             scenarios = dataclasses.replace(scenarios, flexible=body)
             axes = dataclasses.replace(axes, flexible=body_axes)
@@ -134,14 +134,12 @@ def _own_springs(nominal, bodies):
     and dampers (k, c) from ``bodies`` (batch axis 0), the only leaves a sweep disperses
     (:data:`~so3jax.missions.draw.FLEXIBLE_LEAVES`); the rest shared by the batch, so that the
     body's geometry is computed once per stage, not per sample."""
-    def springs(parts, own):
-        return tuple(dataclasses.replace(x, k=y.k, c=y.c) for x, y in zip(parts, own))
+    def with_springs(body, source):  # body with the k and c of source's panels and particles
+        swap = lambda parts, own: tuple(dataclasses.replace(x, k=y.k, c=y.c) for x, y in zip(parts, own))
+        return dataclasses.replace(body, panels=swap(body.panels, source.panels), slosh=swap(body.slosh, source.slosh))
 
-    body = dataclasses.replace(nominal, panels=springs(nominal.panels, bodies.panels),
-                               slosh=springs(nominal.slosh, bodies.slosh))
-    shared = jax.tree.map(lambda _: None, nominal)
-    return body, dataclasses.replace(shared, panels=tuple(dataclasses.replace(x, k=0, c=0) for x in shared.panels),
-                                     slosh=tuple(dataclasses.replace(x, k=0, c=0) for x in shared.slosh))
+    return with_springs(nominal, bodies), with_springs(jax.tree.map(lambda _: None, nominal),
+                                                       jax.tree.map(lambda _: 0, nominal))
 
 
 def _results(result, pointing: bool = False) -> dict:
