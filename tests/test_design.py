@@ -144,8 +144,8 @@ def test_every_goal_derivative_matches_central_differences(flight_goals):
     for k in range(P.shape[1]):
         step = np.zeros_like(P)
         step[:, k] = h
-        up = np.asarray(values._value(P + step, inputs)[1][0])  # the traced goals' values alone
-        down = np.asarray(values._value(P - step, inputs)[1][0])
+        up = np.asarray(values._jacobian(P + step, inputs)[1][0])  # the traced goals' values alone
+        down = np.asarray(values._jacobian(P - step, inputs)[1][0])
         fd = (up - down) / (2 * h)
         assert np.all(jac[:, traced, k] != 0.0)
         np.testing.assert_allclose(jac[:, traced, k], fd, rtol=1e-5, atol=1e-7)
@@ -168,7 +168,7 @@ def test_margin_goals_read_the_disk_margins_the_margins_command_refines(flight_g
     sample_margins (2000 points and bounded Brent): at least as large (the grid can only miss
     the peak of |S - I/2|) and within 1 %; a phase floor reads 2 atan(alpha / 2)."""
     values, inputs, P = flight_goals
-    _, _, read = values(P, inputs, jacobian=False)  # both starts: the program the derivatives' test ran
+    _, _, read = values(P, inputs)  # both starts: the program the derivatives' test ran
     gains = to_gains(values.unravel(jnp.asarray(P[0])))
     refined = design._disks(inputs, gains, values.controller, values.mission, (10.0,))
     for i in values.margins:

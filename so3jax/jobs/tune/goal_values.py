@@ -46,7 +46,6 @@ class GoalValues:
         self.bounds = pointing.phase_bounds_of(scenario)
         self.plans = None  # on the first batch: the record grid's length is the rollout's
         self._jacobian = jax.jit(jax.vmap(jax.jacfwd(self._traced, has_aux=True), in_axes=(0, None)))
-        self._value = jax.jit(jax.vmap(self._traced, in_axes=(0, None)))
         self._alphas = jax.jit(jax.jacfwd(self._margin_alphas, has_aux=True), static_argnames=("kinds",))
         period = float(mission.period) if mission.period_steps is not None else 1.0
         self.period = period
@@ -158,19 +157,16 @@ class GoalValues:
 
     # --- all goals -----------------------------------------------------------------------------
 
-    def __call__(self, P, inputs, jacobian: bool = True):
-        """(g (N, G), dg/dp (N, G, P) or None, values (N, G) in the goals' units) at the N
-        parameter vectors P (N, P) over the batch ``inputs`` (sample_metrics' inputs)."""
+    def __call__(self, P, inputs):
+        """(g (N, G), dg/dp (N, G, P), values (N, G) in the goals' units) at the N parameter
+        vectors P (N, P) over the batch ``inputs`` (sample_metrics' inputs)."""
         N, G = P.shape[0], len(self.goals)
         g, values = np.zeros((N, G)), np.full((N, G), np.nan)
-        jac = np.zeros((N, G, P.shape[1])) if jacobian else None
+        jac = np.zeros((N, G, P.shape[1]))
         if self.traced:
             self._plan(P[0], inputs)
-            if jacobian:
-                d_g, (g_t, v_t) = self._jacobian(P, inputs)
-                jac[:, self.traced] = np.asarray(d_g)
-            else:
-                _, (g_t, v_t) = self._value(P, inputs)
+            d_g, (g_t, v_t) = self._jacobian(P, inputs)
+            jac[:, self.traced] = np.asarray(d_g)
             g[:, self.traced], values[:, self.traced] = np.asarray(g_t), np.asarray(v_t)
         for n in range(N):
             points = {}  # the margin points of each distinct set of times, shared by their goals
@@ -180,6 +176,5 @@ class GoalValues:
                     points[goal.at] = self._margin_points(P[n], inputs, goal.at)[:3]
                 g[n, i], grad, value = self._margin_goal(goal, *points[goal.at])
                 values[n, i] = np.nan if value is None else value
-                if jacobian:
-                    jac[n, i] = grad
+                jac[n, i] = grad
         return g, jac, values
