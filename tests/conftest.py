@@ -3,7 +3,10 @@
 Programs compile with XLA's backend optimizations, its expensive LLVM passes and its CPU fusion
 emitters off (``jax_disable_most_optimizations``, ``--xla_cpu_use_fusion_emitters=false`` in
 XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit): about half the compile
-time that dominates the suite, the same values to round-off. A test marked ``optimized`` runs in
+time that dominates the suite, the same values to round-off. Each program's machine code is
+generated in one piece (``--xla_cpu_parallel_codegen_split_count=1``): the workers already keep
+every core busy, and split across threads a compilation takes 10-15 % more CPU time (the same
+code). A test marked ``optimized`` runs in
 a fresh interpreter with the settings the suite was started with (JAX's defaults, as a user's
 program compiles): the marked tests of a file in one such process, their reports read back
 through pytest's own serialization. Those are the bit-for-bit comparisons of two differently
@@ -43,7 +46,8 @@ SETTINGS = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
 OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs marked tests
 if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
     os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in SETTINGS})
-    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false".strip()
+    os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false"
+                               " --xla_cpu_parallel_codegen_split_count=1").strip()
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
