@@ -6,10 +6,10 @@ XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit): about 
 time that dominates the suite, the same values to round-off. Each program's machine code is
 generated in one piece (``--xla_cpu_parallel_codegen_split_count=1``): the workers already keep
 every core busy, and split across threads a compilation takes 10-15 % more CPU time (the same
-code). A test marked ``optimized`` runs in
-a fresh interpreter with the settings the suite was started with (JAX's defaults, as a user's
-program compiles): the marked tests of a file in one such process, their reports read back
-through pytest's own serialization. Those are the bit-for-bit comparisons of two differently
+code). A test marked ``optimized`` runs in a fresh interpreter with the settings the suite was
+started with (JAX's defaults, as a user's program compiles; its code too generated in one piece):
+the marked tests of a file in one such process, their reports read back through pytest's own
+serialization. Those are the bit-for-bit comparisons of two differently
 built programs (which XLA's default pipeline makes agree), comparisons with XLA's own functions,
 an identification exact to round-off, and the pinned paper metrics.
 
@@ -43,11 +43,12 @@ import pytest
 
 # What the suite changes in the environment; a test marked ``optimized`` runs with them as started.
 SETTINGS = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
+ONE_PIECE = "--xla_cpu_parallel_codegen_split_count=1"  # the same machine code, less CPU to make it
 OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs marked tests
 if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
     os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in SETTINGS})
-    os.environ["XLA_FLAGS"] = (f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_use_fusion_emitters=false"
-                               " --xla_cpu_parallel_codegen_split_count=1").strip()
+    fast = f"--xla_cpu_use_fusion_emitters=false {ONE_PIECE}"
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {fast}".strip()
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
@@ -110,6 +111,7 @@ def _run_optimized(item) -> dict:
     marked = [i.nodeid for i in item.session.items if i.path == item.path and i.get_closest_marker("optimized")]
     env = {k: v for k, v in os.environ.items() if k not in SETTINGS}
     env.update({k: v for k, v in json.loads(os.environ["SO3JAX_TEST_STARTED_WITH"]).items() if v is not None})
+    env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {ONE_PIECE}".strip()
     with tempfile.TemporaryDirectory() as tmp:
         env.update(SO3JAX_TEST_OPTIMIZED="1", **{REPORTS: os.path.join(tmp, "reports.jsonl")})
         proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
