@@ -1,6 +1,7 @@
 """Memory estimates: sizes parsed, the estimate equal to what a run returns, and runs that
 cannot fit refused (one line, exit code 2) before anything compiles."""
 
+import importlib
 import os
 import subprocess
 import sys
@@ -30,14 +31,19 @@ def test_available_memory_is_positive_and_at_most_the_machine_total():
     assert 0 < memory.available() <= total
 
 
-def test_the_estimate_is_the_bytes_of_what_simulate_returns_held_twice():
+def test_the_estimate_is_the_bytes_of_what_simulate_returns_held_twice(monkeypatch):
+    """The estimate traces the program simulate then runs, once (a horizon no other test flies)."""
     scenario = sj.paper_scenario(2.0, 0.01)
     controller, gains = sj.controllers.get("pd").factory(), sj.controllers.get("pd").defaults
+    module = importlib.import_module("so3jax.sim.rollout")
+    traced, rollout = [], module._rollout
+    monkeypatch.setattr(module, "_rollout", lambda *a, **k: traced.append(1) or rollout(*a, **k))
     for record_every in (1, 10):
+        estimate = memory.simulate_bytes(scenario, controller, gains, 0, record_every=record_every)
         result = sj.simulate(scenario, controller, gains, 0, record_every=record_every)
+        assert len(traced) == (1 if record_every == 1 else 2)  # simulate reused the estimate's trace
         measured = sum(np.asarray(x).nbytes for x in jax.tree.leaves(result))
-        expected = memory.COPIES * measured
-        assert memory.simulate_bytes(scenario, controller, gains, 0, record_every=record_every) == expected
+        assert estimate == memory.COPIES * measured
 
 
 def test_the_check_refuses_above_the_limit_and_reports_both():

@@ -7,7 +7,7 @@ import sys
 
 from so3jax.commands.common import add_memory_argument, add_output_arguments, add_precision_argument, registered
 from so3jax.jobs import paper
-from so3jax.jobs.fly import fly
+from so3jax.jobs.fly import fly, memory_needed
 from so3jax.results import runfolder
 from so3jax.results.io import dumps, write_json
 from so3jax.sim import memory
@@ -53,7 +53,7 @@ def run(args) -> int:
 
 def _run(args, mission) -> int:
     scenario = mission.scenario(args.precision)
-    budget = memory.check(paper.memory_needed(mission, scenario), memory.from_args(args),
+    budget = memory.check(memory_needed(mission, args.precision), memory.from_args(args),
                           f"--T {mission.T:g} at --record-every {mission.record_every}",
                           "raise --record-every or shorten --T")
     results, wall = fly(mission, args.precision)

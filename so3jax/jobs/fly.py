@@ -52,18 +52,22 @@ def fly(mission, dtype: str = "float64") -> tuple[dict, float]:
     return results, time.perf_counter() - start
 
 
-def memory_needed(mission, scenario, loop) -> int:
-    """The memory [bytes] every controller's rollout needs (:mod:`so3jax.sim.memory`)."""
-    return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
-               for name in mission.controllers)
+def memory_needed(mission, dtype: str = "float64") -> int:
+    """The memory [bytes] every controller's rollout needs (:mod:`so3jax.sim.memory`), each
+    traced as :func:`fly` runs it (on its device, side by side): the flight reuses the traces."""
+    scenario, loop = mission.scenario(dtype), mission.loop(dtype)
+
+    def needed(name):
+        return memory.simulate_bytes(scenario, *mission.controller(name), mission.seed, loop, mission.record_every)
+
+    return sum(devices.side_by_side({name: functools.partial(needed, name) for name in mission.controllers}).values())
 
 
 def check_memory(mission, dtype: str = "float64", max_memory: int | None = None) -> dict:
     """Refuse (one-line ValueError) a flight whose rollouts need more than ``max_memory``
     [bytes] (None: the memory available), before anything compiles; returns
     {'estimate_bytes', 'limit_bytes'}."""
-    scenario, loop = mission.scenario(dtype), mission.loop(dtype)
-    return memory.check(memory_needed(mission, scenario, loop), max_memory,
+    return memory.check(memory_needed(mission, dtype), max_memory,
                         f"T = {mission.T:g} s at record_every = {mission.record_every}",
                         "raise --record-every or shorten --T")
 

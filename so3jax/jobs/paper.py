@@ -10,7 +10,6 @@ import numpy as np
 
 from so3jax.missions import mission as missions
 from so3jax.results import io, units
-from so3jax.sim import memory
 from so3jax.sim.metrics import UNREACHED, cell, phase_values, reported
 
 # Table II of the paper (effort in N^2 m^2 s; see docs/model.md §7.5).
@@ -38,12 +37,6 @@ def load_mission(overrides=()):
         raise ValueError(f"controllers: so3jax paper compares {' and '.join(CONTROLLERS)} (Table II); "
                          "fly other controllers with so3jax fly missions/paper.toml")
     return m
-
-
-def memory_needed(mission, scenario) -> int:
-    """The memory [bytes] both controllers' rollouts need (:mod:`so3jax.sim.memory`)."""
-    return sum(memory.simulate_bytes(scenario, *mission.controller(name), mission.seed,
-                                     record_every=mission.record_every) for name in CONTROLLERS)
 
 
 def metrics_dict(result, steps_per_phase=None) -> dict:

@@ -12,7 +12,7 @@ import jax
 import numpy as np
 
 from so3jax.sim.loop import PAPER_LOOP
-from so3jax.sim.rollout import rollout
+from so3jax.sim.rollout import simulate_shapes
 
 # Outputs are held twice at their peak: XLA's result buffer and the NumPy copy made of it.
 COPIES = 2
@@ -65,11 +65,11 @@ def outputs(fn, *args) -> int:
 
 
 def simulate_bytes(scenario, controller, gains, seed=0, loop=None, record_every=None) -> int:
-    """Bytes ``so3jax.simulate`` with these arguments holds at its peak (its results)."""
-    def run(scenario, gains, seed, loop):
-        return rollout(scenario, controller, gains, seed, loop=loop, record_every=record_every)
-
-    return outputs(run, scenario, gains, seed, PAPER_LOOP if loop is None else loop)
+    """Bytes ``so3jax.simulate`` with these arguments holds at its peak (its results), from
+    the trace of its program (:func:`so3jax.sim.rollout.simulate_shapes`), which simulate reuses."""
+    shapes = simulate_shapes(scenario, controller, gains, seed, loop=PAPER_LOOP if loop is None else loop,
+                             record_every=record_every)
+    return COPIES * nbytes(shapes)
 
 
 def from_args(args) -> int | None:

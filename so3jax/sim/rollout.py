@@ -487,15 +487,30 @@ def _simulate_batch_jit(scenario, controller, gains, seeds, loop, record_every, 
                          unroll=unroll)
 
 
+def _simulate_program(scenario, controller, gains, seed, loop, record_every, unroll):
+    """(the jitted program :func:`simulate` runs, its arguments): gains and loop in the
+    scenario's dtype; one trajectory for an integer seed, a batch for seeds (B,)."""
+    as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
+    if jnp.ndim(seed) > 0:
+        return _simulate_batch_jit, (scenario, controller, as_dtype(gains), jnp.asarray(seed), as_dtype(loop),
+                                     record_every, unroll)
+    return _simulate_jit, (scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)
+
+
 def simulate(
     scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
 ) -> Result:
     """Validate the inputs (docs/model.md §6, :func:`check_inputs`), then run the jitted
     rollout: one trajectory for an integer seed, a batch (batch axis first) for seeds (B,)."""
-    as_dtype = lambda tree: jax.tree_util.tree_map(lambda g: jnp.asarray(g, scenario.R0.dtype), tree)
-    if jnp.ndim(seed) > 0:
-        check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
-        return _simulate_batch_jit(scenario, controller, as_dtype(gains), jnp.asarray(seed), as_dtype(loop),
-                                   record_every, unroll)
     check_inputs(scenario, controller, gains, loop, record_every, seed=seed)
-    return _simulate_jit(scenario, controller, as_dtype(gains), seed, as_dtype(loop), record_every, unroll)
+    program, args = _simulate_program(scenario, controller, gains, seed, loop, record_every, unroll)
+    return program(*args)
+
+
+def simulate_shapes(
+    scenario: Scenario, controller: Controller, gains, seed=0, *, loop: Loop = PAPER_LOOP, record_every=None, unroll=1
+) -> Result:
+    """:func:`simulate`'s outputs as ``jax.ShapeDtypeStruct`` leaves, from tracing alone: the
+    trace of the program simulate runs, which simulate then reuses (nothing is traced twice)."""
+    program, args = _simulate_program(scenario, controller, gains, seed, loop, record_every, unroll)
+    return jax.eval_shape(program, *args)
