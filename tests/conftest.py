@@ -14,7 +14,7 @@ settings the suite was started with (JAX's defaults, as a user's program compile
 generated in one piece): the marked tests of a file in one such process, their reports read back
 through pytest's own serialization. Those are the bit-for-bit comparisons of two differently
 built programs (which XLA's default pipeline makes agree), comparisons with XLA's own functions,
-an identification exact to round-off, and the pinned paper metrics.
+and the pinned paper metrics.
 
 Compiled programs are shared through a persistent JAX compilation cache in a temporary
 folder made fresh for each run (so a run never reads executables from an earlier one) and

@@ -286,7 +286,6 @@ def test_regression_reads_a_rate_integrating_gyro_at_its_midpoints(clean):
     assert as_rate > 1e-4, as_rate
 
 
-@pytest.mark.optimized  # exact to round-off as a user's program computes it
 def test_simulation_is_exact_on_noise_free_increments(clean):
     """The output error compares the reading with the model's own increment, log(R_k^T R_k+1)^v / Delta."""
     data = as_increments(clean, missions.load(MISSION).period)
