@@ -4,7 +4,7 @@ Programs compile with XLA's backend optimizations, its expensive LLVM passes and
 emitters off (``jax_disable_most_optimizations``, ``--xla_cpu_use_fusion_emitters=false`` in
 XLA_FLAGS, which the ``so3jax`` child processes the tests start inherit): about half the compile
 time that dominates the suite, the same values to round-off. They compile with the ``so3jax``
-command's code-generation settings (``BACKEND_OPTIONS_FLAG``: a while loop as one CPU kernel,
+command's code-generation settings (``configure_cpu_codegen``: a while loop as one CPU kernel,
 the call graph flattened after fusion), which the child processes inherit as the command's own:
 a third less compile time for a rollout's derivatives, the same values bit for bit. Each
 program's machine code is generated in one piece (``--xla_cpu_parallel_codegen_split_count=1``):
@@ -44,7 +44,7 @@ import tempfile
 import jax
 import pytest
 
-from so3jax.parallel.xla_flags import BACKEND_OPTIONS_FLAG
+from so3jax.parallel.xla_flags import configure_cpu_codegen
 
 # What the suite changes in the environment; a test marked ``optimized`` runs with them as started.
 SETTINGS = ("XLA_FLAGS", "JAX_DISABLE_MOST_OPTIMIZATIONS")
@@ -53,9 +53,8 @@ OPTIMIZED = os.environ.get("SO3JAX_TEST_OPTIMIZED") == "1"  # this process runs 
 if not OPTIMIZED and "SO3JAX_TEST_STARTED_WITH" not in os.environ:  # set once: xdist's workers inherit it
     os.environ["SO3JAX_TEST_STARTED_WITH"] = json.dumps({k: os.environ.get(k) for k in SETTINGS})
     fast = f"--xla_cpu_use_fusion_emitters=false {ONE_PIECE}"
-    if "xla_backend_extra_options" not in os.environ.get("XLA_FLAGS", ""):
-        fast += f" {BACKEND_OPTIONS_FLAG}"
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {fast}".strip()
+    configure_cpu_codegen()  # the command's code generation (a setting already in XLA_FLAGS wins)
     os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] = "1"  # this process's and its children's setting
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
