@@ -29,6 +29,14 @@ is skipped and listed as such):
   values (metrics, final state, flight metrics) checked against unroll 1's: the largest
   difference per output relative to that output's largest value (to 1 for the
   orthogonality error, itself round-off of a unit-scale quantity), at most 1e-13.
+* ``profile``: where a step's device time goes: the paper loop (PD, unroll 1, 200 steps) at
+  batch 1 and 65 536 run once under ``jax.profiler.trace``; from the trace
+  (:func:`trace_summary`) the kernels per step the device ran, their busy time against the
+  step's wall time, the copies, and the 12 kernels that take the most time.
+* ``graphs``: ``kernels``, ``steps`` (unroll 1) and ``profile`` again in a process whose
+  ``XLA_FLAGS`` put the while loops' bodies and the conditionals' branches in command buffers
+  too (:data:`COMMAND_BUFFERS`: CUDA graphs, one launch per loop), each run's values checked
+  against the default flags' (``max_rel_diff_vs_default``).
 * ``sweep`` (c): ``sweeps/default.toml`` through the sweep's Python API
   (``so3jax.jobs.api.sweep``, set up as the ``so3jax`` command sets up JAX), with the
   chunk of :mod:`so3jax.parallel.chunks` (on an accelerator the largest chunk that fits,
@@ -78,12 +86,15 @@ if __package__ in (None, ""):  # run as a script: the repository root on the pat
 
 DRAWN = 8192  # samples the 10^5 slice draws (repeated up to its chunk)
 TOLERANCE = 1e-13  # unrolled against unroll 1, relative to each output's largest value
-PARTS = ("kernels", "steps", "sweep", "precision", "flight")
+PARTS = ("kernels", "steps", "profile", "graphs", "sweep", "precision", "flight")
+# The while loops' bodies and branches in CUDA graphs too (XLA's default leaves them out):
+# one graph launch per loop instead of a launch per kernel and a predicate read per iteration.
+COMMAND_BUFFERS = "--xla_gpu_enable_command_buffer=FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,WHILE,CONDITIONAL"
 # (seconds at most, seconds at least to start) per child on one H100/H200; --quick: on 2 CPU cores
-LIMITS = {"loops": (230, 60), "sweep-cold": (130, 40), "sweep-warm": (100, 30), "precision": (100, 40),
-          "flight": (120, 40), "slice": (90, 40)}
-QUICK_LIMITS = {"loops": (45, 20), "sweep-cold": (30, 10), "sweep-warm": (20, 8), "precision": (25, 10),
-                "flight": (40, 10), "slice": (20, 8)}
+LIMITS = {"loops": (230, 60), "graphs": (100, 40), "sweep-cold": (130, 40), "sweep-warm": (100, 30),
+          "precision": (100, 40), "flight": (120, 40), "slice": (90, 40)}
+QUICK_LIMITS = {"loops": (45, 20), "graphs": (30, 10), "sweep-cold": (30, 10), "sweep-warm": (20, 8),
+                "precision": (25, 10), "flight": (40, 10), "slice": (20, 8)}
 BOOKKEEPING = {"parameter", "constant", "get-tuple-element", "tuple", "bitcast", "while", "call", "conditional",
                "after-all", "add-dependency", "opt-barrier", "partition-id", "replica-id", "domain"}
 _T0 = time.perf_counter()
@@ -257,7 +268,60 @@ def _max_rel(a, b) -> tuple[float, str]:
     return worst, where
 
 
+def trace_summary(log_dir: str, n_steps: int, top: int = 12) -> dict:
+    """Where a traced run's device time goes (``jax.profiler.ProfileData`` of its xplane): on a
+    GPU the kernels of the device planes' stream lines (``/device:GPU:k``, ``Stream #..``), per
+    trajectory step: their count, their busy time, copies (``memcpy``), and the ``top`` kernels
+    by time; without a device plane (CPU) the events of XLA's host threads, likewise (nested:
+    their busy time overlaps)."""
+    import glob
+
+    import jax
+
+    files = sorted(glob.glob(os.path.join(log_dir, "**", "*.xplane.pb"), recursive=True))
+    if not files:
+        return {"trace": "no xplane written"}
+    data = jax.profiler.ProfileData.from_file(files[-1])
+    device = [p for p in data.planes if p.name.startswith("/device:")]
+    planes = device or [p for p in data.planes if p.name.startswith("/host:CPU")]
+    count, busy, lines = {}, {}, {}
+    first, last = float("inf"), 0.0
+    for plane in planes:
+        plane_lines = list(plane.lines)
+        streams = [ln for ln in plane_lines if ln.name.startswith("Stream" if device else "tf_XLA")]
+        for line in plane_lines:
+            events = list(line.events)
+            lines[f"{plane.name} {line.name}"] = {"events": len(events),
+                                                  "busy_us": sum(e.duration_ns for e in events) / 1e3}
+            if line not in streams and streams:
+                continue
+            for e in events:
+                count[e.name] = count.get(e.name, 0) + 1
+                busy[e.name] = busy.get(e.name, 0.0) + e.duration_ns
+                first, last = min(first, e.start_ns), max(last, e.start_ns + e.duration_ns)
+    copies = sum(c for name, c in count.items() if "memcpy" in name.lower())
+    ranked = sorted(busy, key=busy.get, reverse=True)[:top]
+    return {"planes": [p.name for p in planes], "events_per_step": sum(count.values()) / n_steps,
+            "busy_us_per_step": sum(busy.values()) / 1e3 / n_steps,
+            "span_us_per_step": max(last - first, 0.0) / 1e3 / n_steps, "memcpy_per_step": copies / n_steps,
+            "distinct_names": len(count),
+            "top": [{"name": k, "per_step": count[k] / n_steps, "us_per_step": busy[k] / 1e3 / n_steps}
+                    for k in ranked],
+            "lines": dict(sorted(lines.items(), key=lambda kv: -kv[1]["events"])[:16])}
+
+
+def _flat(tree) -> dict:
+    import jax
+    import numpy as np
+
+    return {jax.tree_util.keystr(path): np.asarray(x) for path, x in jax.tree_util.tree_flatten_with_path(tree)[0]}
+
+
 def child_loops(spec: dict) -> None:
+    """Parts a, b and the profile: the loops' programs compiled side by side, then counted,
+    timed and traced in priority order. ``spec["variant"]`` names the process's XLA flags
+    (``default``; ``command-buffers``: the while loops too in CUDA graphs); ``save``: unroll
+    1's outputs to an npz, ``compare``: against such a file (another variant's)."""
     from so3jax import configure_xla
 
     configure_xla()  # XLA:CPU's settings of the command (nothing on a GPU)
@@ -266,18 +330,20 @@ def child_loops(spec: dict) -> None:
     jax.config.update("jax_enable_x64", True)
     import numpy as np
 
-    n_steps, mid = spec["n_steps"], spec["batch"]
-    jobs = []  # (part, wiring, batch, unroll), in priority order
+    n_steps, mid, variant = spec["n_steps"], spec["batch"], spec.get("variant", "default")
+    jobs = []  # (part, wiring, batch, unroll, steps), in priority order
     if "kernels" in spec["parts"]:
-        jobs += [("kernels", "paper", mid, u) for u in spec["kernel_unrolls"]]
-        jobs += [("kernels", "flight", mid, u) for u in spec["flight_unrolls"]]
+        jobs += [("kernels", "paper", mid, u, n_steps) for u in spec["kernel_unrolls"]]
+        jobs += [("kernels", "flight", mid, u, n_steps) for u in spec["flight_unrolls"]]
     if "steps" in spec["parts"]:
-        jobs += [("steps", "paper", b, u) for b in spec["step_batches"] for u in spec["step_unrolls"]]
-        jobs += [("steps", "flight", mid, u) for u in spec["flight_step_unrolls"]]
-    effective = lambda wiring, unroll: min(unroll, 10) if wiring == "flight" else min(unroll, n_steps)
-    programs = {}  # one per (wiring, batch, effective unroll): the flight loop's 16 is its 10
-    for _, wiring, batch, unroll in jobs:
-        programs.setdefault((wiring, batch, effective(wiring, unroll)), None)
+        jobs += [("steps", "paper", b, u, n_steps) for b in spec["step_batches"] for u in spec["step_unrolls"]]
+        jobs += [("steps", "flight", mid, u, n_steps) for u in spec["flight_step_unrolls"]]
+    if "profile" in spec["parts"]:
+        jobs += [("profile", "paper", b, 1, spec["profile_steps"]) for b in spec["profile_batches"]]
+    effective = lambda wiring, unroll, n: min(unroll, 10) if wiring == "flight" else min(unroll, n)
+    programs = {}  # one per (wiring, batch, effective unroll, steps): the flight loop's 16 is its 10
+    for _, wiring, batch, unroll, n in jobs:
+        programs.setdefault((wiring, batch, effective(wiring, unroll, n), n), None)
 
     def build(key, low, arg, lower_s):
         start = time.perf_counter()
@@ -287,26 +353,30 @@ def child_loops(spec: dict) -> None:
     futures = {}
     for key in programs:  # each compiles (in the pool) while the next one is traced
         start = time.perf_counter()
-        fn, arg = _program(key[0], key[1], n_steps, key[2])
+        fn, arg = _program(key[0], key[1], key[3], key[2])
         low = fn.lower(arg)
         futures[key] = pool.submit(build, key, low, arg, time.perf_counter() - start)
-    log(f"lowered {len(futures)} programs")
+    log(f"{variant}: lowered {len(futures)} programs")
     compiled = {}
     base = {}  # (wiring, batch) -> unroll 1's outputs
+    saved = {}  # unroll 1's outputs, flattened, for another variant's comparison
+    other = dict(np.load(spec["compare"])) if spec.get("compare") and os.path.exists(spec["compare"]) else None
     command = spec["command"]
-    for part, wiring, batch, unroll in jobs:
-        key = (wiring, batch, effective(wiring, unroll))
+    for part, wiring, batch, unroll, n in jobs:
+        key = (wiring, batch, effective(wiring, unroll, n), n)
         if key not in compiled:
             compiled[key] = futures[key].result()
         program, arg, lower_s, compile_s = compiled[key]
+        common = dict(loop=wiring, controller="pd", dtype="float64", batch=batch, n_steps=n, unroll=unroll,
+                      effective_unroll=key[2], variant=variant, lower_s=lower_s, compile_s=compile_s,
+                      command=command)
         if part == "kernels":
-            counts = launches(program.as_text(), n_steps)
-            emit(part="kernels", loop=wiring, controller="pd", dtype="float64", batch=batch, n_steps=n_steps,
-                 unroll=unroll, effective_unroll=key[2], lower_s=lower_s, compile_s=compile_s,
-                 command=command, **counts)
-            log(f"kernels {wiring} B={batch} unroll {unroll}: {counts['launches_per_step']:.1f} launches/step "
-                f"({counts['fusions_per_step']:.1f} fusions), {counts['while_iterations_per_step']:.3f} "
-                "while iterations/step")
+            counts = launches(program.as_text(), n)
+            emit(part="kernels", **common, **counts)
+            log(f"{variant} kernels {wiring} B={batch} unroll {unroll}: {counts['launches_per_step']:.1f} "
+                f"launches/step ({counts['fusions_per_step']:.1f} fusions, "
+                f"{counts['in_command_buffers_per_step']:.1f} in command buffers), "
+                f"{counts['while_iterations_per_step']:.3f} while iterations/step")
             continue
         out = jax.block_until_ready(program(arg))
         times = []
@@ -315,19 +385,35 @@ def child_loops(spec: dict) -> None:
             jax.block_until_ready(program(arg))
             times.append(time.perf_counter() - start)
         run_s = statistics.median(times)
-        row = dict(part="steps", loop=wiring, controller="pd", dtype="float64", batch=batch, n_steps=n_steps,
-                   unroll=unroll, effective_unroll=key[2], run_s=run_s, runs_s=times,
-                   us_per_step=1e6 * run_s / n_steps, trajectory_steps_per_s=batch * n_steps / run_s,
-                   lower_s=lower_s, compile_s=compile_s, command=command)
+        row = dict(part=part, **common, run_s=run_s, runs_s=times, us_per_step=1e6 * run_s / n,
+                   trajectory_steps_per_s=batch * n / run_s)
+        if part == "profile":
+            with tempfile.TemporaryDirectory(prefix="so3jax-trace-") as trace_dir:
+                start = time.perf_counter()
+                with jax.profiler.trace(trace_dir):
+                    jax.block_until_ready(program(arg))
+                row.update(traced_run_s=time.perf_counter() - start, **trace_summary(trace_dir, n))
+            emit(**row)
+            log(f"{variant} profile paper B={batch}: {row.get('events_per_step', 0):.1f} events/step, "
+                f"busy {row.get('busy_us_per_step', 0):.2f} of {row['us_per_step']:.2f} us/step")
+            continue
         if unroll == 1:
             base[(wiring, batch)] = jax.tree.map(np.asarray, out)
+            flat = {f"{wiring}-{batch}{k}": v for k, v in _flat(out).items()}
+            if spec.get("save"):
+                saved.update(flat)
+                np.savez(spec["save"], **saved)
+            if other is not None and all(k in other for k in flat):
+                rel, where = _max_rel(out, [other[k] for k in flat])
+                row.update(max_rel_diff_vs_default=rel, max_rel_diff_vs_default_output=where)
         if (wiring, batch) in base and unroll != 1:
             rel, where = _max_rel(out, base[(wiring, batch)])
             row.update(max_rel_diff_vs_unroll_1=rel, max_rel_diff_output=where, equal_to_unroll_1=rel <= TOLERANCE)
         emit(**row)
-        log(f"steps {wiring} B={batch} unroll {unroll}: {row['us_per_step']:.2f} us/step, "
+        log(f"{variant} steps {wiring} B={batch} unroll {unroll}: {row['us_per_step']:.2f} us/step, "
             f"{row['trajectory_steps_per_s'] / 1e6:.4g} M steps/s"
-            + (f", vs unroll 1: {row['max_rel_diff_vs_unroll_1']:.1e}" if "max_rel_diff_vs_unroll_1" in row else ""))
+            + (f", vs unroll 1: {row['max_rel_diff_vs_unroll_1']:.1e}" if "max_rel_diff_vs_unroll_1" in row else "")
+            + (f", vs default: {row['max_rel_diff_vs_default']:.1e}" if "max_rel_diff_vs_default" in row else ""))
     pool.shutdown(wait=False, cancel_futures=True)
 
 
@@ -581,20 +667,33 @@ def main(argv=None) -> int:
     record.write()
     log(f"device {record.stamp['device']}, JAX {record.stamp['jax']}: record {record.path}")
 
-    loop_parts = [p for p in parts if p in ("kernels", "steps")]
-    if loop_parts:
-        spec = {"parts": loop_parts, "n_steps": 100 if quick else 2000, "batch": 64 if quick else 1024,
-                "kernel_unrolls": [1, 2] if quick else [1, 2, 4, 8, 16],
-                "flight_unrolls": [1] if quick else [1, 2, 4, 10],
-                "step_unrolls": [1, 2] if quick else [1, 4, 16],
-                "flight_step_unrolls": [1] if quick else [1, 4, 16],
-                "step_batches": [64] if quick else [1, 1024, 65536], "repeats": 3,
-                "command": f"{me} --parts {','.join(loop_parts)}"}
-        limit = start("loops", "kernels and steps")
-        if limit:
-            run_child("loops", spec, limit, record)
-
     work = Path(tempfile.mkdtemp(prefix="so3jax-gpu-bench-"))
+
+    def loops() -> None:  # parts a, b, the profile, then the same under command buffers
+        loop_parts = [p for p in parts if p in ("kernels", "steps", "profile")]
+        sizes = {"n_steps": 100 if quick else 2000, "batch": 64 if quick else 1024, "repeats": 3,
+                 "step_batches": [64] if quick else [1, 1024, 65536], "profile_steps": 50 if quick else 200,
+                 "profile_batches": [64] if quick else [1, 65536]}
+        if loop_parts:
+            spec = {**sizes, "parts": loop_parts, "save": str(work / "default.npz"),
+                    "kernel_unrolls": [1, 2] if quick else [1, 2, 4, 8, 16],
+                    "flight_unrolls": [1] if quick else [1, 2, 4, 10],
+                    "step_unrolls": [1, 2] if quick else [1, 4, 16],
+                    "flight_step_unrolls": [1] if quick else [1, 4, 16],
+                    "command": f"{me} --parts {','.join(loop_parts)}"}
+            limit = start("loops", "kernels, steps and profile")
+            if limit:
+                run_child("loops", spec, limit, record)
+        if "graphs" in parts:  # the same programs at unroll 1, the while loops in command buffers too
+            spec = {**sizes, "parts": ["kernels", "steps", "profile"], "variant": "command-buffers",
+                    "compare": str(work / "default.npz"), "kernel_unrolls": [1], "flight_unrolls": [1],
+                    "step_unrolls": [1], "flight_step_unrolls": [1],
+                    "command": f"XLA_FLAGS='{COMMAND_BUFFERS}' {me} --parts graphs"}
+            limit = start("graphs", "graphs: command buffers")
+            if limit:
+                flags = f"{os.environ.get('XLA_FLAGS', '')} {COMMAND_BUFFERS}".strip()
+                run_child("loops", spec, limit, record, dict(os.environ, XLA_FLAGS=flags))
+
     small = ["sweep.samples=16", "T=1.0", "sweep.chunk=16", 'controllers=["pd"]'] if quick else []
     outs = {}
 
@@ -614,6 +713,7 @@ def main(argv=None) -> int:
             outs[label] = out
 
     try:
+        loops()
         if "sweep" in parts or "precision" in parts:
             cache = work / "cache-f64"
             cache.mkdir()

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import all as bench_all
-from benchmarks import throughput
+from benchmarks import gpu, throughput
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -273,3 +273,94 @@ def test_limit_surrogate_benchmark_runs_as_committed():
     runs = report["laws"]["pd"]
     assert runs["exact"][0]["exact_train"] == runs["surrogate"][0]["exact_train"] == pytest.approx(2.0, rel=1e-12)
     assert all(np.isfinite(r["exact_held_out"]) for rows in runs.values() for r in rows)
+
+
+# A while loop of 10 iterations: two fusions, a copy and an add per iteration, a compare per
+# condition (11 evaluations); in the entry a command buffer of one fusion, and a copy.
+HLO = """HloModule m, entry_computation_layout={(f64[4]{0})->f64[4]{0}}
+
+%fused_sine (p: f64[4]) -> f64[4] {
+  %p = f64[4]{0} parameter(0)
+  ROOT %s = f64[4]{0} sine(f64[4]{0} %p)
+}
+
+%body (t: (s32[], f64[4])) -> (s32[], f64[4]) {
+  %t = (s32[], f64[4]{0}) parameter(0)
+  %i = s32[] get-tuple-element((s32[], f64[4]{0}) %t), index=0
+  %x = f64[4]{0} get-tuple-element((s32[], f64[4]{0}) %t), index=1
+  %f1 = f64[4]{0} fusion(f64[4]{0} %x), kind=kLoop, calls=%fused_sine
+  %f2 = f64[4]{0} fusion(f64[4]{0} %f1), kind=kLoop, calls=%fused_sine
+  %c = f64[4]{0} copy(f64[4]{0} %f2)
+  %one = s32[] constant(1)
+  %n = s32[] add(s32[] %i, s32[] %one)
+  ROOT %r = (s32[], f64[4]{0}) tuple(s32[] %n, f64[4]{0} %c)
+}
+
+%cond (t: (s32[], f64[4])) -> pred[] {
+  %t = (s32[], f64[4]{0}) parameter(0)
+  %i = s32[] get-tuple-element((s32[], f64[4]{0}) %t), index=0
+  %k = s32[] constant(10)
+  ROOT %lt = pred[] compare(s32[] %i, s32[] %k), direction=LT
+}
+
+%command_buffer (p: f64[4]) -> f64[4] {
+  %p = f64[4]{0} parameter(0)
+  ROOT %f = f64[4]{0} fusion(f64[4]{0} %p), kind=kLoop, calls=%fused_sine
+}
+
+ENTRY %main (x: f64[4]) -> f64[4] {
+  %x = f64[4]{0} parameter(0)
+  %b = f64[4]{0} call(f64[4]{0} %x), to_apply=%command_buffer
+  %z = s32[] constant(0)
+  %t = (s32[], f64[4]{0}) tuple(s32[] %z, f64[4]{0} %b)
+  %w = (s32[], f64[4]{0}) while(%t), condition=%cond, body=%body, backend_config={"known_trip_count":{"n":"10"}}
+  %o = f64[4]{0} get-tuple-element((s32[], f64[4]{0}) %w), index=1
+  ROOT %y = f64[4]{0} copy(f64[4]{0} %o)
+}
+"""
+
+
+def test_gpu_launches_weights_each_computation_by_its_trip_count():
+    """benchmarks/gpu.py's count of kernel launches, on HLO whose launches are known: per step
+    (10 steps) 2 fusions in the body and 0.1 in the entry's command buffer; 1 copy and 1 add in
+    the body, 1.1 compare in the condition, 0.1 copy in the entry; a fusion's own computation
+    never counts."""
+    got = gpu.launches(HLO, n_steps=10)
+    assert got["fusions_per_step"] == pytest.approx(2.1)
+    assert got["other_ops_per_step"] == pytest.approx({"add": 1.0, "compare": 1.1, "copy": 1.1})
+    assert got["launches_per_step"] == pytest.approx(5.3)
+    assert got["in_command_buffers_per_step"] == pytest.approx(0.1)
+    assert got["while_iterations_per_step"] == pytest.approx(1.0)
+    assert got["while_loops_without_trip_count"] == 0
+    assert got["innermost_loop"]["launches_per_iteration"] == 4 and got["innermost_loop"]["trip_count"] == 10
+
+
+def test_gpu_launches_reads_this_xla_s_compiled_text():
+    """On a program this JAX compiles, a loop of 7 iterations over 7 steps: one while
+    iteration per step, found with its trip count (the text's format as the parser reads it)."""
+    import jax
+    import jax.numpy as jnp
+
+    text = jax.jit(lambda x: jax.lax.fori_loop(0, 7, lambda i, v: jnp.sin(v) * v[::-1], x)).lower(
+        jnp.ones(5)).compile().as_text()
+    got = gpu.launches(text, n_steps=7)
+    assert got["while_iterations_per_step"] == pytest.approx(1.0)
+    assert got["while_loops_without_trip_count"] == 0 and got["launches_per_step"] >= 1.0
+
+
+def test_gpu_trace_summary_counts_xla_s_events_per_step(tmp_path):
+    """A traced run of a jitted loop: the summary finds the host plane's XLA events (a CPU has no
+    device plane) and divides by the steps given."""
+    import jax
+    import jax.numpy as jnp
+
+    f = jax.jit(lambda x: jax.lax.fori_loop(0, 20, lambda i, v: jnp.sin(v) * v[::-1], x))
+    x = jnp.ones(64)
+    jax.block_until_ready(f(x))
+    with jax.profiler.trace(str(tmp_path)):
+        jax.block_until_ready(f(x))
+    got = gpu.trace_summary(str(tmp_path), n_steps=20)
+    assert got["planes"] == ["/host:CPU"]
+    assert got["events_per_step"] > 0 and got["top"] and got["span_us_per_step"] > 0
+    assert sum(t["per_step"] for t in got["top"]) <= got["events_per_step"] + 1e-12
+    assert gpu.trace_summary(str(tmp_path / "empty"), 1) == {"trace": "no xplane written"}
