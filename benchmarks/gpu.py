@@ -3,6 +3,7 @@
     python benchmarks/gpu.py                    # one H100/H200: about 8.5 minutes (--budget 510)
     python benchmarks/gpu.py --quick            # a CPU smoke run of every part: under 2 minutes
     python benchmarks/gpu.py --parts kernels,steps --budget 200
+    python benchmarks/gpu.py --report benchmarks/results/gpu-nvidia-h200.json   # its tables
 
 Parts, in order of priority (each in its own child process with its own time limit, cut
 to what is left of ``--budget``; a part that would start with less than its minimum left
@@ -591,8 +592,8 @@ def run_child(kind: str, spec: dict, limit: float, record: Record, env: dict | N
 
 
 def compare_precision(f64: Path, f32: Path, controllers) -> dict:
-    """Per-sample relative differences of each controller's metrics, float32 against float64,
-    and the share of samples whose diverged flag changes."""
+    """Per-sample relative differences of each controller's metrics, float32 against float64
+    (UNIT_SCALE's relative to 1), and the share of samples whose diverged flag changes."""
     import numpy as np
 
     a, b = np.load(f64 / "samples.npz", allow_pickle=False), np.load(f32 / "samples.npz", allow_pickle=False)
@@ -612,11 +613,75 @@ def compare_precision(f64: Path, f32: Path, controllers) -> dict:
             ok = np.isfinite(x) & np.isfinite(y) & (x != 0)
             if not ok.any():
                 continue
-            rel = np.abs(y[ok] - x[ok]) / np.abs(x[ok])
+            scale = 1.0 if any(u in key for u in UNIT_SCALE) else np.abs(x[ok])  # as _max_rel
+            rel = np.abs(y[ok] - x[ok]) / scale
             metrics[key] = {"median": float(np.median(rel)), "p99": float(np.quantile(rel, 0.99)),
                             "max": float(rel.max()), "samples": int(ok.sum()),
                             "finite_in_one_only": int(np.sum(np.isfinite(x) != np.isfinite(y)))}
     return {"samples": int(n), "relative_difference": metrics, "diverged_flag_changes": flips}
+
+
+GOALS = {"default sweep, warm loop [s]": 5.0, "PD, paper loop, batch 65 536 [M steps/s]": 2000.0,
+         "1e5 flight missions x 4000 s x PD [s]": 600.0}
+
+
+def report(record: dict) -> str:
+    """A record's tables (markdown): the goals, the step times by batch, unroll and XLA flags,
+    the launches per step, the profiles, the sweeps and float32 against float64."""
+    rows = record["measurements"]
+    of = lambda part: [r for r in rows if r.get("part") == part]
+    g = lambda x, f=".3g": "–" if x is None else format(x, f)
+    out = [f"Device {record.get('device')}, JAX {record.get('jax')}: `{record.get('command')}`", ""]
+    warm_row = next((r for r in of("sweep") if r.get("name") == "default-warm"), None)
+    warm = warm_row and warm_row["sweep_loop_s"]
+    big = [r for r in of("steps") if r["loop"] == "paper" and r["batch"] == 65536]
+    best = max(big, key=lambda r: r["trajectory_steps_per_s"], default=None)
+    flight = next((r for r in of("flight") if r.get("name") == "slice-1e5"), None)
+    got = {"default sweep, warm loop [s]": (warm, warm is not None and not warm_row["overrides"] and warm <= 5.0,
+                                            warm_row and (f"overrides {warm_row['overrides']}" if warm_row["overrides"]
+                                                          else f"chunk {warm_row['chunk']}")),
+           "PD, paper loop, batch 65 536 [M steps/s]": (
+               best and best["trajectory_steps_per_s"] / 1e6,
+               best is not None and best["trajectory_steps_per_s"] >= 2e9,
+               best and f"unroll {best['unroll']}, {best.get('variant', 'default')}"),
+           "1e5 flight missions x 4000 s x PD [s]": (
+               flight and flight["full_run_s_extrapolated"],
+               flight is not None and flight["full_run_s_extrapolated"] <= 600.0,
+               flight and f"extrapolated from {flight['n_steps']} steps, chunk {flight['chunk']}")}
+    out += ["| goal | limit | measured | met | how |", "|---|---:|---:|---|---|"]
+    out += [f"| {k} | {g(GOALS[k])} | {g(v)} | {'yes' if ok else 'no' if v is not None else '–'} | {how or ''} |"
+            for k, (v, ok, how) in got.items()]
+    out += ["", "| loop | batch | unroll | XLA flags | µs/step | M steps/s | vs unroll 1 | vs default flags |",
+            "|---|---:|---:|---|---:|---:|---:|---:|"]
+    out += [f"| {r['loop']} | {r['batch']} | {r['unroll']} | {r.get('variant', 'default')} | {g(r['us_per_step'])} | "
+            f"{g(r['trajectory_steps_per_s'] / 1e6)} | {g(r.get('max_rel_diff_vs_unroll_1'), '.1e')} | "
+            f"{g(r.get('max_rel_diff_vs_default'), '.1e')} |" for r in of("steps")]
+    out += ["", "| loop | unroll | XLA flags | launches/step | fusions | in command buffers | while iterations/step "
+            "| compile [s] |", "|---|---:|---|---:|---:|---:|---:|---:|"]
+    out += [f"| {r['loop']} | {r['unroll']} | {r.get('variant', 'default')} | {g(r['launches_per_step'], '.1f')} | "
+            f"{g(r['fusions_per_step'], '.1f')} | {g(r['in_command_buffers_per_step'], '.1f')} | "
+            f"{g(r['while_iterations_per_step'])} | {g(r['compile_s'], '.1f')} |" for r in of("kernels")]
+    out += ["", "| batch | XLA flags | µs/step | events/step | busy µs/step | memcpy/step | costliest |",
+            "|---:|---|---:|---:|---:|---:|---|"]
+    out += [f"| {r['batch']} | {r.get('variant', 'default')} | {g(r['us_per_step'])} | "
+            f"{g(r.get('events_per_step'), '.1f')} | {g(r.get('busy_us_per_step'))} | "
+            f"{g(r.get('memcpy_per_step'), '.2f')} | "
+            + ", ".join(f"{t['name'][:40]} {t['us_per_step']:.2g} µs" for t in r.get("top", [])[:3]) + " |"
+            for r in of("profile")]
+    runs = [r for r in of("sweep") + of("flight") + of("precision") if "sweep_loop_s" in r]
+    out += ["", "| run | precision | cache | chunk | process [s] | loop [s] | M steps/s |",
+            "|---|---|---|---:|---:|---:|---:|"]
+    out += [f"| {r['name']} | {r['precision']} | {r['cache']} | {r['chunk']} | {g(r.get('child_wall_s'))} | "
+            f"{g(r['sweep_loop_s'])} | {g(r['trajectory_steps_per_s'] / 1e6)} |" for r in runs]
+    for r in of("precision"):
+        if "relative_difference" in r:
+            out += ["", f"float32 against float64, {r['samples']} samples: diverged flags changed "
+                    + ", ".join(f"{c} {v['changed']} of {v['samples']}" for c, v in r["diverged_flag_changes"].items()),
+                    "", "| metric | median | p99 | max |", "|---|---:|---:|---:|"]
+            out += [f"| {k} | {v['median']:.1e} | {v['p99']:.1e} | {v['max']:.1e} |"
+                    for k, v in r["relative_difference"].items()]
+    out += ["", f"failures: {record.get('failures') or 'none'}; skipped: {record.get('skipped') or 'none'}"]
+    return "\n".join(out) + "\n"
 
 
 def main(argv=None) -> int:
@@ -625,9 +690,13 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, help="the JSON record (default benchmarks/results/gpu-<device>.json)")
     parser.add_argument("--budget", type=float, help="seconds for everything (default 510; --quick 115)")
     parser.add_argument("--parts", default=",".join(PARTS), help=f"comma-separated, of {', '.join(PARTS)}")
+    parser.add_argument("--report", type=Path, help="print a record's tables (markdown) and exit")
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--spec", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.report:
+        print(report(json.loads(args.report.read_text())), end="")
+        return 0
     if args.child:
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
         {"info": child_info, "loops": child_loops, "sweep": child_sweep, "slice": child_slice}[args.child](

@@ -364,3 +364,23 @@ def test_gpu_trace_summary_counts_xla_s_events_per_step(tmp_path):
     assert got["events_per_step"] > 0 and got["top"] and got["span_us_per_step"] > 0
     assert sum(t["per_step"] for t in got["top"]) <= got["events_per_step"] + 1e-12
     assert gpu.trace_summary(str(tmp_path / "empty"), 1) == {"trace": "no xplane written"}
+
+
+def test_gpu_report_checks_each_goal_against_its_limit():
+    """The record's report: a goal is met only by a measurement within its limit (the default
+    sweep's only at its own size, without overrides); an unmeasured goal is neither."""
+    steps = lambda rate, unroll: {"part": "steps", "loop": "paper", "batch": 65536, "unroll": unroll,
+                                  "variant": "default", "us_per_step": 1.0, "trajectory_steps_per_s": rate}
+    sweep = lambda loop_s, overrides: {"part": "sweep", "name": "default-warm", "precision": "float64",
+                                       "cache": "warm", "chunk": 1024, "sweep_loop_s": loop_s,
+                                       "trajectory_steps_per_s": 1e9, "overrides": overrides}
+    goals = lambda rows: [line for line in gpu.report({"measurements": rows}).splitlines()
+                          if line.startswith(("| default sweep", "| PD, paper", "| 1e5 flight"))]
+    met = lambda rows: [line.split(" | ")[3] for line in goals(rows)]
+    assert met([]) == ["–", "–", "–"]
+    assert met([sweep(4.9, []), steps(1.5e9, 1), steps(2.1e9, 4)])[:2] == ["yes", "yes"]
+    assert "unroll 4" in goals([steps(1.5e9, 1), steps(2.1e9, 4)])[1]
+    assert met([sweep(5.1, []), steps(1.9e9, 1)])[:2] == ["no", "no"]
+    assert met([sweep(1.0, ["sweep.samples=16"])])[0] == "no"
+    flight = {"part": "flight", "name": "slice-1e5", "full_run_s_extrapolated": 590.0, "n_steps": 2000, "chunk": 8}
+    assert met([flight])[2] == "yes" and met([{**flight, "full_run_s_extrapolated": 610.0}])[2] == "no"
