@@ -151,6 +151,25 @@ def pytest_runtest_protocol(item, nextitem):
     return True
 
 
+_exit_status = [0]
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _exit_status[0] = int(exitstatus)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    """A test process that reports to another (an xdist worker, its results sent; an optimized
+    process, its reports written) ends here, without Python's teardown: JAX's exit handler
+    frees every program the process compiled, over 10 s after a worker's share of the suite,
+    and xdist's controller waits those 10 s before it kills the worker."""
+    if os.environ.get("PYTEST_XDIST_WORKER") or OPTIMIZED:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_exit_status[0])
+
+
 @pytest.fixture
 def cli_env(monkeypatch, tmp_path):
     """so3jax.commands.main in this process, from tmp_path: no persistent cache, XLA_FLAGS untouched."""
