@@ -269,12 +269,13 @@ def _max_rel(a, b) -> tuple[float, str]:
     return worst, where
 
 
-def trace_summary(log_dir: str, n_steps: int, top: int = 12) -> dict:
+def trace_summary(log_dir: str, n_steps: int, top: int = 12, device_expected: bool = False) -> dict:
     """Where a traced run's device time goes (``jax.profiler.ProfileData`` of its xplane): on a
     GPU the kernels of the device planes' stream lines (``/device:GPU:k``, ``Stream #..``), per
     trajectory step: their count, their busy time, copies (``memcpy``), and the ``top`` kernels
     by time; without a device plane (CPU) the events of XLA's host threads, likewise (nested:
-    their busy time overlaps)."""
+    their busy time overlaps), unless ``device_expected`` (an accelerator the profiler did
+    not trace)."""
     import glob
 
     import jax
@@ -284,6 +285,9 @@ def trace_summary(log_dir: str, n_steps: int, top: int = 12) -> dict:
         return {"trace": "no xplane written"}
     data = jax.profiler.ProfileData.from_file(files[-1])
     device = [p for p in data.planes if p.name.startswith("/device:")]
+    if device_expected and not device:
+        return {"trace": "no device plane: the profiler did not trace the device",
+                "planes": [p.name for p in data.planes]}
     planes = device or [p for p in data.planes if p.name.startswith("/host:CPU")]
     count, busy, lines = {}, {}, {}
     first, last = float("inf"), 0.0
@@ -390,10 +394,14 @@ def child_loops(spec: dict) -> None:
                    trajectory_steps_per_s=batch * n / run_s)
         if part == "profile":
             with tempfile.TemporaryDirectory(prefix="so3jax-trace-") as trace_dir:
-                start = time.perf_counter()
-                with jax.profiler.trace(trace_dir):
-                    jax.block_until_ready(program(arg))
-                row.update(traced_run_s=time.perf_counter() - start, **trace_summary(trace_dir, n))
+                try:
+                    start = time.perf_counter()
+                    with jax.profiler.trace(trace_dir):
+                        jax.block_until_ready(program(arg))
+                    row.update(traced_run_s=time.perf_counter() - start, **trace_summary(
+                        trace_dir, n, device_expected=jax.default_backend() != "cpu"))
+                except Exception as err:  # a profiler that cannot start here: the row says so
+                    row.update(trace=f"failed: {type(err).__name__}: {err}")
             emit(**row)
             log(f"{variant} profile paper B={batch}: {row.get('events_per_step', 0):.1f} events/step, "
                 f"busy {row.get('busy_us_per_step', 0):.2f} of {row['us_per_step']:.2f} us/step")

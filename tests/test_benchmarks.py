@@ -364,6 +364,7 @@ def test_gpu_trace_summary_counts_xla_s_events_per_step(tmp_path):
     assert got["events_per_step"] > 0 and got["top"] and got["span_us_per_step"] > 0
     assert sum(t["per_step"] for t in got["top"]) <= got["events_per_step"] + 1e-12
     assert gpu.trace_summary(str(tmp_path / "empty"), 1) == {"trace": "no xplane written"}
+    assert gpu.trace_summary(str(tmp_path), 20, device_expected=True)["trace"].startswith("no device plane")
 
 
 def test_gpu_report_checks_each_goal_against_its_limit():
