@@ -88,9 +88,9 @@ if __package__ in (None, ""):  # run as a script: the repository root on the pat
 DRAWN = 8192  # samples the 10^5 slice draws (repeated up to its chunk)
 TOLERANCE = 1e-13  # unrolled against unroll 1, relative to each output's largest value
 PARTS = ("kernels", "steps", "profile", "graphs", "sweep", "precision", "flight")
-# The while loops' bodies and branches in CUDA graphs too (XLA's default leaves them out):
-# one graph launch per loop instead of a launch per kernel and a predicate read per iteration.
-COMMAND_BUFFERS = "--xla_gpu_enable_command_buffer=FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,WHILE,CONDITIONAL"
+# XLA's default command buffers plus the while loops and the conditionals ("+": added to the
+# default): a loop in one CUDA graph, not a launch per kernel and a predicate read per iteration.
+COMMAND_BUFFERS = "--xla_gpu_enable_command_buffer=+WHILE,+CONDITIONAL"
 # (seconds at most, seconds at least to start) per child on one H100/H200; --quick: on 2 CPU cores
 LIMITS = {"loops": (230, 60), "graphs": (100, 40), "sweep-cold": (130, 40), "sweep-warm": (100, 30),
           "precision": (100, 40), "flight": (120, 40), "slice": (90, 40)}
