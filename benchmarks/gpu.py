@@ -292,14 +292,11 @@ def trace_summary(log_dir: str, n_steps: int, top: int = 12, device_expected: bo
     count, busy, lines = {}, {}, {}
     first, last = float("inf"), 0.0
     for plane in planes:
-        plane_lines = list(plane.lines)
-        streams = [ln for ln in plane_lines if ln.name.startswith("Stream" if device else "tf_XLA")]
-        for line in plane_lines:
-            events = list(line.events)
-            lines[f"{plane.name} {line.name}"] = {"events": len(events),
-                                                  "busy_us": sum(e.duration_ns for e in events) / 1e3}
-            if line not in streams and streams:
-                continue
+        plane_lines = [(line.name, list(line.events)) for line in plane.lines]
+        for name, events in plane_lines:
+            lines[f"{plane.name} {name}"] = {"events": len(events), "busy_us": sum(e.duration_ns for e in events) / 1e3}
+        prefix = "Stream" if device else "tf_XLA"  # the kernels' lines (every line where none is named so)
+        for _, events in [(n, ev) for n, ev in plane_lines if n.startswith(prefix)] or plane_lines:
             for e in events:
                 count[e.name] = count.get(e.name, 0) + 1
                 busy[e.name] = busy.get(e.name, 0.0) + e.duration_ns
